@@ -1,0 +1,734 @@
+"""Measurement files for the drill-string rig: load, validate, save.
+
+File format
+-----------
+A UTF-8 CSV file in SI units (s, V, rad), uniformly sampled::
+
+    # source: synthetic
+    # configuration: brake
+    t,u,theta_u,theta_l
+    0.0,0.0,0.0,0.0
+    0.001,1.4e-07,0.0,0.0
+    ...
+
+* Optional comment lines starting with ``#`` may precede the header. Lines of the form
+  ``# key: value`` are kept in :attr:`Experiment.meta`; other comment lines are ignored.
+* The header names the columns: ``t,u,theta_u,theta_l`` for a configuration with the lower
+  disc, ``t,u,theta_u`` for the upper configuration (string removed). Columns may appear in
+  any order; :func:`save_experiment` always writes them in this order.
+* Both encoders are zeroed at the start of an experiment, so the first angle of each column
+  must be 0 within about 1e-2 rad. A pre-wound string is therefore invisible in the angles;
+  it belongs in the model's ``alpha0`` parameter.
+
+:func:`load_experiment` checks all of this and raises :class:`DataFileError` naming the file,
+the line (1-based, counting every line of the file, comments included), the bad value and what
+to do about it.
+"""
+
+import math
+import os
+import secrets
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "UPPER_COUNTS_PER_REV",
+    "LOWER_COUNTS_PER_REV",
+    "COLUMNS",
+    "UPPER_COLUMNS",
+    "MAX_ANGULAR_RATE",
+    "DataFileError",
+    "DataWarning",
+    "Experiment",
+    "load_experiment",
+    "save_experiment",
+    "quantize",
+    "add_noise",
+]
+
+#: Upper encoder resolution (counts per revolution of the upper disc), thesis §2.2: the encoder
+#: sits on the motor axis (1000 lines, x4 quadrature) behind a 3969/289 gear reduction.
+UPPER_COUNTS_PER_REV = 54934.256
+#: Lower encoder resolution (counts per revolution of the lower disc): 10000 lines, x4.
+LOWER_COUNTS_PER_REV = 40000.0
+
+#: Column names of a file with the lower disc, in the order :func:`save_experiment` writes them.
+COLUMNS: tuple[str, ...] = ("t", "u", "theta_u", "theta_l")
+#: Column names of an upper-configuration file (string removed, no lower encoder).
+UPPER_COLUMNS: tuple[str, ...] = ("t", "u", "theta_u")
+
+#: Fastest plausible disc speed (rad/s). The rig's discs never exceed about 60 rad/s, so a
+#: faster apparent speed means the angles are not in radians.
+MAX_ANGULAR_RATE = 60.0
+
+_COUNTS_PER_REV = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}
+_ENCODER_NAME = {"theta_u": "upper", "theta_l": "lower"}
+# Encoders read zero at the start; allow a few counts of slack (1e-2 rad ~ 60-90 counts).
+_ZERO_START_TOL = 1e-2
+# Largest relative deviation of a time step from the median step before we call the sampling
+# non-uniform. Timestamps written with 12+ significant digits stay far inside this.
+_UNIFORM_TOL = 1e-3
+_MIN_ROWS = 3
+# Angular rates are measured over about 10 ms rather than one sample so that measurement
+# noise at high sampling rates cannot fake a speed above MAX_ANGULAR_RATE.
+_RATE_BASELINE = 0.01
+
+
+class DataFileError(ValueError):
+    """A measurement file that cannot be used, with the place and the fix in the message.
+
+    Attributes
+    ----------
+    path : str or None
+        The file concerned.
+    line : int or None
+        1-based line number in the file (comment lines included), if one line is at fault.
+    problem : str
+        The message without the ``"<path>, line <n>: "`` prefix.
+    """
+
+    def __init__(self, path: str | os.PathLike | None, line: int | None, problem: str) -> None:
+        self.path = None if path is None else str(path)
+        self.line = line
+        self.problem = problem
+        where = self.path if self.path is not None else "<data>"
+        if line is not None:
+            where = f"{where}, line {line}"
+        super().__init__(f"{where}: {problem}")
+
+    def __reduce__(self):
+        # The default reduction re-calls __init__ with the formatted message only.
+        return (type(self), (self.path, self.line, self.problem))
+
+
+class DataWarning(UserWarning):
+    """Suspicious but usable data, e.g. input voltages beyond the amplifier's ±5 V."""
+
+
+@dataclass(frozen=True, eq=False)
+class Experiment:
+    """One experiment on the rig: input voltage and measured disc angles.
+
+    The arrays are copied to contiguous ``float64`` on construction (so a caller's later
+    edits cannot change the experiment) and are left writeable, because numba kernels with
+    explicit signatures reject read-only arrays. Treat them as read-only anyway.
+
+    Equality is identity (``eq=False``): comparing arrays element-wise with ``==`` would be
+    ambiguous. Compare fields with :func:`numpy.array_equal` instead.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Sample times (s), uniformly spaced, shape ``(n,)``, ``n >= 2``.
+    u : numpy.ndarray
+        Motor input voltage (V), shape ``(n,)``.
+    theta_u : numpy.ndarray
+        Upper disc angle (rad), zero at the start, shape ``(n,)``.
+    theta_l : numpy.ndarray or None
+        Lower disc angle (rad), zero at the start, shape ``(n,)``; ``None`` for the upper
+        configuration (string removed).
+    name : str
+        Short label, e.g. the file stem.
+    path : str or None
+        File the experiment was loaded from, if any.
+    meta : dict of str to str
+        Free-form metadata, written as ``# key: value`` comment lines.
+    """
+
+    t: np.ndarray
+    u: np.ndarray
+    theta_u: np.ndarray
+    theta_l: np.ndarray | None = None
+    name: str = ""
+    path: str | None = None
+    meta: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        arrays = {"t": self.t, "u": self.u, "theta_u": self.theta_u}
+        if self.theta_l is not None:
+            arrays["theta_l"] = self.theta_l
+        n = None
+        for key, value in arrays.items():
+            array = np.array(value, dtype=np.float64, copy=True, order="C")
+            if array.ndim != 1:
+                raise ValueError(
+                    f"Experiment.{key} must be a 1-D array, got shape {array.shape}; "
+                    "pass one value per sample"
+                )
+            if n is None:
+                n = array.size
+            elif array.size != n:
+                raise ValueError(
+                    f"Experiment.{key} has {array.size} samples but t has {n}; all columns "
+                    "must have one value per sample time"
+                )
+            # frozen=True forbids normal assignment; this is the documented way to normalise
+            # fields of a frozen dataclass during construction.
+            object.__setattr__(self, key, array)
+        if n < 2:
+            raise ValueError(f"Experiment needs at least 2 samples, got {n}")
+        object.__setattr__(self, "meta", {str(k): str(v) for k, v in dict(self.meta).items()})
+        if self.path is not None:
+            object.__setattr__(self, "path", str(self.path))
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.t.size)
+
+    @property
+    def dt(self) -> float:
+        """Sampling interval (s), the mean step ``(t[-1] - t[0]) / (n - 1)``."""
+        return float((self.t[-1] - self.t[0]) / (self.t.size - 1))
+
+    @property
+    def duration(self) -> float:
+        """Length of the record ``t[-1] - t[0]`` (s)."""
+        return float(self.t[-1] - self.t[0])
+
+    @property
+    def has_lower(self) -> bool:
+        """Whether the lower disc angle ``theta_l`` was measured."""
+        return self.theta_l is not None
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The data columns by name, in file order (``theta_l`` only if measured)."""
+        cols = {"t": self.t, "u": self.u, "theta_u": self.theta_u}
+        if self.theta_l is not None:
+            cols["theta_l"] = self.theta_l
+        return cols
+
+
+# --------------------------------------------------------------------------------------------
+# Checks shared by load and save
+
+
+class _RowProblem(Exception):
+    """A problem at data row ``row`` (0-based); converted to a file/line error by the caller."""
+
+    def __init__(self, row: int, problem: str) -> None:
+        super().__init__(problem)
+        self.row = row
+        self.problem = problem
+
+
+def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
+    """Check finite, uniformly sampled, zeroed angles in radians; raise :class:`_RowProblem`."""
+    for key, values in cols.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            row = int(bad[0])
+            raise _RowProblem(
+                row,
+                f"{key} is {float(values[row])!r}; every value must be a finite number -- "
+                "repair or remove this sample (and keep the sampling uniform)",
+            )
+    t = cols["t"]
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = int(bad[0])
+        raise _RowProblem(
+            k + 1,
+            f"time t = {float(t[k + 1])!r} s is not after the previous time {float(t[k])!r} s; "
+            "time must be strictly increasing -- sort the rows or remove the duplicated sample",
+        )
+    step = float(np.median(dt))
+    deviation = np.abs(dt - step) / step
+    bad = np.flatnonzero(deviation > _UNIFORM_TOL)
+    if bad.size:
+        k = int(bad[0])
+        raise _RowProblem(
+            k + 1,
+            f"time step {dt[k]:.9g} s (from t = {float(t[k])!r} to {float(t[k + 1])!r} s) "
+            f"differs from the expected step {step:.9g} s (the median) by a relative "
+            f"{deviation[k]:.3g} > {_UNIFORM_TOL:g}; the sampling must be uniform -- check for "
+            "missing or repeated rows, time written with too few digits, or resample onto a "
+            "uniform grid",
+        )
+    lag = max(1, min(t.size - 1, round(_RATE_BASELINE / step)))
+    for key in ("theta_u", "theta_l"):
+        if key not in cols:
+            continue
+        theta = cols[key]
+        rates = np.abs(theta[lag:] - theta[:-lag]) / (t[lag:] - t[:-lag])
+        k = int(np.argmax(rates))
+        if rates[k] > MAX_ANGULAR_RATE:
+            where = (
+                f"{key} changes by {theta[k + lag] - theta[k]:.6g} in {t[k + lag] - t[k]:.6g} s "
+                f"(a rate of {rates[k]:.4g} per s, faster than the rig's discs ever turn, about "
+                f"{MAX_ANGULAR_RATE:g} rad/s)"
+            )
+            if np.all(np.abs(theta - np.round(theta)) <= 1e-6):
+                cpr = _COUNTS_PER_REV[key]
+                fix = (
+                    f"and all its values are whole numbers: it looks like encoder counts; "
+                    f"divide by counts_per_rev/(2π) = {cpr / (2 * math.pi):.6f} "
+                    f"({cpr:g} counts/rev for the {_ENCODER_NAME[key]} encoder) to get rad"
+                )
+            else:
+                fix = f"it looks like degrees; multiply by π/180 (= {math.pi / 180:.9f}) to get rad"
+            raise _RowProblem(k + lag, f"{where}; {fix}")
+        if abs(theta[0]) > _ZERO_START_TOL:
+            raise _RowProblem(
+                0,
+                f"{key} starts at {float(theta[0])!r} rad, but the encoders are zeroed at the "
+                f"start of an experiment (|first value| must be <= {_ZERO_START_TOL:g} rad); "
+                "subtract the first value from the whole column (an initial string torsion "
+                "belongs in the model's alpha0, not in the angles)",
+            )
+
+
+# --------------------------------------------------------------------------------------------
+# Loading
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _parse_header(fields: list[str], path: Path, lineno: int) -> list[str]:
+    """Check the header's column names and return them; raise :class:`DataFileError`."""
+    expected = f"'{','.join(COLUMNS)}' (or '{','.join(UPPER_COLUMNS)}' without the lower disc)"
+    if all(_is_number(f) for f in fields):
+        raise DataFileError(
+            path,
+            lineno,
+            f"no header: the first non-comment line {','.join(fields)!r} holds numbers; add the "
+            f"header line {expected} above the data",
+        )
+    duplicates = sorted({f for f in fields if fields.count(f) > 1})
+    unknown = [f for f in fields if f not in COLUMNS]
+    missing = [c for c in UPPER_COLUMNS if c not in fields]
+    if not (duplicates or unknown or missing):
+        return fields
+    problems = []
+    if missing:
+        problems.append(f"missing column(s) {', '.join(missing)}")
+    if unknown:
+        names = ", ".join(repr(f) if f else "'' (an empty name: trailing comma?)" for f in unknown)
+        problems.append(f"unknown column(s) {names}")
+    if duplicates:
+        problems.append(f"repeated column(s) {', '.join(duplicates)}")
+    hint = ""
+    if len(fields) == 1 and any(sep in fields[0] for sep in ";\t "):
+        hint = " Fields must be separated by commas, not semicolons, tabs or spaces."
+    raise DataFileError(
+        path,
+        lineno,
+        f"bad header {','.join(fields)!r}: {'; '.join(problems)}. The header must be "
+        f"{expected}, with units s, V, rad.{hint}",
+    )
+
+
+def _parse_comment(line: str, meta: dict[str, str]) -> None:
+    body = line.lstrip()[1:]
+    key, sep, value = body.partition(":")
+    key = key.strip()
+    # Free-form comments without "key: value" carry no structured metadata; they are skipped.
+    if sep and key:
+        meta[key] = value.strip()
+
+
+def load_experiment(
+    path: str | os.PathLike,
+    *,
+    expect_lower: bool | None = None,
+    max_abs_u: float = 5.0,
+) -> Experiment:
+    """Load and validate a measurement file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        CSV file in the format described in the module docstring.
+    expect_lower : bool or None, optional
+        ``True`` requires a ``theta_l`` column (coupled or brake configuration), ``False``
+        forbids it (upper configuration), ``None`` accepts either. Default ``None``.
+    max_abs_u : float, optional
+        Voltage (V) above which ``|u|`` triggers a :class:`DataWarning`. The rig's amplifier
+        limits the input to ±5 V, so larger values suggest a scaling error. Default 5 V.
+
+    Returns
+    -------
+    Experiment
+        With ``name`` the file stem, ``path`` the file and ``meta`` from the comment lines.
+
+    Raises
+    ------
+    DataFileError
+        If the file is missing or unreadable, empty, has no or a wrong header, a row with the
+        wrong number of fields, a non-numeric, NaN or infinite value, fewer than 3 data rows,
+        time not strictly increasing or not uniformly sampled, angles that look like degrees or
+        encoder counts or that do not start at zero, or a configuration that contradicts
+        ``expect_lower``. The message names the file, the line and the fix.
+
+    Warns
+    -----
+    DataWarning
+        If ``|u| > max_abs_u`` anywhere (the first such line and the largest value are named).
+    """
+    if not max_abs_u > 0:
+        raise ValueError(f"max_abs_u must be a positive voltage, got {max_abs_u!r}")
+    path = Path(path)
+    try:
+        # utf-8-sig drops the byte-order mark that spreadsheet programs put in front of CSVs;
+        # universal newlines make CRLF files count lines exactly like LF files.
+        with open(path, encoding="utf-8-sig", newline=None) as fh:
+            lines = fh.read().split("\n")
+    except FileNotFoundError:
+        raise DataFileError(
+            path,
+            None,
+            f"file not found (looked in {path.resolve().parent}); check the path",
+        ) from None
+    except IsADirectoryError:
+        raise DataFileError(path, None, "is a directory; pass the CSV file inside it") from None
+    except UnicodeDecodeError as exc:
+        raise DataFileError(
+            path,
+            None,
+            f"not a UTF-8 text file (undecodable byte at offset {exc.start}); export the "
+            "measurement as plain-text CSV",
+        ) from None
+    except OSError as exc:
+        raise DataFileError(
+            path, None, f"cannot be read ({exc.strerror}); check the permissions"
+        ) from None
+
+    if not any(line.strip() for line in lines):
+        raise DataFileError(
+            path,
+            None,
+            f"the file is empty; it must contain the header '{','.join(COLUMNS)}' and data rows",
+        )
+
+    meta: dict[str, str] = {}
+    header_index = None
+    for index, line in enumerate(lines):
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            _parse_comment(stripped, meta)
+        elif stripped:
+            header_index = index
+            break
+    if header_index is None:
+        raise DataFileError(
+            path,
+            None,
+            f"no header: the file has only comment lines; add the header line "
+            f"'{','.join(COLUMNS)}' and the data rows after the comments",
+        )
+    names = _parse_header(
+        [f.strip() for f in lines[header_index].split(",")], path, header_index + 1
+    )
+    has_lower = "theta_l" in names
+    if expect_lower is True and not has_lower:
+        raise DataFileError(
+            path,
+            header_index + 1,
+            f"no theta_l column (header {','.join(names)!r}): this looks like an "
+            "upper-configuration file (string removed), but the lower disc's angle was "
+            "expected; load the coupled/brake measurement, or pass expect_lower=False",
+        )
+    if expect_lower is False and has_lower:
+        raise DataFileError(
+            path,
+            header_index + 1,
+            f"the file has a theta_l column (header {','.join(names)!r}), but an "
+            "upper-configuration file without the lower disc was expected; load the "
+            "upper-configuration measurement, or pass expect_lower=True/None",
+        )
+
+    # Trailing blank lines (an editor's final newline) are harmless; blank lines *inside* the
+    # data usually mean two files were pasted together, so those are reported.
+    last = len(lines)
+    while last > header_index + 1 and not lines[last - 1].strip():
+        last -= 1
+    ncols = len(names)
+    rows: list[list[float]] = []
+    linenos: list[int] = []
+    for index in range(header_index + 1, last):
+        lineno = index + 1
+        line = lines[index]
+        truncated = (
+            " -- it is the last line, so the file looks truncated; re-export it or delete the "
+            "incomplete line"
+            if index == last - 1
+            else ""
+        )
+        if not line.strip():
+            raise DataFileError(
+                path,
+                lineno,
+                "empty line inside the data; delete it (only comment lines may "
+                "precede the header, and data rows must be contiguous)",
+            )
+        if line.lstrip().startswith("#"):
+            raise DataFileError(
+                path,
+                lineno,
+                f"comment line {line.strip()!r} after the header; comment lines are "
+                "only allowed before the header -- move it there or delete it",
+            )
+        fields = line.split(",")
+        if len(fields) != ncols:
+            raise DataFileError(
+                path,
+                lineno,
+                f"{len(fields)} field(s) {line.strip()!r} but the header "
+                f"{','.join(names)!r} has {ncols}{truncated or '; fix or delete this row'}",
+            )
+        try:
+            rows.append([float(f) for f in fields])
+        except ValueError:
+            for name, text in zip(names, fields, strict=True):
+                if not _is_number(text):
+                    shown = repr(text.strip()) if text.strip() else "empty"
+                    raise DataFileError(
+                        path,
+                        lineno,
+                        f"value {shown} in column {name} is not a number"
+                        f"{truncated or '; write plain decimal numbers (e.g. 0.25 or 2.5e-1)'}",
+                    ) from None
+            raise  # pragma: no cover -- float() failed, so one field must be non-numeric
+        linenos.append(lineno)
+
+    if len(rows) < _MIN_ROWS:
+        raise DataFileError(
+            path,
+            None,
+            f"only {len(rows)} data row(s) after the header on line {header_index + 1}; at "
+            f"least {_MIN_ROWS} are needed to check the sampling",
+        )
+    table = np.array(rows, dtype=np.float64)
+    cols = {name: np.ascontiguousarray(table[:, j]) for j, name in enumerate(names)}
+    try:
+        _check_columns(cols)
+    except _RowProblem as exc:
+        raise DataFileError(path, linenos[exc.row], exc.problem) from None
+
+    over = np.flatnonzero(np.abs(cols["u"]) > max_abs_u)
+    if over.size:
+        first = int(over[0])
+        worst = int(over[np.argmax(np.abs(cols["u"][over]))])
+        warnings.warn(
+            f"{path}, line {linenos[first]}: u = {float(cols['u'][first])!r} V exceeds "
+            f"±{max_abs_u:g} V ({over.size} sample(s), largest |u| = "
+            f"{abs(float(cols['u'][worst]))!r} V on line {linenos[worst]}); the rig's amplifier "
+            "limits the motor voltage to ±5 V, so check the voltage scaling of this file",
+            DataWarning,
+            stacklevel=2,
+        )
+
+    return Experiment(
+        t=cols["t"],
+        u=cols["u"],
+        theta_u=cols["theta_u"],
+        theta_l=cols.get("theta_l"),
+        name=path.stem,
+        path=str(path),
+        meta=meta,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Saving
+
+
+def _clean_meta(meta: Mapping[str, object]) -> dict[str, str]:
+    """Normalise metadata to what survives a ``# key: value`` line unchanged."""
+    clean: dict[str, str] = {}
+    for key, value in meta.items():
+        k, v = str(key).strip(), str(value).strip()
+        if not k or ":" in k or "\n" in k or "\r" in k:
+            raise ValueError(
+                f"metadata key {key!r} cannot be written as a '# key: value' line; use a "
+                "non-empty key without ':' or line breaks"
+            )
+        if "\n" in v or "\r" in v:
+            raise ValueError(
+                f"metadata value {value!r} for key {k!r} contains a line break; write it on one "
+                "line"
+            )
+        clean[k] = v
+    return clean
+
+
+def save_experiment(
+    exp: Experiment,
+    path: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    meta: Mapping[str, object] | None = None,
+) -> Path:
+    """Write an experiment as a measurement file that :func:`load_experiment` reads back exactly.
+
+    Numbers are written with Python's shortest round-trip representation (``repr``), so every
+    value, including encoder-quantised angles, is recovered bit for bit. The file is written to
+    a temporary file in the same directory and then moved into place, so a crash never leaves
+    a half-written measurement under ``path``.
+
+    Parameters
+    ----------
+    exp : Experiment
+        The experiment. It must pass the same checks as a loaded file (finite values, strictly
+        increasing uniform time, angles in rad starting at 0).
+    path : str or os.PathLike
+        Destination ``.csv`` file. Its directory must exist.
+    overwrite : bool, optional
+        Replace an existing file. Default ``False``: an existing file is an error.
+    meta : mapping, optional
+        Extra metadata, merged over ``exp.meta`` and written as ``# key: value`` lines before
+        the header. Keys must not contain ``:``; keys and values are stripped of surrounding
+        whitespace and must fit on one line.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    FileExistsError
+        If ``path`` exists and ``overwrite`` is false.
+    FileNotFoundError
+        If the directory of ``path`` does not exist.
+    ValueError
+        If the experiment would not load back (the message names the sample and the future
+        line) or the metadata cannot be written.
+    """
+    path = Path(path)
+    merged = _clean_meta({**exp.meta, **(meta or {})})
+    cols = exp.columns()
+    first_data_line = len(merged) + 2
+    try:
+        _check_columns(cols)
+    except _RowProblem as exc:
+        raise ValueError(
+            f"cannot save experiment {exp.name!r} to {path}: sample {exc.row} (line "
+            f"{first_data_line + exc.row} of the file) would be rejected when loading: "
+            f"{exc.problem}"
+        ) from None
+    if exp.n < _MIN_ROWS:
+        raise ValueError(
+            f"cannot save experiment {exp.name!r} to {path}: it has {exp.n} samples, but a "
+            f"measurement file needs at least {_MIN_ROWS}"
+        )
+    if path.exists() and not overwrite:
+        raise FileExistsError(
+            f"{path} already exists; pass overwrite=True (--force on the command line) to "
+            "replace it, or choose another name"
+        )
+    directory = path.parent
+    if not directory.is_dir():
+        raise FileNotFoundError(f"directory {directory} does not exist; create it first")
+
+    lines = [f"# {k}: {v}" for k, v in merged.items()]
+    lines.append(",".join(cols))
+    # repr() of a Python float is the shortest string that parses back to the same double.
+    columns = [c.tolist() for c in cols.values()]
+    lines.extend(",".join(map(repr, row)) for row in zip(*columns, strict=True))
+    text = "\n".join(lines) + "\n"
+
+    # A hidden, unique temporary name in the same directory keeps os.replace atomic (same
+    # filesystem) and lets concurrent writers not clobber each other's temporary files.
+    tmp = directory / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+    try:
+        # os.open with mode 0o666 lets the umask decide the permissions, as for a normal file
+        # (tempfile.mkstemp would leave the measurement readable only by its owner).
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with open(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            # link() fails if the target appeared since the check above, so a file created
+            # concurrently is never silently replaced.
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise FileExistsError(
+                    f"{path} already exists; pass overwrite=True (--force on the command line) "
+                    "to replace it, or choose another name"
+                ) from None
+            except OSError:
+                # Some filesystems (FAT, some network mounts) have no hard links.
+                os.replace(tmp, path)
+    finally:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# Synthetic measurements
+
+
+def quantize(theta: np.ndarray, counts_per_rev: float) -> np.ndarray:
+    """Round angles to the nearest encoder count.
+
+    Parameters
+    ----------
+    theta : array_like
+        Angles (rad).
+    counts_per_rev : float
+        Encoder resolution (counts per revolution), e.g. :data:`UPPER_COUNTS_PER_REV` or
+        :data:`LOWER_COUNTS_PER_REV`.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``round(theta / q) * q`` with ``q = 2 pi / counts_per_rev`` (rad); the error is at most
+        ``q / 2``. An angle of 0 stays exactly 0, as a zeroed encoder reads.
+    """
+    if not (np.isfinite(counts_per_rev) and counts_per_rev > 0):
+        raise ValueError(
+            f"counts_per_rev must be a positive number of encoder counts per revolution, got "
+            f"{counts_per_rev!r}; e.g. UPPER_COUNTS_PER_REV or LOWER_COUNTS_PER_REV"
+        )
+    q = 2.0 * math.pi / counts_per_rev
+    # Adding 0.0 turns the -0.0 that tiny negative angles round to into 0.0, so files show a
+    # resting encoder as "0.0" rather than "-0.0".
+    return np.round(np.asarray(theta, dtype=np.float64) / q) * q + 0.0
+
+
+def add_noise(theta: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
+    """Add independent Gaussian noise to angles.
+
+    Parameters
+    ----------
+    theta : array_like
+        Angles (rad). Not modified.
+    std : float
+        Noise standard deviation (rad), ``>= 0``. Keep it well below 1e-2 rad, or the first
+        sample may violate the zero-start check of :func:`load_experiment`.
+    rng : numpy.random.Generator
+        Source of randomness, e.g. ``numpy.random.default_rng(seed)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``theta + std * N(0, 1)`` as a new array (rad).
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; pass "
+            "numpy.random.default_rng(seed)"
+        )
+    if not (np.isfinite(std) and std >= 0):
+        raise ValueError(f"std must be a non-negative noise level in rad, got {std!r}")
+    theta = np.asarray(theta, dtype=np.float64)
+    return theta + rng.normal(0.0, std, size=theta.shape)

@@ -1,0 +1,588 @@
+"""Independent, slow but accurate reference integrator for the drill-string rig switch model.
+
+This module is used only by the test suite.  It is deliberately written from the model
+equations alone (it does not import anything from ``rotorbayes``) so that comparisons
+between the production integrator and this reference are meaningful.
+
+Method
+------
+Event-driven integration with exact mode switching.  Every disc is either in STICK
+(omega held exactly at 0) or in SLIP with a fixed direction s = +1 / -1.  For every mode
+combination the smooth ODE is integrated with ``scipy.integrate.solve_ivp`` (DOP853) and
+terminal events:
+
+* slipping disc:  s * omega crossing 0 (downwards),
+* sticking disc:  external torque T_e leaving the static band
+  ``[-(Ts - dTc), Ts + dTc]`` (upper edge upwards, lower edge downwards).
+
+At every event the modes are updated (stick / pass-through / break-away) and the
+integration restarts from the event time.
+
+Kinks of the input: the linearly interpolated voltage has a slope jump at every (delayed)
+sample time, the dead zone adds slope jumps where ``|v| = u_deadzone`` and the prescribed
+upper angle (config "prescribed") has velocity jumps at every sample time.  The
+integration is therefore restarted at *every* such breakpoint (and at every output sample
+time), so that each ``solve_ivp`` call only ever sees an analytic right-hand side.  Within
+a segment the effective voltage is an exact linear function of time.
+
+Inside a slip mode the friction law is extended smoothly across omega = 0 (the Stribeck
+power is continued as an odd function, ``x**delta -> sign(x)*|x|**delta``) so that the
+DOP853 steps that overshoot the zero crossing before the event is located see a smooth
+right-hand side; the extension is only ever evaluated within a single step of the event.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+__all__ = ["reference_simulate"]
+
+_TINY = 1e-300  # value returned by event functions at the start of a mode (see _events)
+_MAX_STALLED_EVENTS = 200
+
+_CONFIGS = ("upper", "coupled", "brake", "prescribed")
+
+
+# --------------------------------------------------------------------------------------
+# parameters
+# --------------------------------------------------------------------------------------
+def _get(params: dict, key: str, default=None, required: bool = False) -> float:
+    if key in params and params[key] is not None:
+        return float(params[key])
+    if required:
+        raise KeyError(f"reference_simulate: parameter {key!r} is required")
+    return float(default)
+
+
+def _resolve_params(params: dict, config: str) -> dict:
+    has_upper = config in ("upper", "coupled", "brake")
+    has_lower = config in ("coupled", "brake", "prescribed")
+    p: dict[str, float] = {}
+    # effects that default to zero
+    for key in ("c_alpha", "u_offset", "t_delay", "u_deadzone", "alpha0",
+                "dTc_u", "db_u", "dTc_l", "db_l"):
+        p[key] = _get(params, key, 0.0)
+    if has_upper:
+        for key in ("k_m", "J_u", "Tc_u", "b_u"):
+            p[key] = _get(params, key, required=True)
+    if has_lower:
+        for key in ("J_l", "k_alpha", "Tc_l", "b_l"):
+            p[key] = _get(params, key, required=True)
+        p["Ts_l"] = _get(params, "Ts_l", p["Tc_l"])
+        p["ws_l"] = _get(params, "ws_l", 1.0)
+        p["delta_l"] = _get(params, "delta_l", 1.0)
+        if p["ws_l"] <= 0.0:
+            raise ValueError("ws_l must be positive")
+    return p
+
+
+# --------------------------------------------------------------------------------------
+# breakpoints and piecewise-linear inputs
+# --------------------------------------------------------------------------------------
+def _unique_with_tol(x: np.ndarray, tol: float) -> np.ndarray:
+    if x.size == 0:
+        return x
+    x = np.sort(x)
+    keep = np.ones(x.size, dtype=bool)
+    keep[1:] = np.diff(x) > tol
+    return x[keep]
+
+
+def _breakpoints(t: np.ndarray, u: np.ndarray | None, p: dict, config: str,
+                 tol: float) -> np.ndarray:
+    """All sample times plus every time at which the input (or the prescribed motion)
+    has a kink.  Extra points closer than ``tol`` to a sample time are dropped."""
+    t0, t1 = t[0], t[-1]
+    extra = []
+    if config != "prescribed":
+        d = p["t_delay"]
+        if d != 0.0:
+            extra.append(t + d)
+        dz = p["u_deadzone"]
+        if dz > 0.0 and t.size > 1:
+            tk = t[:-1] + d
+            tk1 = t[1:] + d
+            v0 = u[:-1] + p["u_offset"]
+            v1 = u[1:] + p["u_offset"]
+            dv = v1 - v0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                for level in (dz, -dz):
+                    frac = (level - v0) / dv
+                    ok = (dv != 0.0) & (frac > 0.0) & (frac < 1.0)
+                    extra.append(tk[ok] + frac[ok] * (tk1[ok] - tk[ok]))
+    if not extra:
+        return t.copy()
+    e = np.concatenate(extra)
+    e = e[(e > t0 + tol) & (e < t1 - tol)]
+    if e.size:
+        # drop points that (almost) coincide with a sample time
+        idx = np.searchsorted(t, e)
+        lo = np.abs(e - t[np.clip(idx - 1, 0, t.size - 1)])
+        hi = np.abs(t[np.clip(idx, 0, t.size - 1)] - e)
+        e = e[np.minimum(lo, hi) > tol]
+        e = _unique_with_tol(e, tol)
+    return np.union1d(t, e)
+
+
+def _piece_coeffs(ts: np.ndarray, vs: np.ndarray, tau: np.ndarray):
+    """For the linear interpolant of (ts, vs) (constant extrapolation), return for each
+    query time ``tau`` the value at ``tau`` and the slope of the piece containing it."""
+    n = ts.size
+    if n == 1:
+        return np.full(tau.shape, vs[0]), np.zeros(tau.shape)
+    k = np.clip(np.searchsorted(ts, tau, side="right") - 1, 0, n - 2)
+    slope = (vs[k + 1] - vs[k]) / (ts[k + 1] - ts[k])
+    outside = (tau < ts[0]) | (tau > ts[-1])
+    slope = np.where(outside, 0.0, slope)
+    val = np.where(tau < ts[0], vs[0],
+                   np.where(tau > ts[-1], vs[-1], vs[k] + slope * (tau - ts[k])))
+    return val, slope
+
+
+def _input_segments(bp: np.ndarray, t: np.ndarray, u: np.ndarray, p: dict):
+    """Coefficients of the effective voltage on each segment [bp[i], bp[i+1]]:
+    u_eff(t) = ua[i] + ub[i] * (t - bp[i]) exactly (input kinks are breakpoints)."""
+    a = bp[:-1]
+    mid = 0.5 * (bp[:-1] + bp[1:])
+    d = p["t_delay"]
+    vmid, slope = _piece_coeffs(t, u, mid - d)
+    vmid = vmid + p["u_offset"]
+    va = vmid + slope * (a - mid)  # value of the same linear piece at the segment start
+    dz = p["u_deadzone"]
+    if dz > 0.0:
+        inside = np.abs(vmid) <= dz
+        ua = np.where(inside, 0.0, va - dz * np.sign(vmid))
+        ub = np.where(inside, 0.0, slope)
+    else:
+        ua, ub = va, slope
+    return ua, ub
+
+
+# --------------------------------------------------------------------------------------
+# model pieces
+# --------------------------------------------------------------------------------------
+def _make_friction_lower(p: dict, shape: str):
+    Tc, dTc, b, db = p["Tc_l"], p["dTc_l"], p["b_l"], p["db_l"]
+    Ts, ws, delta = p["Ts_l"], p["ws_l"], p["delta_l"]
+    dS = Ts - Tc
+    exp = math.exp
+    if shape == "exp":
+        def S(x: float) -> float:
+            pw = x ** delta if x >= 0.0 else -((-x) ** delta)
+            return exp(-pw)
+    elif shape == "rational":
+        def S(x: float) -> float:
+            pw = x ** delta if x >= 0.0 else -((-x) ** delta)
+            return 1.0 / (1.0 + pw)
+    else:
+        raise ValueError("stribeck_shape must be 'exp' or 'rational'")
+
+    def fric(w: float, s: int) -> float:
+        # s * [Tc + s dTc + (b + s db)|w| + (Ts - Tc) S(|w|/ws)] with |w| -> s*w
+        return s * Tc + dTc + (b + s * db) * w + s * dS * S(s * w / ws)
+
+    return fric
+
+
+def _make_friction_upper(p: dict):
+    Tc, dTc, b, db = p["Tc_u"], p["dTc_u"], p["b_u"], p["db_u"]
+
+    def fric(w: float, s: int) -> float:
+        return s * Tc + dTc + (b + s * db) * w
+
+    return fric
+
+
+def _sgn(x: float) -> int:
+    return 1 if x > 0.0 else (-1 if x < 0.0 else 0)
+
+
+# --------------------------------------------------------------------------------------
+# main entry point
+# --------------------------------------------------------------------------------------
+def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
+                       config: str = "brake", *,
+                       theta_u_prescribed: np.ndarray | None = None,
+                       stribeck_shape: str = "exp",
+                       rtol: float = 1e-11, atol: float = 1e-12,
+                       dense_output: bool = False) -> dict:
+    """Reference (event-driven, exact switching) simulation of the rig.
+
+    Parameters
+    ----------
+    params : dict of model parameters (SI units), see module docstring of the project.
+    t : uniform (any strictly increasing grid works) sample times; the motion starts at
+        rest with theta = 0 at ``t[0]``.
+    u : voltage samples at ``t`` (linearly interpolated, held at ``u[0]`` before
+        ``t[0]``).  Ignored (may be None) for ``config="prescribed"``.
+    config : "upper", "coupled", "brake" or "prescribed".
+    theta_u_prescribed : samples of theta_u at ``t`` (config "prescribed" only).
+    stribeck_shape : "exp" or "rational".
+    rtol, atol : tolerances passed to every ``solve_ivp(method="DOP853")`` call.
+    dense_output : if True, the result also contains ``"sol"``, a callable mapping an
+        array of times in [t[0], t[-1]] to a (4, n) array
+        [theta_u, omega_u, theta_l, omega_l] (rows of absent discs are NaN).
+
+    Returns
+    -------
+    dict with "theta_u", "omega_u", "theta_l", "omega_l" (arrays at ``t``; the lower
+    entries are None for config "upper"), "events" (list of (time, disc, kind) with
+    disc in {'u', 'l'} and kind in {'stick', 'slip+', 'slip-'}), "mode_u"/"mode_l"
+    (int arrays at ``t``: 0 stick, +1/-1 slip direction, mode valid just after each
+    sample time; None for absent discs) and "n_solve_ivp" (number of solver calls).
+    """
+    if config not in _CONFIGS:
+        raise ValueError(f"config must be one of {_CONFIGS}, got {config!r}")
+    if stribeck_shape not in ("exp", "rational"):
+        raise ValueError("stribeck_shape must be 'exp' or 'rational'")
+    t = np.asarray(t, dtype=float).ravel()
+    if t.size < 1 or (t.size > 1 and np.any(np.diff(t) <= 0.0)):
+        raise ValueError("t must be non-empty and strictly increasing")
+    p = _resolve_params(params, config)
+
+    has_upper = config != "prescribed"  # upper disc is a dynamic state
+    has_lower = config != "upper"
+    coupled = config in ("coupled", "brake")
+
+    if config == "prescribed":
+        if theta_u_prescribed is None:
+            raise ValueError("config 'prescribed' needs theta_u_prescribed")
+        thp = np.asarray(theta_u_prescribed, dtype=float).ravel()
+        if thp.shape != t.shape:
+            raise ValueError("theta_u_prescribed must have the same shape as t")
+        u_arr = None
+    else:
+        if u is None:
+            raise ValueError("u is required for this config")
+        u_arr = np.asarray(u, dtype=float).ravel()
+        if u_arr.shape != t.shape:
+            raise ValueError("u must have the same shape as t")
+        thp = None
+
+    dt_min = float(np.min(np.diff(t))) if t.size > 1 else 1.0
+    tol_bp = 1e-9 * dt_min
+    bp = _breakpoints(t, u_arr, p, config, tol_bp)
+    is_sample = np.isin(bp, t)  # exact, because sample times are kept verbatim
+    nseg = bp.size - 1
+
+    if config == "prescribed":
+        mid = 0.5 * (bp[:-1] + bp[1:])
+        thm, pslope = _piece_coeffs(t, thp, mid) if nseg else (np.zeros(0), np.zeros(0))
+        pa = thm + pslope * (bp[:-1] - mid)
+        pb = pslope
+        ua = ub = np.zeros(nseg)
+    else:
+        ua, ub = _input_segments(bp, t, u_arr, p) if nseg else (np.zeros(0), np.zeros(0))
+        pa = pb = np.zeros(nseg)
+
+    # ---- constants ------------------------------------------------------------------
+    km = p.get("k_m", 0.0)
+    iJu = 1.0 / p["J_u"] if has_upper else 0.0
+    iJl = 1.0 / p["J_l"] if has_lower else 0.0
+    ka = p.get("k_alpha", 0.0) if has_lower else 0.0
+    ca = p["c_alpha"] if has_lower else 0.0
+    a0 = p["alpha0"] if has_lower else 0.0
+    fr_u = _make_friction_upper(p) if has_upper else None
+    fr_l = _make_friction_lower(p, stribeck_shape) if has_lower else None
+    if has_upper:
+        hi_u = p["Tc_u"] + p["dTc_u"]
+        lo_u = -(p["Tc_u"] - p["dTc_u"])
+    if has_lower:
+        hi_l = p["Ts_l"] + p["dTc_l"]
+        lo_l = -(p["Ts_l"] - p["dTc_l"])
+
+    # ---- state & torques ----------------------------------------------------------------
+    # y = [theta_u, omega_u, theta_l, omega_l]; for "prescribed" y[0:2] are unused (the
+    # upper motion is pa + pb*(t - a)); for "upper" y[2:4] stay 0.
+    seg = {"a": bp[0], "ua": 0.0, "ub": 0.0, "pa": 0.0, "pb": 0.0}
+
+    def upper_kin(t_: float, y: list) -> tuple[float, float]:
+        if config == "prescribed":
+            return seg["pa"] + seg["pb"] * (t_ - seg["a"]), seg["pb"]
+        return y[0], y[1]
+
+    def string_torque(t_: float, y: list) -> float:
+        if not has_lower or config == "upper":
+            return 0.0
+        thu, wu = upper_kin(t_, y)
+        return ka * (y[2] - thu + a0) + ca * (y[3] - wu)
+
+    def te_upper(t_: float, y: list) -> float:
+        ue = seg["ua"] + seg["ub"] * (t_ - seg["a"])
+        return km * ue + string_torque(t_, y)
+
+    def te_lower(t_: float, y: list) -> float:
+        return -string_torque(t_, y)
+
+    def make_rhs(mu: int, ml: int) -> Callable:
+        a = seg["a"]
+        sua, sub = seg["ua"], seg["ub"]
+        spa, spb = seg["pa"], seg["pb"]
+        if config == "upper":
+            def rhs(t_, yy):
+                y0, y1, _, _ = yy.tolist()
+                if mu == 0:
+                    return [0.0, 0.0, 0.0, 0.0]
+                ue = sua + sub * (t_ - a)
+                return [y1, (km * ue - fr_u(y1, mu)) * iJu, 0.0, 0.0]
+        elif config == "prescribed":
+            def rhs(t_, yy):
+                _, _, y2, y3 = yy.tolist()
+                if ml == 0:
+                    return [0.0, 0.0, 0.0, 0.0]
+                thu = spa + spb * (t_ - a)
+                Tsr = ka * (y2 - thu + a0) + ca * (y3 - spb)
+                return [0.0, 0.0, y3, (-fr_l(y3, ml) - Tsr) * iJl]
+        else:
+            def rhs(t_, yy):
+                y0, y1, y2, y3 = yy.tolist()
+                Tsr = ka * (y2 - y0 + a0) + ca * (y3 - y1)
+                if mu != 0:
+                    ue = sua + sub * (t_ - a)
+                    dwu = (km * ue - fr_u(y1, mu) + Tsr) * iJu
+                else:
+                    dwu = 0.0
+                dwl = (-fr_l(y3, ml) - Tsr) * iJl if ml != 0 else 0.0
+                return [y1, dwu, y3, dwl]
+        return rhs
+
+    def make_events(mu: int, ml: int, t0: float):
+        """Terminal events for the current modes.  At t == t0 each event function
+        returns a tiny value on the 'inside' side, so that a mode that starts exactly on
+        its boundary (e.g. slip starting from omega = 0) is not reported at t0 itself."""
+        evs, meta = [], []
+
+        def add(fun, direction, disc, kind):
+            fun.terminal = True
+            fun.direction = direction
+            evs.append(fun)
+            meta.append((disc, kind))
+
+        if has_upper:
+            if mu != 0:
+                def ev_u0(t_, yy, s=mu):
+                    return _TINY if t_ == t0 else s * yy[1]
+                add(ev_u0, -1, "u", "zero")
+            else:
+                def ev_uhi(t_, yy):
+                    return -_TINY if t_ == t0 else te_upper(t_, yy.tolist()) - hi_u
+
+                def ev_ulo(t_, yy):
+                    return _TINY if t_ == t0 else te_upper(t_, yy.tolist()) - lo_u
+                add(ev_uhi, +1, "u", "hi")
+                add(ev_ulo, -1, "u", "lo")
+        if has_lower:
+            if ml != 0:
+                def ev_l0(t_, yy, s=ml):
+                    return _TINY if t_ == t0 else s * yy[3]
+                add(ev_l0, -1, "l", "zero")
+            else:
+                def ev_lhi(t_, yy):
+                    return -_TINY if t_ == t0 else te_lower(t_, yy.tolist()) - hi_l
+
+                def ev_llo(t_, yy):
+                    return _TINY if t_ == t0 else te_lower(t_, yy.tolist()) - lo_l
+                add(ev_lhi, +1, "l", "hi")
+                add(ev_llo, -1, "l", "lo")
+        return evs, meta
+
+    # ---- bookkeeping --------------------------------------------------------------------
+    events: list[tuple[float, str, str]] = []
+    n_out = t.size
+    Y = np.zeros((4, n_out))
+    MU = np.zeros(n_out, dtype=int)
+    ML = np.zeros(n_out, dtype=int)
+    pieces: list[tuple[float, float, object]] = []  # (t_start, t_end, OdeSolution)
+
+    def band_mode(te: float, lo: float, hi: float) -> int:
+        if lo <= te <= hi:
+            return 0
+        return _sgn(te)
+
+    def kind_of(m: int) -> str:
+        return "stick" if m == 0 else ("slip+" if m > 0 else "slip-")
+
+    # ---- initial state and modes ----------------------------------------------------
+    y = [0.0, 0.0, 0.0, 0.0]
+    modes = {"u": 0, "l": 0}
+
+    def set_segment(i: int) -> None:
+        seg["a"] = bp[i]
+        seg["ua"] = float(ua[i])
+        seg["ub"] = float(ub[i])
+        seg["pa"] = float(pa[i])
+        seg["pb"] = float(pb[i])
+
+    if nseg:
+        set_segment(0)
+    elif config == "prescribed":
+        seg["pa"] = float(thp[0])
+    else:
+        seg["ua"] = float(_input_segments(np.array([t[0], t[0] + 1.0]), t, u_arr, p)[0][0])
+
+    def restick_check(t_: float) -> None:
+        """A sticking disc whose external torque is (strictly) outside the band starts
+        to slip (only relevant after input jumps, e.g. prescribed velocity jumps)."""
+        if has_upper and modes["u"] == 0:
+            m = band_mode(te_upper(t_, y), lo_u, hi_u)
+            if m != 0:
+                modes["u"] = m
+                events.append((t_, "u", kind_of(m)))
+        if has_lower and modes["l"] == 0:
+            m = band_mode(te_lower(t_, y), lo_l, hi_l)
+            if m != 0:
+                modes["l"] = m
+                events.append((t_, "l", kind_of(m)))
+
+    restick_check(float(t[0]))
+
+    out_i = 0
+    Y[:, 0] = y
+    MU[0], ML[0] = modes["u"], modes["l"]
+    out_i = 1
+    n_calls = 0
+    h_hint: float | None = None
+    stalled = 0
+
+    for i in range(nseg):
+        a_i, b_i = float(bp[i]), float(bp[i + 1])
+        set_segment(i)
+        if i > 0:
+            restick_check(a_i)
+        tc = a_i
+        while tc < b_i:
+            mu, ml = modes["u"], modes["l"]
+            rhs = make_rhs(mu, ml)
+            span = b_i - tc
+            if span <= 1e-14 * max(1.0, abs(b_i)):
+                f = rhs(tc, np.asarray(y))
+                y = [y[k] + f[k] * span for k in range(4)]
+                if dense_output:
+                    pieces.append((tc, b_i, _ConstPiece(np.asarray(y))))
+                tc = b_i
+                break
+            evs, meta = make_events(mu, ml, tc)
+            first = span if h_hint is None else min(span, h_hint)
+            sol = solve_ivp(rhs, (tc, b_i), np.asarray(y), method="DOP853", rtol=rtol,
+                            atol=atol, events=evs, first_step=first,
+                            dense_output=dense_output)
+            n_calls += 1
+            if sol.status < 0:
+                raise RuntimeError(f"solve_ivp failed at t={tc}: {sol.message}")
+            if sol.t.size >= 2:
+                # step-size hint for the next call (performance only; error control
+                # still applies to every step)
+                h_max = float(np.max(np.diff(sol.t)))
+                if h_max > 0.0:
+                    h_hint = 4.0 * h_max
+            y_new = sol.y[:, -1].tolist()
+            t_new = float(sol.t[-1])
+            if dense_output:
+                pieces.append((tc, t_new, sol.sol))
+            if sol.status == 1:
+                fired = [meta[j] for j in range(len(evs)) if sol.t_events[j].size]
+                if t_new - tc <= 1e-13 * max(1.0, abs(t_new)):
+                    stalled += 1
+                    if stalled > _MAX_STALLED_EVENTS:
+                        raise RuntimeError(f"reference_simulate: event chattering at t={t_new}")
+                else:
+                    stalled = 0
+                y = y_new
+                tc = t_new
+                for disc, kind in fired:
+                    if kind == "zero":
+                        iw = 1 if disc == "u" else 3
+                        y[iw] = 0.0
+                for disc, kind in fired:
+                    if kind == "zero":
+                        if disc == "u":
+                            m = band_mode(te_upper(tc, y), lo_u, hi_u)
+                        else:
+                            m = band_mode(te_lower(tc, y), lo_l, hi_l)
+                    elif kind == "hi":
+                        m = 1
+                    else:
+                        m = -1
+                    modes[disc] = m
+                    events.append((tc, disc, kind_of(m)))
+                restick_check(tc)
+                if tc >= b_i:
+                    break
+            else:
+                y = y_new
+                tc = b_i
+        if is_sample[i + 1]:
+            Y[:, out_i] = y
+            MU[out_i], ML[out_i] = modes["u"], modes["l"]
+            out_i += 1
+
+    assert out_i == n_out, (out_i, n_out)
+
+    res: dict = {"events": events, "n_solve_ivp": n_calls}
+    if config == "prescribed":
+        res["theta_u"] = thp.copy()
+        if t.size > 1:
+            sl = np.diff(thp) / np.diff(t)
+            res["omega_u"] = np.append(sl, sl[-1])  # right-sided slope, last: left
+        else:
+            res["omega_u"] = np.zeros(1)
+        res["mode_u"] = None
+    else:
+        res["theta_u"] = Y[0].copy()
+        res["omega_u"] = Y[1].copy()
+        res["mode_u"] = MU
+    if has_lower:
+        res["theta_l"] = Y[2].copy()
+        res["omega_l"] = Y[3].copy()
+        res["mode_l"] = ML
+    else:
+        res["theta_l"] = None
+        res["omega_l"] = None
+        res["mode_l"] = None
+
+    if dense_output:
+        res["sol"] = _DenseSolution(pieces, config, t, thp, has_lower)
+    return res
+
+
+class _ConstPiece:
+    def __init__(self, y: np.ndarray):
+        self.y = np.asarray(y, dtype=float)
+
+    def __call__(self, tq):
+        tq = np.atleast_1d(tq)
+        return np.repeat(self.y[:, None], tq.size, axis=1)
+
+
+class _DenseSolution:
+    """Piecewise dense output of the reference solution."""
+
+    def __init__(self, pieces, config, t, thp, has_lower):
+        pieces = [pc for pc in pieces if pc[1] > pc[0]]
+        self._starts = np.array([pc[0] for pc in pieces])
+        self._ends = np.array([pc[1] for pc in pieces])
+        self._sols = [pc[2] for pc in pieces]
+        self._config = config
+        self._t = t
+        self._thp = thp
+        self._has_lower = has_lower
+
+    def __call__(self, tq) -> np.ndarray:
+        tq = np.atleast_1d(np.asarray(tq, dtype=float))
+        out = np.empty((4, tq.size))
+        idx = np.clip(np.searchsorted(self._starts, tq, side="right") - 1,
+                      0, len(self._sols) - 1)
+        for j in np.unique(idx):
+            sel = idx == j
+            out[:, sel] = np.asarray(self._sols[j](tq[sel])).reshape(4, -1)
+        if self._config == "prescribed":
+            out[0] = np.interp(tq, self._t, self._thp)
+            k = np.clip(np.searchsorted(self._t, tq, side="right") - 1, 0, self._t.size - 2)
+            out[1] = (self._thp[k + 1] - self._thp[k]) / (self._t[k + 1] - self._t[k])
+        if not self._has_lower:
+            out[2:] = np.nan
+        return out

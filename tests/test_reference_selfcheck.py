@@ -1,0 +1,225 @@
+"""Self-checks of the independent reference integrator in ``tests/reference.py``.
+
+These tests validate the reference against published benchmark numbers and analytic
+solutions, so that it can in turn be trusted to validate the production integrator.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+sys.path.insert(0, os.path.dirname(__file__))
+from reference import reference_simulate  # noqa: E402
+
+# thesis values (brake configuration)
+BRAKE = dict(k_m=4.3228, J_u=0.4765, Tc_u=0.3798, dTc_u=-0.0058, b_u=2.4245, db_u=-0.0084,
+             J_l=0.0414, k_alpha=0.0775, Tc_l=0.0473, b_l=0.0105, Ts_l=0.2781, ws_l=1.4302,
+             delta_l=2.0575)
+
+
+def _brake_input(T: float, dt: float = 1e-3):
+    t = np.arange(0.0, T + 0.5 * dt, dt)
+    return t, 0.8 + 0.6 * np.sin(0.4 * t)
+
+
+# --------------------------------------------------------------------------------------
+# 1. Leine's belt benchmark (switch model) through config "prescribed"
+# --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def belt_run():
+    params = dict(J_l=1.0, k_alpha=1.0, Tc_l=0.0, Ts_l=1.0, ws_l=1.0 / 3.0, delta_l=1.0,
+                  b_l=0.0)
+    t = np.arange(0.0, 100.0 + 0.005, 0.01)
+    res = reference_simulate(params, t, None, "prescribed", theta_u_prescribed=0.2 * t,
+                             stribeck_shape="rational", dense_output=True)
+    return t, res
+
+
+def test_belt_friction_law_is_leines(belt_run):
+    # sanity: the lower disc starts at rest and breaks away when x = 0.2 t reaches 1
+    _, res = belt_run
+    t0, disc, kind = res["events"][0]
+    assert disc == "l" and kind == "slip+"
+    assert t0 == pytest.approx(5.0, abs=1e-12)
+
+
+def test_belt_benchmark_limit_cycle(belt_run):
+    _, res = belt_run
+    sol = res["sol"]
+    stick_t = np.array([ev[0] for ev in res["events"] if ev[1] == "l" and ev[2] == "stick"])
+    assert stick_t.size >= 5
+
+    def x_of(tt):
+        return 0.2 * np.atleast_1d(tt) - sol(tt)[2]
+
+    periods = np.diff(stick_t)
+    assert periods[-1] == pytest.approx(12.00103, abs=1e-4)
+    assert periods[-2] == pytest.approx(12.00103, abs=1e-4)
+    x_stick = float(x_of(stick_t[-1])[0])
+    assert x_stick == pytest.approx(-0.541006, abs=1e-4)
+
+    # extrema of x over the last full cycle: x' = 0.2 - omega_l = 0 (dense output + root)
+    a, b = stick_t[-2], stick_t[-1]
+    tt = np.arange(a, b, 1e-3)
+    xg = x_of(tt)
+    xdot = 0.2 - sol(tt)[3]
+    roots = []
+    for i in np.nonzero(np.sign(xdot[:-1]) * np.sign(xdot[1:]) < 0)[0]:
+        roots.append(brentq(lambda s: 0.2 - sol(s)[3][0], tt[i], tt[i + 1], xtol=1e-14))
+    xr = x_of(np.array(roots))
+    x_max = max(xg.max(), xr.max())
+    x_min = min(xg.min(), xr.min())
+    assert x_max == pytest.approx(1.133945, abs=1e-4)
+    assert x_min == pytest.approx(-0.555433, abs=1e-4)
+    # stick phase: omega_l == 0 exactly, x rises from the stick-onset value to 1
+    ts = np.linspace(a, a + 0.99 * (1.0 - x_stick) / 0.2, 50)
+    assert np.all(sol(ts)[3] == 0.0)
+
+
+# --------------------------------------------------------------------------------------
+# 2. analytic pure-slip / break-away / stick cases of the upper disc
+# --------------------------------------------------------------------------------------
+def test_upper_viscous_only_analytic():
+    km, J, b, u0 = 4.3228, 0.4765, 2.4245, 0.7
+    params = dict(k_m=km, J_u=J, Tc_u=0.0, b_u=b)
+    t = np.arange(0.0, 10.0 + 5e-4, 1e-3)
+    res = reference_simulate(params, t, np.full(t.shape, u0), "upper")
+    w_inf = km * u0 / b
+    tau = J / b
+    w_exact = w_inf * (1.0 - np.exp(-t / tau))
+    th_exact = w_inf * (t - tau * (1.0 - np.exp(-t / tau)))
+    assert res["theta_l"] is None and res["omega_l"] is None
+    assert np.max(np.abs(res["omega_u"] - w_exact)) < 1e-9
+    assert np.max(np.abs(res["theta_u"] - th_exact)) < 1e-9
+    assert res["events"][0][1:] == ("u", "slip+")
+
+
+def test_upper_ramp_breakaway_analytic():
+    # u = r t: the disc sticks until k_m r t = Tc_u + dTc_u, then
+    # J w' = k_m r (t - t*) - (b_u + db_u) w  (linear, analytic)
+    km, J, Tc, dTc, b, db, r = 4.3228, 0.4765, 0.3798, -0.0058, 2.4245, -0.0084, 0.05
+    params = dict(k_m=km, J_u=J, Tc_u=Tc, dTc_u=dTc, b_u=b, db_u=db)
+    t = np.arange(0.0, 8.0 + 5e-4, 1e-3)
+    res = reference_simulate(params, t, r * t, "upper")
+    t_star = (Tc + dTc) / (km * r)
+    assert res["events"][0][1:] == ("u", "slip+")
+    assert res["events"][0][0] == pytest.approx(t_star, abs=1e-10)
+    c = b + db
+    tau = np.clip(t - t_star, 0.0, None)
+    g = km * r / c
+    w_exact = g * (tau - (J / c) * (1.0 - np.exp(-c * tau / J)))
+    th_exact = g * (0.5 * tau**2 - (J / c) * (tau - (J / c) * (1.0 - np.exp(-c * tau / J))))
+    assert np.all(res["omega_u"][t < t_star] == 0.0)
+    assert np.max(np.abs(res["omega_u"] - w_exact)) < 1e-9
+    assert np.max(np.abs(res["theta_u"] - th_exact)) < 1e-9
+
+
+def test_upper_stop_and_stick_time_analytic():
+    # constant drive, then the voltage drops to 0 within one sample; after that
+    # J w' = -(Tc + dTc) - (b + db) w  until w = 0 at an analytic time, then stick.
+    km, J, Tc, dTc, b, db = 4.3228, 0.4765, 0.3798, -0.0058, 2.4245, -0.0084
+    params = dict(k_m=km, J_u=J, Tc_u=Tc, dTc_u=dTc, b_u=b, db_u=db)
+    dt = 1e-3
+    t = np.arange(0.0, 6.0 + 0.5 * dt, dt)
+    k_off = 3000
+    u = np.where(np.arange(t.size) < k_off, 1.0, 0.0)
+    res = reference_simulate(params, t, u, "upper")
+    w0 = res["omega_u"][k_off]
+    A, c = Tc + dTc, b + db
+    t_stick = t[k_off] + (J / c) * math.log(1.0 + c * w0 / A)
+    sticks = [ev for ev in res["events"] if ev[2] == "stick"]
+    assert len(sticks) == 1
+    assert sticks[0][0] == pytest.approx(t_stick, abs=1e-9)
+    after = t > t_stick
+    assert np.all(res["omega_u"][after] == 0.0)
+    assert np.all(res["theta_u"][after] == res["theta_u"][-1])
+    # below the band the disc never moves
+    res0 = reference_simulate(params, t, np.full(t.shape, 0.9 * A / km), "upper")
+    assert np.all(res0["theta_u"] == 0.0) and not res0["events"]
+
+
+# --------------------------------------------------------------------------------------
+# 3. stick consistency in the brake configuration
+# --------------------------------------------------------------------------------------
+def test_brake_lower_stick_consistency():
+    t, u = _brake_input(30.0)
+    res = reference_simulate(BRAKE, t, u, "brake", dense_output=True)
+    ka, Ts = BRAKE["k_alpha"], BRAKE["Ts_l"]
+    lower = [ev for ev in res["events"] if ev[1] == "l"]
+    kinds = [ev[2] for ev in lower]
+    assert kinds.count("stick") >= 2 and kinds.count("slip+") >= 2
+    # modes alternate slip / stick for the lower disc
+    assert all((k1 == "stick") != (k2 == "stick") for k1, k2 in zip(kinds, kinds[1:]))
+
+    alpha = res["theta_l"] - res["theta_u"]
+    stuck = res["mode_l"] == 0
+    assert stuck.sum() > 1000 and (~stuck).sum() > 1000
+    # in stick: exactly at rest, no kinetic energy, string torque inside the static band
+    assert np.all(res["omega_l"][stuck] == 0.0)
+    assert np.all(np.abs(ka * alpha[stuck]) <= Ts + 1e-12)
+    # theta_l frozen during each stick interval
+    edges = np.flatnonzero(np.diff(stuck.astype(int)))
+    for s0, s1 in zip(edges[:-1], edges[1:]):
+        if stuck[s0 + 1]:
+            seg = res["theta_l"][s0 + 1:s1 + 1]
+            assert np.all(seg == seg[0])
+    # break-away happens exactly when the string torque reaches the static friction
+    sol = res["sol"]
+    for tev, _, kind in lower:
+        y = sol(tev)[:, 0]
+        if kind.startswith("slip"):
+            assert abs(ka * (y[2] - y[0])) == pytest.approx(Ts, abs=1e-9)
+        else:
+            assert y[3] == pytest.approx(0.0, abs=1e-9)
+    # the upper disc keeps slipping forward for this input
+    assert np.all(res["omega_u"][1:] > 0.0)
+
+
+# --------------------------------------------------------------------------------------
+# 4. tolerance convergence
+# --------------------------------------------------------------------------------------
+def test_brake_tolerance_convergence():
+    t, u = _brake_input(10.0)
+    r9 = reference_simulate(BRAKE, t, u, "brake", rtol=1e-9, atol=1e-11)
+    r11 = reference_simulate(BRAKE, t, u, "brake", rtol=1e-11, atol=1e-12)
+    for key in ("theta_u", "theta_l"):
+        assert np.max(np.abs(r9[key] - r11[key])) < 1e-7
+    for key in ("omega_u", "omega_l"):
+        assert np.max(np.abs(r9[key] - r11[key])) < 1e-7
+    assert len(r9["events"]) == len(r11["events"])
+    for e9, e11 in zip(r9["events"], r11["events"]):
+        assert e9[1:] == e11[1:] and abs(e9[0] - e11[0]) < 1e-7
+
+
+# --------------------------------------------------------------------------------------
+# 5. input handling: kinks, offset, delay
+# --------------------------------------------------------------------------------------
+def test_input_is_piecewise_linear_and_offset_delay_exact():
+    params = dict(BRAKE, c_alpha=0.003, alpha0=0.05)
+    dt = 1e-3
+    t = np.arange(0.0, 4.0 + 0.5 * dt, dt)
+    rng = np.random.default_rng(1)
+    u = 1.5 + 0.5 * rng.standard_normal(t.size)  # rough input, a kink at every sample
+    base = reference_simulate(params, t, u, "coupled")
+    # same piecewise-linear input on a finer grid -> same solution
+    t2 = np.arange(0.0, 4.0 + 0.25 * dt, dt / 2)
+    fine = reference_simulate(params, t2, np.interp(t2, t, u), "coupled")
+    for key in ("theta_u", "omega_u", "theta_l", "omega_l"):
+        assert np.max(np.abs(fine[key][::2] - base[key])) < 1e-9
+    # u_offset is the same as adding the offset to u
+    off = reference_simulate(dict(params, u_offset=0.2), t, u, "coupled")
+    ref = reference_simulate(params, t, u + 0.2, "coupled")
+    assert np.max(np.abs(off["theta_u"] - ref["theta_u"])) < 1e-10
+    # a delay of n samples is the same as shifting the samples by n (holding u[0])
+    n = 7
+    dl = reference_simulate(dict(params, t_delay=n * dt), t, u, "coupled")
+    us = np.concatenate([np.full(n, u[0]), u[:-n]])
+    sh = reference_simulate(params, t, us, "coupled")
+    for key in ("theta_u", "theta_l"):
+        assert np.max(np.abs(dl[key] - sh[key])) < 1e-9
