@@ -63,8 +63,17 @@ def _resolve_params(params: dict, config: str) -> dict:
     has_lower = config in ("coupled", "brake", "prescribed")
     p: dict[str, float] = {}
     # effects that default to zero
-    for key in ("c_alpha", "u_offset", "t_delay", "u_deadzone", "alpha0",
-                "dTc_u", "db_u", "dTc_l", "db_l"):
+    for key in (
+        "c_alpha",
+        "u_offset",
+        "t_delay",
+        "u_deadzone",
+        "alpha0",
+        "dTc_u",
+        "db_u",
+        "dTc_l",
+        "db_l",
+    ):
         p[key] = _get(params, key, 0.0)
     if has_upper:
         for key in ("k_m", "J_u", "Tc_u", "b_u"):
@@ -92,8 +101,9 @@ def _unique_with_tol(x: np.ndarray, tol: float) -> np.ndarray:
     return x[keep]
 
 
-def _breakpoints(t: np.ndarray, u: np.ndarray | None, p: dict, config: str,
-                 tol: float) -> np.ndarray:
+def _breakpoints(
+    t: np.ndarray, u: np.ndarray | None, p: dict, config: str, tol: float
+) -> np.ndarray:
     """All sample times plus every time at which the input (or the prescribed motion)
     has a kink.  Extra points closer than ``tol`` to a sample time are dropped."""
     t0, t1 = t[0], t[-1]
@@ -138,8 +148,9 @@ def _piece_coeffs(ts: np.ndarray, vs: np.ndarray, tau: np.ndarray):
     slope = (vs[k + 1] - vs[k]) / (ts[k + 1] - ts[k])
     outside = (tau < ts[0]) | (tau > ts[-1])
     slope = np.where(outside, 0.0, slope)
-    val = np.where(tau < ts[0], vs[0],
-                   np.where(tau > ts[-1], vs[-1], vs[k] + slope * (tau - ts[k])))
+    val = np.where(
+        tau < ts[0], vs[0], np.where(tau > ts[-1], vs[-1], vs[k] + slope * (tau - ts[k]))
+    )
     return val, slope
 
 
@@ -171,12 +182,14 @@ def _make_friction_lower(p: dict, shape: str):
     dS = Ts - Tc
     exp = math.exp
     if shape == "exp":
+
         def S(x: float) -> float:
-            pw = x ** delta if x >= 0.0 else -((-x) ** delta)
+            pw = x**delta if x >= 0.0 else -((-x) ** delta)
             return exp(-pw)
     elif shape == "rational":
+
         def S(x: float) -> float:
-            pw = x ** delta if x >= 0.0 else -((-x) ** delta)
+            pw = x**delta if x >= 0.0 else -((-x) ** delta)
             return 1.0 / (1.0 + pw)
     else:
         raise ValueError("stribeck_shape must be 'exp' or 'rational'")
@@ -204,12 +217,18 @@ def _sgn(x: float) -> int:
 # --------------------------------------------------------------------------------------
 # main entry point
 # --------------------------------------------------------------------------------------
-def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
-                       config: str = "brake", *,
-                       theta_u_prescribed: np.ndarray | None = None,
-                       stribeck_shape: str = "exp",
-                       rtol: float = 1e-11, atol: float = 1e-12,
-                       dense_output: bool = False) -> dict:
+def reference_simulate(
+    params: dict,
+    t: np.ndarray,
+    u: np.ndarray | None,
+    config: str = "brake",
+    *,
+    theta_u_prescribed: np.ndarray | None = None,
+    stribeck_shape: str = "exp",
+    rtol: float = 1e-11,
+    atol: float = 1e-12,
+    dense_output: bool = False,
+) -> dict:
     """Reference (event-driven, exact switching) simulation of the rig.
 
     Parameters
@@ -246,7 +265,6 @@ def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
 
     has_upper = config != "prescribed"  # upper disc is a dynamic state
     has_lower = config != "upper"
-    coupled = config in ("coupled", "brake")
 
     if config == "prescribed":
         if theta_u_prescribed is None:
@@ -323,6 +341,7 @@ def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
         sua, sub = seg["ua"], seg["ub"]
         spa, spb = seg["pa"], seg["pb"]
         if config == "upper":
+
             def rhs(t_, yy):
                 y0, y1, _, _ = yy.tolist()
                 if mu == 0:
@@ -330,6 +349,7 @@ def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
                 ue = sua + sub * (t_ - a)
                 return [y1, (km * ue - fr_u(y1, mu)) * iJu, 0.0, 0.0]
         elif config == "prescribed":
+
             def rhs(t_, yy):
                 _, _, y2, y3 = yy.tolist()
                 if ml == 0:
@@ -338,6 +358,7 @@ def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
                 Tsr = ka * (y2 - thu + a0) + ca * (y3 - spb)
                 return [0.0, 0.0, y3, (-fr_l(y3, ml) - Tsr) * iJl]
         else:
+
             def rhs(t_, yy):
                 y0, y1, y2, y3 = yy.tolist()
                 Tsr = ka * (y2 - y0 + a0) + ca * (y3 - y1)
@@ -348,6 +369,7 @@ def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
                     dwu = 0.0
                 dwl = (-fr_l(y3, ml) - Tsr) * iJl if ml != 0 else 0.0
                 return [y1, dwu, y3, dwl]
+
         return rhs
 
     def make_events(mu: int, ml: int, t0: float):
@@ -364,28 +386,36 @@ def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
 
         if has_upper:
             if mu != 0:
+
                 def ev_u0(t_, yy, s=mu):
                     return _TINY if t_ == t0 else s * yy[1]
+
                 add(ev_u0, -1, "u", "zero")
             else:
+
                 def ev_uhi(t_, yy):
                     return -_TINY if t_ == t0 else te_upper(t_, yy.tolist()) - hi_u
 
                 def ev_ulo(t_, yy):
                     return _TINY if t_ == t0 else te_upper(t_, yy.tolist()) - lo_u
+
                 add(ev_uhi, +1, "u", "hi")
                 add(ev_ulo, -1, "u", "lo")
         if has_lower:
             if ml != 0:
+
                 def ev_l0(t_, yy, s=ml):
                     return _TINY if t_ == t0 else s * yy[3]
+
                 add(ev_l0, -1, "l", "zero")
             else:
+
                 def ev_lhi(t_, yy):
                     return -_TINY if t_ == t0 else te_lower(t_, yy.tolist()) - hi_l
 
                 def ev_llo(t_, yy):
                     return _TINY if t_ == t0 else te_lower(t_, yy.tolist()) - lo_l
+
                 add(ev_lhi, +1, "l", "hi")
                 add(ev_llo, -1, "l", "lo")
         return evs, meta
@@ -467,9 +497,17 @@ def reference_simulate(params: dict, t: np.ndarray, u: np.ndarray | None,
                 break
             evs, meta = make_events(mu, ml, tc)
             first = span if h_hint is None else min(span, h_hint)
-            sol = solve_ivp(rhs, (tc, b_i), np.asarray(y), method="DOP853", rtol=rtol,
-                            atol=atol, events=evs, first_step=first,
-                            dense_output=dense_output)
+            sol = solve_ivp(
+                rhs,
+                (tc, b_i),
+                np.asarray(y),
+                method="DOP853",
+                rtol=rtol,
+                atol=atol,
+                events=evs,
+                first_step=first,
+                dense_output=dense_output,
+            )
             n_calls += 1
             if sol.status < 0:
                 raise RuntimeError(f"solve_ivp failed at t={tc}: {sol.message}")
@@ -574,8 +612,7 @@ class _DenseSolution:
     def __call__(self, tq) -> np.ndarray:
         tq = np.atleast_1d(np.asarray(tq, dtype=float))
         out = np.empty((4, tq.size))
-        idx = np.clip(np.searchsorted(self._starts, tq, side="right") - 1,
-                      0, len(self._sols) - 1)
+        idx = np.clip(np.searchsorted(self._starts, tq, side="right") - 1, 0, len(self._sols) - 1)
         for j in np.unique(idx):
             sel = idx == j
             out[:, sel] = np.asarray(self._sols[j](tq[sel])).reshape(4, -1)

@@ -36,40 +36,47 @@ CATALOGUE: dict[str, Effect] = {
     e.name: e
     for e in [
         Effect(
-            "lower_asymmetric_coulomb", ("dTc_l",),
+            "lower_asymmetric_coulomb",
+            ("dTc_l",),
             "Coulomb friction of the lower disc differs between the two directions (§5.2.3).",
             "residual of theta_l drifts one way in positive slip and the other in negative "
             "slip; error grows with each reversal",
         ),
         Effect(
-            "lower_asymmetric_viscous", ("db_l",),
+            "lower_asymmetric_viscous",
+            ("db_l",),
             "viscous friction of the lower disc differs between the two directions (eq. 5.18).",
             "residual correlates with omega_l * sign(omega_l) differently per direction",
         ),
         Effect(
-            "lower_stribeck", ("Ts_l", "ws_l", "delta_l"),
+            "lower_stribeck",
+            ("Ts_l", "ws_l", "delta_l"),
             "static friction above the Coulomb level, decaying with speed (negative damping).",
             "stick phases last longer than simulated; large errors right after break-away",
         ),
         Effect(
-            "string_damping", ("c_alpha",),
+            "string_damping",
+            ("c_alpha",),
             "viscous damping in the torsion of the string (§2.3 neglects it).",
             "simulated string oscillations decay too slowly; residual at the string's "
             "natural frequency",
         ),
         Effect(
-            "voltage_offset", ("u_offset",),
+            "voltage_offset",
+            ("u_offset",),
             "an offset in the amplifier's output voltage.",
             "theta_u residual drifts linearly while u is near zero",
         ),
         Effect(
-            "input_delay", ("t_delay",),
+            "input_delay",
+            ("t_delay",),
             "a time delay between the commanded and applied voltage.",
             "residual proportional to the derivative of the response; cross-correlation "
             "with u peaks at a positive lag",
         ),
         Effect(
-            "motor_deadzone", ("u_deadzone",),
+            "motor_deadzone",
+            ("u_deadzone",),
             "the motor produces no torque for small voltages.",
             "simulated upper disc moves where the measured one stays still at small |u|",
         ),
@@ -80,8 +87,20 @@ CATALOGUE: dict[str, Effect] = {
 BASE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "upper": ("k_m", "Tc_u", "dTc_u", "b_u", "db_u"),
     "coupled": ("k_m", "Tc_u", "dTc_u", "b_u", "db_u", "J_l", "k_alpha", "Tc_l", "b_l"),
-    "brake": ("k_m", "Tc_u", "dTc_u", "b_u", "db_u", "J_l", "k_alpha", "Tc_l", "b_l", "Ts_l",
-              "ws_l", "delta_l"),
+    "brake": (
+        "k_m",
+        "Tc_u",
+        "dTc_u",
+        "b_u",
+        "db_u",
+        "J_l",
+        "k_alpha",
+        "Tc_l",
+        "b_l",
+        "Ts_l",
+        "ws_l",
+        "delta_l",
+    ),
 }
 
 

@@ -90,7 +90,11 @@ def friction_curve(
         T = Tc + s * params["dTc_l"] + (params["b_l"] + s * params["db_l"]) * a
         if Ts != Tc:
             x = a / params["ws_l"]
-            S = np.exp(-(x ** params["delta_l"])) if shape == "exp" else 1 / (1 + x ** params["delta_l"])
+            S = (
+                np.exp(-(x ** params["delta_l"]))
+                if shape == "exp"
+                else 1 / (1 + x ** params["delta_l"])
+            )
             T = T + (Ts - Tc) * S
     else:
         raise ValueError(f"disc must be 'u' or 'l', not {disc!r}")

@@ -76,7 +76,15 @@ def _derived(p, dt):
     k_m, J_u, Tc_u, dTc_u, b_u, db_u = p[0], p[1], p[2], p[3], p[4], p[5]
     J_l, k_a, Tc_l, dTc_l, b_l, db_l = p[6], p[7], p[8], p[9], p[10], p[11]
     Ts_l, ws_l, d_l, a0, c_a, u_off, t_del, u_dz = (
-        p[12], p[13], p[14], p[15], p[16], p[17], p[18], p[19])
+        p[12],
+        p[13],
+        p[14],
+        p[15],
+        p[16],
+        p[17],
+        p[18],
+        p[19],
+    )
     ok = True
     for i in range(p.shape[0]):
         if not math.isfinite(p[i]):
@@ -179,8 +187,9 @@ def _rhs(thu, wu, thl, wl, mu, ml, d, c, cfg, shape):
     dthl = 0.0
     dwl = 0.0
     if ml != 0 and cfg != CFG_UPPER:
-        f = slip_torque(wl, ml, c[_TCL], c[_DTCL], c[_BL], c[_DBL], c[_DSL], c[_IWSL],
-                        c[_DL], shape)
+        f = slip_torque(
+            wl, ml, c[_TCL], c[_DTCL], c[_BL], c[_DBL], c[_DSL], c[_IWSL], c[_DL], shape
+        )
         dthl = wl
         dwl = (te_l - f) * c[_IJL]
     return dthu, dwu, dthl, dwl
@@ -195,15 +204,22 @@ def _rk4(h, thu, wu, thl, wl, mu, ml, k1, dm, d1, c, cfg, shape):
     """
     a1, a2, a3, a4 = k1
     hh = 0.5 * h
-    b1, b2, b3, b4 = _rhs(thu + hh * a1, wu + hh * a2, thl + hh * a3, wl + hh * a4,
-                          mu, ml, dm, c, cfg, shape)
-    c1, c2, c3, c4 = _rhs(thu + hh * b1, wu + hh * b2, thl + hh * b3, wl + hh * b4,
-                          mu, ml, dm, c, cfg, shape)
-    e1, e2, e3, e4 = _rhs(thu + h * c1, wu + h * c2, thl + h * c3, wl + h * c4,
-                          mu, ml, d1, c, cfg, shape)
+    b1, b2, b3, b4 = _rhs(
+        thu + hh * a1, wu + hh * a2, thl + hh * a3, wl + hh * a4, mu, ml, dm, c, cfg, shape
+    )
+    c1, c2, c3, c4 = _rhs(
+        thu + hh * b1, wu + hh * b2, thl + hh * b3, wl + hh * b4, mu, ml, dm, c, cfg, shape
+    )
+    e1, e2, e3, e4 = _rhs(
+        thu + h * c1, wu + h * c2, thl + h * c3, wl + h * c4, mu, ml, d1, c, cfg, shape
+    )
     k = h / 6.0
-    return (thu + k * (a1 + 2.0 * (b1 + c1) + e1), wu + k * (a2 + 2.0 * (b2 + c2) + e2),
-            thl + k * (a3 + 2.0 * (b3 + c3) + e3), wl + k * (a4 + 2.0 * (b4 + c4) + e4))
+    return (
+        thu + k * (a1 + 2.0 * (b1 + c1) + e1),
+        wu + k * (a2 + 2.0 * (b2 + c2) + e2),
+        thl + k * (a3 + 2.0 * (b3 + c3) + e3),
+        wl + k * (a4 + 2.0 * (b4 + c4) + e4),
+    )
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -288,9 +304,24 @@ def _locate(t, h, g0, g1, disc, thu, wu, thl, wl, mu, ml, k1, c, cfg, shape, u, 
     return b
 
 
-@njit(cache=True, error_model="numpy")
-def simulate_into(p, u, dt, cfg, shape, stride, substeps, thp,
-                  out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events):
+@njit(cache=True, error_model="numpy", nogil=True)
+def simulate_into(
+    p,
+    u,
+    dt,
+    cfg,
+    shape,
+    stride,
+    substeps,
+    thp,
+    out_thu,
+    out_wu,
+    out_thl,
+    out_wl,
+    out_mu,
+    out_ml,
+    events,
+):
     """Integrate one experiment and write the result into preallocated arrays.
 
     Parameters
@@ -367,17 +398,52 @@ def simulate_into(p, u, dt, cfg, shape, stride, substeps, thp,
                 # Locate the earliest event among the violated guards.
                 gu0, gl0 = _guards_now(thu, wu, thl, wl, mu, ml, t, c, cfg, u, thp)
                 if gu1 < 0.0:
-                    seg = _locate(t, rem, max(gu0, 0.0), gu1, 0, thu, wu, thl, wl, mu, ml, f,
-                                  c, cfg, shape, u, thp)
+                    seg = _locate(
+                        t,
+                        rem,
+                        max(gu0, 0.0),
+                        gu1,
+                        0,
+                        thu,
+                        wu,
+                        thl,
+                        wl,
+                        mu,
+                        ml,
+                        f,
+                        c,
+                        cfg,
+                        shape,
+                        u,
+                        thp,
+                    )
                     disc = 0
                 if gl1 < 0.0:
-                    tl = _locate(t, rem, max(gl0, 0.0), gl1, 1, thu, wu, thl, wl, mu, ml, f,
-                                 c, cfg, shape, u, thp)
+                    tl = _locate(
+                        t,
+                        rem,
+                        max(gl0, 0.0),
+                        gl1,
+                        1,
+                        thu,
+                        wu,
+                        thl,
+                        wl,
+                        mu,
+                        ml,
+                        f,
+                        c,
+                        cfg,
+                        shape,
+                        u,
+                        thp,
+                    )
                     if disc < 0 or tl < seg:
                         seg = tl
                         disc = 1
-                y1, y2, y3, y4, de = _step_to(t, seg, thu, wu, thl, wl, mu, ml, f, c, cfg,
-                                              shape, u, thp)
+                y1, y2, y3, y4, de = _step_to(
+                    t, seg, thu, wu, thl, wl, mu, ml, f, c, cfg, shape, u, thp
+                )
             else:
                 de = d1
             fe = _rhs(y1, y2, y3, y4, mu, ml, de, c, cfg, shape)
@@ -424,8 +490,9 @@ def simulate_into(p, u, dt, cfg, shape, stride, substeps, thp,
             if rem <= 1e-12 * dt:
                 break
             dm = _drive(t + 0.5 * rem, c, cfg, u, thp)
-        if status == OK and not (abs(wu) < _VMAX and abs(wl) < _VMAX and math.isfinite(thu)
-                                 and math.isfinite(thl)):
+        if status == OK and not (
+            abs(wu) < _VMAX and abs(wl) < _VMAX and math.isfinite(thu) and math.isfinite(thl)
+        ):
             status = BLOW_UP
         if status != OK:
             out_thu[kout:] = np.nan
@@ -460,6 +527,21 @@ def simulate_batch_into(P, u, dt, cfg, shape, stride, substeps, thp, out_thu, ou
         mu = np.empty(n, dtype=np.int8)
         ml = np.empty(n, dtype=np.int8)
         ev = np.empty((0, 3))
-        s, _ = simulate_into(P[i], u, dt, cfg, shape, stride, substeps, thp, out_thu[i], wu,
-                             out_thl[i], wl, mu, ml, ev)
+        s, _ = simulate_into(
+            P[i],
+            u,
+            dt,
+            cfg,
+            shape,
+            stride,
+            substeps,
+            thp,
+            out_thu[i],
+            wu,
+            out_thl[i],
+            wl,
+            mu,
+            ml,
+            ev,
+        )
         status[i] = s

@@ -46,22 +46,28 @@ def physics_problems(p: Mapping[str, float], config: str = "brake") -> list[str]
         if n in p and not math.isfinite(p[n]) and not (n == "Ts_l" and math.isnan(p[n])):
             out.append(f"{n} = {p[n]} is not finite")
     checks = [("J_u", p["J_u"] > 0, "must be > 0")]
-    checks += [("Tc_u", p["Tc_u"] >= abs(p["dTc_u"]), f"must be >= |dTc_u| = {abs(p['dTc_u']):g} "
-                "(friction may not push in the direction of motion)"),
-               ("b_u", p["b_u"] >= abs(p["db_u"]), f"must be >= |db_u| = {abs(p['db_u']):g}"),
-               ("u_deadzone", p["u_deadzone"] >= 0, "must be >= 0"),
-               ("t_delay", p["t_delay"] >= 0, "must be >= 0")]
+    checks += [
+        (
+            "Tc_u",
+            p["Tc_u"] >= abs(p["dTc_u"]),
+            f"must be >= |dTc_u| = {abs(p['dTc_u']):g} "
+            "(friction may not push in the direction of motion)",
+        ),
+        ("b_u", p["b_u"] >= abs(p["db_u"]), f"must be >= |db_u| = {abs(p['db_u']):g}"),
+        ("u_deadzone", p["u_deadzone"] >= 0, "must be >= 0"),
+        ("t_delay", p["t_delay"] >= 0, "must be >= 0"),
+    ]
     if config != "upper":
-        checks += [("J_l", p["J_l"] > 0, "must be > 0"),
-                   ("k_alpha", p["k_alpha"] >= 0, "must be >= 0"),
-                   ("c_alpha", p["c_alpha"] >= 0, "must be >= 0"),
-                   ("Tc_l", p["Tc_l"] >= abs(p["dTc_l"]), f"must be >= |dTc_l| = "
-                    f"{abs(p['dTc_l']):g}"),
-                   ("b_l", p["b_l"] >= abs(p["db_l"]), f"must be >= |db_l| = {abs(p['db_l']):g}"),
-                   ("Ts_l", math.isnan(p["Ts_l"]) or p["Ts_l"] >= abs(p["dTc_l"]),
-                    "must be >= |dTc_l|"),
-                   ("ws_l", p["ws_l"] > 0, "must be > 0"),
-                   ("delta_l", p["delta_l"] > 0, "must be > 0")]
+        checks += [
+            ("J_l", p["J_l"] > 0, "must be > 0"),
+            ("k_alpha", p["k_alpha"] >= 0, "must be >= 0"),
+            ("c_alpha", p["c_alpha"] >= 0, "must be >= 0"),
+            ("Tc_l", p["Tc_l"] >= abs(p["dTc_l"]), f"must be >= |dTc_l| = {abs(p['dTc_l']):g}"),
+            ("b_l", p["b_l"] >= abs(p["db_l"]), f"must be >= |db_l| = {abs(p['db_l']):g}"),
+            ("Ts_l", math.isnan(p["Ts_l"]) or p["Ts_l"] >= abs(p["dTc_l"]), "must be >= |dTc_l|"),
+            ("ws_l", p["ws_l"] > 0, "must be > 0"),
+            ("delta_l", p["delta_l"] > 0, "must be > 0"),
+        ]
     for name, ok, why in checks:
         if not ok:
             out.append(f"{name} = {p[name]:g} {why}")
@@ -117,8 +123,14 @@ class Simulation:
 
     def to_experiment(self, name: str = "simulated") -> Experiment:
         """The simulated angles as a measurement (for saving or fitting)."""
-        return Experiment(t=self.t, u=self.u, theta_u=self.theta_u, theta_l=self.theta_l,
-                          name=name, meta=dict(self.meta))
+        return Experiment(
+            t=self.t,
+            u=self.u,
+            theta_u=self.theta_u,
+            theta_l=self.theta_l,
+            name=name,
+            meta=dict(self.meta),
+        )
 
 
 class Simulator:
@@ -146,15 +158,26 @@ class Simulator:
         whole fraction of one).
     """
 
-    def __init__(self, config: str, u, dt: float, *, theta_u=None,
-                 effects: Iterable[str] = (), shape: str = "exp", step: float = DEFAULT_STEP):
+    def __init__(
+        self,
+        config: str,
+        u,
+        dt: float,
+        *,
+        theta_u=None,
+        effects: Iterable[str] = (),
+        shape: str = "exp",
+        step: float = DEFAULT_STEP,
+    ):
         self.config = check_config(config)
         self.effects = tuple(effects)
         for e in self.effects:
             _effects.get(e)
         self.u = np.ascontiguousarray(u, dtype=float)
         if self.u.ndim != 1 or self.u.size < 2:
-            raise ValueError(f"u must be a 1-D array of at least 2 samples, got shape {self.u.shape}")
+            raise ValueError(
+                f"u must be a 1-D array of at least 2 samples, got shape {self.u.shape}"
+            )
         if not np.all(np.isfinite(self.u)):
             i = int(np.flatnonzero(~np.isfinite(self.u))[0])
             raise ValueError(f"u[{i}] = {self.u[i]} is not finite; the input must be finite")
@@ -165,8 +188,10 @@ class Simulator:
         self.prescribed = theta_u is not None
         if self.prescribed:
             if config == "upper":
-                raise ValueError("a prescribed upper-disc motion needs the 'coupled' or 'brake' "
-                                 "configuration (the lower disc must be present)")
+                raise ValueError(
+                    "a prescribed upper-disc motion needs the 'coupled' or 'brake' "
+                    "configuration (the lower disc must be present)"
+                )
             self.theta_u = np.ascontiguousarray(theta_u, dtype=float)
             if self.theta_u.shape != self.u.shape:
                 raise ValueError(f"theta_u has {self.theta_u.size} samples but u has {self.n}")
@@ -208,9 +233,18 @@ class Simulator:
         n = self.n
         out = [np.empty(n) for _ in range(4)] + [np.empty(n, np.int8) for _ in range(2)]
         ev = np.empty((max_events, 3))
-        status, n_ev = _k.simulate_into(np.ascontiguousarray(kv, dtype=float), self.u, self.dt,
-                                        self.cfg, self.shape, self.stride, self.substeps,
-                                        self.theta_u, *out, ev)
+        status, n_ev = _k.simulate_into(
+            np.ascontiguousarray(kv, dtype=float),
+            self.u,
+            self.dt,
+            self.cfg,
+            self.shape,
+            self.stride,
+            self.substeps,
+            self.theta_u,
+            *out,
+            ev,
+        )
         return status, (*out, ev[: min(n_ev, max_events)], n_ev)
 
     def angles(self, kv: np.ndarray):
@@ -228,12 +262,28 @@ class Simulator:
         thu = np.empty((m, self.n))
         thl = np.empty((m, self.n))
         st = np.empty(m, dtype=np.int64)
-        _k.simulate_batch_into(KV, self.u, self.dt, self.cfg, self.shape, self.stride,
-                               self.substeps, self.theta_u, thu, thl, st)
+        _k.simulate_batch_into(
+            KV,
+            self.u,
+            self.dt,
+            self.cfg,
+            self.shape,
+            self.stride,
+            self.substeps,
+            self.theta_u,
+            thu,
+            thl,
+            st,
+        )
         return st, thu, thl
 
-    def simulate(self, params: Mapping[str, float], *, max_events: int = 100_000,
-                 raise_on_failure: bool = True) -> Simulation:
+    def simulate(
+        self,
+        params: Mapping[str, float],
+        *,
+        max_events: int = 100_000,
+        raise_on_failure: bool = True,
+    ) -> Simulation:
         """Full simulation with velocities, modes and events (see :class:`Simulation`)."""
         problems = physics_problems(params, self.config)
         if problems and raise_on_failure:
@@ -242,23 +292,44 @@ class Simulator:
         status, (thu, wu, thl, wl, mu, ml, ev, n_ev) = self.run(kv, max_events=max_events)
         if status != _k.OK and raise_on_failure:
             vals = ", ".join(f"{n}={params[n]:g}" for n in NAMES)
-            raise SimulationError(f"integration failed: {_k.STATUS_MESSAGES[status]} "
-                                  f"(parameters: {vals})")
+            raise SimulationError(
+                f"integration failed: {_k.STATUS_MESSAGES[status]} (parameters: {vals})"
+            )
         lower = self.config != "upper"
         return Simulation(
-            t=self.t, u=self.u.copy(), theta_u=thu, theta_l=thl if lower else None,
-            omega_u=wu, omega_l=wl if lower else None, mode_u=mu,
-            mode_l=ml if lower else None, events=ev, params=dict(params), config=self.config,
+            t=self.t,
+            u=self.u.copy(),
+            theta_u=thu,
+            theta_l=thl if lower else None,
+            omega_u=wu,
+            omega_l=wl if lower else None,
+            mode_u=mu,
+            mode_l=ml if lower else None,
+            events=ev,
+            params=dict(params),
+            config=self.config,
             effects=self.effects,
             meta={"status": _k.STATUS_MESSAGES[status], "n_events": str(n_ev)},
         )
 
 
-def simulate(params=None, u=None, *, dt: float | None = None, t=None, config: str = "brake",
-             alpha0: float | None = None, theta_u=None, effects: Iterable[str] = (),
-             shape: str = "exp", step: float = DEFAULT_STEP, quantize_angles: bool = False,
-             noise_std: float = 0.0, seed: int | np.random.Generator | None = None,
-             max_events: int = 100_000) -> Simulation:
+def simulate(
+    params=None,
+    u=None,
+    *,
+    dt: float | None = None,
+    t=None,
+    config: str = "brake",
+    alpha0: float | None = None,
+    theta_u=None,
+    effects: Iterable[str] = (),
+    shape: str = "exp",
+    step: float = DEFAULT_STEP,
+    quantize_angles: bool = False,
+    noise_std: float = 0.0,
+    seed: int | np.random.Generator | None = None,
+    max_events: int = 100_000,
+) -> Simulation:
     """Simulate the rig for one input.
 
     Parameters
@@ -336,5 +407,12 @@ def simulate(params=None, u=None, *, dt: float | None = None, t=None, config: st
     return out
 
 
-__all__ = ["CONFIGS", "DEFAULT_STEP", "Simulation", "SimulationError", "Simulator", "simulate",
-           "ParameterError"]
+__all__ = [
+    "CONFIGS",
+    "DEFAULT_STEP",
+    "Simulation",
+    "SimulationError",
+    "Simulator",
+    "simulate",
+    "ParameterError",
+]

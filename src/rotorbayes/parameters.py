@@ -139,15 +139,24 @@ _T53 = {
 _b54, _db54 = _pair(0.0096, 0.0089)
 _T54 = {
     # The brake step assumes symmetric Coulomb friction (thesis §5.3.1).
-    "P0": dict(Tc_l=0.0473, dTc_l=0.0, b_l=0.0105, db_l=0.0, Ts_l=0.2781, ws_l=1.4302,
-               delta_l=2.0575),
-    "P": dict(Tc_l=0.0430, dTc_l=0.0, b_l=_b54, db_l=_db54, Ts_l=0.2832, ws_l=1.4502,
-              delta_l=1.7504),
+    "P0": dict(
+        Tc_l=0.0473, dTc_l=0.0, b_l=0.0105, db_l=0.0, Ts_l=0.2781, ws_l=1.4302, delta_l=2.0575
+    ),
+    "P": dict(
+        Tc_l=0.0430, dTc_l=0.0, b_l=_b54, db_l=_db54, Ts_l=0.2832, ws_l=1.4502, delta_l=1.7504
+    ),
 }
 
 #: Which configuration each table belongs to.
-TABLE_CONFIG = {"4.1": "upper", "4.2": "coupled", "4.3": "brake", "5.1": "upper",
-                "5.2": "coupled", "5.3": "coupled", "5.4": "brake"}
+TABLE_CONFIG = {
+    "4.1": "upper",
+    "4.2": "coupled",
+    "4.3": "brake",
+    "5.1": "upper",
+    "5.2": "coupled",
+    "5.3": "coupled",
+    "5.4": "brake",
+}
 
 
 def null_values() -> dict[str, float]:
@@ -194,8 +203,11 @@ TABLE_FREE = {
 }
 
 #: The default full parameter set of each configuration (thesis chapter 4 P_ref).
-DEFAULT_SET = {"upper": "thesis:4.1:P_ref", "coupled": "thesis:4.2:P_ref",
-               "brake": "thesis:4.3:P_ref"}
+DEFAULT_SET = {
+    "upper": "thesis:4.1:P_ref",
+    "coupled": "thesis:4.2:P_ref",
+    "brake": "thesis:4.3:P_ref",
+}
 
 
 def named_sets() -> list[str]:
@@ -215,9 +227,7 @@ def thesis_set(table: str, row: str) -> dict[str, float]:
     """
     key = f"{table}:{row}"
     if key not in _THESIS_SETS:
-        raise ParameterError(
-            f"no thesis set {key!r}; available: {', '.join(sorted(_THESIS_SETS))}"
-        )
+        raise ParameterError(f"no thesis set {key!r}; available: {', '.join(sorted(_THESIS_SETS))}")
     return dict(_THESIS_SETS[key])
 
 
@@ -233,7 +243,9 @@ def load_toml(path: str | Path) -> dict[str, float]:
     except FileNotFoundError:
         raise ParameterError(f"{path}: parameter file not found") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(f"{path}: not valid TOML ({exc}); write `name = value` lines") from None
+        raise ParameterError(
+            f"{path}: not valid TOML ({exc}); write `name = value` lines"
+        ) from None
     base = raw.pop("base", None)
     table = raw.pop("parameters", {})
     values = {**raw, **table}
@@ -301,6 +313,7 @@ def table_markdown() -> str:
     rows = ["| name | unit | bounds | null | meaning |", "|---|---|---|---|---|"]
     for p in _INFO:
         null = "= Tc_l" if math.isnan(p.null) else f"{p.null:g}"
-        rows.append(f"| `{p.name}` | {p.unit} | [{p.lower:g}, {p.upper:g}] | {null} | "
-                    f"{p.description} |")
+        rows.append(
+            f"| `{p.name}` | {p.unit} | [{p.lower:g}, {p.upper:g}] | {null} | {p.description} |"
+        )
     return "\n".join(rows)
