@@ -12,6 +12,7 @@ See ``docs/model.md`` for the equations and parameters.
 
 from . import data, effects, parameters, signals
 from .data import Experiment, load_experiment, save_experiment
+from .examples import example_names, load_example
 from .model import CONFIGS, Simulation, SimulationError, Simulator, simulate
 from .parameters import NAMES, ParameterError
 
@@ -26,6 +27,8 @@ __all__ = [
     "SimulationError",
     "Simulator",
     "data",
+    "example_names",
+    "load_example",
     "effects",
     "load_experiment",
     "parameters",

@@ -83,24 +83,13 @@ CATALOGUE: dict[str, Effect] = {
     ]
 }
 
-#: Parameters of each configuration before any effect is added.
+#: Parameters estimated in each configuration before any effect is added: the thesis's
+#: stepwise method (tables 4.1-4.3) estimates the upper disc first, then the string and
+#: lower disc with the upper part fixed, then the brake friction.
 BASE_PARAMETERS: dict[str, tuple[str, ...]] = {
     "upper": ("k_m", "Tc_u", "dTc_u", "b_u", "db_u"),
-    "coupled": ("k_m", "Tc_u", "dTc_u", "b_u", "db_u", "J_l", "k_alpha", "Tc_l", "b_l"),
-    "brake": (
-        "k_m",
-        "Tc_u",
-        "dTc_u",
-        "b_u",
-        "db_u",
-        "J_l",
-        "k_alpha",
-        "Tc_l",
-        "b_l",
-        "Ts_l",
-        "ws_l",
-        "delta_l",
-    ),
+    "coupled": ("J_l", "k_alpha", "Tc_l", "b_l"),
+    "brake": ("Tc_l", "b_l", "Ts_l", "ws_l", "delta_l"),
 }
 
 

@@ -360,7 +360,6 @@ def simulate_into(
         out_wl[:] = np.nan
         return BAD_PARAMETERS, 0
     max_ev = events.shape[0]
-    span = (n - 1) * dt
     ratio = stride / substeps  # step length in samples
     n_steps = int(math.ceil((n - 1) / ratio - 1e-9))
     thu = 0.0

@@ -1,0 +1,443 @@
+"""The ``rotorbayes`` command line: simulate, fit, multistart, demo, params, effects."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import effects as _effects
+from . import parameters as _params
+from .data import DataFileError, Experiment, load_experiment, save_experiment
+from .examples import example_path
+
+
+class CLIError(Exception):
+    """A user error: printed without a traceback, exit code 2."""
+
+
+def _out_dir(path: str, force: bool) -> Path:
+    """An output folder that does not hold earlier results (unless ``--force``)."""
+    out = Path(path)
+    if out.exists() and any(out.iterdir()) and not force:
+        raise CLIError(f"{out}/ already holds results; choose another --out or pass --force "
+                       "to overwrite them")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _example_path(name: str) -> str:
+    """Resolve ``example:NAME`` to a bundled data file."""
+    if name.startswith("example:"):
+        return str(example_path(name))
+    return name
+
+
+def _load(paths, config: str) -> list[Experiment]:
+    exps = []
+    for p in paths:
+        ex = load_experiment(_example_path(p), expect_lower=config != "upper")
+        exps.append(ex)
+    return exps
+
+
+def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``t,u`` (and possibly more columns) from a CSV file."""
+    p = Path(path)
+    if not p.exists():
+        raise CLIError(f"{p}: input file not found")
+    lines = [ln for ln in p.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    if not lines:
+        raise CLIError(f"{p}: the file is empty; it needs a header 't,u' and rows of numbers")
+    header = [h.strip() for h in lines[0].split(",")]
+    if "t" not in header or "u" not in header:
+        raise CLIError(f"{p}: line 1: the header {lines[0]!r} must contain the columns t and u")
+    it, iu = header.index("t"), header.index("u")
+    t, u = [], []
+    for k, ln in enumerate(lines[1:], start=2):
+        f = ln.split(",")
+        try:
+            t.append(float(f[it]))
+            u.append(float(f[iu]))
+        except (ValueError, IndexError):
+            raise CLIError(f"{p}: row {k}: {ln!r} is not a row of numbers matching the header"
+                           ) from None
+    t, u = np.array(t), np.array(u)
+    if not np.all(np.isfinite(u)) or not np.all(np.isfinite(t)):
+        raise CLIError(f"{p}: the t and u columns must be finite numbers")
+    d = np.diff(t)
+    if t.size < 2 or np.any(d <= 0):
+        raise CLIError(f"{p}: time must increase from row to row")
+    if np.max(np.abs(d - np.median(d))) > 1e-6 * np.median(d):
+        raise CLIError(f"{p}: time must be uniformly sampled; resample the input first")
+    return t - t[0], u
+
+
+def _param_spec(spec: str | None):
+    """A ``--params``/``--p0`` value: named set, TOML file or a fit.json from an earlier fit."""
+    if spec is None:
+        return None
+    if spec.endswith(".json"):
+        p = Path(spec)
+        if p.is_dir():
+            p = p / "fit.json"
+        try:
+            data = json.loads(p.read_text())
+            return {k: float(v) for k, v in data["params"].items() if not (
+                isinstance(v, float) and math.isnan(v))}
+        except (OSError, KeyError, ValueError) as exc:
+            raise CLIError(f"{p}: cannot read parameters from it ({exc}); give a fit.json "
+                           "written by `rotorbayes fit`, a TOML file or a named set") from None
+    if Path(spec).is_dir() and (Path(spec) / "fit.json").exists():
+        return _param_spec(str(Path(spec) / "fit.json"))
+    return spec
+
+
+# ------------------------------------------------------------------------------- simulate
+def cmd_simulate(a) -> int:
+    from .model import simulate
+    from .signals import make_signal
+
+    if a.input_file:
+        t, u = _read_input_file(a.input_file)
+    else:
+        t, u = make_signal(a.input, a.duration, rate=a.rate, seed=a.seed)
+    dt = float(t[1] - t[0])
+    out = Path(a.out)
+    if out.exists() and not a.force:
+        raise CLIError(f"{out} exists; choose another --out or pass --force to overwrite it")
+    params = _params.resolve(_param_spec(a.params), config=a.model)
+    t0 = time.perf_counter()
+    sim = simulate(params, u, dt=dt, config=a.model, alpha0=a.alpha0,
+                   effects=a.effects or (), quantize_angles=a.quantize,
+                   noise_std=a.noise, seed=a.seed)
+    el = time.perf_counter() - t0
+    meta = {"source": "rotorbayes simulate (synthetic)", "config": a.model,
+            "input": a.input_file or f"{a.input} seed={a.seed}",
+            "params": a.params or f"default ({_params.DEFAULT_SET[a.model]})",
+            "alpha0": sim.params["alpha0"], "quantized": a.quantize, "noise_std": a.noise}
+    save_experiment(sim.to_experiment(), out, overwrite=a.force, meta=meta)
+    n_stick = int(np.sum(sim.events[:, 2] == 0)) if sim.events.size else 0
+    print(f"simulated {a.model} configuration, {sim.t[-1]:.1f} s at {1 / dt:.0f} Hz in "
+          f"{1e3 * el:.1f} ms; {len(sim.events)} stick/slip switches ({n_stick} stick onsets)")
+    if sim.theta_l is not None:
+        print(f"lower disc sticks {100 * sim.stick_fraction('l'):.1f} % of the time; "
+              f"string torsion {sim.alpha.min():.3f} .. {sim.alpha.max():.3f} rad")
+    print(f"wrote {out}")
+    if a.plot:
+        from .plots import plot_simulation
+
+        fig, _ = plot_simulation(sim)
+        fig.savefig(a.plot, dpi=110)
+        print(f"wrote {a.plot}")
+    return 0
+
+
+# ------------------------------------------------------------------------------------ fit
+def _problem_from_args(a, exps):
+    from .estimation import Problem
+
+    free = a.free.split(",") if a.free else None
+    fixed = a.fixed.split(",") if a.fixed else ()
+    if free is not None and fixed:
+        clash = [n for n in fixed if n in free]
+        if clash:
+            raise CLIError(f"{', '.join(clash)} is both --fixed and --free; remove it from one")
+    if free is None and fixed:
+        from .effects import BASE_PARAMETERS
+
+        _params.check_names(fixed, where="--fixed")
+        free = [n for n in BASE_PARAMETERS[a.model] if n not in fixed]
+        for e in a.effects or ():
+            free += [p for p in _effects.get(e).parameters if p not in free and p not in fixed]
+        if a.model != "upper" and len(exps) > 1 and "alpha0" not in fixed:
+            free.append("alpha0")
+    base = _params.resolve(_param_spec(a.base), config=a.model) if a.base else None
+    channels = tuple(a.channels.split(",")) if a.channels else None
+    weights = None
+    if a.weights:
+        weights = {}
+        for item in a.weights.split(","):
+            k, _, v = item.partition("=")
+            weights[k] = float(v)
+    return Problem(a.model, exps, free=free, base=base, effects=a.effects or (),
+                   channels=channels, weights=weights, prescribed_upper=a.prescribed_upper,
+                   fixed=fixed)
+
+
+def _fmt_params(names, x, se=None, x0=None) -> str:
+    rows = [f"{'parameter':<12} {'estimate':>12} {'std. error':>12} {'start':>12}  unit"]
+    for i, n in enumerate(names):
+        base = n.split("[")[0]
+        s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
+        st = f"{x0[i]:12.5g}" if x0 is not None else ""
+        rows.append(f"{n:<12} {x[i]:12.5g} {s} {st}  {_params.INFO[base].unit}")
+    return "\n".join(rows)
+
+
+def _quality_table(rows, label: str) -> str:
+    from .metrics import ChannelFit, fit_table
+
+    out = []
+    for r in rows:
+        fits = [ChannelFit(**{k: v for k, v in c.items() if k in ChannelFit.__dataclass_fields__})
+                for c in r["channels"].values()]
+        out.append(fit_table(fits, title=f"{label}: {r['experiment']}"))
+    return "\n\n".join(out)
+
+
+def run_fit(a, out: Path) -> dict:
+    """Fit, print and write fit.json + figures; returns the JSON document."""
+    from . import estimation as E
+    from .plots import plot_fit, plot_friction
+
+    exps = _load(a.data, a.model)
+    val = _load(a.validate, a.model) if a.validate else []
+    prob = _problem_from_args(a, exps)
+    p0 = _param_spec(a.p0)
+    start = {**prob.base, **(_params.resolve(p0, config=a.model) if p0 is not None else {})}
+    if p0 is not None and not a.base:
+        # The start set also fixes the values of the parameters that are not estimated.
+        prob.base = dict(start)
+    x0 = prob.x_from(start)
+    print(f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {a.model} "
+          f"configuration to {len(exps)} experiment(s), channels {', '.join(prob.channels)}")
+    res = E.fit(prob, x0, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol, gtol=a.gtol,
+                verbose=True)
+    status = "" if res.success else "DID NOT CONVERGE: "
+    print(f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
+          f"{res.seconds:.1f} s)\n")
+    print(_fmt_params(res.names, res.x, res.stderr, res.x0))
+    q_est = E.quality(prob, res.x)
+    q_val = E.quality(prob, res.x, val) if val else []
+    print()
+    print(_quality_table(q_est, "estimation data"))
+    if q_val:
+        print()
+        print(_quality_table(q_val, "validation data"))
+    w, V = res.sloppy_directions()
+    sloppy = {n: float(c) for n, c in zip(res.names, V[:, 0], strict=True)}
+    ratio = float(w[-1] / max(w[0], 1e-300))
+    movers = [n for n, c in sloppy.items() if abs(c) > 0.3]
+    if len(movers) >= 2 and ratio > 1e4:
+        print(f"\nIdentifiability: the least-determined direction (Fisher eigenvalue ratio "
+              f"{ratio:.1e}) moves {', '.join(movers)} together "
+              f"({', '.join(f'{n} {sloppy[n]:+.2f}' for n in movers)} in log scale); the data "
+              "fix their ratios far better than their values.")
+    doc = {
+        "config": a.model, "effects": list(prob.effects), "channels": list(prob.channels),
+        "data": [str(e.path) for e in exps], "validation": [str(e.path) for e in val],
+        "success": res.success, "message": res.message, "nfev": res.nfev,
+        "seconds": res.seconds, "ssr": res.ssr, "n_residuals": res.n_residuals,
+        "estimates": {n: {"value": float(v), "stderr": float(s), "start": float(s0),
+                          "unit": _params.INFO[n.split("[")[0]].unit}
+                      for n, v, s, s0 in zip(res.names, res.x, res.stderr, res.x0, strict=True)},
+        "params": res.params,
+        "quality": {"estimation": [{k: v for k, v in r.items() if k != "simulation"}
+                                   for r in q_est],
+                    "validation": [{k: v for k, v in r.items() if k != "simulation"}
+                                   for r in q_val]},
+        "fisher": {"eigenvalues_log": [float(v) for v in w], "sloppiest_direction": sloppy},
+        "correlation": res.correlation().tolist(),
+    }
+    (out / "fit.json").write_text(json.dumps(doc, indent=2, default=_json_default))
+    for label, rows, exs in (("est", q_est, exps), ("val", q_val, val)):
+        for i, (r, ex) in enumerate(zip(rows, exs, strict=True)):
+            s = r["simulation"]
+            meas, simd, txt = {}, {}, {}
+            for c, st in r["channels"].items():
+                simc = {"theta_u": s.theta_u, "theta_l": s.theta_l, "alpha": s.alpha}[c]
+                measc = {"theta_u": ex.theta_u, "theta_l": ex.theta_l,
+                         "alpha": None if ex.theta_l is None else
+                         ex.theta_l - ex.theta_u + s.params["alpha0"]}[c]
+                meas[c], simd[c] = measc, simc
+                txt[c] = (f"R² {st['r2']:.4f}, fit {st['nrmse_fit']:.2f} %, "
+                          f"max |e| {st['max_abs_error']:.3g} rad")
+            fig, _ = plot_fit(ex.t, meas, simd, mode=s.mode_l, metrics=txt,
+                              title=f"{a.model}: {label} data {Path(str(ex.path)).name}")
+            fig.savefig(out / f"fit_{label}_{i}.png", dpi=100)
+    shape_discs = ("u",) if a.model == "upper" else ("u", "l")
+    fig, _ = plot_friction(res.params, discs=shape_discs,
+                           title=f"fitted friction, {a.model} configuration")
+    fig.savefig(out / "friction.png", dpi=100)
+    print(f"\nwrote {out / 'fit.json'} and figures in {out}/")
+    if not res.success:
+        print("warning: the optimiser did not converge; the results above are where it "
+              "stopped (raise --max-nfev or start closer).", file=sys.stderr)
+    return doc
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+def cmd_fit(a) -> int:
+    out = _out_dir(a.out, a.force)
+    doc = run_fit(a, out)
+    return 0 if doc["success"] else 1
+
+
+def cmd_multistart(a) -> int:
+    from . import estimation as E
+    from .plots import plot_parameter_spread, plot_waterfall
+
+    out = _out_dir(a.out, a.force)
+    exps = _load(a.data, a.model)
+    prob = _problem_from_args(a, exps)
+    around = None
+    if a.around:
+        around = _params.resolve(_param_spec(a.around), config=a.model)
+    how = (f"log-normal spread {a.spread:.2f} around {a.around}" if around
+           else "Latin hypercube over the bounds")
+    print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
+    ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
+                      workers=a.workers, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
+                      gtol=a.gtol)
+    order = np.argsort(ms.ssr)
+    print("\nbest end points:")
+    print(" rank  cluster        SSR   " + " ".join(f"{n:>10}" for n in ms.names))
+    for r, i in enumerate(order[: min(10, len(order))]):
+        print(f" {r + 1:4d}  {ms.clusters[i]:7d}  {ms.ssr[i]:9.4g}   "
+              + " ".join(f"{v:10.4g}" for v in ms.ends[i]))
+    summary = ms.summary()
+    print("\n" + summary)
+    doc = {"config": a.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
+           "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters, "summary": summary,
+           "data": [str(e.path) for e in exps]}
+    (out / "multistart.json").write_text(json.dumps(doc, indent=2, default=_json_default))
+    fig, _ = plot_waterfall(ms.ssr, title=f"multistart, {a.model}: sorted final SSR")
+    fig.savefig(out / "waterfall.png", dpi=100)
+    fig, _ = plot_parameter_spread(ms.names, ms.ends, ms.ssr,
+                                   title="end points (colour: log10 SSR above best)")
+    fig.savefig(out / "parameter_spread.png", dpi=100)
+    (out / "summary.txt").write_text(summary + "\n")
+    print(f"\nwrote {out}/multistart.json, waterfall.png, parameter_spread.png, summary.txt")
+    return 0
+
+
+def cmd_demo(a) -> int:
+    """The main job on bundled data: the thesis's coupled step from P0, with validation."""
+    out = _out_dir(a.out, a.force)
+    ns = argparse.Namespace(
+        model="coupled", data=["example:coupled_est"], validate=["example:coupled_val"],
+        p0="thesis:5.2:P0", base=None, free=None, fixed=None, effects=None, channels=None,
+        weights=None, prescribed_upper=False, max_nfev=100, ftol=1e-10, xtol=1e-10,
+        gtol=1e-10)
+    print("rotorbayes demo: least squares on the bundled (synthetic) coupled-configuration "
+          "data, from the thesis's P0 (table 5.2)\n")
+    doc = run_fit(ns, out)
+    return 0 if doc["success"] else 1
+
+
+def cmd_params(a) -> int:
+    if a.name:
+        p = _params.resolve(_param_spec(a.name))
+        for n in _params.NAMES:
+            print(f"{n:<12} {p[n]:12.6g}  {_params.INFO[n].unit}")
+        return 0
+    print(_params.table_markdown())
+    print("\nnamed sets: " + ", ".join(_params.named_sets()))
+    return 0
+
+
+def cmd_effects(a) -> int:
+    for e in _effects.CATALOGUE.values():
+        print(f"{e.name:<26} frees {', '.join(e.parameters)}\n    {e.physics}\n    missing "
+              f"when: {e.signature}")
+    return 0
+
+
+def _add_fit_args(p, *, multi=False):
+    p.add_argument("--model", required=True, choices=["upper", "coupled", "brake"],
+                   help="rig configuration")
+    p.add_argument("data", nargs="+", help="measurement CSV file(s), or example:NAME")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--free", help="comma-separated parameters to estimate (default: the "
+                   "configuration's, plus alpha0 per experiment with several experiments)")
+    p.add_argument("--fixed", help="comma-separated parameters to keep fixed")
+    p.add_argument("--base", help="values of all parameters not estimated (named set, TOML "
+                   "or fit.json); default: --p0, else the configuration's P_ref")
+    p.add_argument("--effects", nargs="*", help="catalogue effects to switch on")
+    p.add_argument("--channels", help="theta_l, theta_u or theta_l,theta_u")
+    p.add_argument("--weights", help="channel weights, e.g. theta_l=1,theta_u=0.1")
+    p.add_argument("--prescribed-upper", action="store_true",
+                   help="drive the lower disc with the measured theta_u")
+    p.add_argument("--max-nfev", type=int, default=200, help="evaluation budget per fit")
+    p.add_argument("--ftol", type=float, default=1e-10)
+    p.add_argument("--xtol", type=float, default=1e-10)
+    p.add_argument("--gtol", type=float, default=1e-10)
+    p.add_argument("--force", action="store_true", help="overwrite results in --out")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="rotorbayes", description=__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    s = sub.add_parser("simulate", help="simulate an experiment and write a measurement CSV")
+    s.add_argument("--model", default="brake", choices=["upper", "coupled", "brake"])
+    s.add_argument("--input", default="est", choices=["est", "val"],
+                   help="generated input: est (quasi-random levels) or val (multisine)")
+    s.add_argument("--input-file", help="CSV with columns t,u (overrides --input)")
+    s.add_argument("--duration", type=float, default=30.0, help="seconds (generated input)")
+    s.add_argument("--rate", type=float, default=1000.0, help="samples per second")
+    s.add_argument("--seed", type=int, default=0, help="seed of the input and the noise")
+    s.add_argument("--params", help="named set (thesis:4.3:P_ref), TOML file or fit.json")
+    s.add_argument("--alpha0", type=float, help="initial string torsion [rad]")
+    s.add_argument("--effects", nargs="*", help="catalogue effects to switch on")
+    s.add_argument("--quantize", action="store_true", help="round to encoder counts")
+    s.add_argument("--noise", type=float, default=0.0, help="Gaussian noise std [rad]")
+    s.add_argument("--out", required=True, help="output CSV")
+    s.add_argument("--plot", help="also save a figure (PNG)")
+    s.add_argument("--force", action="store_true", help="overwrite --out")
+    s.set_defaults(func=cmd_simulate)
+
+    f = sub.add_parser("fit", help="least squares from a start P0")
+    _add_fit_args(f)
+    f.add_argument("--validate", nargs="*", help="validation CSV file(s)")
+    f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json")
+    f.set_defaults(func=cmd_fit)
+
+    m = sub.add_parser("multistart", help="many fits from spread starts; waterfall and spread")
+    _add_fit_args(m)
+    m.add_argument("--starts", type=int, default=32)
+    m.add_argument("--around", help="spread starts around this set instead of the bounds")
+    m.add_argument("--spread", type=float, default=0.3, help="log-sd of the spread")
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--workers", type=int, default=2, help="parallel fits")
+    m.set_defaults(func=cmd_multistart)
+
+    d = sub.add_parser("demo", help="the main job on the bundled example data")
+    d.add_argument("--out", default="demo_out")
+    d.add_argument("--force", action="store_true")
+    d.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("params", help="list parameters and named sets, or show one set")
+    p.add_argument("name", nargs="?")
+    p.set_defaults(func=cmd_params)
+
+    e = sub.add_parser("effects", help="list the catalogue of physical effects")
+    e.set_defaults(func=cmd_effects)
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
+    a = ap.parse_args(argv)
+    try:
+        return a.func(a)
+    except (CLIError, DataFileError, _params.ParameterError, ValueError, FileExistsError) as exc:
+        print(f"rotorbayes {a.cmd}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
