@@ -542,12 +542,27 @@ class MultistartResult:
         return self.fits[int(np.argmin(self.ssr))]
 
     def summary(self, *, flat: float = 0.05) -> str:
-        """Plain words: which parameters spread while the cost stays flat.
+        """Plain words: which parameters spread while the cost stays flat, and whether
+        starts end in other (local) minima or on plateaus.
 
         ``flat`` is the relative SSR margin above the best that still counts as
         "as good" (default 5 %).
         """
-        return describe_spread(self.names, self.ends, self.ssr, flat=flat)
+        text = describe_spread(self.names, self.ends, self.ssr, flat=flat)
+        best = float(np.min(self.ssr))
+        worse = self.ssr > best * (1 + flat) + 1e-300
+        if worse.any():
+            n_cl = len(set(self.clusters[worse].tolist()))
+            stuck = [f for f, w in zip(self.fits, worse, strict=True) if w and f.nfev <= 2]
+            text += (f"\n{int(worse.sum())} starts stopped elsewhere, in {n_cl} other "
+                     f"cluster(s) with SSR {np.min(self.ssr[worse]) / max(best, 1e-300):.3g}x to "
+                     f"{np.max(self.ssr[worse]) / max(best, 1e-300):.3g}x the best: the cost has "
+                     "local minima, so the estimate depends on the start P0 (thesis §4.3).")
+            if stuck:
+                text += (f" {len(stuck)} of them did not move at all: their start lies on a "
+                         "plateau of the cost (e.g. the lower disc never breaks loose, so the "
+                         "friction parameters do not change the response).")
+        return text
 
 
 def describe_spread(
