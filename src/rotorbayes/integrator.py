@@ -396,50 +396,15 @@ def simulate_into(
             if not ok_step:
                 # Locate the earliest event among the violated guards.
                 gu0, gl0 = _guards_now(thu, wu, thl, wl, mu, ml, t, c, cfg, u, thp)
-                if gu1 < 0.0:
-                    seg = _locate(
-                        t,
-                        rem,
-                        max(gu0, 0.0),
-                        gu1,
-                        0,
-                        thu,
-                        wu,
-                        thl,
-                        wl,
-                        mu,
-                        ml,
-                        f,
-                        c,
-                        cfg,
-                        shape,
-                        u,
-                        thp,
-                    )
-                    disc = 0
-                if gl1 < 0.0:
-                    tl = _locate(
-                        t,
-                        rem,
-                        max(gl0, 0.0),
-                        gl1,
-                        1,
-                        thu,
-                        wu,
-                        thl,
-                        wl,
-                        mu,
-                        ml,
-                        f,
-                        c,
-                        cfg,
-                        shape,
-                        u,
-                        thp,
-                    )
-                    if disc < 0 or tl < seg:
-                        seg = tl
-                        disc = 1
+                for dsc in range(2):
+                    g1 = gu1 if dsc == 0 else gl1
+                    if g1 < 0.0:
+                        g0 = gu0 if dsc == 0 else gl0
+                        tl = _locate(t, rem, max(g0, 0.0), g1, dsc, thu, wu, thl, wl, mu, ml,
+                                     f, c, cfg, shape, u, thp)  # fmt: skip
+                        if disc < 0 or tl < seg:
+                            seg = tl
+                            disc = dsc
                 y1, y2, y3, y4, de = _step_to(
                     t, seg, thu, wu, thl, wl, mu, ml, f, c, cfg, shape, u, thp
                 )

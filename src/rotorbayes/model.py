@@ -209,6 +209,11 @@ class Simulator:
             self.stride, self.substeps = 1, int(math.ceil(self.dt / step - 1e-9))
 
     @property
+    def _kernel_args(self) -> tuple:
+        """The kernel's experiment arguments, shared by single and batched runs."""
+        return (self.u, self.dt, self.cfg, self.shape, self.stride, self.substeps, self.theta_u)
+
+    @property
     def t(self) -> np.ndarray:
         """Sample times [s], starting at 0."""
         return np.arange(self.n) * self.dt
@@ -234,16 +239,7 @@ class Simulator:
         out = [np.empty(n) for _ in range(4)] + [np.empty(n, np.int8) for _ in range(2)]
         ev = np.empty((max_events, 3))
         status, n_ev = _k.simulate_into(
-            np.ascontiguousarray(kv, dtype=float),
-            self.u,
-            self.dt,
-            self.cfg,
-            self.shape,
-            self.stride,
-            self.substeps,
-            self.theta_u,
-            *out,
-            ev,
+            np.ascontiguousarray(kv, dtype=float), *self._kernel_args, *out, ev
         )
         return status, (*out, ev[: min(n_ev, max_events)], n_ev)
 
@@ -262,19 +258,7 @@ class Simulator:
         thu = np.empty((m, self.n))
         thl = np.empty((m, self.n))
         st = np.empty(m, dtype=np.int64)
-        _k.simulate_batch_into(
-            KV,
-            self.u,
-            self.dt,
-            self.cfg,
-            self.shape,
-            self.stride,
-            self.substeps,
-            self.theta_u,
-            thu,
-            thl,
-            st,
-        )
+        _k.simulate_batch_into(KV, *self._kernel_args, thu, thl, st)
         return st, thu, thl
 
     def simulate(
