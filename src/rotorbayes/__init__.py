@@ -10,7 +10,7 @@ Quick start::
 See ``docs/model.md`` for the equations and parameters.
 """
 
-from . import data, effects, parameters, signals
+from . import data, effects, parameters, plots, signals
 from .data import Experiment, load_experiment, save_experiment
 from .examples import example_names, load_example
 from .model import CONFIGS, Simulation, SimulationError, Simulator, simulate
@@ -32,6 +32,7 @@ __all__ = [
     "effects",
     "load_experiment",
     "parameters",
+    "plots",
     "save_experiment",
     "signals",
     "simulate",
