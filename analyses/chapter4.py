@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,9 @@ from rotorbayes import estimation as E
 from rotorbayes import plots
 from rotorbayes.metrics import channel_fit
 from rotorbayes.parameters import INFO, TABLE_FREE, thesis_set
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _report import Report, prepare_out, save, text_table  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "out" / "chapter4"
 RATE = 1000.0
@@ -72,25 +75,6 @@ LAMBDAS = (0.80, 0.85, 0.90, 0.95, 1.00, 1.05, 1.10, 1.15, 1.20, 1.25)
 
 
 # ----------------------------------------------------------------------------- output
-class Report:
-    """Prints progress and results, keeps a copy for ``report.txt``."""
-
-    def __init__(self):
-        self.t0 = time.perf_counter()
-        self.lines: list[str] = []
-
-    def __call__(self, text: str = "") -> None:
-        print(text, flush=True)
-        self.lines.append(text)
-
-    def step(self, text: str) -> None:
-        self(f"[{time.perf_counter() - self.t0:6.1f} s] {text}")
-
-    @property
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.t0
-
-
 def figure_names(tables) -> list[str]:
     names = ["report.txt"]
     for tab in tables:
@@ -100,43 +84,8 @@ def figure_names(tables) -> list[str]:
     return names
 
 
-def prepare_out(out: Path, names, force: bool) -> None:
-    """Create ``out``; refuse (SystemExit) if a file would be overwritten without force."""
-    out.mkdir(parents=True, exist_ok=True)
-    clash = [n for n in names if (out / n).exists()]
-    if clash and not force:
-        raise SystemExit(
-            f"error: {out} already holds {', '.join(clash[:4])}"
-            f"{' ...' if len(clash) > 4 else ''}; pass --force to overwrite or choose "
-            "another --out"
-        )
-
-
-def save(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def label(name: str) -> str:
     return f"{name} [{INFO[name].unit}]"
-
-
-def text_table(heads, body, n_left: int = 1) -> str:
-    """An aligned plain-text table; the first ``n_left`` columns are left-aligned."""
-    rows = [list(heads), *[list(r) for r in body]]
-    widths = [max(len(r[j]) for r in rows) for j in range(len(heads))]
-    lines = []
-    for k, r in enumerate(rows):
-        cells = [
-            c.ljust(w) if j < n_left else c.rjust(w)
-            for j, (c, w) in enumerate(zip(r, widths, strict=True))
-        ]
-        lines.append(("  " + "  ".join(cells)).rstrip())
-        if k == 0:
-            lines.append("  " + "  ".join("-" * w for w in widths))
-    return "\n".join(lines)
 
 
 def param_table(names, rows) -> str:

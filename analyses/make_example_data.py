@@ -50,23 +50,37 @@ def main() -> None:
     for stem, config, pset, kind, seed, alpha0 in FILES:
         params = thesis_set(*pset.split(":"))
         t, u = rb.signals.make_signal(kind, DURATION, rate=RATE, seed=seed)
-        sim = rb.simulate(params, u, dt=1 / RATE, config=config, alpha0=alpha0,
-                          quantize_angles=True)
-        meta = {"source": "synthetic (rotorbayes simulate), not a measurement",
-                "config": config, "input": f"{kind} seed={seed}", "rate_hz": RATE}
+        sim = rb.simulate(
+            params, u, dt=1 / RATE, config=config, alpha0=alpha0, quantize_angles=True
+        )
+        meta = {
+            "source": "synthetic (rotorbayes simulate), not a measurement",
+            "config": config,
+            "input": f"{kind} seed={seed}",
+            "rate_hz": RATE,
+        }
         hidden = "hidden" in stem
         if not hidden:
             meta["params"] = f"thesis:{pset}"
             meta["alpha0"] = alpha0
-        rb.save_experiment(sim.to_experiment(stem), OUT / f"{stem}.csv", overwrite=a.force,
-                           meta=meta)
+        rb.save_experiment(
+            sim.to_experiment(stem), OUT / f"{stem}.csv", overwrite=a.force, meta=meta
+        )
         if not hidden:
-            truth[stem] = {"config": config, "params": f"thesis:{pset}", "alpha0": alpha0,
-                           "input": kind, "seed": seed,
-                           "stick_fraction_lower": sim.stick_fraction("l")
-                           if sim.theta_l is not None else None}
-        print(f"{stem:20s} {config:8s} thesis:{pset:6s} alpha0={alpha0:+.1f}  "
-              f"events={len(sim.events)}")
+            truth[stem] = {
+                "config": config,
+                "params": f"thesis:{pset}",
+                "alpha0": alpha0,
+                "input": kind,
+                "seed": seed,
+                "stick_fraction_lower": sim.stick_fraction("l")
+                if sim.theta_l is not None
+                else None,
+            }
+        print(
+            f"{stem:20s} {config:8s} thesis:{pset:6s} alpha0={alpha0:+.1f}  "
+            f"events={len(sim.events)}"
+        )
     (OUT / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
 
 
