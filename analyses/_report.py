@@ -6,6 +6,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import rotorbayes as rb
+from rotorbayes import plots
+from rotorbayes.metrics import channel_fit
+
 
 class Report:
     """Prints progress and results, keeps a copy for ``report.txt``."""
@@ -65,3 +69,42 @@ def text_table(heads, body, n_left: int = 1) -> str:
         if k == 0:
             lines.append("  " + "  ".join("-" * w for w in widths))
     return "\n".join(lines)
+
+
+def channels_of(config: str):
+    return ("theta_u",) if config == "upper" else ("theta_l", "alpha")
+
+
+def score(config: str, params, ex, effects=()):
+    """Simulate ``params`` on ``ex``'s input; channel fits and the simulation."""
+    sim = rb.simulate(params, ex.u, dt=ex.dt, config=config, effects=effects)
+    fits = {"theta_u": channel_fit("theta_u", ex.theta_u, sim.theta_u)}
+    if ex.has_lower:
+        fits["theta_l"] = channel_fit("theta_l", ex.theta_l, sim.theta_l)
+        a0 = params["alpha0"]
+        fits["alpha"] = channel_fit("alpha", ex.theta_l - ex.theta_u + a0, sim.alpha)
+    return fits, sim
+
+
+def plot_fit(config, ex, sim, fits, title, path) -> None:
+    chans = channels_of(config)
+    measured = {"theta_u": ex.theta_u}
+    simulated = {"theta_u": sim.theta_u}
+    if ex.has_lower:
+        a0 = sim.params["alpha0"]
+        measured.update(theta_l=ex.theta_l, alpha=ex.theta_l - ex.theta_u + a0)
+        simulated.update(theta_l=sim.theta_l, alpha=sim.alpha)
+    metrics = {
+        c: f"R² {fits[c].r2:.4f}, fit {fits[c].nrmse_fit:.2f} %, "
+        f"max|e| {fits[c].max_abs_error:.2e} rad"
+        for c in chans
+    }
+    fig, _ = plots.plot_fit(
+        ex.t,
+        {c: measured[c] for c in chans},
+        {c: simulated[c] for c in chans},
+        mode=sim.mode_l,
+        metrics=metrics,
+        title=title,
+    )
+    save(fig, path)

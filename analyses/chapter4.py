@@ -39,11 +39,18 @@ import numpy as np
 import rotorbayes as rb
 from rotorbayes import estimation as E
 from rotorbayes import plots
-from rotorbayes.metrics import channel_fit
 from rotorbayes.parameters import INFO, TABLE_FREE, thesis_set
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import Report, prepare_out, save, text_table  # noqa: E402
+from _report import (  # noqa: E402
+    Report,
+    channels_of,
+    plot_fit,
+    prepare_out,
+    save,
+    score,
+    text_table,
+)
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "out" / "chapter4"
 RATE = 1000.0
@@ -123,45 +130,6 @@ def make_experiment(kind: str, config: str, params, duration: float):
     return sim.to_experiment(f"{kind} (P_ref)")
 
 
-def score(config: str, params, ex):
-    """Simulate ``params`` on ``ex``'s input; channel fits and the simulation."""
-    sim = rb.simulate(params, ex.u, dt=ex.dt, config=config)
-    fits = {"theta_u": channel_fit("theta_u", ex.theta_u, sim.theta_u)}
-    if ex.has_lower:
-        fits["theta_l"] = channel_fit("theta_l", ex.theta_l, sim.theta_l)
-        a0 = params["alpha0"]
-        fits["alpha"] = channel_fit("alpha", ex.theta_l - ex.theta_u + a0, sim.alpha)
-    return fits, sim
-
-
-def shown_channels(config: str):
-    return ("theta_u",) if config == "upper" else ("theta_l", "alpha")
-
-
-def plot_fit(config, ex, sim, fits, title, path):
-    chans = shown_channels(config)
-    measured = {"theta_u": ex.theta_u}
-    simulated = {"theta_u": sim.theta_u}
-    if ex.has_lower:
-        a0 = sim.params["alpha0"]
-        measured.update(theta_l=ex.theta_l, alpha=ex.theta_l - ex.theta_u + a0)
-        simulated.update(theta_l=sim.theta_l, alpha=sim.alpha)
-    metrics = {
-        c: f"R² {fits[c].r2:.4f}, fit {fits[c].nrmse_fit:.2f} %, "
-        f"max|e| {fits[c].max_abs_error:.2e} rad"
-        for c in chans
-    }
-    fig, _ = plots.plot_fit(
-        ex.t,
-        {c: measured[c] for c in chans},
-        {c: simulated[c] for c in chans},
-        mode=sim.mode_l,
-        metrics=metrics,
-        title=title,
-    )
-    save(fig, path)
-
-
 def run_table(tab: str, duration: float, out: Path, rep: Report) -> dict:
     config, channel, what = TABLES[tab]
     free = list(TABLE_FREE[tab])
@@ -213,7 +181,7 @@ def run_table(tab: str, duration: float, out: Path, rep: Report) -> dict:
         fits_t, _ = score(config, pthesis, ex)
         results[f"fits_{kind}"] = fits
         results[f"fits_thesis_{kind}"] = fits_t
-        for c in shown_channels(config):
+        for c in channels_of(config):
             rows_ours.append((kind, c, fits[c], THESIS_R2[tab][kind].get(c)))
             rows_thesis.append((kind, c, fits_t[c], THESIS_R2[tab][kind].get(c)))
         stem = "table" + tab.replace(".", "_")

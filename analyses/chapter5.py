@@ -42,7 +42,15 @@ from rotorbayes.metrics import aicc, channel_fit
 from rotorbayes.parameters import INFO, TABLE_FREE, thesis_set
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import Report, prepare_out, save, text_table  # noqa: E402
+from _report import (  # noqa: E402
+    Report,
+    channels_of,
+    plot_fit,
+    prepare_out,
+    save,
+    score,
+    text_table,
+)
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "out" / "chapter5"
 QUICK_SECONDS = 10.0
@@ -145,45 +153,6 @@ def load(name: str, seconds: float | None) -> rb.Experiment:
         theta_l=None if ex.theta_l is None else ex.theta_l[:m],
         name=ex.name,
     )
-
-
-def score(config: str, params, ex, effects=()):
-    """Simulate ``params`` on ``ex``'s input; channel fits and the simulation."""
-    sim = rb.simulate(params, ex.u, dt=ex.dt, config=config, effects=effects)
-    fits = {"theta_u": channel_fit("theta_u", ex.theta_u, sim.theta_u)}
-    if ex.has_lower:
-        fits["theta_l"] = channel_fit("theta_l", ex.theta_l, sim.theta_l)
-        a0 = params["alpha0"]
-        fits["alpha"] = channel_fit("alpha", ex.theta_l - ex.theta_u + a0, sim.alpha)
-    return fits, sim
-
-
-def channels_of(config: str):
-    return ("theta_u",) if config == "upper" else ("theta_l", "alpha")
-
-
-def plot_fit(config, ex, sim, fits, title, path) -> None:
-    chans = channels_of(config)
-    measured = {"theta_u": ex.theta_u}
-    simulated = {"theta_u": sim.theta_u}
-    if ex.has_lower:
-        a0 = sim.params["alpha0"]
-        measured.update(theta_l=ex.theta_l, alpha=ex.theta_l - ex.theta_u + a0)
-        simulated.update(theta_l=sim.theta_l, alpha=sim.alpha)
-    metrics = {
-        c: f"R² {fits[c].r2:.4f}, fit {fits[c].nrmse_fit:.2f} %, "
-        f"max|e| {fits[c].max_abs_error:.2e} rad"
-        for c in chans
-    }
-    fig, _ = plots.plot_fit(
-        ex.t,
-        {c: measured[c] for c in chans},
-        {c: simulated[c] for c in chans},
-        mode=sim.mode_l,
-        metrics=metrics,
-        title=title,
-    )
-    save(fig, path)
 
 
 def fit_and_report(

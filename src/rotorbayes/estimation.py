@@ -171,21 +171,22 @@ class Problem:
         if len(set(names)) != len(names):
             raise ParameterError(f"a free parameter is listed twice: {names}")
         self.names = names
-        self.sims = [
-            Simulator(
-                self.config,
-                ex.u,
-                ex.dt,
-                effects=self.effects,
-                shape=self.shape,
-                step=self.step,
-                theta_u=ex.theta_u if self.prescribed_upper else None,
-            )
-            for ex in self.experiments
-        ]
+        self.sims = [self.simulator_for(ex) for ex in self.experiments]
         self.lower = np.array([INFO[_local_name(n)[0]].lower for n in names])
         self.upper = np.array([INFO[_local_name(n)[0]].upper for n in names])
         self.n_residuals = sum(ex.n for ex in self.experiments) * len(self.channels)
+
+    def simulator_for(self, ex: Experiment) -> Simulator:
+        """A :class:`~rotorbayes.Simulator` of this problem's model for experiment ``ex``."""
+        return Simulator(
+            self.config,
+            ex.u,
+            ex.dt,
+            effects=self.effects,
+            shape=self.shape,
+            step=self.step,
+            theta_u=ex.theta_u if self.prescribed_upper else None,
+        )
 
     # ----------------------------------------------------------------------------- maps
     def x_from(self, params: Mapping[str, float]) -> np.ndarray:
@@ -381,8 +382,12 @@ def fit(
     lo, hi = problem.lower / scale, problem.upper / scale
     counter = {"n": 0, "best": math.inf}
 
+    last: dict = {}
+
     def fun(z):
         r = problem.residuals(z * scale)
+        # The optimiser asks for the Jacobian at the point it just evaluated.
+        last["z"], last["r"] = z.copy(), r
         counter["n"] += 1
         s = float(r @ r)
         counter["best"] = min(counter["best"], s)
@@ -396,7 +401,10 @@ def fit(
         return r
 
     def jac(z):
-        r0 = problem.residuals(z * scale)
+        if "z" in last and np.array_equal(z, last["z"]):
+            r0 = last["r"]
+        else:
+            r0 = problem.residuals(z * scale)
         k = z.size
         Z = np.repeat(z[None, :], k, axis=0)
         steps = np.empty(k)
@@ -487,15 +495,7 @@ def quality(
         p = problem.params_for(x, i if own else 0)
         if not own and "alpha0" not in problem.names:
             p["alpha0"] = problem.base["alpha0"]
-        sim = Simulator(
-            problem.config,
-            ex.u,
-            ex.dt,
-            effects=problem.effects,
-            shape=problem.shape,
-            step=problem.step,
-            theta_u=ex.theta_u if problem.prescribed_upper else None,
-        )
+        sim = problem.sims[i] if own else problem.simulator_for(ex)
         s = sim.simulate(p, raise_on_failure=False)
         chans = {"theta_u": (ex.theta_u, s.theta_u)}
         if ex.has_lower:
@@ -554,14 +554,18 @@ class MultistartResult:
         if worse.any():
             n_cl = len(set(self.clusters[worse].tolist()))
             stuck = [f for f, w in zip(self.fits, worse, strict=True) if w and f.nfev <= 2]
-            text += (f"\n{int(worse.sum())} starts stopped elsewhere, in {n_cl} other "
-                     f"cluster(s) with SSR {np.min(self.ssr[worse]) / max(best, 1e-300):.3g}x to "
-                     f"{np.max(self.ssr[worse]) / max(best, 1e-300):.3g}x the best: the cost has "
-                     "local minima, so the estimate depends on the start P0 (thesis §4.3).")
+            text += (
+                f"\n{int(worse.sum())} starts stopped elsewhere, in {n_cl} other "
+                f"cluster(s) with SSR {np.min(self.ssr[worse]) / max(best, 1e-300):.3g}x to "
+                f"{np.max(self.ssr[worse]) / max(best, 1e-300):.3g}x the best: the cost has "
+                "local minima, so the estimate depends on the start P0 (thesis §4.3)."
+            )
             if stuck:
-                text += (f" {len(stuck)} of them did not move at all: their start lies on a "
-                         "plateau of the cost (e.g. the lower disc never breaks loose, so the "
-                         "friction parameters do not change the response).")
+                text += (
+                    f" {len(stuck)} of them did not move at all: their start lies on a "
+                    "plateau of the cost (e.g. the lower disc never breaks loose, so the "
+                    "friction parameters do not change the response)."
+                )
         return text
 
 
