@@ -36,10 +36,10 @@ import sys
 from pathlib import Path
 
 import rotorbayes as rb
-from rotorbayes import estimation as E
+from rotorbayes import inference as E
 from rotorbayes import plots
 from rotorbayes.metrics import aicc, channel_fit
-from rotorbayes.parameters import INFO, TABLE_FREE, thesis_set
+from rotorbayes.model.parameters import INFO, TABLE_FREE, thesis_set
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import (  # noqa: E402

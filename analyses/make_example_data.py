@@ -16,7 +16,7 @@ import json
 from pathlib import Path
 
 import rotorbayes as rb
-from rotorbayes.parameters import thesis_set
+from rotorbayes.model.parameters import thesis_set
 
 OUT = Path(__file__).resolve().parents[1] / "src" / "rotorbayes" / "data" / "examples"
 RATE = 200.0

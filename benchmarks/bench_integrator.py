@@ -38,7 +38,7 @@ import scipy
 from scipy.integrate import solve_ivp
 
 import rotorbayes as rb
-from rotorbayes.parameters import INDEX
+from rotorbayes.model.parameters import INDEX
 
 DURATION = 30.0  # s
 DT = 1e-3  # s, 1 kHz output
@@ -205,12 +205,12 @@ def run(quick: bool) -> dict:
 
     # 3. Batched evaluation --------------------------------------------------------------
     rng = np.random.default_rng(0)
-    KV = np.tile(kv, (N_BATCH, 1))
+    KV = np.tile(kv[0], (N_BATCH, 1))
     for name in PERTURBED:
         KV[:, INDEX[name]] *= 1.0 + rng.uniform(-PERTURBATION, PERTURBATION, N_BATCH)
 
     def sequential():
-        return [sim.angles(row) for row in KV]
+        return [sim.angles((row, kv[1])) for row in KV]
 
     n_threads = numba.get_num_threads()
     res["numba_threads"] = n_threads

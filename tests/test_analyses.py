@@ -48,7 +48,7 @@ def test_chapter4_writes_figures_and_report(chapter4_run):
 
 def test_chapter4_recovers_p_ref_and_shows_the_ridge(chapter4_run):
     mod, _, summary = chapter4_run
-    from rotorbayes.parameters import thesis_set
+    from rotorbayes.model.parameters import thesis_set
 
     for tab, r in summary["tables"].items():
         pref = thesis_set(tab, "P_ref")

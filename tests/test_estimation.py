@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import estimation as E
-from rotorbayes.parameters import ParameterError, thesis_set
+from rotorbayes import inference as E
+from rotorbayes.model.parameters import ParameterError, thesis_set
 
 
 def _short(ex: rb.Experiment, seconds: float) -> rb.Experiment:

@@ -13,7 +13,7 @@ import pytest
 from reference import reference_simulate
 
 import rotorbayes as rb
-from rotorbayes.parameters import thesis_set
+from rotorbayes.model.parameters import thesis_set
 
 TOL = 1.5e-5
 DT = 1e-3
@@ -32,12 +32,15 @@ def _cases():
     brake_asym = thesis_set("5.4", "P")  # asymmetric viscous brake + asymmetric upper
     brake_asym["dTc_l"] = 0.004
     return [
-        ("upper", "upper", thesis_set("4.1", "P_ref"), 0.0),
-        ("coupled-sym", "coupled", sym_c, 0.0),
-        ("coupled-asym-alpha0", "coupled", asym_c, 0.15),
-        ("brake-sym-alpha0", "brake", brake, 0.8),
-        ("brake-asym-alpha0", "brake", brake_asym, -1.2),
+        ("upper", "upper", thesis_set("4.1", "P_ref"), 0.0, ()),
+        ("coupled-sym", "coupled", sym_c, 0.0, ()),
+        ("coupled-asym-alpha0", "coupled", asym_c, 0.15, ASYM),
+        ("brake-sym-alpha0", "brake", brake, 0.8, ()),
+        ("brake-asym-alpha0", "brake", brake_asym, -1.2, ASYM[:1]),
     ]
+
+
+ASYM = ("lower_asymmetric_coulomb", "lower_asymmetric_viscous")
 
 
 def _ref_params(p, config, alpha0):
@@ -49,10 +52,12 @@ def _ref_params(p, config, alpha0):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("label,config,params,alpha0", _cases(), ids=[c[0] for c in _cases()])
-def test_matches_event_driven_reference(est_input, label, config, params, alpha0):
+@pytest.mark.parametrize(
+    "label,config,params,alpha0,effects", _cases(), ids=[c[0] for c in _cases()]
+)
+def test_matches_event_driven_reference(est_input, label, config, params, alpha0, effects):
     t, u = est_input
-    sim = rb.simulate(params, u, dt=DT, config=config, alpha0=alpha0)
+    sim = rb.simulate(params, u, dt=DT, config=config, alpha0=alpha0, effects=effects)
     ref = reference_simulate(_ref_params(params, config, alpha0), t, u, config)
     err_u = np.max(np.abs(sim.theta_u - ref["theta_u"]))
     assert err_u < TOL, f"{label}: theta_u error {err_u:.3g} rad"

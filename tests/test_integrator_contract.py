@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import integrator
-from rotorbayes.parameters import thesis_set
+from rotorbayes.kernel import layout as integrator
+from rotorbayes.model.parameters import thesis_set
 
 
 @pytest.fixture(scope="module")
@@ -15,7 +15,7 @@ def brake_case():
     t, u = rb.signals.estimation_signal(20.0, seed=5)
     p = thesis_set("4.3", "P_ref")
     meas = rb.simulate(p, u, dt=1e-3, config="brake", alpha0=0.4)
-    sim = rb.Simulator("brake", u, 1e-3)
+    sim = rb.Simulator("brake", u, 1e-3, effects=["initial_torsion"])
     return p, meas, sim
 
 
@@ -92,12 +92,12 @@ def test_batch_equals_single_runs():
     t, u = rb.signals.estimation_signal(10.0, seed=2)
     sim = rb.Simulator("brake", u, 1e-3)
     rng = np.random.default_rng(0)
-    base = sim.kernel_vector(thesis_set("4.3", "P_ref"))
+    base, q = sim.kernel_vector(thesis_set("4.3", "P_ref"))
     KV = base * (1 + 0.1 * rng.standard_normal((6, base.size)) * (base != 0))
     KV[:, rb.parameters.INDEX["Ts_l"]] = np.maximum(KV[:, rb.parameters.INDEX["Ts_l"]], 0.1)
     st, thu, thl = sim.run_batch(KV)
     for i in range(len(KV)):
-        s1, a, b = sim.angles(KV[i])
+        s1, a, b = sim.angles((KV[i], q))
         assert s1 == st[i]
         np.testing.assert_array_equal(a, thu[i])
         np.testing.assert_array_equal(b, thl[i])

@@ -7,33 +7,24 @@ Quick start::
     sim = rb.simulate("thesis:4.3:P_ref", u, dt=t[1] - t[0], config="brake")
     sim.theta_l, sim.alpha, sim.mode_l
 
-See ``docs/model.md`` for the equations and parameters.
+The pipeline, one subpackage per stage: :mod:`rotorbayes.model` (parameters, effects,
+configurations, simulation) -> :mod:`rotorbayes.kernel` (compiled terms and solver) ->
+:mod:`rotorbayes.inference` (problems, least squares, multistart, the parallel map).
+See ``docs/model.md`` for the equations and ``docs/effects.md`` for the effects.
 """
 
-from . import data, effects, parameters, plots, signals
+from . import data, signals
 from .data import Experiment, load_experiment, save_experiment
 from .examples import example_names, load_example
-from .model import CONFIGS, Simulation, SimulationError, Simulator, simulate
-from .parameters import NAMES, ParameterError
+from .model import (
+    CONFIGS, NAMES, Effect, Model, Parameter, ParameterError, Simulation, SimulationError,
+    Simulator, effects, parameters, simulate,
+)  # fmt: skip
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = [
-    "CONFIGS",
-    "NAMES",
-    "Experiment",
-    "ParameterError",
-    "Simulation",
-    "SimulationError",
-    "Simulator",
-    "data",
-    "example_names",
-    "load_example",
-    "effects",
-    "load_experiment",
-    "parameters",
-    "plots",
-    "save_experiment",
-    "signals",
-    "simulate",
-]
+    "CONFIGS", "NAMES", "Effect", "Experiment", "Model", "Parameter", "ParameterError",
+    "Simulation", "SimulationError", "Simulator", "data", "effects", "example_names",
+    "load_example", "load_experiment", "parameters", "save_experiment", "signals", "simulate",
+]  # fmt: skip

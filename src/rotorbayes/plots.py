@@ -144,7 +144,7 @@ def plot_friction(
     The inset-free second panel zooms into |omega| < 0.1 rad/s where the static level
     and the Stribeck curve show.
     """
-    from .friction import friction_curve
+    from .model.friction import friction_curve
 
     plt = _plt()
     fig, axes = plt.subplots(len(discs), 2, figsize=(10, 3.2 * len(discs)), squeeze=False)

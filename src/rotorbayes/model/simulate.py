@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import effects as _effects
-from . import integrator as _k
-from .data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, Experiment, add_noise, quantize
+from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, Experiment, add_noise, quantize
+from ..kernel import layout as _k
+from ..kernel import solver as _solver
+from .configurations import CONFIGS, Model, check_config
 from .friction import shape_code
-from .parameters import INDEX, NAMES, ParameterError, resolve
+from .parameters import NAMES, ParameterError, resolve
 
-CONFIGS = ("upper", "coupled", "brake")
 #: Default largest Runge-Kutta step [s].  Verified against an event-driven reference
 #: (tests/test_integrator_accuracy.py); use ``step=dt`` for rough, noisy inputs.
 DEFAULT_STEP = 5e-3
@@ -32,46 +32,9 @@ class SimulationError(RuntimeError):
     """The integrator reported a failure; the message names the parameter values."""
 
 
-def check_config(config: str) -> str:
-    """Return ``config`` or raise a ValueError listing the valid configurations."""
-    if config not in CONFIGS:
-        raise ValueError(f"unknown configuration {config!r}; choose one of {', '.join(CONFIGS)}")
-    return config
-
-
 def physics_problems(p: Mapping[str, float], config: str = "brake") -> list[str]:
-    """Reasons why a parameter set cannot be simulated (empty if it can)."""
-    out = []
-    for n in NAMES:
-        if n in p and not math.isfinite(p[n]) and not (n == "Ts_l" and math.isnan(p[n])):
-            out.append(f"{n} = {p[n]} is not finite")
-    checks = [("J_u", p["J_u"] > 0, "must be > 0")]
-    checks += [
-        (
-            "Tc_u",
-            p["Tc_u"] >= abs(p["dTc_u"]),
-            f"must be >= |dTc_u| = {abs(p['dTc_u']):g} "
-            "(friction may not push in the direction of motion)",
-        ),
-        ("b_u", p["b_u"] >= abs(p["db_u"]), f"must be >= |db_u| = {abs(p['db_u']):g}"),
-        ("u_deadzone", p["u_deadzone"] >= 0, "must be >= 0"),
-        ("t_delay", p["t_delay"] >= 0, "must be >= 0"),
-    ]
-    if config != "upper":
-        checks += [
-            ("J_l", p["J_l"] > 0, "must be > 0"),
-            ("k_alpha", p["k_alpha"] >= 0, "must be >= 0"),
-            ("c_alpha", p["c_alpha"] >= 0, "must be >= 0"),
-            ("Tc_l", p["Tc_l"] >= abs(p["dTc_l"]), f"must be >= |dTc_l| = {abs(p['dTc_l']):g}"),
-            ("b_l", p["b_l"] >= abs(p["db_l"]), f"must be >= |db_l| = {abs(p['db_l']):g}"),
-            ("Ts_l", math.isnan(p["Ts_l"]) or p["Ts_l"] >= abs(p["dTc_l"]), "must be >= |dTc_l|"),
-            ("ws_l", p["ws_l"] > 0, "must be > 0"),
-            ("delta_l", p["delta_l"] > 0, "must be > 0"),
-        ]
-    for name, ok, why in checks:
-        if not ok:
-            out.append(f"{name} = {p[name]:g} {why}")
-    return out
+    """Reasons why a parameter set cannot be simulated in ``config`` (empty if it can)."""
+    return Model(config).problems(p)
 
 
 @dataclass
@@ -108,6 +71,17 @@ class Simulation:
     config: str
     effects: tuple[str, ...] = ()
     meta: dict[str, str] = field(default_factory=dict)
+    status: int = 0
+
+    @property
+    def ok(self) -> bool:
+        """The integration succeeded (``status`` 0)."""
+        return self.status == _k.OK
+
+    @property
+    def status_message(self) -> str:
+        """The integrator's own words for ``status``."""
+        return _k.STATUS_MESSAGES[self.status]
 
     @property
     def alpha(self) -> np.ndarray | None:
@@ -134,12 +108,12 @@ class Simulation:
 
 
 class Simulator:
-    """A configuration and one experiment's input, ready to simulate many parameter sets.
+    """A model and one experiment's input, ready to simulate many parameter sets.
 
     Parameters
     ----------
-    config : {'upper', 'coupled', 'brake'}
-        Rig configuration: string removed, no brake, or brake applied.
+    model : Model or {'upper', 'coupled', 'brake'}
+        The model (configuration and active effects), or a configuration name.
     u : array
         Input voltage [V] at uniform samples (linearly interpolated in between).
     dt : float
@@ -149,8 +123,8 @@ class Simulator:
         driven by this motion and ``u`` is not used (fit the lower disc with the
         measured upper angle as input).
     effects : iterable of str
-        Catalogue effects switched on (see :mod:`rotorbayes.effects`).  The Stribeck
-        part of the lower friction is on for ``'brake'`` or with ``'lower_stribeck'``.
+        Effects switched on besides the configuration's base model (only with a
+        configuration name; see :mod:`rotorbayes.model.effects`).
     shape : {'exp', 'rational'}
         Stribeck curve shape.
     step : float
@@ -160,7 +134,7 @@ class Simulator:
 
     def __init__(
         self,
-        config: str,
+        model,
         u,
         dt: float,
         *,
@@ -169,10 +143,17 @@ class Simulator:
         shape: str = "exp",
         step: float = DEFAULT_STEP,
     ):
-        self.config = check_config(config)
-        self.effects = tuple(effects)
-        for e in self.effects:
-            _effects.get(e)
+        if isinstance(model, Model):
+            if tuple(effects):
+                raise ValueError("give the effects with the Model, not to the Simulator")
+            if model.prescribed_upper != (theta_u is not None):
+                raise ValueError(
+                    "the model's prescribed_upper flag and the theta_u argument disagree"
+                )
+        else:
+            model = Model(model, effects, prescribed_upper=theta_u is not None)
+        self.model = model
+        self.config = model.config
         self.u = np.ascontiguousarray(u, dtype=float)
         if self.u.ndim != 1 or self.u.size < 2:
             raise ValueError(
@@ -187,19 +168,12 @@ class Simulator:
         self.n = self.u.size
         self.prescribed = theta_u is not None
         if self.prescribed:
-            if config == "upper":
-                raise ValueError(
-                    "a prescribed upper-disc motion needs the 'coupled' or 'brake' "
-                    "configuration (the lower disc must be present)"
-                )
             self.theta_u = np.ascontiguousarray(theta_u, dtype=float)
             if self.theta_u.shape != self.u.shape:
                 raise ValueError(f"theta_u has {self.theta_u.size} samples but u has {self.n}")
-            self.cfg = _k.CFG_PRESCRIBED
         else:
             self.theta_u = self.u  # unused by the kernel
-            self.cfg = _k.CFG_UPPER if config == "upper" else _k.CFG_COUPLED
-        self.stribeck = config == "brake" or "lower_stribeck" in self.effects
+        self.cfg = model.kernel_cfg
         self.shape = shape_code(shape)
         if not (step > 0):
             raise ValueError(f"step = {step} must be > 0 seconds")
@@ -209,56 +183,64 @@ class Simulator:
             self.stride, self.substeps = 1, int(math.ceil(self.dt / step - 1e-9))
 
     @property
+    def effects(self) -> tuple[str, ...]:
+        return self.model.effect_names
+
     def _kernel_args(self) -> tuple:
         """The kernel's experiment arguments, shared by single and batched runs."""
-        return (self.u, self.dt, self.cfg, self.shape, self.stride, self.substeps, self.theta_u)
+        use, ht, hs = self.model.hooks()
+        return (self.u, self.dt, self.cfg, self.shape, self.stride, self.substeps,
+                self.theta_u, use, ht, hs)  # fmt: skip
 
     @property
     def t(self) -> np.ndarray:
         """Sample times [s], starting at 0."""
         return np.arange(self.n) * self.dt
 
-    def kernel_vector(self, params: Mapping[str, float]) -> np.ndarray:
-        """Parameter vector in kernel order; switches the Stribeck part off if inactive."""
-        kv = np.array([params[n] for n in NAMES], dtype=float)
-        if not self.stribeck or math.isnan(kv[INDEX["Ts_l"]]):
-            kv[INDEX["Ts_l"]] = kv[INDEX["Tc_l"]]
-        return kv
+    def kernel_vector(self, params: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """``(p, q)`` kernel vectors; parameters of effects that are off at their nulls."""
+        return self.model.kernel_vectors(params)
 
-    def run(self, kv: np.ndarray, *, max_events: int = 0):
-        """Simulate one kernel vector.
+    def run(self, kv, *, max_events: int = 0):
+        """Simulate one pair of kernel vectors ``(p, q)``.
 
         Returns
         -------
         status : int
-            0 on success, see :data:`rotorbayes.integrator.STATUS_MESSAGES`.
+            0 on success, see :data:`rotorbayes.kernel.layout.STATUS_MESSAGES`.
         arrays : tuple
             ``(theta_u, omega_u, theta_l, omega_l, mode_u, mode_l, events, n_events)``.
         """
+        p, q = kv
         n = self.n
         out = [np.empty(n) for _ in range(4)] + [np.empty(n, np.int8) for _ in range(2)]
         ev = np.empty((max_events, 3))
-        status, n_ev = _k.simulate_into(
-            np.ascontiguousarray(kv, dtype=float), *self._kernel_args, *out, ev
-        )
+        a = self._kernel_args()
+        status, n_ev = _solver.simulate_into(
+            np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(q, dtype=float),
+            *a, *out, ev,
+        )  # fmt: skip
         return status, (*out, ev[: min(n_ev, max_events)], n_ev)
 
-    def angles(self, kv: np.ndarray):
-        """``(status, theta_u, theta_l)`` for one kernel vector (the fast path)."""
+    def angles(self, kv):
+        """``(status, theta_u, theta_l)`` for one pair of kernel vectors (the fast path)."""
         status, arr = self.run(kv)
         return status, arr[0], arr[2]
 
-    def run_batch(self, KV: np.ndarray):
+    def run_batch(self, P: np.ndarray, Q: np.ndarray | None = None):
         """Simulate many kernel vectors in parallel (numba ``prange``).
 
         Returns ``(status[m], theta_u[m, n], theta_l[m, n])``.
         """
-        KV = np.ascontiguousarray(np.atleast_2d(KV), dtype=float)
-        m = KV.shape[0]
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=float)
+        m = P.shape[0]
+        if Q is None:
+            Q = np.zeros((m, 0))
+        Q = np.ascontiguousarray(np.reshape(Q, (m, -1)), dtype=float)
         thu = np.empty((m, self.n))
         thl = np.empty((m, self.n))
         st = np.empty(m, dtype=np.int64)
-        _k.simulate_batch_into(KV, *self._kernel_args, thu, thl, st)
+        _solver.simulate_batch_into(P, Q, *self._kernel_args(), thu, thl, st)
         return st, thu, thl
 
     def simulate(
@@ -267,18 +249,26 @@ class Simulator:
         *,
         max_events: int = 100_000,
         raise_on_failure: bool = True,
+        strict: bool = True,
     ) -> Simulation:
-        """Full simulation with velocities, modes and events (see :class:`Simulation`)."""
-        problems = physics_problems(params, self.config)
+        """Full simulation with velocities, modes and events (see :class:`Simulation`).
+
+        ``strict`` refuses a non-null value for a parameter of an effect that is off.
+        """
+        params = self.model.complete(params)
+        if strict:
+            self.model.check_off(params)
+        problems = self.model.problems(params)
         if problems and raise_on_failure:
             raise SimulationError("cannot simulate: " + "; ".join(problems))
         kv = self.kernel_vector(params)
         status, (thu, wu, thl, wl, mu, ml, ev, n_ev) = self.run(kv, max_events=max_events)
         if status != _k.OK and raise_on_failure:
-            vals = ", ".join(f"{n}={params[n]:g}" for n in NAMES)
-            raise SimulationError(
-                f"integration failed: {_k.STATUS_MESSAGES[status]} (parameters: {vals})"
-            )
+            why = _k.STATUS_MESSAGES[status]
+            if status == _k.BAD_PARAMETERS and problems:
+                why += ": " + "; ".join(problems)
+            vals = ", ".join(f"{n}={params[n]:g}" for n in (*NAMES, *self.model.user_names))
+            raise SimulationError(f"integration failed: {why} (parameters: {vals})")
         lower = self.config != "upper"
         return Simulation(
             t=self.t,
@@ -294,6 +284,7 @@ class Simulator:
             config=self.config,
             effects=self.effects,
             meta={"status": _k.STATUS_MESSAGES[status], "n_events": str(n_ev)},
+            status=int(status),
         )
 
 
@@ -332,7 +323,9 @@ def simulate(
     theta_u : array, optional
         Prescribed upper-disc angle [rad]; the lower disc is driven by it.
     effects : iterable of str
-        Catalogue effects to switch on (see :mod:`rotorbayes.effects`).
+        Effects to switch on besides the configuration's base model: catalogue names or
+        ``'FILE.py:NAME'`` user effects (see :mod:`rotorbayes.model.effects`).  A
+        non-null value for a parameter of an effect that is off is refused.
     shape : {'exp', 'rational'}
         Stribeck curve shape.
     step : float
@@ -354,9 +347,17 @@ def simulate(
         The parameters are physically invalid or the integration failed.
     """
     check_config(config)
-    p = resolve(params, config=config)
+    if isinstance(params, Mapping):
+        user = {k: v for k, v in params.items() if k not in NAMES}
+        p = resolve({k: v for k, v in params.items() if k in NAMES}, config=config)
+        p.update(user)
+    else:
+        p = resolve(params, config=config)
+    effects = list(effects)
     if alpha0 is not None:
         p["alpha0"] = float(alpha0)
+        if alpha0 != 0.0 and config != "upper" and "initial_torsion" not in effects:
+            effects.append("initial_torsion")
     if u is None:
         if theta_u is None:
             raise ValueError("give the input voltage u (or a prescribed theta_u)")
@@ -393,6 +394,7 @@ def simulate(
 
 __all__ = [
     "CONFIGS",
+    "Model",
     "DEFAULT_STEP",
     "Simulation",
     "SimulationError",

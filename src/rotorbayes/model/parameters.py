@@ -1,8 +1,9 @@
 """Parameter names, units, physical bounds and the thesis's parameter tables.
 
 Every parameter of the rig model has one name used everywhere (files, API, plots).
-The order of :data:`NAMES` is also the layout of the compiled kernel's parameter
-vector, so adding a parameter means appending it here and nowhere else.
+The base model's parameters are declared here, each catalogue effect's with its effect
+(:mod:`rotorbayes.model.effects`); :data:`INFO` joins them in the order of the compiled
+kernel's parameter vector (:mod:`rotorbayes.kernel.layout`).
 
 Thesis tables (Wegman 2006) are available as named sets ``"thesis:<table>:<row>"``,
 e.g. ``"thesis:4.2:P0"``. Each named set is *complete*: the thesis lists only the
@@ -15,66 +16,46 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 
-
-@dataclass(frozen=True)
-class ParameterInfo:
-    """Metadata of one model parameter.
-
-    Attributes
-    ----------
-    name : str
-        The parameter's name (as in DESIGN.md).
-    unit : str
-        SI unit.
-    lower, upper : float
-        Physical bounds used by estimation and validation.
-    null : float
-        The value at which the parameter's effect is switched off.  ``nan`` for
-        ``Ts_l`` means "equal to ``Tc_l``" (no Stribeck part).
-    description : str
-        One line of physics.
-    """
-
-    name: str
-    unit: str
-    lower: float
-    upper: float
-    null: float
-    description: str
+from ..kernel.layout import NAMES
+from .info import Parameter
 
 
-_INFO = [
-    ParameterInfo("k_m", "N m/V", 0.1, 20.0, 0.0, "motor constant (torque per input volt)"),
-    ParameterInfo("J_u", "kg m^2", 0.05, 5.0, 0.4765, "upper disc inertia (eq. 5.4: 0.4765)"),
-    ParameterInfo("Tc_u", "N m", 0.0, 3.0, 0.0, "upper Coulomb friction (mean of both directions)"),
-    ParameterInfo("dTc_u", "N m", -1.0, 1.0, 0.0, "upper Coulomb asymmetry (+ for positive slip)"),
-    ParameterInfo("b_u", "N m s/rad", 0.0, 20.0, 0.0, "upper viscous friction (mean)"),
-    ParameterInfo("db_u", "N m s/rad", -5.0, 5.0, 0.0, "upper viscous asymmetry"),
-    ParameterInfo("J_l", "kg m^2", 1e-3, 1.0, 0.0414, "lower disc inertia"),
-    ParameterInfo("k_alpha", "N m/rad", 1e-3, 1.0, 0.080, "string torsional stiffness (eq. 5.11)"),
-    ParameterInfo("Tc_l", "N m", 0.0, 1.0, 0.0, "lower Coulomb friction (bearing, or brake)"),
-    ParameterInfo("dTc_l", "N m", -0.5, 0.5, 0.0, "lower Coulomb asymmetry (+ for positive slip)"),
-    ParameterInfo("b_l", "N m s/rad", 0.0, 1.0, 0.0, "lower viscous friction (mean)"),
-    ParameterInfo("db_l", "N m s/rad", -0.5, 0.5, 0.0, "lower viscous asymmetry"),
-    ParameterInfo("Ts_l", "N m", 0.0, 3.0, math.nan, "lower static friction level (Stribeck)"),
-    ParameterInfo("ws_l", "rad/s", 1e-3, 50.0, 1.0, "lower Stribeck velocity"),
-    ParameterInfo("delta_l", "-", 0.2, 5.0, 2.0, "lower Stribeck shape exponent"),
-    ParameterInfo("alpha0", "rad", -10.0, 10.0, 0.0, "initial string torsion (per experiment)"),
-    ParameterInfo("c_alpha", "N m s/rad", 0.0, 0.1, 0.0, "viscous damping in the string"),
-    ParameterInfo("u_offset", "V", -0.5, 0.5, 0.0, "motor voltage offset"),
-    ParameterInfo("t_delay", "s", 0.0, 0.1, 0.0, "input time delay"),
-    ParameterInfo("u_deadzone", "V", 0.0, 1.0, 0.0, "motor dead zone half-width"),
-]
+#: Parameters of the base model (thesis eqs. 2.1-2.6 with symmetric friction).  The
+#: parameters of the catalogue effects are declared with their effect in
+#: :mod:`rotorbayes.model.effects`.
+BASE: tuple[Parameter, ...] = (
+    Parameter("k_m", "N m/V", 0.1, 20.0, math.nan, "motor constant (torque per input volt)"),
+    Parameter("J_u", "kg m^2", 0.05, 5.0, 0.4765, "upper disc inertia (eq. 5.4: 0.4765)"),
+    Parameter("Tc_u", "N m", 0.0, 3.0, 0.0, "upper Coulomb friction (mean of both directions)"),
+    Parameter("b_u", "N m s/rad", 0.0, 20.0, 0.0, "upper viscous friction (mean)"),
+    Parameter("J_l", "kg m^2", 1e-3, 1.0, 0.0414, "lower disc inertia"),
+    Parameter("k_alpha", "N m/rad", 1e-3, 1.0, 0.080, "string torsional stiffness (eq. 5.11)"),
+    Parameter("Tc_l", "N m", 0.0, 1.0, 0.0, "lower Coulomb friction (bearing, or brake)"),
+    Parameter("b_l", "N m s/rad", 0.0, 1.0, 0.0, "lower viscous friction (mean)"),
+)
 
-#: Parameter metadata by name.
-INFO: dict[str, ParameterInfo] = {p.name: p for p in _INFO}
-#: All parameter names, in kernel order.
-NAMES: tuple[str, ...] = tuple(p.name for p in _INFO)
+
+def _all_parameters() -> dict[str, Parameter]:
+    from .effects import CATALOGUE
+
+    out = {p.name: p for p in BASE}
+    for e in CATALOGUE.values():
+        for p in e.parameters:
+            out[p.name] = p
+    missing = set(NAMES) ^ set(out)
+    if missing:  # the kernel layout and the registry must describe the same parameters
+        raise RuntimeError(f"kernel layout and parameter registry disagree on {missing}")
+    return {n: out[n] for n in NAMES}
+
+
+#: Metadata of every built-in parameter by name, in kernel order.
+INFO: dict[str, Parameter] = _all_parameters()
 #: Position of each name in the kernel's parameter vector.
 INDEX: dict[str, int] = {n: i for i, n in enumerate(NAMES)}
+#: Kept for readers of older code: the metadata class.
+ParameterInfo = Parameter
 
 # Geometry-derived values (thesis eqs. 5.4 and 5.11).
 J_U_EQ_5_4 = 7.9e3 * math.pi / 32 * 0.40**4 * 0.024
@@ -311,7 +292,7 @@ def check_bounds(values: Mapping[str, float], names=None, *, what: str = "") -> 
 def table_markdown() -> str:
     """A markdown table of every parameter with unit, bounds and meaning."""
     rows = ["| name | unit | bounds | null | meaning |", "|---|---|---|---|---|"]
-    for p in _INFO:
+    for p in INFO.values():
         null = "= Tc_l" if math.isnan(p.null) else f"{p.null:g}"
         rows.append(
             f"| `{p.name}` | {p.unit} | [{p.lower:g}, {p.upper:g}] | {null} | {p.description} |"

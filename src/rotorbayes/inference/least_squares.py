@@ -1,0 +1,287 @@
+"""Least squares from a start (the thesis's lsqnonlin method) over one or several experiments.
+
+The optimiser works on scaled variables ``z = x / scale`` so parameters from 1e-3 to 1e1
+are treated alike.  The Jacobian is :meth:`Problem.jacobian` (forward differences, all
+perturbed sets simulated in one parallel kernel batch), kept with the result for standard
+errors, the Fisher information and the sampler's starting covariance.  A parameter set the
+integrator cannot simulate gets a large penalty residual here (the optimiser needs a
+number) and the result says so; the likelihood uses the status instead.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .. import metrics as _metrics
+from ..data import Experiment
+from .problem import Problem
+
+#: Penalty residual [rad] the optimiser sees for parameter sets the integrator rejects.
+FAIL_RESIDUAL = 1e3
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit`.
+
+    Attributes
+    ----------
+    names, x, x0 : list, arrays
+        Free parameter names, estimates and start values.
+    stderr : array
+        Standard errors from the Gauss-Newton covariance ``s² (JᵀJ)⁻¹`` (``nan`` where
+        the information matrix is singular).
+    jac : array (n_residuals, k)
+        Jacobian of the residuals at the solution (in parameter units).
+    ssr, cost : float
+        Sum of squared residuals [rad²] and ``ssr / 2``.
+    success : bool
+        The optimiser met a convergence criterion; ``message`` says which, or why not.
+    """
+
+    names: list[str]
+    x: np.ndarray
+    x0: np.ndarray
+    stderr: np.ndarray
+    jac: np.ndarray
+    ssr: float
+    n_residuals: int
+    success: bool
+    message: str
+    nfev: int
+    njev: int
+    seconds: float
+    problem: Problem = field(repr=False)
+
+    @property
+    def values(self) -> dict[str, float]:
+        """``{name: estimate}``."""
+        return dict(zip(self.names, map(float, self.x), strict=True))
+
+    @property
+    def params(self) -> dict[str, float]:
+        """Complete parameter set of the first experiment at the estimate."""
+        return self.problem.params_for(self.x, 0)
+
+    def correlation(self) -> np.ndarray:
+        """Parameter correlation matrix from the Gauss-Newton covariance."""
+        cov = self.covariance()
+        d = np.sqrt(np.abs(np.diag(cov)))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return cov / np.outer(d, d)
+
+    def covariance(self) -> np.ndarray:
+        """Gauss-Newton covariance ``s² (JᵀJ)⁻¹`` with ``s² = SSR / (n - k)``."""
+        k = len(self.names)
+        s2 = self.ssr / max(self.n_residuals - k, 1)
+        return s2 * np.linalg.pinv(self.jac.T @ self.jac, rcond=1e-13)
+
+    def sloppy_directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Eigenvalues (ascending) and eigenvectors of the Fisher information in
+        relative (log-parameter) coordinates: small eigenvalues are directions along
+        which the fit barely changes."""
+        Jr = self.jac * np.where(self.x != 0, self.x, 1.0)
+        w, V = np.linalg.eigh(Jr.T @ Jr)
+        return w, V
+
+
+def _scale(problem: Problem, x0: np.ndarray) -> np.ndarray:
+    """Typical magnitudes of the free parameters (for the optimiser's variables)."""
+    width = problem.upper - problem.lower
+    return np.maximum(np.abs(x0), 1e-3 * width)
+
+
+def fit(
+    problem: Problem,
+    x0=None,
+    *,
+    ftol: float = 1e-10,
+    xtol: float = 1e-10,
+    gtol: float = 1e-10,
+    max_nfev: int = 200,
+    fd_step: float = 1e-6,
+    verbose: bool = False,
+    parallel: bool = True,
+    callback: Callable[[int, float], None] | None = None,
+) -> FitResult:
+    """Least squares from a start (thesis: MATLAB ``lsqnonlin``; here scipy's
+    trust-region-reflective ``least_squares`` with bounds).
+
+    Parameters
+    ----------
+    problem : Problem
+    x0 : array or mapping, optional
+        Start values (default: the problem's base set).
+    ftol, xtol, gtol : float
+        Convergence tolerances of :func:`scipy.optimize.least_squares`.
+    max_nfev : int
+        Largest number of residual evaluations (Jacobians not counted).
+    fd_step : float
+        Forward-difference step in scaled variables (relative to each parameter's
+        magnitude).
+    parallel : bool
+        Simulate the Jacobian's perturbed sets in one parallel batch.
+    callback : callable, optional
+        Called as ``callback(n_evaluations, ssr)`` after each residual evaluation.
+
+    Returns
+    -------
+    FitResult
+        Also when the optimiser did not converge (``success`` False; ``message`` why).
+    """
+    if x0 is None:
+        x0 = problem.x_from(problem.base)
+    elif isinstance(x0, Mapping):
+        x0 = problem.x_from({**problem.base, **x0})
+    x0 = np.asarray(x0, float)
+    problem.check_start(x0)
+    scale = _scale(problem, x0)
+    lo, hi = problem.lower / scale, problem.upper / scale
+    counter = {"n": 0, "best": math.inf}
+
+    last: dict = {}
+
+    def fun(z):
+        r = problem.residuals(z * scale, penalty=FAIL_RESIDUAL)
+        # The optimiser asks for the Jacobian at the point it just evaluated.
+        last["z"], last["r"] = z.copy(), r
+        counter["n"] += 1
+        s = float(r @ r)
+        counter["best"] = min(counter["best"], s)
+        if verbose and counter["n"] % 10 == 0:
+            print(
+                f"  evaluation {counter['n']:4d}  SSR {s:.6e}  best {counter['best']:.6e}",
+                flush=True,
+            )
+        if callback is not None:
+            callback(counter["n"], s)
+        return r
+
+    def jac(z):
+        r0 = last["r"] if "z" in last and np.array_equal(z, last["z"]) else None
+        try:
+            J, _ = problem.jacobian(z * scale, rel_step=fd_step, r0=r0)
+        except Exception:
+            # A perturbed set cannot be simulated: fall back to penalised differences.
+            if r0 is None:
+                r0 = problem.residuals(z * scale, penalty=FAIL_RESIDUAL)
+            k = z.size
+            Z = np.repeat(z[None, :], k, axis=0)
+            steps = np.where(z + fd_step <= hi, fd_step, -fd_step)
+            Z[np.arange(k), np.arange(k)] += steps
+            R = problem.residuals_batch(Z * scale, penalty=FAIL_RESIDUAL)
+            return ((R - r0[None, :]) / steps[:, None]).T
+        return J * scale[None, :]
+
+    t0 = time.perf_counter()
+    res = least_squares(
+        fun,
+        x0 / scale,
+        jac=jac,
+        bounds=(lo, hi),
+        method="trf",
+        x_scale=1.0,
+        ftol=ftol,
+        xtol=xtol,
+        gtol=gtol,
+        max_nfev=max_nfev,
+    )
+    seconds = time.perf_counter() - t0
+    x = res.x * scale
+    J = jac(res.x) / scale[None, :]
+    ev = problem.evaluate(x)
+    r = np.where(np.isnan(ev.residuals), FAIL_RESIDUAL, ev.residuals)
+    ssr_val = float(r @ r)
+    out = FitResult(
+        names=list(problem.names),
+        x=x,
+        x0=x0,
+        stderr=np.full(x.size, np.nan),
+        jac=J,
+        ssr=ssr_val,
+        n_residuals=r.size,
+        success=bool(res.status > 0) and ev.ok,
+        message=_explain(res) if ev.ok else "the model cannot be simulated at the end point: "
+        + "; ".join(ev.reasons()),
+        nfev=int(res.nfev),
+        njev=int(res.njev or 0),
+        seconds=seconds,
+        problem=problem,
+    )
+    cov = out.covariance()
+    with np.errstate(invalid="ignore"):
+        out.stderr = np.sqrt(np.diag(cov))
+    return out
+
+
+def _explain(res) -> str:
+    """Plain-words reason the optimiser stopped."""
+    reasons = {
+        -1: "improper input parameters",
+        0: "stopped: the maximum number of evaluations was reached before convergence "
+        "(raise max_nfev or start closer)",
+        1: "converged: gradient small (gtol)",
+        2: "converged: cost change small (ftol)",
+        3: "converged: step small (xtol)",
+        4: "converged: cost change and step small (ftol and xtol)",
+    }
+    return reasons.get(res.status, res.message)
+
+
+# --------------------------------------------------------------------------- quality
+def quality(
+    problem: Problem,
+    x: np.ndarray,
+    experiments: Sequence[Experiment] | None = None,
+    *,
+    k: int | None = None,
+) -> list[dict]:
+    """Per experiment and channel (theta_l, theta_u, alpha as in the thesis): R², NRMSE
+    fit %, max |error|, SSR, plus AICc and BIC of the fitted channels.
+
+    ``experiments`` default to the problem's own (estimation data); pass validation
+    experiments to evaluate the same parameters on other inputs (``alpha0`` of a
+    validation experiment is taken from ``problem.base``).
+    """
+    exps = problem.experiments if experiments is None else experiments
+    k = len(problem.names) if k is None else k
+    rows = []
+    for i, ex in enumerate(exps):
+        own = experiments is None
+        p = problem.params_for(x, i if own else 0)
+        if not own and "alpha0" not in problem.names:
+            p["alpha0"] = problem.base["alpha0"]
+        sim = problem.sims[i] if own else problem.simulator_for(ex)
+        s = sim.simulate(p, raise_on_failure=False)
+        chans = {"theta_u": (ex.theta_u, s.theta_u)}
+        if ex.has_lower:
+            chans["theta_l"] = (ex.theta_l, s.theta_l)
+            a0 = p["alpha0"]
+            chans["alpha"] = (ex.theta_l - ex.theta_u + a0, s.theta_l - s.theta_u + a0)
+        fits = {}
+        for c, (y, yh) in chans.items():
+            if problem.prescribed_upper and c == "theta_u":
+                continue
+            if not np.all(np.isfinite(yh)):
+                continue
+            fits[c] = _metrics.channel_fit(c, y, yh)
+        fitted_ssr = sum(fits[c].ssr for c in problem.channels if c in fits)
+        n = ex.n * len(problem.channels)
+        rows.append(
+            {
+                "experiment": ex.name or (ex.path or f"experiment {i}"),
+                "channels": {c: f.as_dict() for c, f in fits.items()},
+                "aicc": _metrics.aicc(fitted_ssr, n, k) if fitted_ssr > 0 else -math.inf,
+                "bic": _metrics.bic(fitted_ssr, n, k) if fitted_ssr > 0 else -math.inf,
+                "simulation": s,
+            }
+        )
+    return rows
+
+

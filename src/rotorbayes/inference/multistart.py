@@ -1,0 +1,273 @@
+"""Multistart: many least-squares fits from spread starts, end points clustered and
+explained in words (which parameters the data do not identify, which starts stop in other
+minima or on plateaus).  Fits run through the parallel map layer
+(:mod:`rotorbayes.inference.parallel`)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import qmc
+
+from ..model.parameters import ParameterError
+from .least_squares import FitResult, fit
+from .parallel import get_mapper
+from .problem import Problem
+
+
+@dataclass
+class MultistartResult:
+    """End points of many fits from different starts."""
+
+    names: list[str]
+    starts: np.ndarray
+    ends: np.ndarray
+    ssr: np.ndarray
+    success: np.ndarray
+    clusters: np.ndarray
+    fits: list[FitResult] = field(repr=False)
+    start_index: np.ndarray | None = None
+    failed: dict[int, str] = field(default_factory=dict)
+    interrupted: bool = False
+
+    @property
+    def best(self) -> FitResult:
+        """The fit with the lowest SSR."""
+        return self.fits[int(np.argmin(self.ssr))]
+
+    def summary(self, *, flat: float = 0.05) -> str:
+        """Plain words: which parameters spread while the cost stays flat, and whether
+        starts end in other (local) minima or on plateaus.
+
+        ``flat`` is the relative SSR margin above the best that still counts as
+        "as good" (default 5 %).
+        """
+        text = describe_spread(self.names, self.ends, self.ssr, flat=flat)
+        best = float(np.min(self.ssr))
+        worse = self.ssr > best * (1 + flat) + 1e-300
+        if worse.any():
+            n_cl = len(set(self.clusters[worse].tolist()))
+            stuck = [f for f, w in zip(self.fits, worse, strict=True) if w and f.nfev <= 2]
+            text += (
+                f"\n{int(worse.sum())} starts stopped elsewhere, in {n_cl} other "
+                f"cluster(s) with SSR {np.min(self.ssr[worse]) / max(best, 1e-300):.3g}x to "
+                f"{np.max(self.ssr[worse]) / max(best, 1e-300):.3g}x the best: the cost has "
+                "local minima, so the estimate depends on the start P0 (thesis §4.3)."
+            )
+            if stuck:
+                text += (
+                    f" {len(stuck)} of them did not move at all: their start lies on a "
+                    "plateau of the cost (e.g. the lower disc never breaks loose, so the "
+                    "friction parameters do not change the response)."
+                )
+        return text
+
+
+def describe_spread(
+    names: Sequence[str], ends: np.ndarray, ssr: np.ndarray, *, flat: float = 0.05
+) -> str:
+    """Explain the spread of near-optimal end points in words (see :class:`MultistartResult`)."""
+    ssr = np.asarray(ssr, float)
+    best = float(np.min(ssr))
+    good = ssr <= best * (1 + flat) + 1e-300
+    lines = [
+        f"{int(good.sum())} of {ssr.size} starts end within {100 * flat:.0f} % of the best "
+        f"SSR ({best:.4g} rad²)."
+    ]
+    if good.sum() < 3:
+        lines.append("Too few equally good end points to judge the spread; run more starts.")
+        return "\n".join(lines)
+    E = ends[good]
+    pos = np.all(E > 0, axis=0)
+    spread = []
+    for j, n in enumerate(names):
+        col = E[:, j]
+        if pos[j]:
+            rel = float(np.std(np.log(col)))
+            spread.append((n, rel, f"±{100 * rel:.1f} %"))
+        else:
+            spread.append(
+                (
+                    n,
+                    float(np.std(col)) / (abs(float(np.mean(col))) + 1e-12),
+                    f"sd {np.std(col):.3g}",
+                )
+            )
+    loose = [s for s in spread if s[1] > 0.02]
+    tight = [s for s in spread if s[1] <= 0.02]
+    if loose:
+        lines.append(
+            "These parameters spread although the cost stays flat (not identified "
+            "one by one): " + ", ".join(f"{n} {txt}" for n, _, txt in loose) + "."
+        )
+    if tight:
+        lines.append("Well determined: " + ", ".join(f"{n} {txt}" for n, _, txt in tight) + ".")
+    # The ridge: leading principal direction of the log end points of the positive ones.
+    idx = [j for j in range(len(names)) if pos[j]]
+    if len(idx) >= 2 and loose:
+        L = np.log(E[:, idx])
+        L = L - L.mean(axis=0)
+        _, sv, Vt = np.linalg.svd(L, full_matrices=False)
+        v = Vt[0] * np.sign(Vt[0][np.argmax(np.abs(Vt[0]))])
+        share = sv[0] ** 2 / max(float(np.sum(sv**2)), 1e-300)
+        movers = [(names[idx[j]], v[j]) for j in range(len(idx)) if abs(v[j]) > 0.25]
+        if share > 0.8 and len(movers) >= 2:
+            same = all(np.sign(c) == np.sign(movers[0][1]) for _, c in movers)
+            desc = " and ".join(n for n, _ in movers)
+            lines.append(
+                f"They move together along one ridge ({100 * share:.0f} % of the spread): "
+                + (
+                    f"scaling {desc} by a common factor leaves the fit almost unchanged, so only "
+                    "their ratios are determined by these data."
+                    if same
+                    else f"{desc} trade off against each other (log-direction "
+                    + ", ".join(f"{n} {c:+.2f}" for n, c in movers)
+                    + ")."
+                )
+            )
+            if same:
+                ref = movers[0][0]
+                rat = []
+                for n, _ in movers[1:]:
+                    r = E[:, names.index(n)] / E[:, names.index(ref)]
+                    rat.append(f"{n}/{ref} ±{100 * np.std(np.log(r)):.1f} %")
+                lines.append("Their ratios vary much less: " + ", ".join(rat) + ".")
+    return "\n".join(lines)
+
+
+def latin_hypercube(
+    problem: Problem,
+    n: int,
+    rng: np.random.Generator,
+    *,
+    around: np.ndarray | None = None,
+    spread: float = 0.3,
+) -> np.ndarray:
+    """Start points: a Latin hypercube within the bounds, or (``around`` given) a
+    Latin hypercube of log-normal factors ``exp(spread * N(0,1))`` around a point."""
+    k = len(problem.names)
+    U = qmc.LatinHypercube(d=k, seed=rng).random(n)
+    if around is None:
+        lo, hi = problem.lower, problem.upper
+        # Positive parameters spanning decades are sampled log-uniformly.
+        X = np.empty_like(U)
+        for j in range(k):
+            if lo[j] > 0 and hi[j] / lo[j] > 100:
+                X[:, j] = np.exp(np.log(lo[j]) + U[:, j] * (np.log(hi[j]) - np.log(lo[j])))
+            else:
+                X[:, j] = lo[j] + U[:, j] * (hi[j] - lo[j])
+        return X
+    from scipy.stats import norm
+
+    fac = np.exp(spread * norm.ppf(np.clip(U, 1e-9, 1 - 1e-9)))
+    X = np.where(around != 0, around * fac, spread * (U - 0.5) * (problem.upper - problem.lower))
+    return np.clip(X, problem.lower, problem.upper)
+
+
+def multistart(
+    problem: Problem,
+    n_starts: int = 32,
+    *,
+    seed: int = 0,
+    around=None,
+    spread: float = 0.3,
+    workers: int = 2,
+    progress: bool = True,
+    **fit_kw,
+) -> MultistartResult:
+    """Fit from ``n_starts`` start points in parallel threads and cluster the end points.
+
+    Parameters
+    ----------
+    around : array or mapping, optional
+        Centre of a log-normal spread of starts (``spread`` is its log-sd); default a
+        Latin hypercube over the parameter bounds.
+    workers : int
+        Parallel fits (the integrator releases the GIL).
+    """
+    rng = np.random.default_rng(seed)
+    if isinstance(around, Mapping):
+        around = problem.x_from({**problem.base, **around})
+    starts = latin_hypercube(problem, n_starts, rng, around=around, spread=spread)
+    t0 = time.perf_counter()
+
+    def one(x0):
+        try:
+            return fit(problem, x0, parallel=False, **fit_kw), ""
+        except (ParameterError, ValueError, RuntimeError) as exc:
+            return None, str(exc)
+
+    results: dict[int, tuple] = {}
+    interrupted = False
+    mapper = get_mapper("threads", workers)
+    try:
+        for i, (r, why) in mapper.map(one, list(starts)):
+            results[i] = (r, why)
+            if progress:
+                el = time.perf_counter() - t0
+                k = len(results)
+                print(
+                    f"  start {k:3d}/{n_starts} done "
+                    f"({el:.0f} s elapsed, ~{el / k * (n_starts - k):.0f} s left)",
+                    flush=True,
+                )
+    except KeyboardInterrupt:
+        interrupted = True
+    idx = sorted(results)
+    good = [i for i in idx if results[i][0] is not None and _usable(results[i][0])]
+    failed = {
+        i: (results[i][1] or results[i][0].message) for i in idx if i not in good
+    }
+    ok = [results[i][0] for i in good]
+    ends = np.array([f.x for f in ok]).reshape(len(ok), len(problem.names))
+    ssr = np.array([f.ssr for f in ok])
+    succ = np.array([f.success for f in ok], dtype=bool)
+    clusters = cluster_ends(ends, ssr, problem) if ok else np.zeros(0, int)
+    return MultistartResult(
+        names=list(problem.names),
+        starts=starts,
+        ends=ends,
+        ssr=ssr,
+        success=succ,
+        clusters=clusters,
+        fits=ok,
+        start_index=np.array(good, dtype=int),
+        failed=failed,
+        interrupted=interrupted,
+    )
+
+
+def _usable(f: FitResult) -> bool:
+    """A fit whose end point can be simulated (a failed start is not a minimum)."""
+    return "cannot be simulated" not in f.message and np.isfinite(f.ssr)
+
+
+def cluster_ends(
+    ends: np.ndarray,
+    ssr: np.ndarray,
+    problem: Problem,
+    *,
+    cost_tol: float = 0.01,
+    x_tol: float = 0.05,
+) -> np.ndarray:
+    """Group end points whose SSR agree within ``cost_tol`` (relative) and whose
+    parameters agree within ``x_tol`` (relative to the bounds' width); label 0 is the
+    cluster of the best end point."""
+    order = np.argsort(ssr)
+    width = problem.upper - problem.lower
+    labels = np.full(ssr.size, -1)
+    reps: list[int] = []
+    for i in order:
+        for lab, r in enumerate(reps):
+            if abs(ssr[i] - ssr[r]) <= cost_tol * max(ssr[r], 1e-300) and np.all(
+                np.abs(ends[i] - ends[r]) <= x_tol * width
+            ):
+                labels[i] = lab
+                break
+        else:
+            labels[i] = len(reps)
+            reps.append(i)
+    return labels

@@ -1,0 +1,472 @@
+"""An estimation problem: a model, experiments, free parameters and fitted channels.
+
+A :class:`Problem` maps a free-parameter vector ``x`` to
+
+* :meth:`~Problem.simulate` — a :class:`~rotorbayes.Simulation` per experiment, each with
+  its status;
+* :meth:`~Problem.evaluate` — the residual vector and the status of every experiment
+  (failed experiments give ``nan`` residuals: least squares may choose a penalty, a
+  likelihood ``-inf``; nothing turns a failure into a plausible number silently);
+* :meth:`~Problem.jacobian` — sensitivities to *any* parameters: the free ones, fixed ones,
+  and those of effects that are off (evaluated at their null value, one-sided where the
+  null is a bound) — what a score test for a missing effect needs.
+
+The residual is ``r = concat over experiments e and channels c of w_c (y_ec - yhat_ec)``
+(thesis eqs. 4.4, 4.10, 5.19).  ``alpha0`` takes one value per experiment
+(``alpha0[0]``, ``alpha0[1]``, ...; thesis §5.3.2).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..data import Experiment
+from ..kernel import layout as _layout
+from ..model import effects as _effects
+from ..model.configurations import Model
+from ..model.parameters import INFO, ParameterError, resolve, unknown_name_message
+from ..model.simulate import DEFAULT_STEP, Simulation, Simulator
+
+CHANNELS = ("theta_u", "theta_l")
+
+
+def local_name(name: str) -> tuple[str, int | None]:
+    """Split ``'alpha0[2]'`` into ``('alpha0', 2)``."""
+    if name.endswith("]") and "[" in name:
+        base, idx = name[:-1].split("[", 1)
+        try:
+            return base, int(idx)
+        except ValueError:
+            raise ParameterError(f"{name!r}: the index in brackets must be a number") from None
+    return name, None
+
+
+@dataclass
+class Evaluation:
+    """Residuals at one point and the integrator's status per experiment."""
+
+    residuals: np.ndarray
+    status: np.ndarray
+
+    @property
+    def ok(self) -> bool:
+        return bool(np.all(self.status == _layout.OK))
+
+    def reasons(self) -> list[str]:
+        """The integrator's words for every failed experiment."""
+        return [
+            f"experiment {i}: {_layout.STATUS_MESSAGES[int(s)]}"
+            for i, s in enumerate(self.status)
+            if s != _layout.OK
+        ]
+
+
+@dataclass
+class Problem:
+    """A least-squares / likelihood problem over one or more experiments.
+
+    Parameters
+    ----------
+    model : Model or {'upper', 'coupled', 'brake'}
+        The model, or a configuration name (then ``effects`` and ``prescribed_upper``
+        build the model).
+    experiments : sequence of Experiment
+    free : sequence of str, optional
+        Parameters to estimate.  Default: the configuration's fitted parameters plus
+        those of every added effect (``alpha0`` per experiment when ``initial_torsion``
+        is on).  Parameters of effects that are off are refused.
+    base : mapping, str or None
+        The starting / fixed values of all parameters (a named set, TOML file or
+        mapping; default the configuration's P_ref set).
+    effects : iterable of str
+        Effects switched on besides the configuration's base model.
+    channels : sequence of str
+        Fitted channels, ``'theta_u'`` and/or ``'theta_l'``.  Default ``theta_u`` for the
+        upper configuration, ``theta_l`` otherwise (thesis eqs. 4.4, 4.10).
+    weights : mapping, optional
+        Weight per channel (default 1).
+    prescribed_upper : bool
+        Drive the lower disc with the measured upper angle instead of the motor model.
+    fixed : sequence of str
+        Parameters removed from the default free set.
+    """
+
+    model: Model | str
+    experiments: Sequence[Experiment]
+    free: Sequence[str] | None = None
+    base: object = None
+    effects: Iterable[str] = ()
+    channels: Sequence[str] | None = None
+    weights: Mapping[str, float] | None = None
+    prescribed_upper: bool = False
+    shape: str = "exp"
+    step: float = DEFAULT_STEP
+    fixed: Sequence[str] = ()
+    names: list[str] = field(init=False)
+
+    def __post_init__(self):
+        if isinstance(self.experiments, Experiment):
+            self.experiments = [self.experiments]
+        if not isinstance(self.model, Model):
+            effects = list(self.effects)
+            # Several experiments on the lower disc: each starts with its own string
+            # torsion (thesis §5.3.2).
+            if (
+                len(self.experiments) > 1
+                and self.model != "upper"
+                and "initial_torsion" not in effects
+            ):
+                effects.append("initial_torsion")
+            self.model = Model(self.model, effects, prescribed_upper=self.prescribed_upper)
+        elif tuple(self.effects):
+            raise ValueError("give the effects with the Model, not to the Problem")
+        m = self.model
+        self.config = m.config
+        self.prescribed_upper = m.prescribed_upper
+        self.effects = m.effect_names
+        if isinstance(self.experiments, Experiment):
+            self.experiments = [self.experiments]
+        self.experiments = list(self.experiments)
+        if not self.experiments:
+            raise ValueError("give at least one experiment")
+        self._set_base(self.base)
+        for i, ex in enumerate(self.experiments):
+            where = ex.path or ex.name or f"experiment {i}"
+            if self.config == "upper" and ex.has_lower:
+                raise ValueError(
+                    f"{where}: has a theta_l column but the configuration is "
+                    "'upper' (string removed); use --model coupled or brake"
+                )
+            if self.config != "upper" and not ex.has_lower:
+                raise ValueError(
+                    f"{where}: has no theta_l column, so it is an upper-"
+                    f"configuration file; use --model upper, not {self.config!r}"
+                )
+        if self.channels is None:
+            self.channels = ("theta_u",) if self.config == "upper" else ("theta_l",)
+        self.channels = tuple(self.channels)
+        for c in self.channels:
+            if c not in CHANNELS:
+                raise ValueError(f"unknown channel {c!r}; choose from {', '.join(CHANNELS)}")
+        if self.config == "upper" and "theta_l" in self.channels:
+            raise ValueError("the upper configuration has no theta_l channel")
+        if self.prescribed_upper and "theta_u" in self.channels:
+            raise ValueError(
+                "with the measured theta_u as input, theta_u cannot also be fitted; "
+                "use channels=('theta_l',)"
+            )
+        self.weights = {c: float((self.weights or {}).get(c, 1.0)) for c in self.channels}
+        for c, w in self.weights.items():
+            if not (w > 0 and math.isfinite(w)):
+                raise ValueError(f"the weight of channel {c} is {w}; it must be > 0")
+        self.names = self._free_names()
+        self.sims = [self.simulator_for(ex) for ex in self.experiments]
+        self.lower = np.array([self.info(n).lower for n in self.names])
+        self.upper = np.array([self.info(n).upper for n in self.names])
+        self.n_residuals = sum(ex.n for ex in self.experiments) * len(self.channels)
+
+    # ---------------------------------------------------------------- construction
+    def _set_base(self, base) -> None:
+        m = self.model
+        if isinstance(base, Mapping):
+            builtin = {k: v for k, v in base.items() if k in INFO}
+            user = {k: float(v) for k, v in base.items() if k not in INFO}
+            for k in user:
+                if k not in m.info:
+                    raise ParameterError(unknown_name_message(k))
+            full = resolve(builtin, config=self.config) if set(builtin) != set(INFO) else dict(
+                builtin
+            )
+            full.update(user)
+        else:
+            full = resolve(base, config=self.config)
+        full = m.complete(full)
+        m.check_off(full, where="start/base values")
+        self.base = full
+
+    def _free_names(self) -> list[str]:
+        m = self.model
+        multi = len(self.experiments) > 1
+        if self.free is None:
+            cfg = m.configuration
+            free = [] if self.prescribed_upper and self.config == "upper" else list(cfg.fitted)
+            if self.prescribed_upper:
+                free = [n for n in free if n not in ("k_m", "Tc_u", "b_u", "J_u")]
+            fitted_effects = [
+                e for e in m.base_effects if e.name in cfg.fitted_effects
+            ] + list(m.added)  # fmt: skip
+            for e in fitted_effects:
+                free += [p for p in e.names if p not in free]
+            free = [n for n in free if n not in self.fixed]
+        else:
+            free = list(self.free)
+            for n in self.fixed:
+                if n in free:
+                    raise ParameterError(
+                        f"{n} is both fixed and free; remove it from one of the two lists"
+                    )
+        for n in free:
+            b, _ = local_name(n)
+            if b not in m.info:
+                raise ParameterError("free parameters: " + unknown_name_message(b))
+            if b not in m.active:
+                e = _effects.effect_of(b)
+                if e is not None:
+                    raise ParameterError(
+                        f"{b} belongs to the effect {e.name!r}, which is off in this "
+                        f"{self.config} model, so freeing it would change nothing; switch "
+                        f"the effect on (--add {e.name}) or remove {b} from the free list"
+                    )
+                raise ParameterError(
+                    f"{b} does not enter the {self.config} configuration"
+                    + (" with the measured theta_u as input" if self.prescribed_upper else "")
+                    + "; remove it from the free list"
+                )
+        names: list[str] = []
+        for n in free:
+            if n == "alpha0" and multi:
+                names += [f"alpha0[{i}]" for i in range(len(self.experiments))]
+            else:
+                names.append(n)
+        if len(set(names)) != len(names):
+            raise ParameterError(f"a free parameter is listed twice: {names}")
+        return names
+
+    def info(self, name: str):
+        """Metadata of a (possibly per-experiment) parameter name."""
+        return self.model.info[local_name(name)[0]]
+
+    def simulator_for(self, ex: Experiment, model: Model | None = None) -> Simulator:
+        """A :class:`~rotorbayes.Simulator` of this problem's model for experiment ``ex``."""
+        return Simulator(
+            model or self.model,
+            ex.u,
+            ex.dt,
+            shape=self.shape,
+            step=self.step,
+            theta_u=ex.theta_u if self.prescribed_upper else None,
+        )
+
+    def with_effects(self, extra: Iterable[str]) -> Problem:
+        """The same data and free set with more effects on (their parameters fixed at null)."""
+        return Problem(
+            self.model.with_effects(extra),
+            self.experiments,
+            free=list(self.names_base()),
+            base=self.base,
+            channels=self.channels,
+            weights=self.weights,
+            shape=self.shape,
+            step=self.step,
+        )
+
+    def names_base(self) -> list[str]:
+        """Free parameter names with per-experiment names folded (``alpha0``)."""
+        out: list[str] = []
+        for n in self.names:
+            b, _ = local_name(n)
+            if b not in out:
+                out.append(b)
+        return out
+
+    # ------------------------------------------------------------------------ maps
+    def x_from(self, params: Mapping[str, float]) -> np.ndarray:
+        """Free-parameter vector from a mapping (``alpha0[i]`` falls back to ``alpha0``)."""
+        out = []
+        for n in self.names:
+            base, _ = local_name(n)
+            out.append(float(params[n] if n in params else params[base]))
+        return np.array(out)
+
+    def params_for(self, x: np.ndarray, i: int) -> dict[str, float]:
+        """The full parameter set of experiment ``i`` at free vector ``x``."""
+        p = dict(self.base)
+        for n, v in zip(self.names, x, strict=True):
+            base, idx = local_name(n)
+            if idx is None or idx == i:
+                p[base] = float(v)
+        return p
+
+    def values(self, x: np.ndarray) -> dict[str, float]:
+        """``{name: value}`` of the free parameters."""
+        return {n: float(v) for n, v in zip(self.names, x, strict=True)}
+
+    def check_start(self, x: np.ndarray) -> None:
+        """Raise :class:`ParameterError` if a start value lies outside its bounds."""
+        for n, v, lo, hi in zip(self.names, x, self.lower, self.upper, strict=True):
+            if not (lo <= v <= hi):
+                raise ParameterError(
+                    f"start value {n} = {v:g} {self.info(n).unit} lies outside the bounds "
+                    f"[{lo:g}, {hi:g}]; choose a start inside them"
+                )
+
+    # -------------------------------------------------------------------- residuals
+    def _channel_residual(self, ex: Experiment, thu, thl) -> np.ndarray:
+        parts = []
+        for c in self.channels:
+            sim = thu if c == "theta_u" else thl
+            meas = ex.theta_u if c == "theta_u" else ex.theta_l
+            parts.append(self.weights[c] * (meas - sim))
+        return np.concatenate(parts)
+
+    def evaluate(self, x: np.ndarray) -> Evaluation:
+        """Residuals at ``x`` (``nan`` for failed experiments) and each status."""
+        out, status = [], []
+        for i, (ex, sim) in enumerate(zip(self.experiments, self.sims, strict=True)):
+            st, thu, thl = sim.angles(sim.kernel_vector(self.params_for(x, i)))
+            status.append(st)
+            if st != _layout.OK:
+                out.append(np.full(ex.n * len(self.channels), np.nan))
+            else:
+                out.append(self._channel_residual(ex, thu, thl))
+        return Evaluation(np.concatenate(out), np.array(status))
+
+    def residuals(self, x: np.ndarray, *, penalty: float | None = None) -> np.ndarray:
+        """Weighted residual vector [rad].
+
+        A failed simulation gives ``nan`` residuals, or ``penalty`` if one is given (the
+        least-squares optimiser needs a finite number; a likelihood should use
+        :meth:`evaluate` and return ``-inf``).
+        """
+        r = self.evaluate(x).residuals
+        if penalty is not None:
+            r = np.where(np.isnan(r), penalty, r)
+        return r
+
+    def _residuals_of_sets(self, sets: list[list[dict]], model: Model | None = None):
+        """Residual matrix for full parameter sets ``sets[j][i]`` (row j, experiment i),
+        simulated in kernel batches; returns ``(R, status[j, i])``."""
+        m = len(sets)
+        R = np.empty((m, self.n_residuals))
+        S = np.zeros((m, len(self.experiments)), dtype=np.int64)
+        off = 0
+        mdl = model or self.model
+        for i, ex in enumerate(self.experiments):
+            sim = self.sims[i] if model is None else self.simulator_for(ex, model)
+            vecs = [mdl.kernel_vectors(s[i]) for s in sets]
+            P = np.array([v[0] for v in vecs])
+            Q = np.array([v[1] for v in vecs]).reshape(m, -1)
+            st, thu, thl = sim.run_batch(P, Q)
+            k = ex.n * len(self.channels)
+            for j in range(m):
+                S[j, i] = st[j]
+                if st[j] != _layout.OK:
+                    R[j, off : off + k] = np.nan
+                else:
+                    R[j, off : off + k] = self._channel_residual(ex, thu[j], thl[j])
+            off += k
+        return R, S
+
+    def residuals_batch(self, X: np.ndarray, *, penalty: float | None = None) -> np.ndarray:
+        """Residual vectors of many free vectors (rows), simulated in parallel."""
+        X = np.atleast_2d(X)
+        sets = [[self.params_for(x, i) for i in range(len(self.experiments))] for x in X]
+        R, _ = self._residuals_of_sets(sets)
+        if penalty is not None:
+            R = np.where(np.isnan(R), penalty, R)
+        return R
+
+    def simulate(self, x: np.ndarray, i: int = 0) -> Simulation:
+        """Full :class:`~rotorbayes.Simulation` of experiment ``i`` at ``x`` (with status)."""
+        return self.sims[i].simulate(self.params_for(x, i), raise_on_failure=False)
+
+    def simulate_all(self, x: np.ndarray) -> list[Simulation]:
+        """Full simulations of every experiment at ``x``."""
+        return [self.simulate(x, i) for i in range(len(self.experiments))]
+
+    # --------------------------------------------------------------------- Jacobian
+    def jacobian(
+        self,
+        x: np.ndarray,
+        names: Sequence[str] | None = None,
+        *,
+        rel_step: float = 1e-6,
+        r0: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Sensitivity of the residuals to any parameters, by finite differences.
+
+        Parameters
+        ----------
+        x : array
+            The free-parameter vector (the point).
+        names : sequence of str, optional
+            Parameters to differentiate by (default: the free ones).  May include fixed
+            parameters, per-experiment names (``alpha0[1]``) and the parameters of
+            effects that are off (then evaluated at their null value: ``Ts_l`` from
+            ``Tc_l`` upwards; one-sided, inwards, where the value is on a bound).
+        rel_step : float
+            Step relative to the parameter's scale (its magnitude, at least 1e-3 of its
+            bounds' width).
+        r0 : array, optional
+            Residuals at ``x`` if already known.
+
+        Returns
+        -------
+        J : array (n_residuals, len(names))
+            ``d r / d theta`` in parameter units (``r = y - yhat``).
+        steps : array
+            The signed steps used.
+
+        Raises
+        ------
+        rotorbayes.SimulationError
+            If the model cannot be simulated at ``x`` or at a perturbed point.
+        """
+        from ..model.simulate import SimulationError
+
+        names = list(self.names if names is None else names)
+        off_effects = []
+        for n in names:
+            b, _ = local_name(n)
+            if b not in self.model.info:
+                raise ParameterError(unknown_name_message(b))
+            if b not in self.model.active:
+                e = _effects.effect_of(b)
+                if e is None:
+                    raise ParameterError(f"{b} does not enter the {self.config} configuration")
+                if e.name not in off_effects:
+                    off_effects.append(e.name)
+        prob = self.with_effects(off_effects) if off_effects else self
+        n_exp = len(self.experiments)
+        point = [prob.params_for(x, i) for i in range(n_exp)]
+        sets = [point]
+        steps = np.empty(len(names))
+        for k, n in enumerate(names):
+            b, idx = local_name(n)
+            info = prob.info(b)
+            v = point[0 if idx is None else idx][b]
+            if b == "Ts_l" and (math.isnan(v) or "lower_stribeck" in off_effects):
+                v = point[0]["Tc_l"]
+            scale = max(abs(v), 1e-3 * (info.upper - info.lower))
+            h = rel_step * scale
+            if v + h > info.upper:
+                h = -h
+            steps[k] = h
+            row = []
+            for i in range(n_exp):
+                p = dict(point[i])
+                if b == "Ts_l" and "lower_stribeck" in off_effects:
+                    p["Ts_l"] = p["Tc_l"]
+                if idx is None or idx == i:
+                    p[b] = v + h
+                row.append(p)
+            sets.append(row)
+        if prob is not self:
+            for i in range(n_exp):
+                if "lower_stribeck" in off_effects:
+                    sets[0][i] = {**sets[0][i], "Ts_l": sets[0][i]["Tc_l"]}
+        R, S = prob._residuals_of_sets(sets, model=prob.model if prob is not self else None)
+        if np.any(S != _layout.OK):
+            j, i = np.argwhere(S != _layout.OK)[0]
+            what = "the point" if j == 0 else f"{names[j - 1]} perturbed by {steps[j - 1]:.3g}"
+            raise SimulationError(
+                f"Jacobian: experiment {i} cannot be simulated at {what}: "
+                f"{_layout.STATUS_MESSAGES[int(S[j, i])]}"
+            )
+        base_r = R[0] if r0 is None or prob is not self else r0
+        J = ((R[1:] - base_r[None, :]) / steps[:, None]).T
+        return J, steps

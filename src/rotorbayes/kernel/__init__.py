@@ -1,0 +1,11 @@
+"""The compiled kernel: the rig's terms (:mod:`.terms`) apart from the solver (:mod:`.solver`).
+
+:mod:`.layout` fixes the parameter vector's order and the status codes.  Nothing here
+raises: the solver returns a status code that the model layer turns into an error (for a
+user) or a penalty / ``-inf`` (for least squares or a likelihood).
+"""
+
+from .layout import NAMES, STATUS_MESSAGES
+from .solver import simulate_batch_into, simulate_into
+
+__all__ = ["NAMES", "STATUS_MESSAGES", "simulate_batch_into", "simulate_into"]

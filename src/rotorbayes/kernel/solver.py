@@ -1,0 +1,330 @@
+"""Compiled switch-model solver (thesis §2.3, Leine et al. 1998).
+
+Each disc is in one of three modes: slip in the positive direction (+1), slip in the
+negative direction (-1) or stick (0, velocity held at exactly zero, friction equal to the
+external torque).  Inside a mode the equations of motion are smooth, so they are integrated
+with the classical fourth-order Runge-Kutta method on a *fixed* grid aligned with the input
+samples.  A step ends early at
+
+* an **event**, located inside the step by regula falsi on the Runge-Kutta map itself:
+  slip -> zero velocity (``s * omega`` reaches 0; the disc sticks if its external torque
+  lies in the static band, else it passes into the other direction), or stick -> slip
+  (the external torque leaves the static band);
+* a **kink** of the effective input (a dead-zone edge, or a delayed sample time when the
+  step is one sample), found exactly by :func:`rotorbayes.kernel.terms.next_kink`; the
+  step continues from there in the same mode, so every Runge-Kutta stage sees a smooth
+  right-hand side.
+
+This is the limit of Leine's switch model as the stick band shrinks to zero.  Because the
+grid is fixed and every event or kink time is a root of a smooth function, the simulated
+angles are continuous (and piecewise smooth) in the parameters: no step-size controller
+introduces jitter that least squares or a sampler would see as noise.
+
+The physics lives in :mod:`rotorbayes.kernel.terms`; this module only integrates, locates
+and interpolates.  The kernel never raises: it returns a status code
+(:data:`rotorbayes.kernel.layout.STATUS_MESSAGES`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange, types
+
+from .layout import (
+    BAD_EFFECT, BAD_PARAMETERS, BLOW_UP, CFG_PRESCRIBED, CFG_UPPER, OK, TOO_MANY_EVENTS,
+)  # fmt: skip
+from .terms import (
+    HOOK_TYPE, derived, drive, effect_state_ok, guards, has_kinks, modes_at_rest, next_kink,
+    prescribed_velocity, rhs, violations,
+)  # fmt: skip
+
+#: Velocity band of Leine's switch model [rad/s]; used to classify a disc as at rest.
+ETA = 1e-6
+_MAX_EVENTS_PER_STEP = 50
+_VMAX = 1e6
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rk4(h, y, mu, ml, k1, dm, d1, m):
+    """One classical Runge-Kutta step of size ``h`` in fixed modes.
+
+    ``k1`` is the right-hand side at the start (shared with the dense output of the
+    previous segment); ``dm`` and ``d1`` are the drives at the middle and end of the step.
+    """
+    thu, wu, thl, wl = y
+    a1, a2, a3, a4 = k1
+    hh = 0.5 * h
+    b1, b2, b3, b4 = rhs(thu + hh * a1, wu + hh * a2, thl + hh * a3, wl + hh * a4, mu, ml, dm, m)
+    c1, c2, c3, c4 = rhs(thu + hh * b1, wu + hh * b2, thl + hh * b3, wl + hh * b4, mu, ml, dm, m)
+    e1, e2, e3, e4 = rhs(thu + h * c1, wu + h * c2, thl + h * c3, wl + h * c4, mu, ml, d1, m)
+    k = h / 6.0
+    return (
+        thu + k * (a1 + 2.0 * (b1 + c1) + e1),
+        wu + k * (a2 + 2.0 * (b2 + c2) + e2),
+        thl + k * (a3 + 2.0 * (b3 + c3) + e3),
+        wl + k * (a4 + 2.0 * (b4 + c4) + e4),
+    )
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _hermite(s, h, ya, fa, yb, fb):
+    """Cubic Hermite interpolant at fraction ``s`` of a segment of length ``h``."""
+    s2 = s * s
+    s3 = s2 * s
+    h00 = 2.0 * s3 - 3.0 * s2 + 1.0
+    h10 = s3 - 2.0 * s2 + s
+    h01 = -2.0 * s3 + 3.0 * s2
+    h11 = s3 - s2
+    return h00 * ya + h * (h10 * fa + h11 * fb) + h01 * yb
+
+
+@njit(cache=True, error_model="numpy")
+def _step_to(t, x, y, mu, ml, k1, m, u, thp):
+    """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive."""
+    c, cfg = m[0], m[1]
+    dm = drive(t + 0.5 * x, c, cfg, u, thp)
+    d1 = drive(t + x, c, cfg, u, thp)
+    return _rk4(x, y, mu, ml, k1, dm, d1, m), d1
+
+
+@njit(cache=True, error_model="numpy")
+def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, u, thp):
+    """Time ``tau`` in (0, h] at which the guard of ``disc`` crosses zero.
+
+    Illinois regula falsi on ``tau -> guard(RK4 step of size tau)``.  Returns the right
+    end of the final bracket, where the guard is already violated, so the new mode
+    starts on the correct side of the switching surface.
+    """
+    a, fa = 0.0, g0
+    b, fb = h, g1
+    side = 0
+    tol = 1e-13 * h + 1e-16
+    for _ in range(100):
+        if b - a <= tol:
+            break
+        x = b - fb * (b - a) / (fb - fa)
+        if not (a < x < b):
+            x = 0.5 * (a + b)
+        yx, d = _step_to(t, x, y, mu, ml, k1, m, u, thp)
+        gu, gl = guards(yx[0], yx[1], yx[2], yx[3], mu, ml, d, m)
+        fx = gu if disc == 0 else gl
+        if fx < 0.0:
+            b, fb = x, fx
+            if side == -1:
+                fa *= 0.5
+            side = -1
+        else:
+            a, fa = x, fx
+            if side == 1:
+                fb *= 0.5
+            side = 1
+    return b
+
+
+_F1 = types.float64[::1]
+_SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
+    _F1, _F1, _F1, types.float64, types.int64, types.int64, types.int64, types.int64, _F1,
+    types.boolean, HOOK_TYPE, HOOK_TYPE,
+    _F1, _F1, _F1, _F1, types.int8[::1], types.int8[::1], types.float64[:, ::1],
+)  # fmt: skip
+
+
+@njit(_SIMULATE_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+def simulate_into(
+    p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+):  # fmt: skip
+    """Integrate one experiment and write the result into preallocated arrays.
+
+    Parameters
+    ----------
+    p : float64[N_PARAMS]
+        Built-in parameters in :data:`rotorbayes.kernel.layout.NAMES` order.
+    q : float64[k]
+        Parameters of the user-defined effects (read only by the hooks).
+    u : float64[n]
+        Input voltage samples [V] at times ``k*dt``.
+    dt : float
+        Sample interval [s].
+    cfg : int
+        :data:`CFG_UPPER`, :data:`CFG_COUPLED` or :data:`CFG_PRESCRIBED`.
+    shape : int
+        Stribeck shape code (see :mod:`rotorbayes.model.friction`).
+    stride, substeps : int
+        The Runge-Kutta step is ``dt * stride / substeps``; one of the two must be 1.
+    thp : float64[n]
+        Prescribed upper-disc angle [rad] (only read for ``CFG_PRESCRIBED``).
+    use_hooks, hook_torque, hook_shift
+        Whether to call the user-effect hooks: extra torques on the discs, and shifts of
+        their friction levels (see :data:`rotorbayes.kernel.terms.HOOK_SIGNATURE`).
+    out_* : arrays of length n
+        Angles [rad], velocities [rad/s] and modes (-1, 0, +1) at the samples.
+    events : float64[m, 3]
+        Rows ``(time, disc, new_mode)`` of the first ``m`` mode switches.
+
+    Returns
+    -------
+    status, n_events : int, int
+    """
+    n = u.shape[0]
+    bad = violations(p, cfg)
+    if bad.any() or substeps < 1 or stride < 1 or (stride > 1 and substeps > 1) or not dt > 0.0:
+        out_thu[:] = np.nan
+        out_wu[:] = np.nan
+        out_thl[:] = np.nan
+        out_wl[:] = np.nan
+        return BAD_PARAMETERS, 0
+    c = derived(p, dt)
+    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift)
+    max_ev = events.shape[0]
+    ratio = stride / substeps  # step length in samples
+    n_steps = int(math.ceil((n - 1) / ratio - 1e-9))
+    # Kinks of the input inside a step: dead-zone edges always, delayed sample times when
+    # a step is one sample (with several samples per step they are as harmless as the
+    # undelayed ones, see docs/model.md).
+    split_delayed = stride == 1
+    kinks = has_kinks(c, split_delayed)
+    y = (0.0, 0.0, 0.0, 0.0)
+    # The rig starts at rest; each disc sticks unless its torque breaks it loose.
+    d1 = drive(0.0, c, cfg, u, thp)
+    if cfg == CFG_PRESCRIBED:
+        y = (d1[2], d1[3], 0.0, 0.0)
+    mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], d1, m)
+    f = rhs(y[0], y[1], y[2], y[3], mu, ml, d1, m)
+    n_ev = 0
+    status = OK
+    if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], d1, m):
+        status = BAD_EFFECT
+    out_thu[0], out_wu[0], out_thl[0], out_wl[0] = y
+    out_mu[0], out_ml[0] = mu, ml
+    kout = 1
+    t_end = 0.0
+    for j in range(n_steps):
+        if status != OK:
+            break
+        t = t_end
+        t_end = min((j + 1) * ratio, n - 1.0) * dt
+        n_step_ev = 0
+        while True:
+            t_tgt = next_kink(t, t_end, c, u, split_delayed) if kinks else t_end
+            rem = t_tgt - t
+            dm = drive(t + 0.5 * rem, c, cfg, u, thp)
+            d1 = drive(t_tgt, c, cfg, u, thp)
+            y1 = _rk4(rem, y, mu, ml, f, dm, d1, m)
+            gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
+            seg = rem
+            ok_step = gu1 >= 0.0 and gl1 >= 0.0
+            disc = -1
+            de = d1
+            if not ok_step:
+                # Locate the earliest event among the violated guards.
+                d0 = drive(t, c, cfg, u, thp)
+                gu0, gl0 = guards(y[0], y[1], y[2], y[3], mu, ml, d0, m)
+                for dsc in range(2):
+                    g1 = gu1 if dsc == 0 else gl1
+                    if g1 < 0.0:
+                        g0 = gu0 if dsc == 0 else gl0
+                        tl = _locate(t, rem, max(g0, 0.0), g1, dsc, y, mu, ml, f, m, u, thp)
+                        if disc < 0 or tl < seg:
+                            seg = tl
+                            disc = dsc
+                y1, de = _step_to(t, seg, y, mu, ml, f, m, u, thp)
+            fe = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, de, m)
+            # Samples inside this single-mode segment, from its Hermite interpolant.
+            t_seg = t + seg
+            while kout < n and kout * dt <= t_seg + 1e-9 * dt:
+                sfrac = (kout * dt - t) / seg if seg > 0.0 else 1.0
+                if sfrac > 1.0:
+                    sfrac = 1.0
+                out_thu[kout] = _hermite(sfrac, seg, y[0], f[0], y1[0], fe[0])
+                out_wu[kout] = _hermite(sfrac, seg, y[1], f[1], y1[1], fe[1])
+                out_thl[kout] = _hermite(sfrac, seg, y[2], f[2], y1[2], fe[2])
+                out_wl[kout] = _hermite(sfrac, seg, y[3], f[3], y1[3], fe[3])
+                out_mu[kout], out_ml[kout] = mu, ml
+                kout += 1
+            y = y1
+            f = fe
+            if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], de, m):
+                status = BAD_EFFECT
+                break
+            t = t_seg
+            if ok_step:
+                if t_tgt >= t_end:
+                    break
+                continue  # a kink of the input: same modes, new segment
+            # Switch the disc whose guard fired: it is at zero velocity now.
+            if disc == 0:
+                y = (y[0], 0.0, y[2], y[3])
+            else:
+                y = (y[0], y[1], y[2], 0.0)
+            new_u, new_l = modes_at_rest(y[0], y[1], y[2], y[3], de, m)
+            if disc == 0:
+                mu = new_u
+                new = mu
+            else:
+                ml = new_l
+                new = ml
+            f = rhs(y[0], y[1], y[2], y[3], mu, ml, de, m)
+            if n_ev < max_ev:
+                events[n_ev, 0] = t
+                events[n_ev, 1] = disc
+                events[n_ev, 2] = new
+            n_ev += 1
+            n_step_ev += 1
+            if n_step_ev > _MAX_EVENTS_PER_STEP:
+                status = TOO_MANY_EVENTS
+                break
+            if t_end - t <= 1e-12 * dt:
+                break
+        if status == OK and not (
+            abs(y[1]) < _VMAX and abs(y[3]) < _VMAX and math.isfinite(y[0])
+            and math.isfinite(y[2])
+        ):  # fmt: skip
+            status = BLOW_UP
+        if status != OK:
+            break
+    if status != OK:
+        out_thu[kout:] = np.nan
+        out_wu[kout:] = np.nan
+        out_thl[kout:] = np.nan
+        out_wl[kout:] = np.nan
+    elif cfg == CFG_PRESCRIBED:
+        out_thu[:] = thp
+        for k in range(n):
+            out_wu[k] = prescribed_velocity(k * dt, c, thp)
+    if cfg == CFG_UPPER:
+        out_thl[:] = 0.0 if status == OK else np.nan
+    return status, n_ev
+
+
+_BATCH_SIGNATURE = types.void(
+    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
+    types.int64, types.int64, types.int64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
+    types.float64[:, ::1], types.float64[:, ::1], types.int64[::1],
+)  # fmt: skip
+
+
+@njit(_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+def simulate_batch_into(
+    P, Q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    out_thu, out_thl, status,
+):  # fmt: skip
+    """Integrate one experiment for every row of ``P`` (and ``Q``) in parallel threads.
+
+    ``out_thu`` and ``out_thl`` have shape ``(len(P), len(u))``; ``status`` ``len(P)``.
+    """
+    m = P.shape[0]
+    n = u.shape[0]
+    for i in prange(m):
+        wu = np.empty(n)
+        wl = np.empty(n)
+        mu = np.empty(n, dtype=np.int8)
+        ml = np.empty(n, dtype=np.int8)
+        ev = np.empty((0, 3))
+        s, _ = simulate_into(
+            P[i], Q[i], u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque,
+            hook_shift, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
+        )  # fmt: skip
+        status[i] = s

@@ -1,0 +1,362 @@
+"""The rig's terms for the compiled solver: torques, friction, static bands and guards.
+
+Everything the solver (:mod:`rotorbayes.kernel.solver`) needs to know about the physics
+is here, as small inlined numba functions of the state ``(theta_u, omega_u, theta_l,
+omega_l)``, the modes of the discs and the *drive* ``d = (t, v, theta_p, omega_p)``
+(time, effective motor voltage, prescribed upper-disc motion).  The solver itself only
+knows how to integrate, locate events and interpolate.
+
+Effects plug in at three places:
+
+* the **input** (:func:`voltage`): delay, offset and dead zone of the motor voltage.  Their
+  kinks are reported by :func:`next_kink` so the solver can end a step on them;
+* the **torques** (:func:`torques`): the string (stiffness, pre-torsion ``alpha0``,
+  damping) and, for user-defined effects, an extra torque on either disc;
+* the **friction levels**: user-defined effects may shift a disc's Coulomb and static
+  levels together, which moves the static band as well.
+
+The model vector ``m = (c, cfg, shape, p, q, use_hooks, torque_hook, shift_hook)``
+bundles the derived constants, configuration code, Stribeck shape, the raw parameter
+vectors of the built-in model (``p``) and of the user effects (``q``) and the two hooks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, types
+
+from ..model.friction import slip_torque
+from .layout import (
+    ALPHA0, B_L, B_U, C_ALPHA, CFG_PRESCRIBED, CFG_UPPER, DB_L, DB_U, DELTA_L, DTC_L, DTC_U,
+    J_L, J_U, K_ALPHA, K_M, N_PARAMS, T_DELAY, TC_L, TC_U, TS_L, U_DEADZONE, U_OFFSET, WS_L,
+)  # fmt: skip
+
+# ------------------------------------------------------------------------------- hooks
+#: Signature of a user-effect hook: ``(t, theta_u, omega_u, theta_l, omega_l, v, p, q)``
+#: -> ``(upper, lower)`` [N m].  ``p`` is the built-in parameter vector (positions in
+#: :mod:`rotorbayes.kernel.layout`), ``q`` the effect's own parameters.
+HOOK_SIGNATURE = types.UniTuple(types.float64, 2)(
+    types.float64, types.float64, types.float64, types.float64, types.float64,
+    types.float64, types.float64[::1], types.float64[::1],
+)  # fmt: skip
+HOOK_TYPE = types.FunctionType(HOOK_SIGNATURE)
+
+
+@njit(HOOK_SIGNATURE, cache=True)
+def null_hook(t, thu, wu, thl, wl, v, p, q):
+    """The hook of a model without user-defined effects: nothing on either disc."""
+    return 0.0, 0.0
+
+
+# ------------------------------------------------------------------------ validity
+#: The constraints a parameter vector must meet, in the order of :func:`violations`:
+#: ``(parameters involved, what must hold, configurations it applies to)``.  The kernel
+#: refuses a vector that breaks one; :func:`rotorbayes.model.configurations.problems`
+#: turns the same flags into sentences.  One list, so Python and the kernel agree.
+CONSTRAINTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("*",), "every parameter must be a finite number", "all"),
+    (("J_u",), "J_u must be > 0", "motor"),
+    (("Tc_u", "dTc_u"), "Tc_u must be >= |dTc_u| (friction may not push along the motion)",
+     "motor"),
+    (("b_u", "db_u"), "b_u must be >= |db_u|", "motor"),
+    (("J_l",), "J_l must be > 0", "lower"),
+    (("k_alpha",), "k_alpha must be >= 0", "lower"),
+    (("c_alpha",), "c_alpha must be >= 0", "lower"),
+    (("Tc_l", "dTc_l"), "Tc_l must be >= |dTc_l| (friction may not push along the motion)",
+     "lower"),
+    (("Ts_l", "dTc_l"), "Ts_l must be >= |dTc_l|", "lower"),
+    (("b_l", "db_l"), "b_l must be >= |db_l|", "lower"),
+    (("ws_l",), "ws_l must be > 0", "lower"),
+    (("delta_l",), "delta_l must be > 0", "lower"),
+    (("t_delay",), "t_delay must be >= 0 (the motor cannot act before it is commanded)",
+     "motor"),
+    (("u_deadzone",), "u_deadzone must be >= 0", "motor"),
+)  # fmt: skip
+N_CONSTRAINTS = len(CONSTRAINTS)
+
+
+@njit(cache=True)
+def violations(p, cfg):
+    """Flags (1 = broken) of the :data:`CONSTRAINTS` for parameter vector ``p``.
+
+    ``motor`` constraints apply when the motor drives the upper disc (not with a
+    prescribed upper-disc motion), ``lower`` ones when the lower disc is present.
+    """
+    bad = np.zeros(N_CONSTRAINTS, dtype=np.int8)
+    for i in range(p.shape[0]):
+        if not math.isfinite(p[i]):
+            bad[0] = 1
+    motor = cfg != CFG_PRESCRIBED
+    lower = cfg != CFG_UPPER
+    if motor:
+        bad[1] = p[J_U] <= 0.0
+        bad[2] = p[TC_U] < abs(p[DTC_U])
+        bad[3] = p[B_U] < abs(p[DB_U])
+        bad[12] = p[T_DELAY] < 0.0
+        bad[13] = p[U_DEADZONE] < 0.0
+    if lower:
+        bad[4] = p[J_L] <= 0.0
+        bad[5] = p[K_ALPHA] < 0.0
+        bad[6] = p[C_ALPHA] < 0.0
+        bad[7] = p[TC_L] < abs(p[DTC_L])
+        bad[8] = p[TS_L] < abs(p[DTC_L])
+        bad[9] = p[B_L] < abs(p[DB_L])
+        bad[10] = p[WS_L] <= 0.0
+        bad[11] = p[DELTA_L] <= 0.0
+    return bad
+
+
+# ------------------------------------------------------------------ derived constants
+_KM, _IJU, _TCU, _DTCU, _BU, _DBU, _IJL, _KA, _TCL, _DTCL, _BL, _DBL = range(12)
+_DSL, _IWSL, _DL, _A0, _CA, _UOFF, _TDEL, _UDZ, _TSL, _IDT, _DT = range(12, 23)
+_ND = 23
+
+
+@njit(cache=True, error_model="numpy")
+def derived(p, dt):
+    """Constants used in the inner loop, from the parameter vector ``p`` and sample ``dt``."""
+    c = np.zeros(_ND)
+    c[_KM] = p[K_M]
+    c[_IJU] = 1.0 / p[J_U] if p[J_U] > 0.0 else 0.0
+    c[_TCU], c[_DTCU], c[_BU], c[_DBU] = p[TC_U], p[DTC_U], p[B_U], p[DB_U]
+    c[_IJL] = 1.0 / p[J_L] if p[J_L] > 0.0 else 0.0
+    c[_KA], c[_TCL], c[_DTCL], c[_BL], c[_DBL] = p[K_ALPHA], p[TC_L], p[DTC_L], p[B_L], p[DB_L]
+    c[_TSL] = p[TS_L]
+    c[_DSL] = p[TS_L] - p[TC_L]
+    c[_IWSL] = 1.0 / p[WS_L] if p[WS_L] > 0.0 else 0.0
+    c[_DL], c[_A0], c[_CA] = p[DELTA_L], p[ALPHA0], p[C_ALPHA]
+    c[_UOFF], c[_TDEL], c[_UDZ] = p[U_OFFSET], p[T_DELAY], p[U_DEADZONE]
+    c[_IDT] = 1.0 / dt if dt > 0.0 else 0.0
+    c[_DT] = dt
+    return c
+
+
+# ----------------------------------------------------------------------------- input
+@njit(cache=True, error_model="numpy", inline="always")
+def interp(t, y, inv_dt):
+    """Linear interpolation of samples ``y`` (spacing ``1/inv_dt``, start 0) and its slope.
+
+    Before the first sample the value is held at ``y[0]`` (a file says nothing about the
+    input before t = 0), after the last at ``y[-1]``.
+    """
+    n = y.shape[0]
+    x = t * inv_dt
+    if x <= 0.0:
+        return y[0], 0.0
+    if x >= n - 1:
+        return y[n - 1], 0.0
+    i = int(x)
+    if i > n - 2:
+        i = n - 2
+    dy = y[i + 1] - y[i]
+    return y[i] + (x - i) * dy, dy * inv_dt
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def voltage(t, c, u):
+    """Effective motor voltage [V]: delayed, offset, then through the dead zone."""
+    v, _ = interp(t - c[_TDEL], u, c[_IDT])
+    v += c[_UOFF]
+    dz = c[_UDZ]
+    if dz > 0.0:
+        if v > dz:
+            v -= dz
+        elif v < -dz:
+            v += dz
+        else:
+            v = 0.0
+    return v
+
+
+@njit(cache=True, error_model="numpy")
+def next_kink(t, t1, c, u, split_delayed):
+    """The first time in ``(t, t1)`` at which the effective voltage has a slope jump that
+    falls inside a Runge-Kutta step, or ``t1`` if there is none.
+
+    * dead zone: where the offset, delayed input crosses ``±u_deadzone``;
+    * delay (``split_delayed``, i.e. one step per sample): the delayed sample times.
+
+    Kinks closer than ``1e-9`` samples to either end are ignored.
+    """
+    dt = c[_DT]
+    d = c[_TDEL]
+    dz = c[_UDZ]
+    n = u.shape[0]
+    tiny = 1e-9 * dt
+    best = t1
+    if split_delayed and d > 0.0:
+        k = math.floor((t - d) / dt) + 1.0
+        if k < 0.0:
+            k = 0.0
+        tk = d + k * dt
+        if tk <= t + tiny:
+            tk += dt
+        if k <= n - 1 and t + tiny < tk < best - tiny:
+            best = tk
+    if dz > 0.0:
+        off = c[_UOFF]
+        s0 = (t - d) / dt
+        s1 = (best - d) / dt
+        if s1 > 0.0 and s0 < n - 1.0:
+            a = max(s0, 0.0)
+            while a < s1 and a < n - 1.0:
+                i = int(math.floor(a))
+                if i > n - 2:
+                    i = n - 2
+                b = min(float(i + 1), s1)
+                wa = u[i] + (a - i) * (u[i + 1] - u[i]) + off
+                wb = u[i] + (b - i) * (u[i + 1] - u[i]) + off
+                hit = 2.0
+                for lev in (dz, -dz):
+                    if (wa - lev) * (wb - lev) < 0.0:
+                        fr = (lev - wa) / (wb - wa)
+                        if fr < hit:
+                            hit = fr
+                if hit <= 1.0:
+                    tk = d + (a + hit * (b - a)) * dt
+                    if t + tiny < tk < best - tiny:
+                        return tk
+                a = b
+    return best
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def has_kinks(c, split_delayed):
+    """Whether :func:`next_kink` can find anything for these constants."""
+    return c[_UDZ] > 0.0 or (split_delayed and c[_TDEL] > 0.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def prescribed_velocity(t, c, thp):
+    """Velocity [rad/s] of the prescribed upper-disc motion at ``t``."""
+    return interp(t, thp, c[_IDT])[1]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def drive(t, c, cfg, u, thp):
+    """What drives the system at ``t``: ``(t, voltage, upper angle, upper velocity)``.
+
+    The prescribed upper-disc motion is only read in :data:`CFG_PRESCRIBED`.  Evaluated
+    once per Runge-Kutta stage time, so the right-hand side works on scalars only.
+    """
+    if cfg == CFG_PRESCRIBED:
+        th, w = interp(t, thp, c[_IDT])
+        return t, 0.0, th, w
+    return t, voltage(t, c, u), 0.0, 0.0
+
+
+# ------------------------------------------------------------------------ torques
+@njit(cache=True, error_model="numpy", inline="always")
+def torques(thu, wu, thl, wl, d, m):
+    """External torques on both discs and the user effects' friction-level shifts [N m]."""
+    c, cfg, shape, p, q, use, hook_t, hook_s = m
+    t, v, thp, wp = d
+    if cfg == CFG_PRESCRIBED:
+        thu = thp
+        wu = wp
+    ts = 0.0
+    if cfg != CFG_UPPER:
+        ts = c[_KA] * (thl - thu + c[_A0]) + c[_CA] * (wl - wu)
+    te_u = c[_KM] * v + ts
+    te_l = -ts
+    su = 0.0
+    sl = 0.0
+    if use:
+        a, b = hook_t(t, thu, wu, thl, wl, v, p, q)
+        te_u += a
+        te_l += b
+        su, sl = hook_s(t, thu, wu, thl, wl, v, p, q)
+    return te_u, te_l, su, sl
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def bands(su, sl, c):
+    """Static bands ``(lo_u, hi_u, lo_l, hi_l)``: a sticking disc stays at rest while its
+    external torque lies inside ``[lo, hi]``."""
+    return (
+        -(c[_TCU] + su - c[_DTCU]),
+        c[_TCU] + su + c[_DTCU],
+        -(c[_TSL] + sl - c[_DTCL]),
+        c[_TSL] + sl + c[_DTCL],
+    )
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rhs(thu, wu, thl, wl, mu, ml, d, m):
+    """Time derivatives of ``(theta_u, omega_u, theta_l, omega_l)`` in modes ``(mu, ml)``."""
+    c, cfg, shape = m[0], m[1], m[2]
+    te_u, te_l, su, sl = torques(thu, wu, thl, wl, d, m)
+    dthu = 0.0
+    dwu = 0.0
+    if mu != 0 and cfg != CFG_PRESCRIBED:
+        f = slip_torque(wu, mu, c[_TCU] + su, c[_DTCU], c[_BU], c[_DBU], 0.0, 1.0, 1.0, shape)
+        dthu = wu
+        dwu = (te_u - f) * c[_IJU]
+    dthl = 0.0
+    dwl = 0.0
+    if ml != 0 and cfg != CFG_UPPER:
+        f = slip_torque(
+            wl, ml, c[_TCL] + sl, c[_DTCL], c[_BL], c[_DBL], c[_DSL], c[_IWSL], c[_DL], shape
+        )
+        dthl = wl
+        dwl = (te_l - f) * c[_IJL]
+    return dthu, dwu, dthl, dwl
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def guards(thu, wu, thl, wl, mu, ml, d, m):
+    """Event functions of both discs; a mode stays valid while its guard is >= 0.
+
+    Slip: ``s * omega``.  Stick: the distance of the external torque to the nearer
+    edge of the static band (continuous, so one root finder serves both edges).
+    """
+    c, cfg = m[0], m[1]
+    te_u, te_l, su, sl = torques(thu, wu, thl, wl, d, m)
+    lo_u, hi_u, lo_l, hi_l = bands(su, sl, c)
+    gu = 1.0
+    if cfg != CFG_PRESCRIBED:
+        gu = mu * wu if mu != 0 else min(hi_u - te_u, te_u - lo_u)
+    gl = 1.0
+    if cfg != CFG_UPPER:
+        gl = ml * wl if ml != 0 else min(hi_l - te_l, te_l - lo_l)
+    return gu, gl
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def mode_at_rest(te, lo, hi):
+    """Mode of a disc at zero velocity with external torque ``te``."""
+    if te > hi:
+        return 1
+    if te < lo:
+        return -1
+    return 0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def modes_at_rest(thu, wu, thl, wl, d, m):
+    """Modes of both discs if they were at rest now."""
+    c, cfg = m[0], m[1]
+    te_u, te_l, su, sl = torques(thu, wu, thl, wl, d, m)
+    lo_u, hi_u, lo_l, hi_l = bands(su, sl, c)
+    mu = mode_at_rest(te_u, lo_u, hi_u) if cfg != CFG_PRESCRIBED else 0
+    ml = mode_at_rest(te_l, lo_l, hi_l) if cfg != CFG_UPPER else 0
+    return mu, ml
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def effect_state_ok(thu, wu, thl, wl, d, m):
+    """False if a user effect shifted a friction level below its asymmetry (or to NaN)."""
+    c = m[0]
+    te_u, te_l, su, sl = torques(thu, wu, thl, wl, d, m)
+    if not (math.isfinite(te_u) and math.isfinite(te_l)):
+        return False
+    if not (math.isfinite(su) and math.isfinite(sl)):
+        return False
+    if c[_TCU] + su < abs(c[_DTCU]) or c[_TCL] + sl < abs(c[_DTCL]):
+        return False
+    return c[_TSL] + sl >= abs(c[_DTCL])
+
+
+__all__ = ["HOOK_SIGNATURE", "HOOK_TYPE", "CONSTRAINTS", "N_PARAMS", "null_hook", "violations"]

@@ -1,0 +1,354 @@
+"""The registry of physical effects: the catalogue, and effects users write themselves.
+
+An effect is one :class:`Effect` entry: its name, one sentence of physics, its parameters
+(unit, bounds, null value, typical start), the residual signature to look for, where it
+applies, and the exact equivalences it has with other parameters of the model.  Switching
+an effect on (``--add NAME`` or ``effects=[...]``) frees its parameters; an effect that is
+off holds them at their null values, and a non-null value for one of them is refused.
+
+Catalogue effects act through terms the compiled kernel already has (friction asymmetry,
+Stribeck curve, string torsion and damping, motor input); ``kernel_term`` names them.
+A **user effect** brings its own physics as two plain Python functions that numba
+compiles, both with the signature
+
+    f(t, theta_u, omega_u, theta_l, omega_l, v, p, q) -> (upper, lower)
+
+* ``torque``: extra external torque on the upper and lower disc [N m];
+* ``friction_shift``: an additive change of each disc's friction *levels* [N m] (Coulomb
+  and static alike, so the static band moves too).
+
+``v`` is the effective motor voltage [V], ``p`` the built-in parameter vector (positions
+in :mod:`rotorbayes.kernel.layout`, e.g. ``p[TC_L]``) and ``q`` the effect's own
+parameters in the order declared.  See ``docs/effects.md`` and
+``examples/effects/angle_friction.py``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import math
+import sys
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .info import Parameter
+
+#: Configurations with the lower disc.
+LOWER = ("coupled", "brake")
+ALL = ("upper", "coupled", "brake")
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One physical effect.
+
+    Attributes
+    ----------
+    name : str
+        Identifier used in the API and on the command line.
+    physics : str
+        What it models, in one sentence.
+    parameters : tuple of Parameter
+        The parameters it frees.
+    signature : str
+        What a residual looks like when the effect is missing.
+    configs : tuple of str
+        Configurations it applies to.
+    motor : bool
+        It acts through the motor or the upper disc (meaningless when the measured
+        upper-disc angle drives the lower disc).
+    per_experiment : bool
+        Its parameter takes one value per experiment (the initial string torsion).
+    kernel_term : str
+        Where a catalogue effect's physics lives in the kernel.
+    equivalences : tuple of str
+        Exact equivalences with other parameters, in words.
+    torque, friction_shift : callable, optional
+        A user effect's physics (see the module docstring).
+    source : str
+        Where a user effect was loaded from.
+    """
+
+    name: str
+    physics: str
+    parameters: tuple[Parameter, ...]
+    signature: str
+    configs: tuple[str, ...] = ALL
+    motor: bool = False
+    per_experiment: bool = False
+    kernel_term: str = ""
+    equivalences: tuple[str, ...] = ()
+    torque: Callable | None = field(default=None, compare=False, repr=False)
+    friction_shift: Callable | None = field(default=None, compare=False, repr=False)
+    source: str = "catalogue"
+
+    def __post_init__(self):
+        if not self.name.isidentifier():
+            raise ValueError(f"effect name {self.name!r} must be a Python identifier")
+        if not self.parameters:
+            raise ValueError(f"effect {self.name!r} declares no parameters")
+        bad = [c for c in self.configs if c not in ALL]
+        if bad:
+            raise ValueError(f"effect {self.name!r}: unknown configuration(s) {bad}")
+        object.__setattr__(self, "parameters", tuple(self.parameters))
+        object.__setattr__(self, "configs", tuple(self.configs))
+
+    @property
+    def is_user(self) -> bool:
+        """A user-defined effect (brings its own compiled physics)."""
+        return self.torque is not None or self.friction_shift is not None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Its parameter names."""
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def switches(self) -> tuple[Parameter, ...]:
+        """The parameters whose null value switches the effect off (not the nuisance ones)."""
+        return tuple(p for p in self.parameters if not p.nuisance)
+
+    def describe(self) -> str:
+        """A few lines for listings: parameters with units, bounds and null values."""
+        rows = [f"{self.name}  ({self.source}; {', '.join(self.configs)})", f"    {self.physics}"]
+        for p in self.parameters:
+            null = "= Tc_l" if math.isnan(p.null) else f"{p.null:g}"
+            extra = ", nuisance (meaningless at the null)" if p.nuisance else ""
+            rows.append(
+                f"    {p.name:<11} [{p.unit}]  bounds [{p.lower:g}, {p.upper:g}], "
+                f"null {null}{extra}: {p.description}"
+            )
+        rows.append(f"    missing when: {self.signature}")
+        for eq in self.equivalences:
+            rows.append(f"    equivalence: {eq}")
+        return "\n".join(rows)
+
+
+def _p(name, unit, lo, hi, null, desc, start=math.nan, nuisance=False) -> Parameter:
+    return Parameter(name, unit, lo, hi, null, desc, start, nuisance)
+
+
+_CATALOGUE: tuple[Effect, ...] = (
+    Effect(
+        "upper_asymmetric_coulomb",
+        "Coulomb friction of the upper disc differs between the two directions (eq. 4.2).",
+        (_p("dTc_u", "N m", -1.0, 1.0, 0.0, "upper Coulomb asymmetry (+ for positive slip)"),),
+        "theta_u residual ramps one way in positive and the other way in negative slip",
+        motor=True,
+        kernel_term="friction.slip_torque (dTc), terms.bands",
+        equivalences=(
+            "with Coulomb + viscous upper friction, a motor voltage offset u_offset is exactly "
+            "a change of dTc_u by -k_m*u_offset (a constant torque shifts the static band and "
+            "both slip levels alike)",
+        ),
+    ),
+    Effect(
+        "upper_asymmetric_viscous",
+        "viscous friction of the upper disc differs between the two directions (eq. 4.3).",
+        (_p("db_u", "N m s/rad", -5.0, 5.0, 0.0, "upper viscous asymmetry"),),
+        "theta_u residual grows with |omega_u|, with opposite sign per direction",
+        motor=True,
+        kernel_term="friction.slip_torque (db)",
+    ),
+    Effect(
+        "lower_asymmetric_coulomb",
+        "Coulomb friction of the lower disc differs between the two directions (§5.2.3).",
+        (_p("dTc_l", "N m", -0.5, 0.5, 0.0, "lower Coulomb asymmetry (+ for positive slip)"),),
+        "residual of theta_l drifts one way in positive slip and the other in negative "
+        "slip; the error grows with each reversal",
+        configs=LOWER,
+        kernel_term="friction.slip_torque (dTc), terms.bands",
+        equivalences=(
+            "a common shift of every alpha0 is absorbed by dTc_l and dTc_u on estimation "
+            "data (a constant string torque acts like a friction asymmetry); validation "
+            "data expose it",
+        ),
+    ),
+    Effect(
+        "lower_asymmetric_viscous",
+        "viscous friction of the lower disc differs between the two directions (eq. 5.18).",
+        (_p("db_l", "N m s/rad", -0.5, 0.5, 0.0, "lower viscous asymmetry"),),
+        "residual correlates with |omega_l| differently per direction of rotation",
+        configs=LOWER,
+        kernel_term="friction.slip_torque (db)",
+    ),
+    Effect(
+        "lower_stribeck",
+        "static friction above the Coulomb level, decaying with speed (negative damping, "
+        "stick-slip; eqs. 4.11-4.14).",
+        (
+            _p("Ts_l", "N m", 0.0, 3.0, math.nan, "lower static friction level (Stribeck)"),
+            _p("ws_l", "rad/s", 1e-3, 50.0, 1.0, "lower Stribeck velocity", 1.0, True),
+            _p("delta_l", "-", 0.2, 5.0, 2.0, "lower Stribeck shape exponent", 2.0, True),
+        ),
+        "stick phases last longer than simulated; large errors right after break-away",
+        configs=LOWER,
+        kernel_term="friction.stribeck, terms.bands (static band from Ts_l)",
+    ),
+    Effect(
+        "initial_torsion",
+        "the string is pre-wound at the start of an experiment, invisible to the zeroed "
+        "encoders (§5.3.2); one value per experiment.",
+        (_p("alpha0", "rad", -10.0, 10.0, 0.0, "initial string torsion (per experiment)"),),
+        "repeats of the same input differ; the lower disc moves at t = 0 or breaks away "
+        "earlier in one direction",
+        configs=LOWER,
+        per_experiment=True,
+        kernel_term="terms.torques (k_alpha * (theta_l - theta_u + alpha0))",
+        equivalences=(
+            "a common shift of every alpha0 is absorbed by dTc_l and dTc_u on estimation data",
+        ),
+    ),
+    Effect(
+        "string_damping",
+        "viscous damping in the torsion of the string (§2.3 neglects it).",
+        (_p("c_alpha", "N m s/rad", 0.0, 0.1, 0.0, "viscous damping in the string", 1e-3),),
+        "simulated string oscillations decay too slowly; residual at the string's natural "
+        "frequency",
+        configs=LOWER,
+        kernel_term="terms.torques (c_alpha * (omega_l - omega_u))",
+    ),
+    Effect(
+        "voltage_offset",
+        "an offset in the amplifier's output voltage.",
+        (_p("u_offset", "V", -0.5, 0.5, 0.0, "motor voltage offset"),),
+        "theta_u residual drifts linearly while u is near zero",
+        motor=True,
+        kernel_term="terms.voltage",
+        equivalences=(
+            "with Coulomb + viscous upper friction, u_offset is exactly a change of dTc_u by "
+            "-k_m*u_offset (without a dead zone)",
+        ),
+    ),
+    Effect(
+        "input_delay",
+        "a time delay between the commanded and the applied voltage.",
+        (_p("t_delay", "s", 0.0, 0.1, 0.0, "input time delay", 5e-3),),
+        "residual proportional to the derivative of the response; cross-correlation with u "
+        "peaks at a positive lag",
+        motor=True,
+        kernel_term="terms.voltage, terms.next_kink (delayed sample times)",
+    ),
+    Effect(
+        "motor_deadzone",
+        "the motor produces no torque while |u| is below a threshold.",
+        (_p("u_deadzone", "V", 0.0, 1.0, 0.0, "motor dead zone half-width", 0.05),),
+        "simulated upper disc moves where the measured one stays still at small |u|",
+        motor=True,
+        kernel_term="terms.voltage, terms.next_kink (dead-zone edges)",
+    ),
+)
+
+#: The catalogue of built-in effects by name.
+CATALOGUE: dict[str, Effect] = {e.name: e for e in _CATALOGUE}
+
+
+class EffectError(ValueError):
+    """An effect name, file or definition is invalid."""
+
+
+def get(name: str) -> Effect:
+    """Look a catalogue effect up by name, with an error that lists the catalogue."""
+    try:
+        return CATALOGUE[name]
+    except KeyError:
+        raise EffectError(
+            f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)}; a user "
+            "effect is given as FILE.py:NAME (see docs/effects.md)"
+        ) from None
+
+
+def effect_of(parameter: str) -> Effect | None:
+    """The catalogue effect a built-in parameter belongs to (``None`` for base ones)."""
+    for e in CATALOGUE.values():
+        if parameter in e.names:
+            return e
+    return None
+
+
+_LOADED: dict[tuple[str, str], Effect] = {}
+
+
+def load_user_effect(spec: str) -> Effect:
+    """Import a user effect from ``'path/to/file.py:NAME'``.
+
+    The file is the user's own Python code, imported like a configuration file (nothing
+    is unpickled); ``NAME`` must be an :class:`Effect` with a ``torque`` and/or
+    ``friction_shift`` function.  The functions are compiled by numba when a model uses
+    them (see :mod:`rotorbayes.model.configurations`).
+    """
+    path_s, sep, name = spec.rpartition(":")
+    if not sep or not path_s.endswith(".py") or not name:
+        raise EffectError(f"{spec!r}: a user effect is given as FILE.py:NAME")
+    path = Path(path_s).expanduser().resolve()
+    key = (str(path), name)
+    if key in _LOADED:
+        return _LOADED[key]
+    if not path.is_file():
+        raise EffectError(f"{path_s}: effect file not found")
+    mod_name = "rotorbayes_user_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
+    if mod_name in sys.modules:
+        module = sys.modules[mod_name]
+    else:
+        spec_obj = importlib.util.spec_from_file_location(mod_name, path)
+        module = importlib.util.module_from_spec(spec_obj)
+        sys.modules[mod_name] = module
+        try:
+            spec_obj.loader.exec_module(module)
+        except Exception as exc:
+            del sys.modules[mod_name]
+            raise EffectError(
+                f"{path_s}: importing the effect file failed: {type(exc).__name__}: {exc}"
+            ) from None
+    eff = getattr(module, name, None)
+    if eff is None:
+        found = [k for k, v in vars(module).items() if isinstance(v, Effect)]
+        raise EffectError(
+            f"{path_s}: defines no effect {name!r}"
+            + (f"; it defines: {', '.join(found)}" if found else "; it defines no Effect at all")
+        )
+    if not isinstance(eff, Effect) or not eff.is_user:
+        raise EffectError(
+            f"{path_s}:{name} must be a rotorbayes Effect with a torque and/or friction_shift "
+            "function (see docs/effects.md)"
+        )
+    if eff.name in CATALOGUE:
+        raise EffectError(f"{path_s}:{name}: the name {eff.name!r} is taken by the catalogue")
+    from .parameters import INFO
+
+    clash = [p.name for p in eff.parameters if p.name in INFO]
+    if clash:
+        raise EffectError(
+            f"{path_s}:{name}: parameter name(s) {', '.join(clash)} are built-in parameters; "
+            "choose other names"
+        )
+    eff = Effect(**{**eff.__dict__, "source": f"{path_s}"})
+    _LOADED[key] = eff
+    return eff
+
+
+def resolve(specs: Iterable[str | Effect]) -> tuple[Effect, ...]:
+    """Catalogue names, ``FILE.py:NAME`` specs or :class:`Effect` objects -> effects."""
+    out: list[Effect] = []
+    for s in specs:
+        if isinstance(s, Effect):
+            e = s
+        elif ":" in s and s.rpartition(":")[0].endswith(".py"):
+            e = load_user_effect(s)
+        else:
+            e = get(s)
+        if any(o.name == e.name for o in out):
+            continue
+        out.append(e)
+    return tuple(out)
+
+
+def catalogue_markdown() -> str:
+    """The catalogue as a markdown table (for docs and ``rotorbayes effects --markdown``)."""
+    rows = ["| effect | parameters | physics | missing when |", "|---|---|---|---|"]
+    for e in CATALOGUE.values():
+        ps = ", ".join(f"`{p.name}` [{p.unit}]" for p in e.parameters)
+        rows.append(f"| `{e.name}` | {ps} | {e.physics} | {e.signature} |")
+    return "\n".join(rows)
