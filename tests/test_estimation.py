@@ -115,7 +115,7 @@ def test_clear_errors(coupled_est):
     prob = E.Problem("coupled", [coupled_est])
     with pytest.raises(ParameterError, match="outside the bounds"):
         E.fit(prob, {"J_l": 5.0})
-    with pytest.raises(ParameterError, match="do not enter the upper configuration"):
+    with pytest.raises(ParameterError, match="does not enter the upper configuration"):
         E.Problem("upper", [upper], free=["k_m", "J_l"])
 
 
@@ -133,13 +133,15 @@ def test_multistart_finds_local_minima_in_the_brake_step():
     ex = _short(rb.load_example("brake_est"), 20.0)
     prob = E.Problem("brake", [ex], base=thesis_set("5.4", "P"))
     ms = E.multistart(prob, 8, seed=2, progress=False, max_nfev=40)
-    assert len(ms.ssr) == 8
+    # Starts the model cannot simulate (e.g. |db_l| > b_l) are failures, not minima.
+    assert len(ms.ssr) + len(ms.failed) == 8 and len(ms.ssr) >= 5
     best = ms.best
     truth = prob.x_from(thesis_set("5.4", "P"))
     assert np.max(np.abs(best.x / truth - 1)) < 1e-2
     assert len(set(ms.clusters.tolist())) >= 2
     text = ms.summary()
-    assert "local minima" in text and "of 8 starts end within" in text
+    assert "local minima" in text and f"of {len(ms.ssr)} starts end within" in text
+    assert "failed and count as no minimum" in text
 
 
 def test_describe_spread_names_a_scaling_ridge():

@@ -17,8 +17,18 @@ from . import data, signals
 from .data import Experiment, load_experiment, save_experiment
 from .examples import example_names, load_example
 from .model import (
-    CONFIGS, NAMES, Effect, Model, Parameter, ParameterError, Simulation, SimulationError,
-    Simulator, effects, parameters, simulate,
+    CONFIGS,
+    NAMES,
+    Effect,
+    Model,
+    Parameter,
+    ParameterError,
+    Simulation,
+    SimulationError,
+    Simulator,
+    effects,
+    parameters,
+    simulate,
 )  # fmt: skip
 
 __version__ = "0.2.0"

@@ -1,4 +1,8 @@
-"""The ``rotorbayes`` command line: simulate, fit, multistart, demo, params, effects."""
+"""The ``rotorbayes`` command line: simulate, fit, multistart, demo, params, effects.
+
+A thin layer: it parses arguments, calls the library and prints; the knowledge lives in
+:mod:`rotorbayes.model` and :mod:`rotorbayes.inference`.
+"""
 
 from __future__ import annotations
 
@@ -11,10 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import effects as _effects
-from . import parameters as _params
 from .data import DataFileError, Experiment, load_experiment, save_experiment
 from .examples import example_path
+from .model import SimulationError
+from .model import effects as _effects
+from .model import parameters as _params
 
 
 class CLIError(Exception):
@@ -78,6 +83,22 @@ def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
     return t - t[0], u
 
 
+def _fit_json(spec: str | None) -> dict | None:
+    """The fit.json an argument points to (a file or a fit folder), else None."""
+    if spec is None:
+        return None
+    p = Path(spec)
+    if p.is_dir() and (p / "fit.json").exists():
+        p = p / "fit.json"
+    if p.suffix != ".json":
+        return None
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise CLIError(f"{p}: cannot read it ({exc}); give a fit.json written by "
+                       "`rotorbayes fit`, a TOML file or a named set") from None
+
+
 def _param_spec(spec: str | None):
     """A ``--params``/``--p0`` value: named set, TOML file or a fit.json from an earlier fit."""
     if spec is None:
@@ -88,7 +109,7 @@ def _param_spec(spec: str | None):
             p = p / "fit.json"
         try:
             data = json.loads(p.read_text())
-            return {k: float(v) for k, v in data["params"].items() if not (
+            return {k: float(v) for k, v in data["params"].items() if v is not None and not (
                 isinstance(v, float) and math.isnan(v))}
         except (OSError, KeyError, ValueError) as exc:
             raise CLIError(f"{p}: cannot read parameters from it ({exc}); give a fit.json "
@@ -111,10 +132,12 @@ def cmd_simulate(a) -> int:
     out = Path(a.out)
     if out.exists() and not a.force:
         raise CLIError(f"{out} exists; choose another --out or pass --force to overwrite it")
-    params = _params.resolve(_param_spec(a.params), config=a.model)
+    from .model import Model
+
+    params = _resolve_values(a.params, Model(a.model, a.add or ()))
     t0 = time.perf_counter()
     sim = simulate(params, u, dt=dt, config=a.model, alpha0=a.alpha0,
-                   effects=a.effects or (), quantize_angles=a.quantize,
+                   effects=a.add or (), quantize_angles=a.quantize,
                    noise_std=a.noise, seed=a.seed)
     el = time.perf_counter() - t0
     meta = {"source": "rotorbayes simulate (synthetic)", "config": a.model,
@@ -139,35 +162,83 @@ def cmd_simulate(a) -> int:
 
 
 # ------------------------------------------------------------------------------------ fit
-def _problem_from_args(a, exps):
-    from .estimation import Problem
+def _csv_list(text: str | None, flag: str) -> list[str] | None:
+    if text is None:
+        return None
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    if not items:
+        raise CLIError(f"{flag} needs a comma-separated list of names, got {text!r}")
+    return items
 
-    free = a.free.split(",") if a.free else None
-    fixed = a.fixed.split(",") if a.fixed else ()
-    if free is not None and fixed:
+
+def _model_from_args(a, n_experiments: int):
+    """The model: configuration, base effects minus --without, effects inherited from a
+    --p0 fit.json, plus --add."""
+    from .model import Model
+
+    added = list(a.add or [])
+    inherited: list[str] = []
+    doc = _fit_json(getattr(a, "p0", None))
+    if doc is not None and doc.get("config") == a.model:
+        inherited = [e for e in doc.get("added_effects", []) if e not in added]
+    if (n_experiments > 1 and a.model != "upper" and "initial_torsion" not in added
+            and "initial_torsion" not in inherited):
+        added.append("initial_torsion")
+    model = Model(a.model, [*inherited, *added], without=a.without or (),
+                  prescribed_upper=a.prescribed_upper)
+    if inherited:
+        print(f"effects carried over from {a.p0}: {', '.join(inherited)}")
+    return model, added
+
+
+def _problem_from_args(a, exps, start_spec=None):
+    """The estimation problem of the fit/multistart arguments.
+
+    ``--add`` frees the effect's parameters, also when ``--free`` is given.
+    """
+    from .inference import Problem
+
+    model, added = _model_from_args(a, len(exps))
+    free = _csv_list(a.free, "--free")
+    fixed = _csv_list(a.fixed, "--fixed") or []
+    if free is not None:
         clash = [n for n in fixed if n in free]
         if clash:
             raise CLIError(f"{', '.join(clash)} is both --fixed and --free; remove it from one")
-    if free is None and fixed:
-        from .effects import BASE_PARAMETERS
-
-        _params.check_names(fixed, where="--fixed")
-        free = [n for n in BASE_PARAMETERS[a.model] if n not in fixed]
-        for e in a.effects or ():
-            free += [p for p in _effects.get(e).parameters if p not in free and p not in fixed]
-        if a.model != "upper" and len(exps) > 1 and "alpha0" not in fixed:
-            free.append("alpha0")
-    base = _params.resolve(_param_spec(a.base), config=a.model) if a.base else None
-    channels = tuple(a.channels.split(",")) if a.channels else None
+        for e in _effects.resolve(added):
+            free += [p for p in e.names if p not in free and p not in fixed]
+    for n in fixed:
+        if n.split("[")[0] not in model.info:
+            raise CLIError("--fixed: " + _params.unknown_name_message(n))
+    base_spec = a.base or start_spec
+    base = _resolve_values(base_spec, model) if base_spec else None
+    channels = tuple(_csv_list(a.channels, "--channels")) if a.channels else None
     weights = None
     if a.weights:
         weights = {}
         for item in a.weights.split(","):
-            k, _, v = item.partition("=")
-            weights[k] = float(v)
-    return Problem(a.model, exps, free=free, base=base, effects=a.effects or (),
-                   channels=channels, weights=weights, prescribed_upper=a.prescribed_upper,
+            k, eq, v = item.partition("=")
+            try:
+                weights[k.strip()] = float(v)
+            except ValueError:
+                raise CLIError(f"--weights: {item!r} must look like theta_l=1 (channel=weight)"
+                               ) from None
+            if not eq:
+                raise CLIError(f"--weights: {item!r} must look like theta_l=1 (channel=weight)")
+    return Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
                    fixed=fixed)
+
+
+def _resolve_values(spec, model) -> dict[str, float]:
+    """A complete value set for ``model`` from a named set, TOML file or fit.json."""
+    raw = _param_spec(spec)
+    if isinstance(raw, dict):
+        builtin = {k: v for k, v in raw.items() if k in _params.INFO}
+        user = {k: v for k, v in raw.items() if k not in _params.INFO and k in model.info}
+        out = _params.resolve(builtin, config=model.config)
+        out.update(user)
+        return out
+    return _params.resolve(raw, config=model.config)
 
 
 def _fmt_params(names, x, se=None, x0=None) -> str:
@@ -176,7 +247,8 @@ def _fmt_params(names, x, se=None, x0=None) -> str:
         base = n.split("[")[0]
         s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
         st = f"{x0[i]:12.5g}" if x0 is not None else ""
-        rows.append(f"{n:<12} {x[i]:12.5g} {s} {st}  {_params.INFO[base].unit}")
+        unit = _params.INFO[base].unit if base in _params.INFO else ""
+        rows.append(f"{n:<12} {x[i]:12.5g} {s} {st}  {unit}")
     return "\n".join(rows)
 
 
@@ -193,18 +265,19 @@ def _quality_table(rows, label: str) -> str:
 
 def run_fit(a, out: Path) -> dict:
     """Fit, print and write fit.json + figures; returns the JSON document."""
-    from . import estimation as E
+    from . import inference as E
     from .plots import plot_fit, plot_friction
 
     exps = _load(a.data, a.model)
     val = _load(a.validate, a.model) if a.validate else []
-    prob = _problem_from_args(a, exps)
-    p0 = _param_spec(a.p0)
-    start = {**prob.base, **(_params.resolve(p0, config=a.model) if p0 is not None else {})}
-    if p0 is not None and not a.base:
-        # The start set also fixes the values of the parameters that are not estimated.
-        prob.base = dict(start)
-    x0 = prob.x_from(start)
+    # The start set also fixes the values of the parameters that are not estimated.
+    prob = _problem_from_args(a, exps, start_spec=a.p0)
+    start = dict(prob.base)
+    if a.p0 and a.base:
+        start.update(_resolve_values(a.p0, prob.model))
+    x0 = prob.start_vector(start)
+    print(f"model: {a.model} configuration with "
+          f"{', '.join(prob.model.effect_names) or 'no effects'}")
     print(f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {a.model} "
           f"configuration to {len(exps)} experiment(s), channels {', '.join(prob.channels)}")
     res = E.fit(prob, x0, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol, gtol=a.gtol,
@@ -230,12 +303,15 @@ def run_fit(a, out: Path) -> dict:
               f"({', '.join(f'{n} {sloppy[n]:+.2f}' for n in movers)} in log scale); the data "
               "fix their ratios far better than their values.")
     doc = {
-        "config": a.model, "effects": list(prob.effects), "channels": list(prob.channels),
+        "config": a.model, "effects": list(prob.effects),
+        "added_effects": [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
+                          for e in prob.model.added],
+        "channels": list(prob.channels),
         "data": [str(e.path) for e in exps], "validation": [str(e.path) for e in val],
         "success": res.success, "message": res.message, "nfev": res.nfev,
         "seconds": res.seconds, "ssr": res.ssr, "n_residuals": res.n_residuals,
         "estimates": {n: {"value": float(v), "stderr": float(s), "start": float(s0),
-                          "unit": _params.INFO[n.split("[")[0]].unit}
+                          "unit": prob.info(n).unit}
                       for n, v, s, s0 in zip(res.names, res.x, res.stderr, res.x0, strict=True)},
         "params": res.params,
         "quality": {"estimation": [{k: v for k, v in r.items() if k != "simulation"}
@@ -287,7 +363,7 @@ def cmd_fit(a) -> int:
 
 
 def cmd_multistart(a) -> int:
-    from . import estimation as E
+    from . import inference as E
     from .plots import plot_parameter_spread, plot_waterfall
 
     out = _out_dir(a.out, a.force)
@@ -329,7 +405,8 @@ def cmd_demo(a) -> int:
     out = _out_dir(a.out, a.force)
     ns = argparse.Namespace(
         model="coupled", data=["example:coupled_est"], validate=["example:coupled_val"],
-        p0="thesis:5.2:P0", base=None, free=None, fixed=None, effects=None, channels=None,
+        p0="thesis:5.2:P0", base=None, free=None, fixed=None, add=None, without=None,
+        channels=None,
         weights=None, prescribed_upper=False, max_nfev=100, ftol=1e-10, xtol=1e-10,
         gtol=1e-10)
     print("rotorbayes demo: least squares on the bundled (synthetic) coupled-configuration "
@@ -350,9 +427,19 @@ def cmd_params(a) -> int:
 
 
 def cmd_effects(a) -> int:
+    if a.name:
+        for spec in a.name:
+            print(_effects.resolve([spec])[0].describe())
+        return 0
+    print("The catalogue of physical effects (switch one on with --add NAME; a user effect "
+          "with --add FILE.py:NAME, see docs/effects.md).\n")
     for e in _effects.CATALOGUE.values():
-        print(f"{e.name:<26} frees {', '.join(e.parameters)}\n    {e.physics}\n    missing "
-              f"when: {e.signature}")
+        print(e.describe() + "\n")
+    from .model import CONFIGURATIONS
+
+    print("Base models (on unless --without NAME):")
+    for c in CONFIGURATIONS.values():
+        print(f"    {c.name:<8} {', '.join(c.base_effects) or '(none)'}")
     return 0
 
 
@@ -366,7 +453,11 @@ def _add_fit_args(p, *, multi=False):
     p.add_argument("--fixed", help="comma-separated parameters to keep fixed")
     p.add_argument("--base", help="values of all parameters not estimated (named set, TOML "
                    "or fit.json); default: --p0, else the configuration's P_ref")
-    p.add_argument("--effects", nargs="*", help="catalogue effects to switch on")
+    p.add_argument("--add", action="append", metavar="EFFECT",
+                   help="switch an effect on and free its parameters (repeatable): a catalogue "
+                   "name (see `rotorbayes effects`) or FILE.py:NAME for your own effect")
+    p.add_argument("--without", action="append", metavar="EFFECT",
+                   help="switch off an effect of the configuration's base model (repeatable)")
     p.add_argument("--channels", help="theta_l, theta_u or theta_l,theta_u")
     p.add_argument("--weights", help="channel weights, e.g. theta_l=1,theta_u=0.1")
     p.add_argument("--prescribed-upper", action="store_true",
@@ -392,7 +483,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0, help="seed of the input and the noise")
     s.add_argument("--params", help="named set (thesis:4.3:P_ref), TOML file or fit.json")
     s.add_argument("--alpha0", type=float, help="initial string torsion [rad]")
-    s.add_argument("--effects", nargs="*", help="catalogue effects to switch on")
+    s.add_argument("--add", action="append", metavar="EFFECT",
+                   help="switch an effect on (repeatable): a catalogue name or FILE.py:NAME; "
+                   "its parameters come from --params (null values otherwise)")
     s.add_argument("--quantize", action="store_true", help="round to encoder counts")
     s.add_argument("--noise", type=float, default=0.0, help="Gaussian noise std [rad]")
     s.add_argument("--out", required=True, help="output CSV")
@@ -425,6 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_params)
 
     e = sub.add_parser("effects", help="list the catalogue of physical effects")
+    e.add_argument("name", nargs="*", help="show these effects only (NAME or FILE.py:NAME)")
     e.set_defaults(func=cmd_effects)
     return ap
 
@@ -434,7 +528,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     try:
         return a.func(a)
-    except (CLIError, DataFileError, _params.ParameterError, ValueError, FileExistsError) as exc:
+    except (CLIError, DataFileError, _params.ParameterError, ValueError, FileExistsError,
+            SimulationError) as exc:
         print(f"rotorbayes {a.cmd}: error: {exc}", file=sys.stderr)
         return 2
 

@@ -45,7 +45,15 @@ class MultistartResult:
         ``flat`` is the relative SSR margin above the best that still counts as
         "as good" (default 5 %).
         """
+        if self.ssr.size == 0:
+            return (f"all {len(self.failed)} finished starts failed; the first reason: "
+                    f"{next(iter(self.failed.values()), '')}")
         text = describe_spread(self.names, self.ends, self.ssr, flat=flat)
+        if self.failed:
+            text += (f"\n{len(self.failed)} start(s) failed and count as no minimum (e.g. "
+                     f"{next(iter(self.failed.values()))}).")
+        if self.interrupted:
+            text += "\nInterrupted: only the starts finished before Ctrl-C are included."
         best = float(np.min(self.ssr))
         worse = self.ssr > best * (1 + flat) + 1e-300
         if worse.any():

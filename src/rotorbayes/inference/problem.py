@@ -291,6 +291,17 @@ class Problem:
                 p[base] = float(v)
         return p
 
+    def start_vector(self, values: Mapping[str, float]) -> np.ndarray:
+        """Start vector from ``values``; a free parameter of an added effect that sits at
+        its null value starts at the effect's typical value instead (see
+        :func:`rotorbayes.model.effects.typical_start`), so the fit can move it."""
+        vals = dict(values)
+        for e in self.model.added:
+            for n, v in _effects.typical_start(e, vals).items():
+                if any(local_name(f)[0] == n for f in self.names):
+                    vals[n] = v
+        return self.x_from(vals)
+
     def values(self, x: np.ndarray) -> dict[str, float]:
         """``{name: value}`` of the free parameters."""
         return {n: float(v) for n, v in zip(self.names, x, strict=True)}

@@ -33,11 +33,26 @@ import numpy as np
 from numba import njit, prange, types
 
 from .layout import (
-    BAD_EFFECT, BAD_PARAMETERS, BLOW_UP, CFG_PRESCRIBED, CFG_UPPER, OK, TOO_MANY_EVENTS,
+    BAD_EFFECT,
+    BAD_PARAMETERS,
+    BLOW_UP,
+    CFG_PRESCRIBED,
+    CFG_UPPER,
+    OK,
+    TOO_MANY_EVENTS,
 )  # fmt: skip
 from .terms import (
-    HOOK_TYPE, derived, drive, effect_state_ok, guards, has_kinks, modes_at_rest, next_kink,
-    prescribed_velocity, rhs, violations,
+    HOOK_TYPE,
+    derived,
+    drive,
+    effect_state_ok,
+    guards,
+    has_kinks,
+    modes_at_rest,
+    next_kink,
+    prescribed_velocity,
+    rhs,
+    violations,
 )  # fmt: skip
 
 #: Velocity band of Leine's switch model [rad/s]; used to classify a disc as at rest.

@@ -29,8 +29,29 @@ from numba import njit, types
 
 from ..model.friction import slip_torque
 from .layout import (
-    ALPHA0, B_L, B_U, C_ALPHA, CFG_PRESCRIBED, CFG_UPPER, DB_L, DB_U, DELTA_L, DTC_L, DTC_U,
-    J_L, J_U, K_ALPHA, K_M, N_PARAMS, T_DELAY, TC_L, TC_U, TS_L, U_DEADZONE, U_OFFSET, WS_L,
+    ALPHA0,
+    B_L,
+    B_U,
+    C_ALPHA,
+    CFG_PRESCRIBED,
+    CFG_UPPER,
+    DB_L,
+    DB_U,
+    DELTA_L,
+    DTC_L,
+    DTC_U,
+    J_L,
+    J_U,
+    K_ALPHA,
+    K_M,
+    N_PARAMS,
+    T_DELAY,
+    TC_L,
+    TC_U,
+    TS_L,
+    U_DEADZONE,
+    U_OFFSET,
+    WS_L,
 )  # fmt: skip
 
 # ------------------------------------------------------------------------------- hooks

@@ -14,7 +14,12 @@ from .effects import CATALOGUE, Effect, EffectError
 from .info import Parameter
 from .parameters import INFO, NAMES, ParameterError, resolve, thesis_set
 from .simulate import (
-    DEFAULT_STEP, Simulation, SimulationError, Simulator, physics_problems, simulate,
+    DEFAULT_STEP,
+    Simulation,
+    SimulationError,
+    Simulator,
+    physics_problems,
+    simulate,
 )  # fmt: skip
 
 __all__ = [

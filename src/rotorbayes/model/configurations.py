@@ -99,7 +99,11 @@ def problems(values: Mapping[str, float], kernel_cfg: int) -> list[str]:
     for flag, (names, text, _) in zip(bad, CONSTRAINTS, strict=True):
         if flag:
             if names == ("*",):
-                nf = [f"{n} = {values[n]}" for n in _layout.NAMES if not math.isfinite(p[_layout.INDEX[n]])]
+                nf = [
+                    f"{n} = {values[n]}"
+                    for n in _layout.NAMES
+                    if not math.isfinite(p[_layout.INDEX[n]])
+                ]
                 out.append(f"{text} ({', '.join(nf)})")
             else:
                 vals = ", ".join(f"{n} = {values[n]:g}" for n in names)

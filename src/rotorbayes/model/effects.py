@@ -268,6 +268,27 @@ def effect_of(parameter: str) -> Effect | None:
     return None
 
 
+def typical_start(effect: Effect, values: dict[str, float]) -> dict[str, float]:
+    """Start values for an effect's parameters that sit at their null value.
+
+    At the null, a switch parameter of an effect is often on a bound (damping, delay, dead
+    zone >= 0) and its nuisance parameters have no gradient; the declared typical start
+    moves them off it.  The static level ``Ts_l`` starts at twice the Coulomb level.
+    """
+    out = {}
+    for p in effect.parameters:
+        v = values.get(p.name, p.null)
+        at_null = (math.isnan(v) and math.isnan(p.null)) or v == p.null
+        if p.name == "Ts_l":
+            at_null = math.isnan(v) or v == values.get("Tc_l")
+            if at_null:
+                out["Ts_l"] = 2.0 * values["Tc_l"] if values.get("Tc_l") else 0.05
+            continue
+        if at_null and not math.isnan(p.start):
+            out[p.name] = p.start
+    return out
+
+
 _LOADED: dict[tuple[str, str], Effect] = {}
 
 

@@ -21,7 +21,6 @@ from pathlib import Path
 from ..kernel.layout import NAMES
 from .info import Parameter
 
-
 #: Parameters of the base model (thesis eqs. 2.1-2.6 with symmetric friction).  The
 #: parameters of the catalogue effects are declared with their effect in
 #: :mod:`rotorbayes.model.effects`.
