@@ -272,7 +272,8 @@ def drive(t, c, cfg, u, thp):
 @njit(cache=True, error_model="numpy", inline="always")
 def torques(thu, wu, thl, wl, d, m):
     """External torques on both discs and the user effects' friction-level shifts [N m]."""
-    c, cfg, shape, p, q, use, hook_t, hook_s = m
+    c = m[0]
+    cfg = m[1]
     t, v, thp, wp = d
     if cfg == CFG_PRESCRIBED:
         thu = thp
@@ -284,7 +285,11 @@ def torques(thu, wu, thl, wl, d, m):
     te_l = -ts
     su = 0.0
     sl = 0.0
-    if use:
+    if m[5]:  # user effects: only this branch touches p, q and the hooks
+        p = m[3]
+        q = m[4]
+        hook_t = m[6]
+        hook_s = m[7]
         a, b = hook_t(t, thu, wu, thl, wl, v, p, q)
         te_u += a
         te_l += b
@@ -307,7 +312,9 @@ def bands(su, sl, c):
 @njit(cache=True, error_model="numpy", inline="always")
 def rhs(thu, wu, thl, wl, mu, ml, d, m):
     """Time derivatives of ``(theta_u, omega_u, theta_l, omega_l)`` in modes ``(mu, ml)``."""
-    c, cfg, shape = m[0], m[1], m[2]
+    c = m[0]
+    cfg = m[1]
+    shape = m[2]
     te_u, te_l, su, sl = torques(thu, wu, thl, wl, d, m)
     dthu = 0.0
     dwu = 0.0

@@ -1,0 +1,279 @@
+"""The registry of effects: contracts, refusals, accuracy against the independent reference,
+smoothness in every effect parameter, Jacobians for effects that are off, and user effects.
+
+Accuracy tests compare with ``tests/reference.py`` (scipy DOP853, exact switching, every input
+kink a breakpoint; it does not import rotorbayes).  The recovery test fits data made by the
+package's own simulator: it proves recovery of the user effect's parameters, not accuracy.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from reference import reference_simulate
+
+import rotorbayes as rb
+from rotorbayes import inference as E
+from rotorbayes.cli import main
+from rotorbayes.data import LOWER_COUNTS_PER_REV
+from rotorbayes.model import CATALOGUE, Model
+from rotorbayes.model.effects import EffectError
+from rotorbayes.model.parameters import INFO, thesis_set
+
+TOL = 1.5e-5
+ROOT = Path(__file__).resolve().parents[1]
+USER = str(ROOT / "examples" / "angle_friction.py") + ":angle_friction"
+FLOOR_L = 2 * math.pi / LOWER_COUNTS_PER_REV / math.sqrt(12)
+
+
+def _ripple(p, a, phi):
+    """The example user effect's physics, written again for the reference."""
+
+    def shift(t, thu, wu, thl, wl, v):
+        return 0.0, p["Tc_l"] * a * math.sin(thl + phi)
+
+    return shift
+
+
+# ------------------------------------------------------------------------- contracts
+def test_every_catalogue_effect_declares_its_parameters():
+    for e in CATALOGUE.values():
+        assert e.physics and e.signature and e.kernel_term
+        for p in e.parameters:
+            assert INFO[p.name] is p  # one declaration, used everywhere
+            assert p.unit and p.lower < p.upper
+    names = {p for e in CATALOGUE.values() for p in e.names}
+    assert {"dTc_u", "db_u", "dTc_l", "db_l", "Ts_l", "alpha0", "c_alpha", "u_offset",
+            "t_delay", "u_deadzone"} <= names  # fmt: skip
+    assert any("dTc_u" in q for q in CATALOGUE["voltage_offset"].equivalences)
+    assert any("alpha0" in q for q in CATALOGUE["lower_asymmetric_coulomb"].equivalences)
+
+
+def test_add_frees_exactly_the_effect_parameters():
+    ex = rb.load_example("coupled_est")
+    base = E.Problem("coupled", [ex])
+    for name in ("string_damping", "input_delay", "lower_stribeck", "lower_asymmetric_coulomb"):
+        prob = E.Problem("coupled", [ex], effects=[name])
+        assert prob.names == base.names + list(CATALOGUE[name].names)
+    user = E.Problem("coupled", [ex], effects=[USER])
+    assert user.names == base.names + ["a_fric", "phi_fric"]
+
+
+def test_parameters_of_an_effect_that_is_off_are_refused():
+    ex = rb.load_example("coupled_est")
+    with pytest.raises(rb.ParameterError, match="string_damping.*is off"):
+        E.Problem("coupled", [ex], free=["J_l", "c_alpha"])
+    with pytest.raises(rb.ParameterError, match="--add lower_asymmetric_coulomb"):
+        E.Problem("coupled", [ex], base=thesis_set("5.3", "P"))
+    u = np.zeros(100)
+    with pytest.raises(rb.ParameterError, match="lower_stribeck"):
+        rb.simulate("thesis:4.3:P_ref", u, dt=1e-3, config="coupled")
+    p = dict(thesis_set("4.2", "P_ref"), c_alpha=0.01)
+    with pytest.raises(rb.ParameterError, match="string_damping"):
+        rb.simulate(p, u, dt=1e-3, config="coupled")
+    s = rb.simulate(p, u, dt=1e-3, config="coupled", effects=["string_damping"])
+    assert s.ok and s.status == 0
+
+
+def test_cli_add_and_refusals(tmp_path, capsys):
+    out = tmp_path / "f"
+    code = main(["fit", "--model", "coupled", "example:coupled_est", "--free", "J_l",
+                 "--add", "string_damping", "--max-nfev", "3", "--out", str(out)])  # fmt: skip
+    text = capsys.readouterr().out
+    assert code in (0, 1) and "fitting 2 parameters (J_l, c_alpha)" in text
+    assert main(["fit", "--model", "coupled", "example:coupled_est", "--free", "J_l,c_alpha",
+                 "--out", str(tmp_path / "g")]) == 2  # fmt: skip
+    assert "--add string_damping" in capsys.readouterr().err
+    assert main(["fit", "--model", "upper", "example:upper_est", "--add", "string_damping",
+                 "--out", str(tmp_path / "h")]) == 2  # fmt: skip
+    assert "does not apply to the upper configuration" in capsys.readouterr().err
+    assert main(["fit", "--model", "coupled", "example:coupled_est", "--add",
+                 "nope.py:x", "--out", str(tmp_path / "i")]) == 2  # fmt: skip
+    assert "nope.py: effect file not found" in capsys.readouterr().err
+    assert main(["effects"]) == 0
+    listing = capsys.readouterr().out
+    for name in CATALOGUE:
+        assert name in listing
+    assert main(["effects", USER]) == 0
+    assert "a_fric" in capsys.readouterr().out
+
+
+def test_bad_user_effect_files_are_refused_with_the_file_named(tmp_path):
+    f = tmp_path / "bad.py"
+    f.write_text(
+        "from rotorbayes import Effect, Parameter\n"
+        "def shift(t, a, b, c, d, v, p, q):\n    return 'x', 0.0\n"
+        "bad = Effect('bad', 'x', (Parameter('g', '-', 0.0, 1.0, 0.0, 'g'),), 'x',\n"
+        "             friction_shift=shift)\n"
+        "clash = Effect('clash', 'x', (Parameter('J_l', '-', 0.0, 1.0, 0.0, 'g'),), 'x',\n"
+        "               friction_shift=shift)\n"
+    )
+    with pytest.raises(EffectError, match="does not compile with numba"):
+        rb.Simulator("coupled", np.zeros(10), 1e-3, effects=[f"{f}:bad"]).run(
+            (np.zeros(20), np.zeros(1))
+        )
+    with pytest.raises(EffectError, match="built-in parameters"):
+        Model("coupled", [f"{f}:clash"])
+    with pytest.raises(EffectError, match="defines no effect 'other'; it defines: bad, clash"):
+        Model("coupled", [f"{f}:other"])
+
+
+def test_status_travels_on_the_result():
+    u = np.zeros(50)
+    s = rb.Simulator("coupled", u, 1e-3).simulate(
+        dict(thesis_set("4.2", "P_ref"), J_l=-1.0), raise_on_failure=False
+    )
+    assert not s.ok and "invalid parameters" in s.status_message
+    prob = E.Problem("coupled", [rb.load_example("coupled_est")])
+    x = prob.x_from(dict(prob.base, J_l=-0.01))
+    ev = prob.evaluate(x)
+    assert not ev.ok and np.all(np.isnan(ev.residuals)) and "invalid" in ev.reasons()[0]
+
+
+# ---------------------------------------------------------------------- accuracy
+def _accuracy_cases():
+    brake = thesis_set("4.3", "P_ref")
+    coupled = thesis_set("4.2", "P_ref")
+    return [
+        ("lower_asymmetric_coulomb", "brake", dict(brake, dTc_l=0.004), 1000),
+        ("lower_asymmetric_viscous", "coupled", dict(coupled, db_l=0.002), 1000),
+        ("lower_stribeck", "coupled", dict(coupled, Ts_l=0.03, ws_l=0.8, delta_l=1.5), 1000),
+        ("initial_torsion", "brake", dict(brake, alpha0=-1.1), 1000),
+        ("string_damping", "brake", dict(brake, c_alpha=0.002), 1000),
+        ("voltage_offset", "brake", dict(brake, u_offset=0.05), 1000),
+        ("input_delay", "brake", dict(brake, t_delay=0.0123), 1000),
+        ("input_delay", "brake", dict(brake, t_delay=0.0123), 200),
+        ("motor_deadzone", "brake", dict(brake, u_deadzone=0.3), 1000),
+        ("motor_deadzone", "coupled", dict(coupled, u_deadzone=0.05), 200),
+        ("upper_asymmetric_coulomb", "upper", dict(thesis_set("4.1", "P_ref"), dTc_u=0.05),
+         1000),
+    ]  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "effect,config,params,rate", _accuracy_cases(), ids=[f"{c[0]}-{c[3]}Hz" for c in _accuracy_cases()]
+)
+def test_effect_matches_the_reference(effect, config, params, rate):
+    t, u = rb.signals.estimation_signal(30.0, seed=3, rate=rate)
+    effects = [] if effect in Model(config).effect_names else [effect]
+    sim = rb.simulate(params, u, dt=t[1] - t[0], config=config, effects=effects)
+    q = dict(params)
+    if config == "coupled" and effect != "lower_stribeck":
+        q["Ts_l"] = q["Tc_l"]
+    ref = reference_simulate(q, t, u, config)
+    assert np.max(np.abs(sim.theta_u - ref["theta_u"])) < TOL
+    if config != "upper":
+        assert np.max(np.abs(sim.theta_l - ref["theta_l"])) < TOL
+        if config == "brake":  # the lower-disc effects act with stick-slip present
+            assert 0.05 < sim.stick_fraction("l") < 0.95
+
+
+@pytest.mark.slow
+def test_user_effect_matches_the_reference():
+    t, u = rb.signals.estimation_signal(30.0, seed=3)
+    p = dict(thesis_set("4.3", "P_ref"), a_fric=0.3, phi_fric=0.7)
+    sim = rb.simulate(p, u, dt=1e-3, config="brake", effects=[USER])
+    plain = rb.simulate(thesis_set("4.3", "P_ref"), u, dt=1e-3, config="brake")
+    ref = reference_simulate(
+        thesis_set("4.3", "P_ref"), t, u, "brake",
+        friction_shift=_ripple(thesis_set("4.3", "P_ref"), 0.3, 0.7),
+    )  # fmt: skip
+    assert np.max(np.abs(sim.theta_l - ref["theta_l"])) < TOL
+    assert np.max(np.abs(sim.theta_u - ref["theta_u"])) < TOL
+    assert np.max(np.abs(sim.theta_l - plain.theta_l)) > 1e-2  # the effect matters
+    assert 0.05 < sim.stick_fraction("l") < 0.95
+
+
+# -------------------------------------------------------------------- smoothness
+@pytest.fixture(scope="module")
+def brake_scan():
+    t, u = rb.signals.estimation_signal(15.0, seed=5)
+    return u
+
+
+SMOOTH = [
+    ("string_damping", "c_alpha", 0.002),
+    ("voltage_offset", "u_offset", 0.05),
+    ("input_delay", "t_delay", 0.012),
+    ("motor_deadzone", "u_deadzone", 0.2),
+    ("lower_asymmetric_coulomb", "dTc_l", 0.004),
+    (USER, "a_fric", 0.3),
+    (USER, "phi_fric", 0.7),
+]
+
+
+@pytest.mark.parametrize("effect,name,value", SMOOTH, ids=[s[1] for s in SMOOTH])
+def test_smooth_in_every_effect_parameter(brake_scan, effect, name, value):
+    u = brake_scan
+    sim = rb.Simulator("brake", u, 1e-3, effects=[effect])
+    p = dict(thesis_set("4.3", "P_ref"), **sim.model.null_values())
+    p[name] = value
+    if name == "phi_fric":
+        p["a_fric"] = 0.3
+    meas = sim.simulate(p).theta_l
+
+    def thl(v):
+        st, _, out = sim.angles(sim.kernel_vector(dict(p, **{name: v})))
+        assert st == 0
+        return out
+
+    grid = value * (1 + np.linspace(-0.05, 0.05, 201))
+    f = np.array([np.sum((thl(v) - meas) ** 2) for v in grid])
+    d1, d2 = np.diff(f), np.diff(f, 2)
+    assert np.max(np.abs(d2)) < 0.05 * np.max(np.abs(d1)) + 1e-12
+    ders = [(thl(value * (1 + r)) - thl(value * (1 - r))) / (2 * r * value) for r in (1e-4, 1e-6)]
+    scale = np.max(np.abs(ders[0]))
+    assert scale > 0
+    assert np.max(np.abs(ders[0] - ders[1])) < 1e-3 * scale
+
+
+# ---------------------------------------------------------------------- Jacobian
+def test_jacobian_of_effects_that_are_off():
+    ex = rb.load_example("coupled_est")
+    prob = E.Problem("coupled", [ex], base=thesis_set("5.2", "P"))
+    x = prob.x_from(prob.base)
+    J, steps = prob.jacobian(x, ["c_alpha", "t_delay", "Ts_l", "ws_l", "J_l"])
+    assert steps[0] > 0 and steps[1] > 0  # one-sided, inwards from the null on a bound
+    # Against a direct difference with the effect on.
+    on = E.Problem("coupled", [ex], effects=["string_damping"], base=thesis_set("5.2", "P"))
+    x_on = on.x_from(on.base)
+    h = 1e-5
+    r0 = on.residuals(x_on)
+    r1 = on.residuals(on.x_from(dict(on.base, c_alpha=h)))
+    direct = (r1 - r0) / h
+    assert np.max(np.abs(J[:, 0] - direct)) < 1e-3 * np.max(np.abs(direct))
+    assert np.max(np.abs(J[:, 2])) > 0  # a static level above Coulomb matters ...
+    assert np.max(np.abs(J[:, 3])) == 0  # ... the Stribeck velocity does not, at the null
+    np.testing.assert_allclose(J[:, 4], prob.jacobian(x, ["J_l"])[0][:, 0], rtol=1e-12)
+
+
+# ---------------------------------------------------------------------- recovery
+@pytest.mark.slow
+def test_user_effect_fit_recovers_its_parameters(tmp_path, capsys):
+    """Recovery (the package's own simulator made the data), through the CLI."""
+    t, u = rb.signals.estimation_signal(30.0, seed=11, rate=200.0)
+    truth = dict(thesis_set("4.2", "P_ref"), J_l=0.05, k_alpha=0.06, Tc_l=0.03, b_l=0.012)
+    truth.update(a_fric=0.35, phi_fric=-1.1)
+    sim = rb.simulate(truth, u, dt=t[1] - t[0], config="coupled", effects=[USER],
+                      quantize_angles=True)  # fmt: skip
+    rb.save_experiment(sim.to_experiment(), tmp_path / "est.csv")
+    start = tmp_path / "p0.toml"
+    start.write_text('base = "thesis:4.2:P_ref"\nJ_l = 0.045\nk_alpha = 0.055\nTc_l = 0.033\n'
+                     "b_l = 0.011\n")  # fmt: skip
+    out = tmp_path / "fit"
+    code = main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--p0", str(start),
+                 "--add", USER, "--out", str(out)])  # fmt: skip
+    capsys.readouterr()
+    assert code == 0
+    import json
+
+    doc = json.loads((out / "fit.json").read_text())
+    est = {k: v["value"] for k, v in doc["estimates"].items()}
+    for k in ("J_l", "k_alpha", "Tc_l", "b_l", "a_fric", "phi_fric"):
+        assert abs(est[k] / truth[k] - 1) < 0.02, (k, est[k], truth[k])
+    rms = math.sqrt(doc["quality"]["estimation"][0]["channels"]["theta_l"]["ssr"] / sim.t.size)
+    assert rms < 1.5 * FLOOR_L
