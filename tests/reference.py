@@ -228,6 +228,8 @@ def reference_simulate(
     rtol: float = 1e-11,
     atol: float = 1e-12,
     dense_output: bool = False,
+    extra_torque: Callable | None = None,
+    friction_shift: Callable | None = None,
 ) -> dict:
     """Reference (event-driven, exact switching) simulation of the rig.
 
@@ -242,6 +244,11 @@ def reference_simulate(
     theta_u_prescribed : samples of theta_u at ``t`` (config "prescribed" only).
     stribeck_shape : "exp" or "rational".
     rtol, atol : tolerances passed to every ``solve_ivp(method="DOP853")`` call.
+    extra_torque : optional ``f(t, theta_u, omega_u, theta_l, omega_l, v) -> (T_u, T_l)``,
+        extra external torques [N m] on the discs (they enter the stick test too).
+    friction_shift : optional ``g(t, theta_u, omega_u, theta_l, omega_l, v) -> (dT_u, dT_l)``,
+        additive change [N m] of each disc's Coulomb and static levels alike (the static
+        band widens by it on both sides).  Both must be smooth in time and state.
     dense_output : if True, the result also contains ``"sol"``, a callable mapping an
         array of times in [t[0], t[-1]] to a (4, n) array
         [theta_u, omega_u, theta_l, omega_l] (rows of absent discs are NaN).
@@ -329,12 +336,30 @@ def reference_simulate(
         thu, wu = upper_kin(t_, y)
         return ka * (y[2] - thu + a0) + ca * (y[3] - wu)
 
+    def hook_args(t_: float, y: list) -> tuple:
+        thu, wu = upper_kin(t_, y) if has_upper or config == "prescribed" else (0.0, 0.0)
+        v = seg["ua"] + seg["ub"] * (t_ - seg["a"])
+        thl, wl = (y[2], y[3]) if has_lower else (0.0, 0.0)
+        return t_, thu, wu, thl, wl, v
+
+    def extra(t_: float, y: list) -> tuple[float, float]:
+        if extra_torque is None:
+            return 0.0, 0.0
+        a_, b_ = extra_torque(*hook_args(t_, y))
+        return float(a_), float(b_)
+
+    def shift(t_: float, y: list) -> tuple[float, float]:
+        if friction_shift is None:
+            return 0.0, 0.0
+        a_, b_ = friction_shift(*hook_args(t_, y))
+        return float(a_), float(b_)
+
     def te_upper(t_: float, y: list) -> float:
         ue = seg["ua"] + seg["ub"] * (t_ - seg["a"])
-        return km * ue + string_torque(t_, y)
+        return km * ue + string_torque(t_, y) + extra(t_, y)[0]
 
     def te_lower(t_: float, y: list) -> float:
-        return -string_torque(t_, y)
+        return -string_torque(t_, y) + extra(t_, y)[1]
 
     def make_rhs(mu: int, ml: int) -> Callable:
         a = seg["a"]
@@ -347,7 +372,9 @@ def reference_simulate(
                 if mu == 0:
                     return [0.0, 0.0, 0.0, 0.0]
                 ue = sua + sub * (t_ - a)
-                return [y1, (km * ue - fr_u(y1, mu)) * iJu, 0.0, 0.0]
+                yl = [y0, y1, 0.0, 0.0]
+                f = fr_u(y1, mu) + mu * shift(t_, yl)[0]
+                return [y1, (km * ue - f + extra(t_, yl)[0]) * iJu, 0.0, 0.0]
         elif config == "prescribed":
 
             def rhs(t_, yy):
@@ -356,18 +383,23 @@ def reference_simulate(
                     return [0.0, 0.0, 0.0, 0.0]
                 thu = spa + spb * (t_ - a)
                 Tsr = ka * (y2 - thu + a0) + ca * (y3 - spb)
-                return [0.0, 0.0, y3, (-fr_l(y3, ml) - Tsr) * iJl]
+                yl = [0.0, 0.0, y2, y3]
+                f = fr_l(y3, ml) + ml * shift(t_, yl)[1]
+                return [0.0, 0.0, y3, (-f - Tsr + extra(t_, yl)[1]) * iJl]
         else:
 
             def rhs(t_, yy):
                 y0, y1, y2, y3 = yy.tolist()
                 Tsr = ka * (y2 - y0 + a0) + ca * (y3 - y1)
+                yl = [y0, y1, y2, y3]
+                shu, shl = shift(t_, yl)
+                exu, exl = extra(t_, yl)
                 if mu != 0:
                     ue = sua + sub * (t_ - a)
-                    dwu = (km * ue - fr_u(y1, mu) + Tsr) * iJu
+                    dwu = (km * ue - fr_u(y1, mu) - mu * shu + Tsr + exu) * iJu
                 else:
                     dwu = 0.0
-                dwl = (-fr_l(y3, ml) - Tsr) * iJl if ml != 0 else 0.0
+                dwl = (-fr_l(y3, ml) - ml * shl - Tsr + exl) * iJl if ml != 0 else 0.0
                 return [y1, dwu, y3, dwl]
 
         return rhs
@@ -394,10 +426,10 @@ def reference_simulate(
             else:
 
                 def ev_uhi(t_, yy):
-                    return -_TINY if t_ == t0 else te_upper(t_, yy.tolist()) - hi_u
+                    return -_TINY if t_ == t0 else te_upper(t_, yy.tolist()) - (hi_u + shift(t_, yy.tolist())[0])
 
                 def ev_ulo(t_, yy):
-                    return _TINY if t_ == t0 else te_upper(t_, yy.tolist()) - lo_u
+                    return _TINY if t_ == t0 else te_upper(t_, yy.tolist()) - (lo_u - shift(t_, yy.tolist())[0])
 
                 add(ev_uhi, +1, "u", "hi")
                 add(ev_ulo, -1, "u", "lo")
@@ -411,10 +443,10 @@ def reference_simulate(
             else:
 
                 def ev_lhi(t_, yy):
-                    return -_TINY if t_ == t0 else te_lower(t_, yy.tolist()) - hi_l
+                    return -_TINY if t_ == t0 else te_lower(t_, yy.tolist()) - (hi_l + shift(t_, yy.tolist())[1])
 
                 def ev_llo(t_, yy):
-                    return _TINY if t_ == t0 else te_lower(t_, yy.tolist()) - lo_l
+                    return _TINY if t_ == t0 else te_lower(t_, yy.tolist()) - (lo_l - shift(t_, yy.tolist())[1])
 
                 add(ev_lhi, +1, "l", "hi")
                 add(ev_llo, -1, "l", "lo")
@@ -458,12 +490,12 @@ def reference_simulate(
         """A sticking disc whose external torque is (strictly) outside the band starts
         to slip (only relevant after input jumps, e.g. prescribed velocity jumps)."""
         if has_upper and modes["u"] == 0:
-            m = band_mode(te_upper(t_, y), lo_u, hi_u)
+            m = band_mode(te_upper(t_, y), lo_u - shift(t_, y)[0], hi_u + shift(t_, y)[0])
             if m != 0:
                 modes["u"] = m
                 events.append((t_, "u", kind_of(m)))
         if has_lower and modes["l"] == 0:
-            m = band_mode(te_lower(t_, y), lo_l, hi_l)
+            m = band_mode(te_lower(t_, y), lo_l - shift(t_, y)[1], hi_l + shift(t_, y)[1])
             if m != 0:
                 modes["l"] = m
                 events.append((t_, "l", kind_of(m)))
@@ -538,9 +570,9 @@ def reference_simulate(
                 for disc, kind in fired:
                     if kind == "zero":
                         if disc == "u":
-                            m = band_mode(te_upper(tc, y), lo_u, hi_u)
+                            m = band_mode(te_upper(tc, y), lo_u - shift(tc, y)[0], hi_u + shift(tc, y)[0])
                         else:
-                            m = band_mode(te_lower(tc, y), lo_l, hi_l)
+                            m = band_mode(te_lower(tc, y), lo_l - shift(tc, y)[1], hi_l + shift(tc, y)[1])
                     elif kind == "hi":
                         m = 1
                     else:

@@ -241,3 +241,30 @@ def test_input_is_piecewise_linear_and_offset_delay_exact():
     sh = reference_simulate(params, t, us, "coupled")
     for key in ("theta_u", "theta_l"):
         assert np.max(np.abs(dl[key] - sh[key])) < 1e-9
+
+
+def test_hooks_reproduce_built_in_terms():
+    """The user-effect arguments of the reference, checked against built-in terms: a
+    constant friction shift is a change of both friction levels, a constant extra torque
+    on the upper disc is a voltage offset, a damping torque is c_alpha."""
+    t, u = _brake_input(12.0)
+    d = 0.01
+    shifted = reference_simulate(BRAKE, t, u, "brake", friction_shift=lambda *a: (0.0, d))
+    levels = reference_simulate(dict(BRAKE, Tc_l=BRAKE["Tc_l"] + d, Ts_l=BRAKE["Ts_l"] + d),
+                                t, u, "brake")  # fmt: skip
+    assert np.max(np.abs(shifted["theta_l"] - levels["theta_l"])) < 1e-9
+    assert any(e[2] == "stick" for e in shifted["events"] if e[1] == "l")
+    c = 0.04
+    torque = reference_simulate(BRAKE, t, u, "brake",
+                                extra_torque=lambda *a: (BRAKE["k_m"] * c, 0.0))  # fmt: skip
+    offset = reference_simulate(dict(BRAKE, u_offset=c), t, u, "brake")
+    assert np.max(np.abs(torque["theta_l"] - offset["theta_l"])) < 1e-9
+    ca = 0.003
+
+    def damping(t_, thu, wu, thl, wl, v):
+        tq = ca * (wl - wu)
+        return tq, -tq
+
+    hooked = reference_simulate(BRAKE, t, u, "brake", extra_torque=damping)
+    built = reference_simulate(dict(BRAKE, c_alpha=ca), t, u, "brake")
+    assert np.max(np.abs(hooked["theta_l"] - built["theta_l"])) < 1e-9
