@@ -124,7 +124,9 @@ def main() -> None:
     base2 = rb.Simulator("brake", u2, t2[1], effects=["initial_torsion"])
     dl = rb.Simulator("brake", u2, t2[1], effects=["initial_torsion", "input_delay"])
     kb2, kd2 = base2.kernel_vector(p), dl.kernel_vector(dict(p, t_delay=0.0123))
-    rows.append(("  200 Hz data, no delay", f"{median_ms(lambda: base2.angles(kb2), a.repeats):.3f} ms"))
+    rows.append(
+        ("  200 Hz data, no delay", f"{median_ms(lambda: base2.angles(kb2), a.repeats):.3f} ms")
+    )
     rows.append(("  200 Hz data, input_delay 12.3 ms (delayed samples located)",
                  f"{median_ms(lambda: dl.angles(kd2), a.repeats):.3f} ms"))  # fmt: skip
     user = rb.Simulator("brake", u, 1e-3, effects=["initial_torsion",

@@ -426,10 +426,18 @@ def reference_simulate(
             else:
 
                 def ev_uhi(t_, yy):
-                    return -_TINY if t_ == t0 else te_upper(t_, yy.tolist()) - (hi_u + shift(t_, yy.tolist())[0])
+                    return (
+                        -_TINY
+                        if t_ == t0
+                        else te_upper(t_, yy.tolist()) - (hi_u + shift(t_, yy.tolist())[0])
+                    )
 
                 def ev_ulo(t_, yy):
-                    return _TINY if t_ == t0 else te_upper(t_, yy.tolist()) - (lo_u - shift(t_, yy.tolist())[0])
+                    return (
+                        _TINY
+                        if t_ == t0
+                        else te_upper(t_, yy.tolist()) - (lo_u - shift(t_, yy.tolist())[0])
+                    )
 
                 add(ev_uhi, +1, "u", "hi")
                 add(ev_ulo, -1, "u", "lo")
@@ -443,10 +451,18 @@ def reference_simulate(
             else:
 
                 def ev_lhi(t_, yy):
-                    return -_TINY if t_ == t0 else te_lower(t_, yy.tolist()) - (hi_l + shift(t_, yy.tolist())[1])
+                    return (
+                        -_TINY
+                        if t_ == t0
+                        else te_lower(t_, yy.tolist()) - (hi_l + shift(t_, yy.tolist())[1])
+                    )
 
                 def ev_llo(t_, yy):
-                    return _TINY if t_ == t0 else te_lower(t_, yy.tolist()) - (lo_l - shift(t_, yy.tolist())[1])
+                    return (
+                        _TINY
+                        if t_ == t0
+                        else te_lower(t_, yy.tolist()) - (lo_l - shift(t_, yy.tolist())[1])
+                    )
 
                 add(ev_lhi, +1, "l", "hi")
                 add(ev_llo, -1, "l", "lo")
@@ -570,9 +586,13 @@ def reference_simulate(
                 for disc, kind in fired:
                     if kind == "zero":
                         if disc == "u":
-                            m = band_mode(te_upper(tc, y), lo_u - shift(tc, y)[0], hi_u + shift(tc, y)[0])
+                            m = band_mode(
+                                te_upper(tc, y), lo_u - shift(tc, y)[0], hi_u + shift(tc, y)[0]
+                            )
                         else:
-                            m = band_mode(te_lower(tc, y), lo_l - shift(tc, y)[1], hi_l + shift(tc, y)[1])
+                            m = band_mode(
+                                te_lower(tc, y), lo_l - shift(tc, y)[1], hi_l + shift(tc, y)[1]
+                            )
                     elif kind == "hi":
                         m = 1
                     else:

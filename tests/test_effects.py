@@ -155,7 +155,9 @@ def _accuracy_cases():
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "effect,config,params,rate", _accuracy_cases(), ids=[f"{c[0]}-{c[3]}Hz" for c in _accuracy_cases()]
+    "effect,config,params,rate",
+    _accuracy_cases(),
+    ids=[f"{c[0]}-{c[3]}Hz" for c in _accuracy_cases()],
 )
 def test_effect_matches_the_reference(effect, config, params, rate):
     t, u = rb.signals.estimation_signal(30.0, seed=3, rate=rate)
