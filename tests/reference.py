@@ -13,7 +13,11 @@ terminal events:
 
 * slipping disc:  s * omega crossing 0 (downwards),
 * sticking disc:  external torque T_e leaving the static band
-  ``[-(Ts - dTc), Ts + dTc]`` (upper edge upwards, lower edge downwards).
+  ``[-(Ts + dT - dTc), Ts + dT + dTc]`` (upper edge upwards, lower edge downwards).
+
+T_e includes the optional user torque ``extra_torque`` and dT is the optional user
+``friction_shift`` (0 without it); both are evaluated inside the event functions with the
+current time and state, so a band that moves during stick is handled exactly.
 
 At every event the modes are updated (stick / pass-through / break-away) and the
 integration restarts from the event time.
@@ -245,10 +249,23 @@ def reference_simulate(
     stribeck_shape : "exp" or "rational".
     rtol, atol : tolerances passed to every ``solve_ivp(method="DOP853")`` call.
     extra_torque : optional ``f(t, theta_u, omega_u, theta_l, omega_l, v) -> (T_u, T_l)``,
-        extra external torques [N m] on the discs (they enter the stick test too).
+        extra external torques [N m] on the upper and lower disc.  They add to each
+        disc's external torque (k_m v + string torque, resp. -string torque), so they
+        enter the stick test too: a sticking disc breaks loose when its external torque
+        including T_u / T_l leaves the static band.
     friction_shift : optional ``g(t, theta_u, omega_u, theta_l, omega_l, v) -> (dT_u, dT_l)``,
-        additive change [N m] of each disc's Coulomb and static levels alike (the static
-        band widens by it on both sides).  Both must be smooth in time and state.
+        additive change [N m] of each disc's friction levels: added to the Coulomb level
+        Tc and to the static level Ts alike (upper disc: Ts = Tc).  In slip (s = sign w)
+        the friction magnitude is ``Tc + dT + s dTc + (b + s db)|w| + (Ts - Tc) S(|w|/ws)``
+        (Stribeck part unchanged); the static band is ``[-(Ts + dT - dTc), Ts + dT + dTc]``,
+        evaluated with the current time and state.
+        Arguments of both callables: t [s]; theta/omega [rad, rad/s] of both discs (config
+        "prescribed": theta_u, omega_u are the prescribed motion, omega_u the slope of its
+        linear piece; config "upper": theta_l = omega_l = 0); v [V] the effective motor
+        voltage at t after delay, offset and dead zone (0 in config "prescribed").  Both
+        must be smooth in time and state (no kinks; kinks of v are breakpoints already)
+        and keep the friction levels non-negative.  Without them (None) the results are
+        bitwise those of the version without hooks.
     dense_output : if True, the result also contains ``"sol"``, a callable mapping an
         array of times in [t[0], t[-1]] to a (4, n) array
         [theta_u, omega_u, theta_l, omega_l] (rows of absent discs are NaN).

@@ -243,23 +243,88 @@ def test_input_is_piecewise_linear_and_offset_delay_exact():
         assert np.max(np.abs(dl[key] - sh[key])) < 1e-9
 
 
-def test_hooks_reproduce_built_in_terms():
-    """The user-effect arguments of the reference, checked against built-in terms: a
-    constant friction shift is a change of both friction levels, a constant extra torque
-    on the upper disc is a voltage offset, a damping torque is c_alpha."""
-    t, u = _brake_input(12.0)
-    d = 0.01
-    shifted = reference_simulate(BRAKE, t, u, "brake", friction_shift=lambda *a: (0.0, d))
-    levels = reference_simulate(dict(BRAKE, Tc_l=BRAKE["Tc_l"] + d, Ts_l=BRAKE["Ts_l"] + d),
-                                t, u, "brake")  # fmt: skip
-    assert np.max(np.abs(shifted["theta_l"] - levels["theta_l"])) < 1e-9
-    assert any(e[2] == "stick" for e in shifted["events"] if e[1] == "l")
+# --------------------------------------------------------------------------------------
+# 6. user-effect hooks: extra_torque and friction_shift
+# --------------------------------------------------------------------------------------
+STATES = ("theta_u", "omega_u", "theta_l", "omega_l")
+
+
+def _max_diff(r1: dict, r2: dict, keys=STATES) -> float:
+    return max(float(np.max(np.abs(r1[k] - r2[k]))) for k in keys if r1[k] is not None)
+
+
+def _same_events(r1: dict, r2: dict, tol: float) -> bool:
+    e1, e2 = r1["events"], r2["events"]
+    return len(e1) == len(e2) and all(
+        a[1:] == b[1:] and abs(a[0] - b[0]) < tol for a, b in zip(e1, e2, strict=True)
+    )
+
+
+def _kinds(res: dict, disc: str) -> list[str]:
+    return [e[2] for e in res["events"] if e[1] == disc]
+
+
+def _upper_stick_slip_input(T: float, dt: float = 1e-2):
+    # k_m |u| crosses the static band (Tc_u +- dTc_u ~ 0.37 N m) in both directions, so the
+    # upper disc alternates slip+ / stick / slip- / stick
+    t = np.arange(0.0, T + 0.5 * dt, dt)
+    return t, 0.2 * np.sin(0.8 * t)
+
+
+def test_zero_hooks_change_nothing():
+    t, u = _brake_input(12.0, 1e-2)
+    base = reference_simulate(BRAKE, t, u, "brake")
+    hooked = reference_simulate(
+        BRAKE, t, u, "brake",
+        extra_torque=lambda *a: (0.0, 0.0), friction_shift=lambda *a: (0.0, 0.0),
+    )  # fmt: skip
+    for key in STATES:
+        assert np.array_equal(base[key], hooked[key])
+    assert base["events"] == hooked["events"]
+
+
+def test_constant_extra_torque_on_upper_is_a_voltage_offset():
     c = 0.04
-    torque = reference_simulate(BRAKE, t, u, "brake",
-                                extra_torque=lambda *a: (BRAKE["k_m"] * c, 0.0))  # fmt: skip
-    offset = reference_simulate(dict(BRAKE, u_offset=c), t, u, "brake")
-    assert np.max(np.abs(torque["theta_l"] - offset["theta_l"])) < 1e-9
+    km = BRAKE["k_m"]
+    for config, (t, u) in (
+        ("upper", _upper_stick_slip_input(16.0)),
+        ("brake", _brake_input(12.0, 1e-2)),
+    ):
+        torque = reference_simulate(BRAKE, t, u, config, extra_torque=lambda *a: (km * c, 0.0))
+        offset = reference_simulate(dict(BRAKE, u_offset=c), t, u, config)
+        assert _max_diff(torque, offset) < 1e-9
+        assert _same_events(torque, offset, 1e-9)
+        # the extra torque enters the stick test: the runs really do stick and slip
+        disc = "u" if config == "upper" else "l"
+        assert "stick" in _kinds(torque, disc) and len(_kinds(torque, disc)) >= 3
+        assert _max_diff(torque, reference_simulate(BRAKE, t, u, config)) > 1e-3
+
+
+def test_constant_friction_shift_is_a_change_of_both_levels():
+    d = 0.01
+    t, u = _brake_input(12.0, 1e-2)
+    shifted = reference_simulate(BRAKE, t, u, "brake", friction_shift=lambda *a: (0.0, d))
+    levels = reference_simulate(
+        dict(BRAKE, Tc_l=BRAKE["Tc_l"] + d, Ts_l=BRAKE["Ts_l"] + d), t, u, "brake"
+    )
+    assert _max_diff(shifted, levels) < 1e-9
+    assert _same_events(shifted, levels, 1e-9)
+    assert _kinds(shifted, "l").count("stick") >= 1 and _kinds(shifted, "l").count("slip+") >= 2
+    assert _max_diff(shifted, reference_simulate(BRAKE, t, u, "brake")) > 1e-3
+    # upper disc (Ts = Tc): a shift of its level, with stick-slip in both directions
+    du = 0.03
+    t, u = _upper_stick_slip_input(16.0)
+    shifted = reference_simulate(BRAKE, t, u, "upper", friction_shift=lambda *a: (du, 0.0))
+    levels = reference_simulate(dict(BRAKE, Tc_u=BRAKE["Tc_u"] + du), t, u, "upper")
+    assert _max_diff(shifted, levels) < 1e-9
+    assert _same_events(shifted, levels, 1e-9)
+    kinds = _kinds(shifted, "u")
+    assert {"stick", "slip+", "slip-"} <= set(kinds)
+
+
+def test_damping_torque_hook_is_c_alpha():
     ca = 0.003
+    t, u = _brake_input(12.0, 1e-2)
 
     def damping(t_, thu, wu, thl, wl, v):
         tq = ca * (wl - wu)
@@ -267,4 +332,125 @@ def test_hooks_reproduce_built_in_terms():
 
     hooked = reference_simulate(BRAKE, t, u, "brake", extra_torque=damping)
     built = reference_simulate(dict(BRAKE, c_alpha=ca), t, u, "brake")
-    assert np.max(np.abs(hooked["theta_l"] - built["theta_l"])) < 1e-9
+    assert _max_diff(hooked, built) < 1e-9
+    assert _same_events(hooked, built, 1e-9)
+    assert "stick" in _kinds(hooked, "l")
+
+
+def test_hook_arguments_voltage_and_absent_disc():
+    # v is the effective voltage (delay, offset, dead zone applied): k_m v as an extra
+    # upper torque doubles k_m; in config "upper" the lower-disc arguments are 0
+    params = dict(BRAKE, u_offset=0.03, t_delay=0.0123, u_deadzone=0.05)
+    t, u = _upper_stick_slip_input(12.0)
+    seen = []
+
+    def motor_again(t_, thu, wu, thl, wl, v):
+        seen.append((t_, thl, wl, v))
+        return params["k_m"] * v, 0.0
+
+    hooked = reference_simulate(params, t, u, "upper", extra_torque=motor_again)
+    double = reference_simulate(dict(params, k_m=2 * params["k_m"]), t, u, "upper")
+    assert _max_diff(hooked, double) < 1e-9
+    assert _same_events(hooked, double, 1e-9)
+    ts, thl, wl, v = np.array(seen).T
+    assert np.all(thl == 0.0) and np.all(wl == 0.0)
+    ve = np.interp(ts - params["t_delay"], t, u) + params["u_offset"]
+    ve = np.where(np.abs(ve) <= params["u_deadzone"], 0.0,
+                  ve - params["u_deadzone"] * np.sign(ve))  # fmt: skip
+    assert np.max(np.abs(v - ve)) < 1e-12
+
+
+def test_hook_arguments_prescribed_upper_motion():
+    # in config "prescribed" theta_u / omega_u are the prescribed motion: a string torque
+    # written as a hook adds to k_alpha and c_alpha (Leine's belt system, stick-slip)
+    params = dict(J_l=1.0, k_alpha=1.0, Tc_l=0.0, Ts_l=1.0, ws_l=1.0 / 3.0, delta_l=1.0, b_l=0.0)
+    t = np.arange(0.0, 30.0 + 0.005, 0.01)
+    thp = 0.2 * t + 0.05 * np.sin(1.3 * t)
+    k2, c2 = 0.5, 0.1
+
+    def string(t_, thu, wu, thl, wl, v):
+        assert v == 0.0
+        return 0.0, -k2 * (thl - thu) - c2 * (wl - wu)
+
+    kw = dict(theta_u_prescribed=thp, stribeck_shape="rational")
+    hooked = reference_simulate(params, t, None, "prescribed", extra_torque=string, **kw)
+    built = reference_simulate(dict(params, k_alpha=1.0 + k2, c_alpha=c2), t, None,
+                               "prescribed", **kw)  # fmt: skip
+    assert _max_diff(hooked, built) < 1e-9
+    assert _same_events(hooked, built, 1e-9)
+    assert _kinds(hooked, "l").count("stick") >= 2
+
+
+def test_time_dependent_band_breakaway_analytic():
+    # a sticking disc breaks loose when its band, shrinking with time, reaches the
+    # external torque: the band must be evaluated at the current time.
+    # upper: constant u0 inside the band, dT_u = -r t  ->  break-away at
+    # t* = (Tc + dTc - k_m u0) / r, then J w' = r (t - t*) - (b + db) w  (analytic)
+    km, J, Tc, dTc, b, db = 4.3228, 0.4765, 0.3798, -0.0058, 2.4245, -0.0084
+    u0, r = 0.05, 0.05
+    params = dict(k_m=km, J_u=J, Tc_u=Tc, dTc_u=dTc, b_u=b, db_u=db)
+    t = np.arange(0.0, 6.0 + 5e-3, 1e-2)
+    res = reference_simulate(params, t, np.full(t.shape, u0), "upper",
+                             friction_shift=lambda t_, *a: (-r * t_, 0.0))  # fmt: skip
+    t_star = (Tc + dTc - km * u0) / r
+    assert [e[1:] for e in res["events"]] == [("u", "slip+")]
+    assert res["events"][0][0] == pytest.approx(t_star, abs=1e-10)
+    c = b + db
+    tau = np.clip(t - t_star, 0.0, None)
+    g = r / c
+    w_exact = g * (tau - (J / c) * (1.0 - np.exp(-c * tau / J)))
+    th_exact = g * (0.5 * tau**2 - (J / c) * (tau - (J / c) * (1.0 - np.exp(-c * tau / J))))
+    assert np.max(np.abs(res["omega_u"] - w_exact)) < 1e-9
+    assert np.max(np.abs(res["theta_u"] - th_exact)) < 1e-9
+    # lower (prescribed theta_u = 0, pre-wound string): T_e = -k_alpha alpha0 is fixed,
+    # the lower band edge -(Ts + dT - dTc) rises to it at t* = (Ts - dTc - k_alpha alpha0)/r
+    pl = dict(J_l=0.0414, k_alpha=0.0775, Tc_l=0.0473, dTc_l=0.004, b_l=0.0105,
+              Ts_l=0.2781, ws_l=1.4302, delta_l=2.0575, alpha0=3.3)  # fmt: skip
+    r = 0.02
+    t = t[t <= 2.0]  # keeps the shifted Coulomb level Tc_l - r t positive
+    res = reference_simulate(pl, t, None, "prescribed", theta_u_prescribed=np.zeros(t.size),
+                             friction_shift=lambda t_, *a: (0.0, -r * t_))  # fmt: skip
+    t_star = (pl["Ts_l"] - pl["dTc_l"] - pl["k_alpha"] * pl["alpha0"]) / r
+    assert 0.5 < t_star < 1.5
+    assert res["events"][0][1:] == ("l", "slip-")
+    assert res["events"][0][0] == pytest.approx(t_star, abs=1e-10)
+    assert np.all(res["theta_l"][t <= t_star] == 0.0) and res["theta_l"][-1] < -1e-3
+
+
+def _angle_ripple(a: float, phi: float):
+    def shift(t_, thu, wu, thl, wl, v):
+        return 0.0, BRAKE["Tc_l"] * a * math.sin(thl + phi)
+
+    return shift
+
+
+def test_angle_dependent_friction_shift_is_converged_and_consistent():
+    t, u = _brake_input(20.0, 1e-2)
+    shift = _angle_ripple(0.3, 0.7)
+    r11 = reference_simulate(BRAKE, t, u, "brake", friction_shift=shift, dense_output=True)
+    r13 = reference_simulate(BRAKE, t, u, "brake", friction_shift=shift, rtol=1e-13,
+                             atol=1e-14)  # fmt: skip
+    plain = reference_simulate(BRAKE, t, u, "brake")
+    assert np.max(np.abs(r11["theta_l"] - plain["theta_l"])) > 1e-3  # the shift matters
+    assert _max_diff(r11, r13) < 1e-8
+    assert _same_events(r11, r13, 1e-8)
+    kinds = _kinds(r11, "l")
+    assert kinds.count("stick") >= 2 and kinds.count("slip+") >= 2
+    # break-away exactly where the string torque reaches the shifted static level, which
+    # depends on the (frozen) angle of the sticking disc; at rest inside the band
+    ka, Ts = BRAKE["k_alpha"], BRAKE["Ts_l"]
+    sol = r11["sol"]
+    for tev, disc, kind in r11["events"]:
+        if disc != "l":
+            continue
+        y = sol(tev)[:, 0]
+        if kind.startswith("slip"):
+            level = Ts + shift(tev, *y, 0.0)[1]
+            assert abs(ka * (y[2] - y[0])) == pytest.approx(level, abs=1e-9)
+        else:
+            assert y[3] == pytest.approx(0.0, abs=1e-9)
+    stuck = r11["mode_l"] == 0
+    alpha = r11["theta_l"] - r11["theta_u"]
+    band = Ts + BRAKE["Tc_l"] * 0.3 * np.sin(r11["theta_l"] + 0.7)
+    assert np.all(r11["omega_l"][stuck] == 0.0)
+    assert np.all(np.abs(ka * alpha[stuck]) <= band[stuck] + 1e-12)
