@@ -36,6 +36,11 @@ def rows(n: int = 10, dt: float = 0.01, lower: bool = True) -> list[str]:
     return out
 
 
+def timed_rows(times: list[float]) -> list[str]:
+    """Data rows at the given times (any unit), with the encoders at rest."""
+    return [f"{t!r},0.5,0.0,0.0" for t in times]
+
+
 def write(tmp_path: Path, lines: list[str], name: str = "exp.csv") -> Path:
     path = tmp_path / name
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -181,6 +186,40 @@ BAD_FILES = {
         6,
         r"time step 0\.0101 s .* expected step 0\.01 s.*relative 0\.01",
     ),
+    "time in milliseconds, 1 kHz": (
+        [HEADER, *timed_rows([float(i) for i in range(10)])],
+        3,
+        r"time step 1 \(from t = 0\.0 to 1\.0\) looks like milliseconds: read as seconds, this "
+        r"is a 9 s experiment sampled at 1 Hz, but the rig is sampled at tens of Hz to tens of "
+        r"kHz.*in milliseconds it is a 0\.009 s experiment at 1000 Hz\. The t column must be "
+        r"in seconds -- divide it by 1000$",
+    ),
+    "time in milliseconds, 200 Hz": (
+        ["# rate: 200 Hz", HEADER, *timed_rows([5.0 * i for i in range(10)])],
+        4,
+        r"time step 5 .*looks like milliseconds.*at 200 Hz\. .*divide it by 1000$",
+    ),
+    "time in milliseconds, step 0.5 (2 kHz)": (
+        [HEADER, *timed_rows([0.5 * i for i in range(10)])],
+        3,
+        r"time step 0\.5 .*looks like milliseconds.*at 2000 Hz\. .*divide it by 1000$",
+    ),
+    "time in milliseconds, not starting at zero": (
+        [HEADER, *timed_rows([1000.0 + i for i in range(10)])],
+        3,
+        r"from t = 1000\.0 to 1001\.0\) looks like milliseconds.*divide it by 1000$",
+    ),
+    "time in microseconds, 1 kHz": (
+        [HEADER, *timed_rows([1000.0 * i for i in range(10)])],
+        3,
+        r"time step 1000 .*looks like microseconds.*at 1000 Hz\. .*divide it by 1000000$",
+    ),
+    "time in milliseconds after a short first step": (
+        # The median step decides; the line named is the first step of 0.5 s or more.
+        [HEADER, *timed_rows([0.0, 0.25, *[float(i) for i in range(1, 10)]])],
+        4,
+        r"time step 0\.75 \(from t = 0\.25 to 1\.0\) looks like milliseconds",
+    ),
     "not zeroed upper": (
         [
             HEADER,
@@ -204,6 +243,151 @@ def test_refusals(tmp_path, case):
     assert err.path == str(path)
     prefix = f"{path}, line {line}: " if line is not None else f"{path}: "
     assert str(err).startswith(prefix)
+
+
+# ------------------------------------------------------------------------------------------
+# Time in seconds
+
+
+@pytest.mark.parametrize(
+    ("t0", "step"),
+    [
+        (0.0, 0.1),  # 10 Hz, the slowest sampling used on the rig
+        (0.0, 0.4),  # still below MAX_SAMPLE_INTERVAL
+        (0.0, 1e-5),  # 100 kHz
+        (12.5, 0.001),  # time need not start at zero ...
+        (-0.2, 0.005),  # ... nor be positive (a pre-trigger)
+        (1.7e9, 0.01),  # Unix time stamps in seconds: only the differences matter
+    ],
+)
+def test_time_in_seconds_accepted(tmp_path, t0, step):
+    times = [t0 + i * step for i in range(20)]
+    exp = load_experiment(write(tmp_path, [HEADER, *timed_rows(times)]))
+    assert exp.t[0] == t0
+    assert exp.dt == pytest.approx(step, rel=1e-3)
+    assert exp.duration == pytest.approx(19 * step, rel=1e-3)
+
+
+def test_max_sample_interval_is_the_limit(tmp_path):
+    assert data.MAX_SAMPLE_INTERVAL == 0.5
+    below = [i * 0.499 for i in range(10)]
+    assert load_experiment(write(tmp_path, [HEADER, *timed_rows(below)], name="ok.csv")).n == 10
+    at = [i * 0.5 for i in range(10)]
+    with pytest.raises(DataFileError, match="looks like milliseconds"):
+        load_experiment(write(tmp_path, [HEADER, *timed_rows(at)], name="bad.csv"))
+
+
+def test_absurd_time_step_has_no_unit_guess(tmp_path):
+    path = write(tmp_path, [HEADER, *timed_rows([1e10 * i for i in range(10)])])
+    with pytest.raises(
+        DataFileError,
+        match=r"line 3: time step 1e\+10 .*is far too long: .*must be in seconds -- convert it$",
+    ):
+        load_experiment(path)
+
+
+def test_fast_data_in_milliseconds_refused_by_duration(tmp_path):
+    # 10 kHz data in ms has the step 0.1 of a legitimate 10 Hz file; only its length (8 "s" of
+    # data lasting 8000 "s") gives it away. Time starts at 50 ms: only differences count.
+    assert data.MAX_DURATION == 7200.0
+    times = [50.0 + i / 10 for i in range(80_001)]
+    path = write(tmp_path, [HEADER, *timed_rows(times)])
+    with pytest.raises(DataFileError) as info:
+        load_experiment(path)
+    err = info.value
+    # The first sample more than 7200 s after the first one: index 72001, line 72003.
+    assert err.line == 72_003
+    assert str(err).startswith(f"{path}, line 72003: time t = 7250.1 is more than 7200 s (2 h)")
+    assert re.search(
+        r"the record lasts 8000 s \(2\.22 h\).*looks like milliseconds \(then a 8 s experiment "
+        r"at 10000 Hz\): the t column must be in seconds -- divide it by 1000 \(if the record "
+        r"really is this long, split it into files of at most 7200 s\)$",
+        str(err),
+    )
+    # Exactly two hours is accepted.
+    ok = write(tmp_path, [HEADER, *timed_rows(times[:72_001])], name="two_hours.csv")
+    assert load_experiment(ok).duration == pytest.approx(7200.0)
+
+
+def test_save_refuses_time_not_in_seconds(tmp_path):
+    t = np.arange(100, dtype=float)  # 1 kHz in milliseconds
+    with pytest.raises(
+        ValueError, match=r"sample 1 \(line 3 of the file\).*looks like milliseconds"
+    ):
+        save_experiment(Experiment(t, np.zeros(100), np.zeros(100)), tmp_path / "ms.csv")
+    # Three hours at 200 Hz in seconds: too fast for milliseconds, so no unit is suggested.
+    n = 3 * 3600 * 200 + 1
+    long = Experiment(np.arange(n) / 200.0, np.zeros(n), np.zeros(n))
+    with pytest.raises(
+        ValueError,
+        match=r"line 1440003 of the file\).*lasts 10800 s \(3 h\).*if t is not in seconds, "
+        r"convert it; if the record really is this long, split it into files of at most 7200 s$",
+    ):
+        save_experiment(long, tmp_path / "long.csv")
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------
+# Truncated files
+
+
+@pytest.mark.parametrize(
+    ("last", "newline"),
+    [
+        (GOOD[-1][:-3], "\n"),  # cut in the middle of its last number
+        (GOOD[-1], "\n"),  # complete last line, but no line break after it
+        (GOOD[-1][:-3], "\r\n"),  # a CRLF file cut the same way
+    ],
+)
+def test_truncated_file_refused(tmp_path, last, newline):
+    path = tmp_path / "cut.csv"
+    path.write_bytes(newline.join(["# source: rig", HEADER, *GOOD[:-1], last]).encode())
+    with pytest.raises(DataFileError) as info:
+        load_experiment(path)
+    err = info.value
+    assert (err.path, err.line) == (str(path), 12)
+    assert str(err).startswith(f"{path}, line 12: the last line {last!r} does not end")
+    assert re.search(
+        r"looks truncated \(cut while being written or copied\).*re-export or copy the file "
+        r"again, or delete this last line",
+        str(err),
+    )
+    # Deleting the last line makes it loadable.
+    path.write_bytes((newline.join(["# source: rig", HEADER, *GOOD[:-1]]) + newline).encode())
+    assert load_experiment(path).n == 9
+
+
+@pytest.mark.parametrize("ending", ["\n", "\r\n", "\n\n\n", "\n  \n", "\n   ", "\r\n\r\n"])
+def test_line_break_and_blank_lines_at_end_accepted(tmp_path, ending):
+    path = tmp_path / "ok.csv"
+    path.write_bytes(("\n".join([HEADER, *GOOD]) + ending).encode())
+    assert load_experiment(path).n == 10
+
+
+def test_truncated_long_last_line_is_shortened_in_message(tmp_path):
+    path = tmp_path / "cut.csv"
+    path.write_text("\n".join([HEADER, *GOOD, "0.1,0.2,0.3," + "1" * 200]), encoding="utf-8")
+    with pytest.raises(
+        DataFileError, match=r"line 12: the last line '0\.1,0\.2,0\.3,1{68}\.\.\.' does not end"
+    ):
+        load_experiment(path)
+
+
+def test_header_without_line_break_is_not_called_truncated(tmp_path):
+    path = tmp_path / "header.csv"
+    path.write_text(HEADER, encoding="utf-8")
+    with pytest.raises(DataFileError, match=r"only 0 data row\(s\)"):
+        load_experiment(path)
+
+
+def test_bundled_examples_end_with_a_line_break():
+    examples = Path(data.__file__).parent / "data" / "examples"
+    files = sorted(examples.glob("*.csv"))
+    assert files
+    for path in files:
+        assert path.read_bytes().endswith(b"\n"), path
+        exp = load_experiment(path)
+        assert exp.dt < data.MAX_SAMPLE_INTERVAL and exp.duration <= data.MAX_DURATION
 
 
 def test_missing_file(tmp_path):

@@ -19,6 +19,14 @@ A UTF-8 CSV file in SI units (s, V, rad), uniformly sampled::
 * Both encoders are zeroed at the start of an experiment, so the first angle of each column
   must be 0 within about 1e-2 rad. A pre-wound string is therefore invisible in the angles;
   it belongs in the model's ``alpha0`` parameter.
+* Time is in seconds and may start at any value (only differences are used). The rig's
+  encoders are sampled at tens of Hz to tens of kHz and an experiment lasts seconds to about
+  an hour, so a sample interval of :data:`MAX_SAMPLE_INTERVAL` (0.5 s) or more, or a record
+  longer than :data:`MAX_DURATION` (2 h), means the time is in another unit (usually
+  milliseconds) and is refused.
+* Every line ends with a line break, the last one included. A last line without one is what
+  a file cut off while being written or copied looks like (its last number may be
+  incomplete), so it is refused. Empty lines after the data are fine.
 
 :func:`load_experiment` checks all of this and raises :class:`DataFileError` naming the file,
 the line (1-based, counting every line of the file, comments included), the bad value and what
@@ -41,6 +49,8 @@ __all__ = [
     "COLUMNS",
     "UPPER_COLUMNS",
     "MAX_ANGULAR_RATE",
+    "MAX_SAMPLE_INTERVAL",
+    "MAX_DURATION",
     "DataFileError",
     "DataWarning",
     "Experiment",
@@ -65,6 +75,16 @@ UPPER_COLUMNS: tuple[str, ...] = ("t", "u", "theta_u")
 #: faster apparent speed means the angles are not in radians.
 MAX_ANGULAR_RATE = 60.0
 
+#: Sample interval (s) from which on the time column is taken to be in another unit than
+#: seconds. The rig's encoders are sampled at tens of Hz to tens of kHz (steps of 0.1 s down to
+#: tens of microseconds), so a step of 0.5 s or more is 1 kHz data in milliseconds (step 1),
+#: 200 Hz data in milliseconds (step 5) and the like -- never a real measurement.
+MAX_SAMPLE_INTERVAL = 0.5
+#: Longest accepted record ``t[-1] - t[0]`` (s). Experiments on the rig last seconds to about an
+#: hour; a longer record with a small step is fast-sampled data in milliseconds (10 kHz data in
+#: ms has the step 0.1 of a legitimate 10 Hz file, but 30 s of it "last" 30 000 s).
+MAX_DURATION = 7200.0
+
 _COUNTS_PER_REV = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}
 _ENCODER_NAME = {"theta_u": "upper", "theta_l": "lower"}
 # Encoders read zero at the start; allow a few counts of slack (1e-2 rad ~ 60-90 counts).
@@ -73,6 +93,11 @@ _ZERO_START_TOL = 1e-2
 # non-uniform. Timestamps written with 12+ significant digits stay far inside this.
 _UNIFORM_TOL = 1e-3
 _MIN_ROWS = 3
+# Slowest and fastest sampling rates (Hz) that a guessed time unit may imply.
+_MIN_RATE = 10.0
+_MAX_RATE = 1e5
+# Longest line text quoted in a message.
+_MAX_QUOTE = 80
 # Angular rates are measured over about 10 ms rather than one sample so that measurement
 # noise at high sampling rates cannot fake a speed above MAX_ANGULAR_RATE.
 _RATE_BASELINE = 0.01
@@ -216,8 +241,78 @@ class _RowProblem(Exception):
         self.problem = problem
 
 
+def _time_unit_guess(step: float) -> tuple[str, float] | None:
+    """The likeliest unit of a time column with the (too long) step ``step``, and its factor.
+
+    The smallest of ms, us and ns in which the step means sampling at :data:`_MIN_RATE` or
+    faster; ``None`` if even nanoseconds give slower sampling.
+    """
+    for unit, factor in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9)):
+        if step / factor <= 1.0 / _MIN_RATE:
+            return unit, factor
+    return None
+
+
+def _check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
+    """Refuse a strictly increasing time column that is not in seconds (:class:`_RowProblem`).
+
+    Two rules, both far from any real measurement on the rig: a (median) sample interval of
+    :data:`MAX_SAMPLE_INTERVAL` or more, and a record longer than :data:`MAX_DURATION`. The
+    first catches milliseconds at up to 2 kHz (and micro-/nanoseconds); the second catches
+    faster data in milliseconds, whose step (e.g. 0.1 for 10 kHz) alone looks plausible.
+    """
+    step = float(np.median(dt))
+    duration = float(t[-1] - t[0])
+    if step >= MAX_SAMPLE_INTERVAL:
+        # At least half the steps are >= the median, so such a step exists.
+        k = int(np.flatnonzero(dt >= MAX_SAMPLE_INTERVAL)[0])
+        as_seconds = (
+            f"read as seconds, this is a {duration:.6g} s experiment sampled at "
+            f"{1.0 / step:.3g} Hz, but the rig is sampled at tens of Hz to tens of kHz, so a "
+            f"step of {MAX_SAMPLE_INTERVAL:g} s or more is not in seconds"
+        )
+        guess = _time_unit_guess(step)
+        if guess is None:
+            raise _RowProblem(
+                k + 1,
+                f"time step {dt[k]:.6g} (from t = {float(t[k])!r} to {float(t[k + 1])!r}) is "
+                f"far too long: {as_seconds}; the t column must be in seconds -- convert it",
+            )
+        unit, factor = guess
+        raise _RowProblem(
+            k + 1,
+            f"time step {dt[k]:.6g} (from t = {float(t[k])!r} to {float(t[k + 1])!r}) looks "
+            f"like {unit}: {as_seconds}; in {unit} it is a {duration / factor:.6g} s "
+            f"experiment at {factor / step:.6g} Hz. The t column must be in seconds -- divide "
+            f"it by {factor:.0f}",
+        )
+    if duration > MAX_DURATION:
+        k = int(np.flatnonzero(t - t[0] > MAX_DURATION)[0])
+        if 1e3 / step > _MAX_RATE:
+            # In milliseconds this step would be sampling faster than the rig's encoders are
+            # ever read, so a genuinely long record in seconds is the likelier explanation.
+            fix = (
+                f"if t is not in seconds, convert it; if the record really is this long, split "
+                f"it into files of at most {MAX_DURATION:g} s"
+            )
+        else:
+            fix = (
+                f"it looks like milliseconds (then a {duration / 1e3:.6g} s experiment at "
+                f"{1e3 / step:.6g} Hz): the t column must be in seconds -- divide it by 1000 "
+                f"(if the record really is this long, split it into files of at most "
+                f"{MAX_DURATION:g} s)"
+            )
+        raise _RowProblem(
+            k,
+            f"time t = {float(t[k])!r} is more than {MAX_DURATION:g} s ({MAX_DURATION / 3600:g} "
+            f"h) after the first sample (t = {float(t[0])!r}); the record lasts "
+            f"{duration:.6g} s ({duration / 3600:.3g} h), but experiments on the rig last "
+            f"seconds to about an hour; {fix}",
+        )
+
+
 def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
-    """Check finite, uniformly sampled, zeroed angles in radians; raise :class:`_RowProblem`."""
+    """Check finite values, uniform time in s, zeroed angles in rad; raise :class:`_RowProblem`."""
     for key, values in cols.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
@@ -237,6 +332,7 @@ def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
             f"time t = {float(t[k + 1])!r} s is not after the previous time {float(t[k])!r} s; "
             "time must be strictly increasing -- sort the rows or remove the duplicated sample",
         )
+    _check_time_unit(t, dt)
     step = float(np.median(dt))
     deviation = np.abs(dt - step) / step
     bad = np.flatnonzero(deviation > _UNIFORM_TOL)
@@ -366,8 +462,10 @@ def load_experiment(
     ------
     DataFileError
         If the file is missing or unreadable, empty, has no or a wrong header, a row with the
-        wrong number of fields, a non-numeric, NaN or infinite value, fewer than 3 data rows,
-        time not strictly increasing or not uniformly sampled, angles that look like degrees or
+        wrong number of fields, a non-numeric, NaN or infinite value, a last line without a
+        line break (a truncated file), fewer than 3 data rows, time not strictly increasing,
+        not in seconds (a step of :data:`MAX_SAMPLE_INTERVAL` or more, or a record longer than
+        :data:`MAX_DURATION`) or not uniformly sampled, angles that look like degrees or
         encoder counts or that do not start at zero, or a configuration that contradicts
         ``expect_lower``. The message names the file, the line and the fix.
 
@@ -460,8 +558,8 @@ def load_experiment(
         lineno = index + 1
         line = lines[index]
         truncated = (
-            " -- it is the last line, so the file looks truncated; re-export it or delete the "
-            "incomplete line"
+            " -- it is the last line, so the file looks truncated (cut while being written or "
+            "copied); re-export it or delete the incomplete line"
             if index == last - 1
             else ""
         )
@@ -501,6 +599,23 @@ def load_experiment(
                     ) from None
             raise  # pragma: no cover -- float() failed, so one field must be non-numeric
         linenos.append(lineno)
+
+    # A complete file ends with a line break (every writer, save_experiment included, ends each
+    # row with one). Without it the last row was probably cut while the file was written or
+    # copied, and a cut number such as "0.0123" from "0.012345" still parses -- so refuse it.
+    # Only a data row is judged here; a file ending in its header fails the row count below.
+    if lines[-1].strip() and last - 1 > header_index:
+        shown = lines[-1].strip()
+        if len(shown) > _MAX_QUOTE:
+            shown = shown[:_MAX_QUOTE] + "..."
+        raise DataFileError(
+            path,
+            last,
+            f"the last line {shown!r} does not end with a line break: the file looks truncated "
+            "(cut while being written or copied), so its last number may be incomplete; "
+            "re-export or copy the file again, or delete this last line (if you have checked "
+            "that the line is complete, end it with a line break)",
+        )
 
     if len(rows) < _MIN_ROWS:
         raise DataFileError(
