@@ -46,7 +46,8 @@ def test_simulate_with_parameter_file_input_file_alpha0_quantize(tmp_path):
 def test_fit_writes_json_and_figures(tmp_path, capsys):
     out = tmp_path / "fit_coupled"
     code = main(["fit", "--model", "coupled", "example:coupled_est", "--validate",
-                 "example:coupled_val", "--p0", "thesis:5.2:P0", "--out", str(out)])
+                 "example:coupled_val", "--p0", "thesis:5.2:P0", "--free",
+                 "J_l,k_alpha,Tc_l,b_l", "--out", str(out)])
     assert code == 0
     doc = json.loads((out / "fit.json").read_text())
     assert doc["success"]

@@ -21,6 +21,23 @@ def _short(ex: rb.Experiment, seconds: float) -> rb.Experiment:
                          path=ex.path)
 
 
+LOWER4 = ["J_l", "k_alpha", "Tc_l", "b_l"]
+
+
+def test_default_free_set_is_what_the_data_determine(coupled_est):
+    # theta_u measured: the motor and upper friction are fitted too, from both channels;
+    # J_u stays fixed (eq. 5.4) and sets the scale.
+    prob = E.Problem("coupled", [coupled_est])
+    assert set(prob.names) == {"k_m", "Tc_u", "dTc_u", "b_u", "db_u", *LOWER4}
+    assert prob.channels == ("theta_u", "theta_l")
+    brake = E.Problem("brake", [rb.load_example("brake_est")])
+    assert set(brake.names) == {"k_m", "Tc_u", "dTc_u", "b_u", "db_u", *LOWER4, "db_l",
+                                "Ts_l", "ws_l", "delta_l"}
+    # With the measured theta_u as input only the lower disc is left, fitted on theta_l.
+    pres = E.Problem("coupled", [coupled_est], prescribed_upper=True)
+    assert pres.names == LOWER4 and pres.channels == ("theta_l",)
+
+
 @pytest.fixture(scope="module")
 def coupled_est():
     return rb.load_example("coupled_est")
@@ -28,8 +45,9 @@ def coupled_est():
 
 def test_fit_from_thesis_p0_recovers_the_truth(coupled_est):
     truth = thesis_set("5.2", "P")
-    prob = E.Problem("coupled", [coupled_est], base=truth)
-    assert prob.names == ["J_l", "k_alpha", "Tc_l", "b_l"]
+    # The thesis's coupled step: the lower disc's four, upper disc fixed, theta_l fitted.
+    prob = E.Problem("coupled", [coupled_est], base=truth, free=LOWER4)
+    assert prob.channels == ("theta_l",)
     res = E.fit(prob, thesis_set("4.2", "P0"))  # 20-40 % away from the truth
     assert res.success, res.message
     for n, v in res.values.items():

@@ -109,6 +109,8 @@ def _param_spec(spec: str | None):
             p = p / "fit.json"
         try:
             data = json.loads(p.read_text())
+            if isinstance(data, dict) and "params" not in data:
+                data = {"params": data}  # a flat {name: value} mapping
             return {k: float(v) for k, v in data["params"].items() if v is not None and not (
                 isinstance(v, float) and math.isnan(v))}
         except (OSError, KeyError, ValueError) as exc:
@@ -201,6 +203,14 @@ def _problem_from_args(a, exps, start_spec=None):
     model, added = _model_from_args(a, len(exps))
     free = _csv_list(a.free, "--free")
     fixed = _csv_list(a.fixed, "--fixed") or []
+    # Chaining the thesis's steps: a start from an upper-configuration fit fixes the motor
+    # and upper-disc parameters it estimated (unless --free says otherwise).
+    from_upper: dict[str, float] = {}
+    doc = _fit_json(getattr(a, "p0", None))
+    if doc is not None and doc.get("config") == "upper" and a.model != "upper" and free is None:
+        est = doc.get("estimates", {})
+        from_upper = {n: v["value"] for n, v in est.items() if n in model.active}
+        fixed += [n for n in from_upper if n not in fixed]
     if free is not None:
         clash = [n for n in fixed if n in free]
         if clash:
@@ -225,8 +235,9 @@ def _problem_from_args(a, exps, start_spec=None):
                                ) from None
             if not eq:
                 raise CLIError(f"--weights: {item!r} must look like theta_l=1 (channel=weight)")
-    return Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
+    prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
                    fixed=fixed)
+    return prob, from_upper
 
 
 def _resolve_values(spec, model) -> dict[str, float]:
@@ -241,14 +252,15 @@ def _resolve_values(spec, model) -> dict[str, float]:
     return _params.resolve(raw, config=model.config)
 
 
-def _fmt_params(names, x, se=None, x0=None) -> str:
+def _fmt_params(prob, names, x, se=None, x0=None, at_bound=()) -> str:
     rows = [f"{'parameter':<12} {'estimate':>12} {'std. error':>12} {'start':>12}  unit"]
     for i, n in enumerate(names):
-        base = n.split("[")[0]
-        s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
+        if n in at_bound:
+            s = f"{'AT BOUND':>12}"
+        else:
+            s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
         st = f"{x0[i]:12.5g}" if x0 is not None else ""
-        unit = _params.INFO[base].unit if base in _params.INFO else ""
-        rows.append(f"{n:<12} {x[i]:12.5g} {s} {st}  {unit}")
+        rows.append(f"{n:<12} {x[i]:12.5g} {s} {st}  {prob.info(n).unit}")
     return "\n".join(rows)
 
 
@@ -263,6 +275,22 @@ def _quality_table(rows, label: str) -> str:
     return "\n\n".join(out)
 
 
+def _sources(a, prob, fixed_from_upper: dict) -> dict[str, str]:
+    """Where the value of every parameter that is not estimated came from."""
+    default = _params.DEFAULT_SET[a.model]
+    src = {}
+    for n in prob.model.active:
+        if n == "J_u":
+            src[n] = "eq. 5.4 (disc geometry)" if not (a.base or a.p0) else None
+        src[n] = src.get(n) or (
+            f"upper-disc fit {a.p0}" if n in fixed_from_upper
+            else f"--base {a.base}" if a.base
+            else f"--p0 {a.p0}" if a.p0
+            else f"default set {default}"
+        )
+    return src
+
+
 def run_fit(a, out: Path) -> dict:
     """Fit, print and write fit.json + figures; returns the JSON document."""
     from . import inference as E
@@ -271,28 +299,49 @@ def run_fit(a, out: Path) -> dict:
     exps = _load(a.data, a.model)
     val = _load(a.validate, a.model) if a.validate else []
     # The start set also fixes the values of the parameters that are not estimated.
-    prob = _problem_from_args(a, exps, start_spec=a.p0)
-    start = dict(prob.base)
-    if a.p0 and a.base:
-        start.update(_resolve_values(a.p0, prob.model))
-    x0 = prob.start_vector(start)
+    prob, fixed_from_upper = _problem_from_args(a, exps, start_spec=a.p0)
+    sources = _sources(a, prob, fixed_from_upper)
     print(f"model: {a.model} configuration with "
           f"{', '.join(prob.model.effect_names) or 'no effects'}")
     print(f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {a.model} "
           f"configuration to {len(exps)} experiment(s), channels {', '.join(prob.channels)}")
-    res = E.fit(prob, x0, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol, gtol=a.gtol,
-                verbose=True)
+    if fixed_from_upper:
+        print(f"fixed from the upper-disc fit {a.p0}: {', '.join(fixed_from_upper)}")
+    fit_kw = dict(max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol, gtol=a.gtol)
+    start_source: dict[str, str] = {}
+    if a.p0 and not fixed_from_upper:
+        start = dict(prob.base)
+        if a.base:
+            start.update(_resolve_values(a.p0, prob.model))
+        x0 = prob.start_vector(start)
+        start_source = {n: f"--p0 {a.p0}" for n in prob.names}
+        print(f"start: --p0 {a.p0}")
+        res = E.fit(prob, x0, verbose=True, **fit_kw)
+        chose = f"--p0 {a.p0}"
+    else:
+        print("start: computed from the data (the equations of motion as a regression on "
+              "smoothed derivatives of the measured angles; give --p0 to choose one)")
+        ff = E.fit_from_data(prob, restarts=a.restarts, verbose=True, **fit_kw)
+        res, chose = ff.result, ff.chose
+        start_source = {n: ff.start.source.get(n, ff.start.source.get(
+            E.local_name(n)[0], "")) for n in prob.names}
+        if ff.restarts:
+            print(f"{len(ff.restarts)} restarts tried; kept {ff.chose}")
     status = "" if res.success else "DID NOT CONVERGE: "
     print(f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
           f"{res.seconds:.1f} s)\n")
-    print(_fmt_params(res.names, res.x, res.stderr, res.x0))
     q_est = E.quality(prob, res.x)
     q_val = E.quality(prob, res.x, val) if val else []
+    assessment = E.assess(res, q_est, q_val, sources=sources)
+    print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound))
     print()
     print(_quality_table(q_est, "estimation data"))
     if q_val:
         print()
         print(_quality_table(q_val, "validation data"))
+    print("\nresidual RMS against the encoder quantisation floor (resolution/sqrt(12)):")
+    print(assessment.table())
+    print(f"verdict: {assessment.verdict}")
     w, V = res.sloppy_directions()
     sloppy = {n: float(c) for n, c in zip(res.names, V[:, 0], strict=True)}
     ratio = float(w[-1] / max(w[0], 1e-300))
@@ -302,6 +351,26 @@ def run_fit(a, out: Path) -> dict:
               f"{ratio:.1e}) moves {', '.join(movers)} together "
               f"({', '.join(f'{n} {sloppy[n]:+.2f}' for n in movers)} in log scale); the data "
               "fix their ratios far better than their values.")
+    free_base = {E.local_name(n)[0] for n in res.names}
+    parameters = {}
+    for n in prob.model.info:
+        if n in free_base:
+            continue
+        on = n in prob.model.active
+        parameters[n] = {
+            "value": prob.base.get(n) if on else prob.model.info[n].null,
+            "unit": prob.model.info[n].unit,
+            "status": "fixed" if on else "off",
+            "source": sources.get(n) if on else
+            f"effect {getattr(_effects.effect_of(n), 'name', '?')} is off",
+        }
+    for i, n in enumerate(res.names):
+        parameters[n] = {
+            "value": float(res.x[i]), "unit": prob.info(n).unit, "status": "free",
+            "stderr": float(res.stderr[i]), "start": float(res.x0[i]),
+            "source": "estimated", "start_source": start_source.get(n, ""),
+            "at_bound": n in assessment.at_bound,
+        }
     doc = {
         "config": a.model, "effects": list(prob.effects),
         "added_effects": [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
@@ -310,6 +379,9 @@ def run_fit(a, out: Path) -> dict:
         "data": [str(e.path) for e in exps], "validation": [str(e.path) for e in val],
         "success": res.success, "message": res.message, "nfev": res.nfev,
         "seconds": res.seconds, "ssr": res.ssr, "n_residuals": res.n_residuals,
+        "start": chose,
+        "assessment": assessment.as_dict(),
+        "parameters": parameters,
         "estimates": {n: {"value": float(v), "stderr": float(s), "start": float(s0),
                           "unit": prob.info(n).unit}
                       for n, v, s, s0 in zip(res.names, res.x, res.stderr, res.x0, strict=True)},
@@ -321,7 +393,7 @@ def run_fit(a, out: Path) -> dict:
         "fisher": {"eigenvalues_log": [float(v) for v in w], "sloppiest_direction": sloppy},
         "correlation": res.correlation().tolist(),
     }
-    (out / "fit.json").write_text(json.dumps(doc, indent=2, default=_json_default))
+    (out / "fit.json").write_text(strict_json(doc))
     for label, rows, exs in (("est", q_est, exps), ("val", q_val, val)):
         for i, (r, ex) in enumerate(zip(rows, exs, strict=True)):
             s = r["simulation"]
@@ -342,10 +414,29 @@ def run_fit(a, out: Path) -> dict:
                            title=f"fitted friction, {a.model} configuration")
     fig.savefig(out / "friction.png", dpi=100)
     print(f"\nwrote {out / 'fit.json'} and figures in {out}/")
-    if not res.success:
-        print("warning: the optimiser did not converge; the results above are where it "
-              "stopped (raise --max-nfev or start closer).", file=sys.stderr)
+    for wtxt in assessment.warnings:
+        print(f"warning: {wtxt}", file=sys.stderr)
     return doc
+
+
+def _finite_or_none(o):
+    """JSON cannot hold NaN or infinity: they become null."""
+    if isinstance(o, dict):
+        return {k: _finite_or_none(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_finite_or_none(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite_or_none(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def strict_json(doc) -> str:
+    """``doc`` as strict JSON (no NaN/Infinity tokens)."""
+    return json.dumps(_finite_or_none(doc), indent=2, allow_nan=False)
 
 
 def _json_default(o):
@@ -368,7 +459,7 @@ def cmd_multistart(a) -> int:
 
     out = _out_dir(a.out, a.force)
     exps = _load(a.data, a.model)
-    prob = _problem_from_args(a, exps)
+    prob, _ = _problem_from_args(a, exps)
     around = None
     if a.around:
         around = _params.resolve(_param_spec(a.around), config=a.model)
@@ -406,7 +497,7 @@ def cmd_demo(a) -> int:
     ns = argparse.Namespace(
         model="coupled", data=["example:coupled_est"], validate=["example:coupled_val"],
         p0="thesis:5.2:P0", base=None, free=None, fixed=None, add=None, without=None,
-        channels=None,
+        channels=None, restarts=6,
         weights=None, prescribed_upper=False, max_nfev=100, ftol=1e-10, xtol=1e-10,
         gtol=1e-10)
     print("rotorbayes demo: least squares on the bundled (synthetic) coupled-configuration "
@@ -496,7 +587,12 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="least squares from a start P0")
     _add_fit_args(f)
     f.add_argument("--validate", nargs="*", help="validation CSV file(s)")
-    f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json")
+    f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json "
+                   "(default: a start computed from the data); a fit.json of an upper-"
+                   "configuration fit also fixes the upper-disc parameters it estimated")
+    f.add_argument("--restarts", type=int, default=6,
+                   help="without --p0: extra fits around the data start when the first one "
+                   "ends above 3x the encoder floor")
     f.set_defaults(func=cmd_fit)
 
     m = sub.add_parser("multistart", help="many fits from spread starts; waterfall and spread")

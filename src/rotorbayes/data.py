@@ -46,6 +46,7 @@ import numpy as np
 __all__ = [
     "UPPER_COUNTS_PER_REV",
     "LOWER_COUNTS_PER_REV",
+    "quantisation_floor",
     "COLUMNS",
     "UPPER_COLUMNS",
     "MAX_ANGULAR_RATE",
@@ -65,6 +66,26 @@ __all__ = [
 UPPER_COUNTS_PER_REV = 54934.256
 #: Lower encoder resolution (counts per revolution of the lower disc): 10000 lines, x4.
 LOWER_COUNTS_PER_REV = 40000.0
+
+
+
+def quantisation_floor(channel: str) -> float:
+    """RMS error [rad] that rounding to encoder counts alone leaves in a channel: the step
+    ``2π / counts`` over √12 (thesis §2.2).  ``'alpha'`` combines both encoders.
+
+    A fit whose residual RMS is at this floor explains the data to the encoders' resolution;
+    a multiple of it is how far the model is from that.
+    """
+    q = {k: 2 * math.pi / c / math.sqrt(12) for k, c in _COUNTS_PER_REV.items()}
+    if channel == "alpha":
+        return math.hypot(q["theta_u"], q["theta_l"])
+    try:
+        return q[channel]
+    except KeyError:
+        raise ValueError(
+            f"unknown channel {channel!r}; choose theta_u, theta_l or alpha"
+        ) from None
+
 
 #: Column names of a file with the lower disc, in the order :func:`save_experiment` writes them.
 COLUMNS: tuple[str, ...] = ("t", "u", "theta_u", "theta_l")

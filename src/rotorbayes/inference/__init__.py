@@ -2,17 +2,25 @@
 
 * :mod:`.problem` — :class:`Problem`: residuals, status and Jacobians for any parameters;
 * :mod:`.least_squares` — :func:`fit` (the thesis's lsqnonlin method), :func:`quality`;
+* :mod:`.starts` — starts from the data (the equations of motion as a regression);
+* :mod:`.first_fit` — :func:`fit_from_data`: data start, fit, restarts if not at the floor;
+* :mod:`.assess` — RMS against the encoder floor, and warnings on what to distrust;
 * :mod:`.multistart` — many fits from spread starts, clustered and explained;
 * :mod:`.parallel` — the one map layer for independent tasks.
 """
 
-from .least_squares import FAIL_RESIDUAL, FitResult, fit, quality
+from .assess import Assessment, assess
+from .first_fit import FirstFit, fit_from_data
+from .least_squares import FAIL_RESIDUAL, FitResult, StartError, fit, quality
 from .multistart import MultistartResult, cluster_ends, describe_spread, latin_hypercube, multistart
 from .parallel import Mapper, get_mapper
 from .problem import CHANNELS, Evaluation, Problem, local_name
+from .starts import DataStart, data_start
 
 __all__ = [
-    "CHANNELS", "Evaluation", "FAIL_RESIDUAL", "FitResult", "Mapper", "MultistartResult",
+    "Assessment", "DataStart", "FirstFit", "StartError", "assess", "data_start",
+    "fit_from_data", "CHANNELS", "Evaluation", "FAIL_RESIDUAL", "FitResult", "Mapper",
+    "MultistartResult",
     "Problem", "cluster_ends", "describe_spread", "fit", "get_mapper", "latin_hypercube",
     "local_name", "multistart", "quality",
 ]  # fmt: skip

@@ -22,6 +22,11 @@ from .. import metrics as _metrics
 from ..data import Experiment
 from .problem import Problem
 
+
+class StartError(RuntimeError):
+    """The start point of a fit cannot be simulated (the integrator's reason included)."""
+
+
 #: Penalty residual [rad] the optimiser sees for parameter sets the integrator rejects.
 FAIL_RESIDUAL = 1e3
 
@@ -141,6 +146,12 @@ def fit(
         x0 = problem.x_from({**problem.base, **x0})
     x0 = np.asarray(x0, float)
     problem.check_start(x0)
+    ev0 = problem.evaluate(x0)
+    if not ev0.ok:
+        raise StartError(
+            "the start cannot be simulated: " + "; ".join(ev0.reasons())
+            + "; choose another start (e.g. leave out --p0 for a start from the data)"
+        )
     scale = _scale(problem, x0)
     lo, hi = problem.lower / scale, problem.upper / scale
     counter = {"n": 0, "best": math.inf}

@@ -49,6 +49,19 @@ class MultistartResult:
             return (f"all {len(self.failed)} finished starts failed; the first reason: "
                     f"{next(iter(self.failed.values()), '')}")
         text = describe_spread(self.names, self.ends, self.ssr, flat=flat)
+        from .assess import NEAR_FLOOR
+        from .first_fit import floor_ratio
+
+        ratio = floor_ratio(self.best.problem, self.best.x)
+        if ratio > NEAR_FLOOR:
+            text = text.replace("Well determined:", "Alike across starts:")
+            text += (
+                f"\nThe best fit is {ratio:.3g}x the encoder floor, so no estimate here is "
+                "well determined: the model (or a fixed value) does not fit the data; "
+                "agreement between starts only says they reach the same wrong optimum."
+            )
+        else:
+            text += f"\nThe best fit is {ratio:.2f}x the encoder floor."
         if self.failed:
             text += (f"\n{len(self.failed)} start(s) failed and count as no minimum (e.g. "
                      f"{next(iter(self.failed.values()))}).")

@@ -45,6 +45,21 @@ def local_name(name: str) -> tuple[str, int | None]:
     return name, None
 
 
+#: Parameters of the motor and the upper disc's friction: fitted from theta_u.
+UPPER_PARAMETERS = ("k_m", "J_u", "Tc_u", "dTc_u", "b_u", "db_u", "u_offset", "u_deadzone")
+
+
+def default_channels(config: str, prescribed_upper: bool, free: Sequence[str]) -> tuple:
+    """The channels a fit uses unless told: the upper configuration has only theta_u;
+    otherwise theta_l, and theta_u as well whenever a parameter of the motor or the upper
+    disc is free (the measured upper angle is what determines them)."""
+    if config == "upper":
+        return ("theta_u",)
+    if not prescribed_upper and any(local_name(n)[0] in UPPER_PARAMETERS for n in free):
+        return ("theta_u", "theta_l")
+    return ("theta_l",)
+
+
 @dataclass
 class Evaluation:
     """Residuals at one point and the integrator's status per experiment."""
@@ -146,8 +161,9 @@ class Problem:
                     f"{where}: has no theta_l column, so it is an upper-"
                     f"configuration file; use --model upper, not {self.config!r}"
                 )
+        self.names = self._free_names()
         if self.channels is None:
-            self.channels = ("theta_u",) if self.config == "upper" else ("theta_l",)
+            self.channels = default_channels(self.config, self.prescribed_upper, self.names)
         self.channels = tuple(self.channels)
         for c in self.channels:
             if c not in CHANNELS:
@@ -163,7 +179,6 @@ class Problem:
         for c, w in self.weights.items():
             if not (w > 0 and math.isfinite(w)):
                 raise ValueError(f"the weight of channel {c} is {w}; it must be > 0")
-        self.names = self._free_names()
         self.sims = [self.simulator_for(ex) for ex in self.experiments]
         self.lower = np.array([self.info(n).lower for n in self.names])
         self.upper = np.array([self.info(n).upper for n in self.names])
@@ -201,6 +216,8 @@ class Problem:
             ] + list(m.added)  # fmt: skip
             for e in fitted_effects:
                 free += [p for p in e.names if p not in free]
+            if self.prescribed_upper:
+                free = [n for n in free if n not in UPPER_PARAMETERS]
             free = [n for n in free if n not in self.fixed]
         else:
             free = list(self.free)

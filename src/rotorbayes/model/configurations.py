@@ -35,7 +35,10 @@ class Configuration:
     description: str
     parameters: tuple[str, ...]  # base parameters that enter its equations
     base_effects: tuple[str, ...]  # effects its base model has on
-    fitted: tuple[str, ...]  # base parameters a fit frees by default
+    # Base parameters a fit frees by default: every one the data determine.  J_u is
+    # fixed (eq. 5.4): with it, the string's reaction on the measured upper disc sets the
+    # scale of the lower disc's parameters.
+    fitted: tuple[str, ...]
     has_lower: bool
     fitted_effects: tuple[str, ...] = ()  # base effects whose parameters a fit frees
 
@@ -57,8 +60,9 @@ CONFIGURATIONS: dict[str, Configuration] = {
             "both discs and the string, no brake (thesis eqs. 4.5-4.9)",
             ("k_m", "J_u", "Tc_u", "b_u", "J_l", "k_alpha", "Tc_l", "b_l"),
             ("upper_asymmetric_coulomb", "upper_asymmetric_viscous"),
-            ("J_l", "k_alpha", "Tc_l", "b_l"),
+            ("k_m", "Tc_u", "b_u", "J_l", "k_alpha", "Tc_l", "b_l"),
             True,
+            ("upper_asymmetric_coulomb", "upper_asymmetric_viscous"),
         ),
         Configuration(
             "brake",
@@ -70,9 +74,14 @@ CONFIGURATIONS: dict[str, Configuration] = {
                 "lower_stribeck",
                 "lower_asymmetric_viscous",
             ),
-            ("Tc_l", "b_l"),
+            ("k_m", "Tc_u", "b_u", "J_l", "k_alpha", "Tc_l", "b_l"),
             True,
-            ("lower_stribeck", "lower_asymmetric_viscous"),
+            (
+                "upper_asymmetric_coulomb",
+                "upper_asymmetric_viscous",
+                "lower_stribeck",
+                "lower_asymmetric_viscous",
+            ),
         ),
     )
 }

@@ -1,0 +1,194 @@
+"""How good a fit is and what to distrust: the verdict printed with every result.
+
+* per experiment and channel, the residual RMS as a multiple of the encoder quantisation
+  floor (:func:`rotorbayes.data.quantisation_floor`, thesis §2.2) on estimation and
+  validation data;
+* a warning for every estimate at or near a bound (and what that usually means), every
+  free parameter the residual does not depend on, every fixed parameter that would lower
+  the SSR much if freed while the fit is far above the floor (one Gauss-Newton step in
+  that parameter, the others re-adjusted), and a fit that did not converge.
+
+Nothing here changes a number; it says which numbers to trust.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..data import quantisation_floor
+from .problem import local_name
+
+#: RMS / floor up to which a channel counts as "at the floor" and "near the floor".
+AT_FLOOR = 1.5
+NEAR_FLOOR = 3.0
+#: Relative distance to a bound (of the bounds' width) that counts as "at the bound".
+BOUND_TOL = 1e-3
+
+
+@dataclass
+class Assessment:
+    """Fit quality against the noise floor, and warnings in words."""
+
+    channels: list[dict]
+    warnings: list[str] = field(default_factory=list)
+    at_bound: list[str] = field(default_factory=list)
+    fixed_suspects: list[dict] = field(default_factory=list)
+
+    @property
+    def worst_ratio(self) -> float:
+        r = [c["ratio"] for c in self.channels if c["fitted"]]
+        return max(r) if r else math.nan
+
+    @property
+    def verdict(self) -> str:
+        w = self.worst_ratio
+        if not math.isfinite(w):
+            return "no fitted channel could be simulated"
+        if w <= AT_FLOOR:
+            return f"at the encoder floor (worst fitted channel {w:.2f}x the quantisation RMS)"
+        if w <= NEAR_FLOOR:
+            return f"near the encoder floor (worst fitted channel {w:.2f}x the quantisation RMS)"
+        return (
+            f"{w:.3g}x the encoder floor: the model does not explain the data to the "
+            "encoders' resolution (a missing effect, a wrong fixed value or a wrong basin)"
+        )
+
+    def table(self) -> str:
+        rows = [
+            f"{'data':<10} {'experiment':<22} {'channel':<8} {'RMS [rad]':>10} "
+            f"{'floor':>9} {'x floor':>8}"
+        ]
+        for c in self.channels:
+            mark = "" if c["fitted"] else "  (not fitted)"
+            rows.append(
+                f"{c['data']:<10} {str(c['experiment'])[-22:]:<22} {c['channel']:<8} "
+                f"{c['rms']:10.3g} {c['floor']:9.2g} {c['ratio']:8.2f}{mark}"
+            )
+        return "\n".join(rows)
+
+    def as_dict(self) -> dict:
+        return {
+            "verdict": self.verdict,
+            "worst_ratio_to_floor": self.worst_ratio,
+            "channels": self.channels,
+            "warnings": self.warnings,
+            "at_bound": self.at_bound,
+            "fixed_suspects": self.fixed_suspects,
+        }
+
+
+def channel_rows(problem, quality_rows, data: str) -> list[dict]:
+    """RMS per experiment and channel with its quantisation floor and the ratio."""
+    out = []
+    for r in quality_rows:
+        for c, st in r["channels"].items():
+            floor = quantisation_floor(c)
+            rms = math.sqrt(st["ssr"] / st["n"])
+            out.append(
+                {
+                    "data": data,
+                    "experiment": str(r["experiment"]),
+                    "channel": c,
+                    "rms": rms,
+                    "floor": floor,
+                    "ratio": rms / floor,
+                    "fitted": c in problem.channels,
+                }
+            )
+    return out
+
+
+def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessment:
+    """The :class:`Assessment` of a :class:`~rotorbayes.inference.FitResult`.
+
+    ``q_est`` / ``q_val`` are :func:`~rotorbayes.inference.quality` rows on estimation and
+    validation data; ``sources`` says where each fixed value came from (for the words).
+    """
+    prob = result.problem
+    a = Assessment(channels=channel_rows(prob, q_est, "estimation") + channel_rows(
+        prob, q_val, "validation"))
+    sources = sources or {}
+    if not result.success:
+        a.warnings.append(f"the fit did not converge: {result.message}")
+    # Estimates at or near a bound.
+    for n, v, lo, hi in zip(result.names, result.x, prob.lower, prob.upper, strict=True):
+        width = hi - lo
+        unit = prob.info(n).unit
+        if v - lo <= BOUND_TOL * width or hi - v <= BOUND_TOL * width:
+            which, b = ("lower", lo) if v - lo <= BOUND_TOL * width else ("upper", hi)
+            a.at_bound.append(n)
+            if which == "lower" and b == 0:
+                why = ("the data show none of it, or the fit stopped in a wrong basin "
+                       "where it does not matter; with the RMS far above the floor suspect "
+                       "the latter")
+            else:
+                why = ("the fit wants to leave the physical range: usually a wrong basin, "
+                       "a missing effect or a wrong fixed value; its standard error means "
+                       "nothing")
+            a.warnings.append(f"{n} = {v:.4g} {unit} is at its {which} bound {b:g}: {why}")
+    # Free parameters the residual does not depend on.
+    sigma = min(quantisation_floor(c) for c in prob.channels)
+    for j, n in enumerate(result.names):
+        info = prob.info(n)
+        s = max(abs(result.x[j]), 1e-3 * (info.upper - info.lower))
+        if np.linalg.norm(result.jac[:, j]) * s < sigma:
+            a.warnings.append(
+                f"{n} does not influence the residual (changing it by {s:.3g} {info.unit} "
+                "changes the fit by less than the encoder noise): its estimate is arbitrary; "
+                "fix it, or check that the effect it belongs to is excited by this input"
+            )
+    # Fixed parameters, when the fit is far above the floor.
+    if a.worst_ratio > NEAR_FLOOR:
+        a.fixed_suspects = fixed_influence(result, sources)
+        for s in a.fixed_suspects:
+            a.warnings.append(
+                f"fixed {s['name']} = {s['value']:.4g} {s['unit']} ({s['source']}): freeing it "
+                f"would lower the SSR by about {s['ssr_drop_percent']:.0f} % (one step moves "
+                f"it to {s['step_to']:.4g}); check it, or free it with --free"
+            )
+    return a
+
+
+def fixed_influence(result, sources: dict, *, min_drop: float = 0.1) -> list[dict]:
+    """Fixed active parameters whose freeing would lower the SSR by more than ``min_drop``
+    of it, by one Gauss-Newton step with the free parameters re-adjusted."""
+    prob = result.problem
+    free = {local_name(n)[0] for n in result.names}
+    cands = [
+        n for n in prob.model.active
+        if n not in free and n != "alpha0" and math.isfinite(prob.base.get(n, math.nan))
+        and not (prob.model.info[n].lower == prob.model.info[n].upper)
+    ]
+    if not cands:
+        return []
+    try:
+        r = prob.residuals(result.x)
+        Jf, _ = prob.jacobian(result.x, cands, r0=r)
+    except Exception:  # noqa: BLE001 - an unsimulable perturbation: no advice, no harm
+        return []
+    if not np.all(np.isfinite(r)):
+        return []
+    Q, _ = np.linalg.qr(result.jac) if result.jac.size else (np.zeros((r.size, 0)), None)
+    ssr = float(r @ r)
+    out = []
+    for k, n in enumerate(cands):
+        g = Jf[:, k] - Q @ (Q.T @ Jf[:, k])
+        gg = float(g @ g)
+        if gg <= 0:
+            continue
+        drop = float(g @ r) ** 2 / gg
+        if drop > min_drop * ssr:
+            out.append(
+                {
+                    "name": n,
+                    "value": float(prob.base[n]),
+                    "unit": prob.model.info[n].unit,
+                    "source": sources.get(n, "fixed"),
+                    "ssr_drop_percent": 100 * drop / ssr,
+                    "step_to": float(prob.base[n] - (g @ r) / gg),
+                }
+            )
+    return sorted(out, key=lambda d: -d["ssr_drop_percent"])

@@ -1,0 +1,108 @@
+"""The first fit a newcomer can trust: a start from the data, least squares, and a small
+automatic multistart when the result is not at the encoder floor.
+
+:func:`fit_from_data` is what ``rotorbayes fit`` runs when no ``--p0`` is given:
+
+1. :func:`~rotorbayes.inference.starts.data_start` — the equations of motion as a linear
+   regression on smoothed derivatives of the measured angles;
+2. :func:`~rotorbayes.inference.least_squares.fit` from there;
+3. if a fitted channel stays above ``NEAR_FLOOR`` times its quantisation floor, a few more
+   fits from log-normal spreads around the data start (through the parallel map layer),
+   keeping the best.
+
+The result carries where its start came from and how many restarts it took.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..data import quantisation_floor
+from .assess import NEAR_FLOOR
+from .least_squares import FitResult, StartError, fit
+from .multistart import latin_hypercube
+from .parallel import get_mapper
+from .problem import Problem
+from .starts import DataStart, data_start
+
+
+@dataclass
+class FirstFit:
+    """A fit from a data-driven start, with the restarts it needed."""
+
+    result: FitResult
+    start: DataStart
+    restarts: list[dict] = field(default_factory=list)
+    chose: str = "the start from the data"
+
+
+def floor_ratio(problem: Problem, x: np.ndarray) -> float:
+    """Worst fitted channel's residual RMS over its quantisation floor at ``x``."""
+    ev = problem.evaluate(x)
+    if not ev.ok:
+        return math.inf
+    worst, off = 0.0, 0
+    for ex in problem.experiments:
+        for c in problem.channels:
+            r = ev.residuals[off : off + ex.n] / problem.weights[c]
+            off += ex.n
+            worst = max(worst, math.sqrt(float(r @ r) / ex.n) / quantisation_floor(c))
+    return worst
+
+
+def fit_from_data(
+    problem: Problem,
+    *,
+    restarts: int = 6,
+    spread: float = 0.4,
+    seed: int = 0,
+    workers: int = 2,
+    verbose: bool = False,
+    **fit_kw,
+) -> FirstFit:
+    """Least squares from a start computed from the data, restarted if needed.
+
+    Parameters
+    ----------
+    restarts : int
+        Extra fits tried when the first one ends above ``NEAR_FLOOR`` x the floor.
+    spread : float
+        Log-sd of the restarts' spread around the data start.
+    """
+    ds = data_start(problem)
+    x0 = problem.x_from(ds.values)
+    x0 = np.clip(x0, problem.lower, problem.upper)
+    if verbose:
+        print("start from the data:\n" + ds.describe(problem.names), flush=True)
+    res = fit(problem, x0, verbose=verbose, **fit_kw)
+    out = FirstFit(res, ds)
+    if restarts <= 0 or floor_ratio(problem, res.x) <= NEAR_FLOOR:
+        return out
+    if verbose:
+        print(
+            f"the fit from the data start ends {floor_ratio(problem, res.x):.3g}x the floor; "
+            f"trying {restarts} more starts around it",
+            flush=True,
+        )
+    rng = np.random.default_rng(seed)
+    starts = latin_hypercube(problem, restarts, rng, around=x0, spread=spread)
+
+    def one(xs):
+        try:
+            return fit(problem, xs, parallel=False, **fit_kw), ""
+        except (StartError, ValueError, RuntimeError) as exc:
+            return None, str(exc)
+
+    best = res
+    for i, (r, why) in get_mapper("threads", workers).map(one, list(starts)):
+        row = {"start": starts[i].tolist(), "ssr": r.ssr if r else None,
+               "success": bool(r and r.success), "failed": why}
+        out.restarts.append(row)
+        if r is not None and r.ssr < best.ssr:
+            best = r
+            out.chose = f"restart {i + 1} of {restarts} (spread {spread} around the data start)"
+    out.result = best
+    return out
