@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..data import quantisation_floor
+from ..kernel.terms import CONSTRAINTS
 from .problem import local_name
 
 #: RMS / floor up to which a channel counts as "at the floor" and "near the floor".
@@ -129,6 +130,21 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessmen
                        "a missing effect or a wrong fixed value; its standard error means "
                        "nothing")
             a.warnings.append(f"{n} = {v:.4g} {unit} is at its {which} bound {b:g}: {why}")
+    # Validity constraints between two parameters (Tc >= |dTc|, ...): the optimiser sees a
+    # wall there, and an end point on it is as suspect as one on a bound.
+    free = {local_name(n)[0] for n in result.names}
+    p = result.params
+    for names, text, _ in CONSTRAINTS:
+        if len(names) != 2 or not (set(names) & free) or not all(n in p for n in names):
+            continue
+        a_, b_ = names
+        info = prob.model.info[a_]
+        if p[a_] - abs(p[b_]) <= BOUND_TOL * (info.upper - info.lower):
+            a.warnings.append(
+                f"the estimate ends on the validity constraint '{text}' ({a_} = {p[a_]:.4g}, "
+                f"{b_} = {p[b_]:.4g}): the fit was stopped by it, which usually means a "
+                "wrong basin, a missing effect or a wrong fixed value"
+            )
     # Free parameters the residual does not depend on.
     sigma = min(quantisation_floor(c) for c in prob.channels)
     for j, n in enumerate(result.names):
@@ -180,7 +196,10 @@ def fixed_influence(result, sources: dict, *, min_drop: float = 0.1) -> list[dic
         if gg <= 0:
             continue
         drop = float(g @ r) ** 2 / gg
-        if drop > min_drop * ssr:
+        step_to = float(prob.base[n] - (g @ r) / gg)
+        info = prob.model.info[n]
+        # A step far outside the physical range is not a prediction to quote.
+        if drop > min_drop * ssr and info.lower <= step_to <= info.upper:
             out.append(
                 {
                     "name": n,
@@ -188,7 +207,7 @@ def fixed_influence(result, sources: dict, *, min_drop: float = 0.1) -> list[dic
                     "unit": prob.model.info[n].unit,
                     "source": sources.get(n, "fixed"),
                     "ssr_drop_percent": 100 * drop / ssr,
-                    "step_to": float(prob.base[n] - (g @ r) / gg),
+                    "step_to": step_to,
                 }
             )
     return sorted(out, key=lambda d: -d["ssr_drop_percent"])

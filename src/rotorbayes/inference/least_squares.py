@@ -20,10 +20,11 @@ from scipy.optimize import least_squares
 
 from .. import metrics as _metrics
 from ..data import Experiment
+from ..model.simulate import SimulationError
 from .problem import Problem
 
 
-class StartError(RuntimeError):
+class StartError(SimulationError):
     """The start point of a fit cannot be simulated (the integrator's reason included)."""
 
 
@@ -148,8 +149,9 @@ def fit(
     problem.check_start(x0)
     ev0 = problem.evaluate(x0)
     if not ev0.ok:
+        why = problem.model.problems(problem.params_for(x0, 0)) or ev0.reasons()
         raise StartError(
-            "the start cannot be simulated: " + "; ".join(ev0.reasons())
+            "the start cannot be simulated: " + "; ".join(why)
             + "; choose another start (e.g. leave out --p0 for a start from the data)"
         )
     scale = _scale(problem, x0)

@@ -182,6 +182,7 @@ class Problem:
         self.sims = [self.simulator_for(ex) for ex in self.experiments]
         self.lower = np.array([self.info(n).lower for n in self.names])
         self.upper = np.array([self.info(n).upper for n in self.names])
+        self._tighten_bounds()
         self.n_residuals = sum(ex.n for ex in self.experiments) * len(self.channels)
 
     # ---------------------------------------------------------------- construction
@@ -252,6 +253,22 @@ class Problem:
         if len(set(names)) != len(names):
             raise ParameterError(f"a free parameter is listed twice: {names}")
         return names
+
+    def _tighten_bounds(self) -> None:
+        """A validity constraint ``a >= |b|`` with one of the two fixed is a box bound on
+        the other: make it one, so the optimiser meets a bound, not a penalty wall."""
+        from ..kernel.terms import CONSTRAINTS
+
+        pos = {n: j for j, n in enumerate(self.names)}
+        for names, _, _ in CONSTRAINTS:
+            if len(names) != 2 or not all(n in self.model.active for n in names):
+                continue
+            a, b = names
+            if a in pos and b not in pos and math.isfinite(self.base[b]):
+                self.lower[pos[a]] = max(self.lower[pos[a]], abs(self.base[b]))
+            elif b in pos and a not in pos and math.isfinite(self.base[a]):
+                self.lower[pos[b]] = max(self.lower[pos[b]], -self.base[a])
+                self.upper[pos[b]] = min(self.upper[pos[b]], self.base[a])
 
     def info(self, name: str):
         """Metadata of a (possibly per-experiment) parameter name."""
