@@ -431,6 +431,7 @@ class Problem:
         *,
         rel_step: float = 1e-6,
         r0: np.ndarray | None = None,
+        values: Mapping[str, float] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Sensitivity of the residuals to any parameters, by finite differences.
 
@@ -448,6 +449,9 @@ class Problem:
             bounds' width).
         r0 : array, optional
             Residuals at ``x`` if already known.
+        values : mapping, optional
+            Values of parameters that are not free at which to evaluate (e.g. the
+            Stribeck velocity and shape, nuisance parameters of an effect that is off).
 
         Returns
         -------
@@ -477,7 +481,7 @@ class Problem:
                     off_effects.append(e.name)
         prob = self.with_effects(off_effects) if off_effects else self
         n_exp = len(self.experiments)
-        point = [prob.params_for(x, i) for i in range(n_exp)]
+        point = [{**prob.params_for(x, i), **(values or {})} for i in range(n_exp)]
         sets = [point]
         steps = np.empty(len(names))
         for k, n in enumerate(names):
@@ -512,6 +516,6 @@ class Problem:
                 f"Jacobian: experiment {i} cannot be simulated at {what}: "
                 f"{_layout.STATUS_MESSAGES[int(S[j, i])]}"
             )
-        base_r = R[0] if r0 is None or prob is not self else r0
+        base_r = R[0] if r0 is None or prob is not self or values else r0
         J = ((R[1:] - base_r[None, :]) / steps[:, None]).T
         return J, steps
