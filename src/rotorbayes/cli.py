@@ -20,6 +20,7 @@ from .examples import example_path
 from .model import SimulationError
 from .model import effects as _effects
 from .model import parameters as _params
+from .results import ResultError
 
 
 class CLIError(Exception):
@@ -315,6 +316,19 @@ def run_fit(a, out: Path) -> dict:
             start.update(_resolve_values(a.p0, prob.model))
         x0 = prob.start_vector(start)
         start_source = {n: f"--p0 {a.p0}" for n in prob.names}
+        from .results import diagnosis_starts
+
+        added_names = [e.name for e in prob.model.added]
+        for n, v in diagnosis_starts(a.p0, added_names).items():
+            if n in prob.names:
+                j = prob.names.index(n)
+                if prob.lower[j] < v < prob.upper[j]:
+                    x0[j] = v
+                    start_source[n] = "the diagnosis of the --p0 fit (one-step estimate)"
+        if prob.model.added:
+            print("start of the added effects' parameters: " + ", ".join(
+                f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
+                for e in prob.model.added for n in e.names if n in prob.names))
         print(f"start: --p0 {a.p0}")
         res = E.fit(prob, x0, verbose=True, **fit_kw)
         chose = f"--p0 {a.p0}"
@@ -380,6 +394,10 @@ def run_fit(a, out: Path) -> dict:
         "success": res.success, "message": res.message, "nfev": res.nfev,
         "seconds": res.seconds, "ssr": res.ssr, "n_residuals": res.n_residuals,
         "start": chose,
+        "free": list(res.names),
+        "prescribed_upper": bool(prob.prescribed_upper),
+        "weights": dict(prob.weights),
+        "parent": _parent_of(a.p0),
         "assessment": assessment.as_dict(),
         "parameters": parameters,
         "estimates": {n: {"value": float(v), "stderr": float(s), "start": float(s0),
@@ -417,6 +435,18 @@ def run_fit(a, out: Path) -> dict:
     for wtxt in assessment.warnings:
         print(f"warning: {wtxt}", file=sys.stderr)
     return doc
+
+
+def _parent_of(p0: str | None) -> str | None:
+    """The fit folder a --p0 fit.json belongs to (the chain of fits), else None."""
+    if not p0:
+        return None
+    p = Path(p0)
+    if p.is_dir() and (p / "fit.json").exists():
+        return str(p.resolve())
+    if p.name == "fit.json" and p.exists():
+        return str(p.parent.resolve())
+    return None
 
 
 def _finite_or_none(o):
@@ -504,6 +534,49 @@ def cmd_demo(a) -> int:
           "data, from the thesis's P0 (table 5.2)\n")
     doc = run_fit(ns, out)
     return 0 if doc["success"] else 1
+
+
+def cmd_diagnose(a) -> int:
+    """Verdict, ranking of missing effects and missing-torque map of a fit folder."""
+    from .diagnosis import diagnose
+    from .diagnosis.figures import plot_candidates, plot_torque_map
+    from .results import load_fit
+
+    fit = load_fit(a.fit)
+    if a.noise is not None and not (a.noise >= 0 and math.isfinite(a.noise)):
+        raise CLIError(f"--noise {a.noise}: give the Gaussian noise std in rad (>= 0)")
+    print(f"diagnosing {fit.folder}/ ({fit.doc['config']} configuration, "
+          f"{len(fit.problem.names)} free parameters, effects: "
+          f"{', '.join(fit.problem.model.effect_names) or 'none'})")
+    d = diagnose(fit.problem, fit.x, noise_std=a.noise or 0.0)
+    print()
+    print(d.text())
+    doc = d.as_dict()
+    doc["fit"] = str(fit.folder)
+    _write_text(fit.folder / "diagnosis.json", strict_json(doc))
+    fig, _ = plot_candidates(fit.problem, fit.x, d)
+    _save_fig(fig, fit.folder / "diagnosis_candidates.png")
+    fig, _ = plot_torque_map(d)
+    _save_fig(fig, fit.folder / "missing_torque.png")
+    print(f"\nwrote {fit.folder}/diagnosis.json, diagnosis_candidates.png, missing_torque.png "
+          f"({d.seconds:.1f} s)")
+    return 0
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write a file atomically (a temporary file beside it, then a rename)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _save_fig(fig, path: Path, dpi: int = 100) -> None:
+    import matplotlib.pyplot as plt
+
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=dpi)
+    plt.close(fig)
+    tmp.replace(path)
 
 
 def cmd_params(a) -> int:
@@ -609,6 +682,14 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--force", action="store_true")
     d.set_defaults(func=cmd_demo)
 
+    g = sub.add_parser("diagnose", help="is the remaining error noise? which effect is "
+                       "missing? (writes diagnosis.json and figures into the fit folder)")
+    g.add_argument("fit", help="a folder written by `rotorbayes fit`")
+    g.add_argument("--noise", type=float, default=None,
+                   help="Gaussian measurement noise std [rad] besides encoder quantisation "
+                   "(default 0)")
+    g.set_defaults(func=cmd_diagnose)
+
     p = sub.add_parser("params", help="list parameters and named sets, or show one set")
     p.add_argument("name", nargs="?")
     p.set_defaults(func=cmd_params)
@@ -625,7 +706,7 @@ def main(argv=None) -> int:
     try:
         return a.func(a)
     except (CLIError, DataFileError, _params.ParameterError, ValueError, FileExistsError,
-            SimulationError) as exc:
+            SimulationError, ResultError) as exc:
         print(f"rotorbayes {a.cmd}: error: {exc}", file=sys.stderr)
         return 2
 
