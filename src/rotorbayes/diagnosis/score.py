@@ -40,7 +40,7 @@ from ..model import effects as _effects
 WS_GRID = tuple(np.geomspace(0.1, 10.0, 9))
 DELTA_GRID = (0.7, 1.0, 1.5, 2.0, 3.0)
 #: |J̃| / |J| below which an effect counts as inside the free parameters' span.
-EQUIVALENT_RATIO = 0.05
+EQUIVALENT_RATIO = 1e-3
 #: |cos| between two candidates' J̃ above which they cannot be told apart.
 ALIKE_COSINE = 0.98
 
@@ -205,6 +205,12 @@ def score_tests(
         e = _effects.resolve([e])[0] if isinstance(e, str) else e
         names = _test_params(e, problem)
         one_sided = _one_sided(e)
+        # A switch whose response is not differentiable at its null (a dead zone: nothing
+        # happens while |u| < width) is probed by a secant over a fifth of its typical size.
+        secant = {
+            p.name: 0.2 * p.start for p in e.switches
+            if p.name == "u_deadzone" and math.isfinite(p.start)
+        }
         nuis = [p for p in e.parameters if p.nuisance]
         if nuis:
             grids = [
@@ -220,7 +226,7 @@ def score_tests(
         per_grid = []
         for g in grids:
             try:
-                Jp, _ = problem.jacobian(x, names, r0=r, values=g or None)
+                Jp, _ = problem.jacobian(x, names, r0=r, values=g or None, secant=secant)
             except Exception:  # noqa: BLE001 - an unsimulable perturbation: skip the point
                 continue
             Jt = Jp - Q @ (Q.T @ Jp)

@@ -198,8 +198,15 @@ class Problem:
                 builtin
             )
             full.update(user)
+            given = set(base)
         else:
             full = resolve(base, config=self.config)
+            given = set(INFO) if base is not None else set()
+        # Values the user did not give come from the configuration's default set; those of
+        # effects that are off here (e.g. --without upper_asymmetric_coulomb) go to null.
+        for n in m.off:
+            if n not in given:
+                full[n] = INFO[n].null
         full = m.complete(full)
         m.check_off(full, where="start/base values")
         self.base = full
@@ -432,6 +439,7 @@ class Problem:
         rel_step: float = 1e-6,
         r0: np.ndarray | None = None,
         values: Mapping[str, float] | None = None,
+        secant: Mapping[str, float] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Sensitivity of the residuals to any parameters, by finite differences.
 
@@ -452,6 +460,8 @@ class Problem:
         values : mapping, optional
             Values of parameters that are not free at which to evaluate (e.g. the
             Stribeck velocity and shape, nuisance parameters of an effect that is off).
+        secant : mapping, optional
+            Absolute steps for some names (a secant instead of a derivative).
 
         Returns
         -------
@@ -492,6 +502,8 @@ class Problem:
                 v = point[0]["Tc_l"]
             scale = max(abs(v), 1e-3 * (info.upper - info.lower))
             h = rel_step * scale
+            if secant and b in secant:
+                h = float(secant[b])
             if v + h > info.upper:
                 h = -h
             steps[k] = h
