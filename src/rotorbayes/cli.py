@@ -563,6 +563,44 @@ def cmd_diagnose(a) -> int:
     return 0
 
 
+def cmd_compare(a) -> int:
+    """Where the model fails (one fit) and how the error fell (several, or a chain)."""
+    from .diagnosis import compare as C
+    from .diagnosis import figures as F
+    from .results import load_fit
+
+    fits = [load_fit(f) for f in a.fits]
+    if len(fits) == 1:
+        fits = fits[0].chain()
+        if len(fits) > 1:
+            print(f"comparing the chain of {len(fits)} fits that led to {a.fits[0]}")
+    last = fits[-1]
+    out = Path(a.out) if a.out else last.folder / "compare"
+    if out.exists() and any(out.iterdir()) and not a.force and a.out:
+        raise CLIError(f"{out}/ already holds results; choose another --out or pass --force")
+    out.mkdir(parents=True, exist_ok=True)
+    doc = C.compare_fits(fits)
+    print(C.table(doc))
+    views = C.residual_views(last.problem, last.x)
+    for name, (fig, _) in (("error_vs_state.png", F.plot_error_vs_state(views)),
+                           ("residual_correlation.png", F.plot_residual_correlation(views))):
+        _save_fig(fig, out / name)
+    written = ["compare.json", "error_vs_state.png", "residual_correlation.png"]
+    if len(fits) > 1:
+        fig, _ = F.plot_chain(doc)
+        _save_fig(fig, out / "chain.png")
+        written.append("chain.png")
+    for c, v in views["channels"].items():
+        lags, acf = v["acf"]
+        outside = float(np.mean(np.abs(acf[lags > 0]) > v["band"]))
+        print(f"{c}: {100 * outside:.0f} % of autocorrelation lags 1..{lags.max()} outside the "
+              "99 % band of a white residual" + (" (the error is structured, not noise)"
+                                                 if outside > 0.05 else ""))
+    _write_text(out / "compare.json", strict_json(doc))
+    print(f"\nwrote {', '.join(written)} in {out}/")
+    return 0
+
+
 def _write_text(path: Path, text: str) -> None:
     """Write a file atomically (a temporary file beside it, then a rename)."""
     tmp = path.with_name(f".{path.name}.tmp")
@@ -689,6 +727,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Gaussian measurement noise std [rad] besides encoder quantisation "
                    "(default 0)")
     g.set_defaults(func=cmd_diagnose)
+
+    c = sub.add_parser("compare", help="where the model fails (error against the state, "
+                       "residual correlation) and, for several fits or a chain, how the error "
+                       "fell")
+    c.add_argument("fits", nargs="+", help="fit folders (one: its chain of --p0 parents)")
+    c.add_argument("--out", help="output folder (default: FIT/compare/ of the last fit)")
+    c.add_argument("--force", action="store_true", help="overwrite results in --out")
+    c.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("params", help="list parameters and named sets, or show one set")
     p.add_argument("name", nargs="?")

@@ -68,3 +68,116 @@ def plot_torque_map(diagnosis, *, top: int = 3):
             ax.set_title(f"{disc}: {var} (adj. R² {r2:.2f})", fontsize=9)
     fig.suptitle("missing torque (measured angles, slip samples) against candidate variables")
     return fig, axes
+
+
+def _binned_mean(x, y, n_bins=24):
+    edges = np.quantile(x, np.linspace(0, 1, n_bins + 1))
+    edges = np.unique(edges)
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    mids, mean, sd = [], [], []
+    for k in range(len(edges) - 1):
+        sel = idx == k
+        if sel.sum() >= 5:
+            mids.append(float(np.mean(x[sel])))
+            mean.append(float(np.mean(y[sel])))
+            sd.append(float(np.std(y[sel])))
+    return np.array(mids), np.array(mean), np.array(sd)
+
+
+def plot_error_vs_state(views):
+    """Error of every fitted channel against the lower disc's velocity (binned, stick
+    samples apart), the direction of rotation, the string torsion and the angles."""
+    plt = _plt()
+    chans = list(views["channels"])
+    lower = "omega_l" in views
+    cols = ["velocity", "direction", "torsion", "angle"] if lower else ["angle"]
+    fig, axes = plt.subplots(len(chans), len(cols), figsize=(3.6 * len(cols),
+                             2.9 * len(chans) + 0.7), squeeze=False, constrained_layout=True)
+    for i, c in enumerate(chans):
+        e = views["channels"][c]["error"]
+        for j, col in enumerate(cols):
+            ax = axes[i, j]
+            if col == "velocity":
+                w = views["omega_l"]
+                stick = np.asarray(views["mode_l"]) == 0 if views["mode_l"] is not None \
+                    else np.zeros(w.size, bool)
+                m, mu, sd = _binned_mean(w[~stick], e[~stick])
+                ax.fill_between(m, mu - sd, mu + sd, color="tab:blue", alpha=0.2, lw=0)
+                ax.plot(m, mu, "o-", ms=3, color="tab:blue", label="slip (bin mean ± sd)")
+                if stick.any():
+                    ax.plot(np.zeros(1), [np.mean(e[stick])], "s", color="tab:red",
+                            label=f"stick ({100 * stick.mean():.0f} % of samples)")
+                ax.set_xlabel("lower disc velocity [rad/s]")
+                ax.legend(fontsize=7, loc="best")
+            elif col == "direction":
+                w = views["omega_l"]
+                groups = [e[w > 0.02], e[np.abs(w) <= 0.02], e[w < -0.02]]
+                ax.boxplot([g if g.size else np.zeros(1) for g in groups], showfliers=False)
+                ax.set_xticks([1, 2, 3], ["ω>0", "rest", "ω<0"])
+                ax.set_xlabel("lower disc direction")
+            elif col == "torsion":
+                m, mu, sd = _binned_mean(views["alpha"], e)
+                ax.fill_between(m, mu - sd, mu + sd, color="tab:purple", alpha=0.2, lw=0)
+                ax.plot(m, mu, "o-", ms=3, color="tab:purple")
+                ax.set_xlabel("string torsion α [rad]")
+            else:
+                ang = views["angle_l"] if lower else views["angle_u"]
+                m, mu, sd = _binned_mean(ang, e)
+                ax.fill_between(m, mu - sd, mu + sd, color="tab:green", alpha=0.2, lw=0)
+                ax.plot(m, mu, "o-", ms=3, color="tab:green")
+                ax.set_xlabel(f"{'lower' if lower else 'upper'} disc angle mod 2π [rad]")
+            ax.axhline(0, color="k", lw=0.6)
+            if j == 0:
+                ax.set_ylabel(f"{c} error [rad]")
+    fig.suptitle("where the model fails: error against the state (estimation data)")
+    return fig, axes
+
+
+def plot_residual_correlation(views):
+    """Residual autocorrelation and cross-correlation with the input, 99 % bands of a
+    white residual (MATLAB's ``resid``)."""
+    plt = _plt()
+    chans = list(views["channels"])
+    fig, axes = plt.subplots(len(chans), 2, figsize=(10, 2.8 * len(chans) + 0.6),
+                             squeeze=False, constrained_layout=True)
+    for i, c in enumerate(chans):
+        v = views["channels"][c]
+        for j, (key, title) in enumerate((("acf", "autocorrelation"),
+                                          ("ccf", "cross-correlation with u"))):
+            lags, val = v[key]
+            ax = axes[i, j]
+            ax.plot(lags, val, color="tab:blue", lw=1)
+            ax.axhspan(-v["band"], v["band"], color="0.8", alpha=0.6,
+                       label="99 % band of a white residual")
+            ax.set_xlabel("lag [samples]")
+            ax.set_ylabel(f"{c}")
+            ax.set_title(f"{c}: {title}", fontsize=9)
+            ax.legend(fontsize=7, loc="upper right")
+    fig.suptitle("residual correlation (estimation data)")
+    return fig, axes
+
+
+def plot_chain(doc):
+    """RMS over the noise floor of each fit of a comparison, estimation and validation."""
+    plt = _plt()
+    fits = doc["fits"]
+    labels = [f["label"] for f in fits]
+    fig, ax = plt.subplots(figsize=(max(5, 1.6 * len(fits) + 2), 3.6), constrained_layout=True)
+    width = 0.2
+    series = []
+    for data in ("estimation", "validation"):
+        chans = sorted({c for f in fits if data in f for c in f[data]["rms_over_floor"]})
+        for c in chans:
+            series.append((data, c))
+    for k, (data, c) in enumerate(series):
+        vals = [f[data]["rms_over_floor"].get(c, np.nan) if data in f else np.nan
+                for f in fits]
+        ax.bar(np.arange(len(fits)) + (k - (len(series) - 1) / 2) * width, vals, width,
+               label=f"{c}, {data}")
+    ax.axhline(1.0, color="k", ls="--", lw=1, label="encoder floor")
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(len(fits)), labels, rotation=15)
+    ax.set_ylabel("residual RMS / floor")
+    ax.legend(fontsize=7)
+    ax.set_title("how the error fell, fit by fit")
+    return fig, ax

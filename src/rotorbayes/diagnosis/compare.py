@@ -1,0 +1,208 @@
+"""Compare a model with the measurements, and fits with each other.
+
+* :func:`residual_views` — the error of every fitted channel against time, the lower disc's
+  velocity (binned, stick and slip apart), the direction of rotation, the string torsion
+  and the discs' angles within a revolution; the residual autocorrelation and its
+  cross-correlation with the input, with 99 % bands (as MATLAB's ``resid``);
+* :func:`compare_fits` — for two or more fits of the same data (e.g. a chain of fits, each
+  adding an effect): SSR, RMS as a multiple of the noise floor, NRMSE fit %, max error,
+  ΔAICc, ΔBIC on estimation and validation data, and a likelihood-ratio test between
+  consecutive fits whose p-value accounts for autocorrelated residuals (the sample size is
+  deflated to ``n (1 − ρ) / (1 + ρ)``, ρ the lag-1 autocorrelation of the richer model's
+  residual).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from .. import metrics as _metrics
+from ..data import quantisation_floor
+from ..inference.least_squares import quality
+from ..inference.starts import derivatives
+
+#: z of the two-sided 99 % band of a white residual's correlations.
+Z99 = 2.5758
+
+
+def correlation(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised cross-correlation ``corr(a_t, b_{t-lag})`` for lags ``-max_lag..max_lag``
+    (autocorrelation when ``a is b``)."""
+    a = (a - a.mean()) / max(a.std(), 1e-300)
+    b = (b - b.mean()) / max(b.std(), 1e-300)
+    n = a.size
+    lags = np.arange(-max_lag, max_lag + 1)
+    out = np.empty(lags.size)
+    for i, k in enumerate(lags):
+        out[i] = np.dot(a[k:], b[: n - k]) / n if k >= 0 else np.dot(a[: n + k], b[-k:]) / n
+    return lags, out
+
+
+def lag1(r: np.ndarray) -> float:
+    """Lag-1 autocorrelation of a residual."""
+    r = r - r.mean()
+    d = float(r @ r)
+    return float(r[1:] @ r[:-1]) / d if d > 0 else 0.0
+
+
+@dataclass
+class FitSummary:
+    """The measures of one fit on one data set."""
+
+    label: str
+    data: str
+    k: int
+    n: int
+    ssr: float
+    rms_over_floor: dict[str, float]
+    nrmse_fit: dict[str, float]
+    max_error: dict[str, float]
+    aicc: float
+    bic: float
+    rho: float
+    residual: np.ndarray
+
+
+def summarise(label: str, problem, x, experiments=None, data: str = "estimation"):
+    """:class:`FitSummary` of ``problem`` at ``x`` on its data or on ``experiments``."""
+    rows = quality(problem, x, experiments)
+    res, rms, fit, mx = [], {}, {}, {}
+    ssr = n = 0
+    for r in rows:
+        for c in problem.channels:
+            st = r["channels"].get(c)
+            if st is None:
+                return None
+            ssr += st["ssr"]
+            n += st["n"]
+            rms.setdefault(c, []).append(st["ssr"] / st["n"])
+            fit.setdefault(c, []).append(st["nrmse_fit"])
+            mx.setdefault(c, []).append(st["max_abs_error"])
+        s = r["simulation"]
+        ex = (experiments or problem.experiments)[rows.index(r)]
+        for c in problem.channels:
+            meas = ex.theta_u if c == "theta_u" else ex.theta_l
+            sim = s.theta_u if c == "theta_u" else s.theta_l
+            res.append(meas - sim)
+    k = len(problem.names)
+    resid = np.concatenate(res)
+    return FitSummary(
+        label=label, data=data, k=k, n=n, ssr=ssr,
+        rms_over_floor={c: math.sqrt(np.mean(v)) / quantisation_floor(c) for c, v in rms.items()},
+        nrmse_fit={c: float(np.mean(v)) for c, v in fit.items()},
+        max_error={c: float(np.max(v)) for c, v in mx.items()},
+        aicc=_metrics.aicc(ssr, n, k), bic=_metrics.bic(ssr, n, k),
+        rho=lag1(resid), residual=resid,
+    )
+
+
+def lr_test(a: FitSummary, b: FitSummary) -> dict:
+    """Likelihood-ratio test of fit ``b`` (more parameters) against ``a`` on the same data,
+    with the sample size deflated for autocorrelated residuals."""
+    df = b.k - a.k
+    rho = min(max(b.rho, 0.0), 0.999)
+    n_eff = b.n * (1 - rho) / (1 + rho)
+    if df <= 0 or b.ssr <= 0 or a.ssr <= 0:
+        return {"df": df, "statistic": math.nan, "p_value": math.nan, "n_effective": n_eff}
+    lr = n_eff * math.log(a.ssr / b.ssr)
+    return {"df": df, "statistic": lr, "p_value": float(stats.chi2.sf(max(lr, 0.0), df)),
+            "n_effective": n_eff, "rho": rho}
+
+
+def compare_fits(fits) -> dict:
+    """Before/after table of loaded fits (:class:`rotorbayes.results.LoadedFit`), in order."""
+    out = {"fits": [], "steps": []}
+    prev = {}
+    for f in fits:
+        label = f.folder.name
+        entry = {"fit": str(f.folder), "label": label, "k": len(f.problem.names),
+                 "effects": list(f.problem.model.effect_names)}
+        cur = {}
+        for data, exps in (("estimation", None), ("validation", f.validation or None)):
+            if data == "validation" and exps is None:
+                continue
+            s = summarise(label, f.problem, f.x, exps, data)
+            if s is None:
+                continue
+            cur[data] = s
+            entry[data] = {"ssr": s.ssr, "rms_over_floor": s.rms_over_floor,
+                           "nrmse_fit_percent": s.nrmse_fit, "max_error_rad": s.max_error,
+                           "aicc": s.aicc, "bic": s.bic, "lag1_autocorrelation": s.rho}
+        out["fits"].append(entry)
+        if prev:
+            step = {"from": prev["label"], "to": label}
+            for data in ("estimation", "validation"):
+                if data in prev["s"] and data in cur:
+                    a, b = prev["s"][data], cur[data]
+                    step[data] = {
+                        "ssr_ratio": b.ssr / a.ssr if a.ssr > 0 else math.nan,
+                        "delta_aicc": b.aicc - a.aicc, "delta_bic": b.bic - a.bic,
+                        "lr_test": lr_test(a, b) if data == "estimation" else None,
+                    }
+            out["steps"].append(step)
+        prev = {"label": label, "s": cur}
+    return out
+
+
+def table(doc: dict) -> str:
+    """The before/after table in plain text."""
+    lines = [f"{'fit':<18} {'data':<10} {'k':>3} {'SSR [rad²]':>11} {'RMS/floor':>22} "
+             f"{'fit %':>14} {'max |e|':>9} {'AICc':>11} {'BIC':>11}"]
+    for f in doc["fits"]:
+        for data in ("estimation", "validation"):
+            if data not in f:
+                continue
+            d = f[data]
+            rms = " ".join(f"{c[6:]} {v:.3g}" for c, v in d["rms_over_floor"].items())
+            fit = " ".join(f"{v:.2f}" for v in d["nrmse_fit_percent"].values())
+            mx = max(d["max_error_rad"].values())
+            lines.append(f"{f['label'][-18:]:<18} {data:<10} {f['k']:3d} {d['ssr']:11.4g} "
+                         f"{rms:>22} {fit:>14} {mx:9.3g} {d['aicc']:11.5g} {d['bic']:11.5g}")
+    if doc["steps"]:
+        lines.append("")
+        lines.append("step by step:")
+    for s in doc["steps"]:
+        e = s.get("estimation", {})
+        v = s.get("validation")
+        lr = e.get("lr_test") or {}
+        txt = (f"  {s['from']} -> {s['to']}: SSR x{e.get('ssr_ratio', math.nan):.3g} "
+               f"(estimation)")
+        if v:
+            txt += f", x{v['ssr_ratio']:.3g} (validation)"
+        txt += (f"; ΔAICc {e.get('delta_aicc', math.nan):.4g}, ΔBIC "
+                f"{e.get('delta_bic', math.nan):.4g}")
+        if lr and math.isfinite(lr.get("statistic", math.nan)):
+            txt += (f"; LR test {lr['statistic']:.3g} on {lr['df']} df, p {lr['p_value']:.2g} "
+                    f"(effective n {lr['n_effective']:.0f} for lag-1 autocorrelation "
+                    f"{lr['rho']:.3f})")
+        lines.append(txt)
+    return "\n".join(lines)
+
+
+def residual_views(problem, x, i: int = 0) -> dict:
+    """Error of each fitted channel of experiment ``i`` against the candidate variables,
+    and the correlation analysis (for :func:`rotorbayes.diagnosis.figures.plot_residuals`)."""
+    ex = problem.experiments[i]
+    sim = problem.simulate(x, i)
+    views = {"t": ex.t, "u": ex.u, "channels": {}, "mode_l": sim.mode_l}
+    _, wl, _, _ = derivatives(ex.theta_l, ex.dt) if ex.theta_l is not None else (0, None, 0, 0)
+    for c in problem.channels:
+        meas = ex.theta_u if c == "theta_u" else ex.theta_l
+        e = meas - (sim.theta_u if c == "theta_u" else sim.theta_l)
+        max_lag = min(200, e.size // 4)
+        lags, acf = correlation(e, e, max_lag)
+        lags_u, ccf = correlation(e, ex.u, max_lag)
+        views["channels"][c] = {
+            "error": e, "acf": (lags, acf), "ccf": (lags_u, ccf),
+            "band": Z99 / math.sqrt(e.size),
+        }
+    if ex.theta_l is not None:
+        views["omega_l"] = wl
+        views["alpha"] = ex.theta_l - ex.theta_u + problem.params_for(x, i).get("alpha0", 0.0)
+        views["angle_l"] = np.mod(ex.theta_l, 2 * np.pi)
+    views["angle_u"] = np.mod(ex.theta_u, 2 * np.pi)
+    return views
