@@ -98,3 +98,13 @@ def test_chapter5_refuses_to_overwrite(chapter5_run):
     mod, out, _ = chapter5_run
     with pytest.raises(SystemExit):
         mod.main(["--quick", "--out", str(out)])
+
+
+def test_hidden_effect_walkthrough_reaches_the_floor(tmp_path):
+    mod = _load("hidden_effect_walkthrough")
+    res = mod.main(["--out", str(tmp_path / "walk")])
+    assert res["added"] == ["lower_asymmetric_coulomb", "lower_asymmetric_viscous"]
+    last = res["chain"][-1]["diagnosis"]
+    assert last["adequate"] and max(last["rms_over_floor"].values()) < 1.5
+    assert (tmp_path / "walk" / "compare_chain" / "chain.png").exists()
+    assert "walk-through done" in (tmp_path / "walk" / "report.txt").read_text()

@@ -91,8 +91,8 @@ class Diagnosis:
                      "one-step estimate")
         for s in self.ranking:
             pred = ", ".join(f"{c} {v:.3g}" for c, v in s.predicted_rms_ratio.items())
-            est = ", ".join(f"{n} = {v:.3g} {u}" for (n, v), u in
-                            zip(s.step.items(), s.units, strict=True))
+            est = ", ".join(f"{n} = {v:.3g} {u}" if math.isfinite(v) else f"{n}: —"
+                            for (n, v), u in zip(s.step.items(), s.units, strict=True))
             tag = ""
             if s.equivalent_to_free:
                 tag = "  [equivalent to the free parameters: cannot be told apart]"

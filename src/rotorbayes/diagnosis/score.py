@@ -294,7 +294,16 @@ def score_tests(
             # Inside the free parameters' span the step is ill-posed: no estimate to quote.
             s.step = {n: math.nan for n in s.step}
             s.predicted_ssr = ssr
-    out.sort(key=lambda s: (s.equivalent_to_free, s.p_adjusted, -(ssr - s.predicted_ssr)))
+    order = list(_effects.CATALOGUE)
+
+    def key(s):
+        # Ties (alike effects give the same p and SSR to rounding) fall back to the
+        # catalogue's order, so the ranking does not depend on the last digits.
+        idx = order.index(s.effect) if s.effect in order else len(order)
+        return (s.equivalent_to_free, float(f"{s.p_adjusted:.3g}"),
+                float(f"{s.predicted_ssr - ssr:.3g}"), idx)
+
+    out.sort(key=key)
     return out
 
 
