@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -20,6 +21,7 @@ from .examples import example_path
 from .model import SimulationError
 from .model import effects as _effects
 from .model import parameters as _params
+from .outputs import OutputError, check_output_file, output_folder
 from .results import ResultError
 
 
@@ -28,13 +30,97 @@ class CLIError(Exception):
 
 
 def _out_dir(path: str, force: bool) -> Path:
-    """An output folder that does not hold earlier results (unless ``--force``)."""
+    """An output folder that does not hold earlier results (unless ``--force``).
+
+    Created at once; the commands use :func:`rotorbayes.outputs.output_folder` instead, which
+    moves a finished folder into place only when the run succeeds.
+    """
     out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"--out {out}: is a file, not a folder; give a new folder name")
     if out.exists() and any(out.iterdir()) and not force:
         raise CLIError(f"{out}/ already holds results; choose another --out or pass --force "
                        "to overwrite them")
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+# ------------------------------------------------------------------ checked option values
+#: Sampling rates a simulated measurement may have (Hz). Below 100 Hz the samples cannot
+#: follow the rig: the inputs have content up to 5 Hz, the stick-slip switches of the lower
+#: disc last milliseconds and the encoders' steps (1e-4 rad) are crossed many times per
+#: sample; the thesis's rig is sampled at 1 kHz. Above 100 kHz no encoder of the rig is read.
+MIN_RATE, MAX_RATE = 100.0, 1e5
+
+
+def _number(text: str, kind=float) -> float:
+    try:
+        v = kind(text)
+    except ValueError:
+        what = "a whole number" if kind is int else "a number"
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+    if kind is float and not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a finite number")
+    return v
+
+
+def _ranged(kind=float, *, gt: float | None = None, ge: float | None = None,
+            le: float | None = None, why: str = ""):
+    """An argparse ``type``: a finite number with ``> gt``, ``>= ge`` and ``<= le``; the
+    message names the value given, the allowed range and ``why`` it is needed."""
+
+    def parse(text: str):
+        v = _number(text, kind)
+        if (gt is not None and v <= gt) or (ge is not None and v < ge) or (
+                le is not None and v > le):
+            cond = " and ".join(c for c in (
+                f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
+                f"<= {le:g}" if le is not None else "") if c)
+            what = "a whole number" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"got {text}; give {what} {cond}{why}")
+        return v
+
+    parse.__name__ = "number"  # argparse names the type in its own messages
+    return parse
+
+
+def _rate(text: str) -> float:
+    v = _number(text)
+    if v < MIN_RATE:
+        raise argparse.ArgumentTypeError(
+            f"got {text} Hz, too slow for the rig: the stick-slip switches of the lower disc "
+            f"last milliseconds and the inputs have content up to 5 Hz, so the encoders must be "
+            f"sampled at {MIN_RATE:g} Hz or more (the rig uses 1000 Hz, the default; the "
+            "bundled examples 200 Hz); give --rate 100 or more")
+    if v > MAX_RATE:
+        raise argparse.ArgumentTypeError(
+            f"got {text} Hz, faster than the rig's encoders are ever read ({MAX_RATE:g} Hz at "
+            "most; it also makes huge files); give --rate between 100 and 100000")
+    return v
+
+
+class _Formatter(argparse.HelpFormatter):
+    """Help that shows each option's default (unless it is None/False or already named)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("%(default)" in text or "default" in text or action.default in (None, False)
+                or action.default is argparse.SUPPRESS or not action.option_strings):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+class _Parser(argparse.ArgumentParser):
+    """One-line usage errors: ``rotorbayes CMD: error: ...`` and exit code 2; help that
+    shows the defaults (also for the subcommands, which are made with this class)."""
+
+    def __init__(self, *args, **kw):
+        kw.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kw)
+
+    def error(self, message):
+        sys.stderr.write(f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+        sys.exit(2)
 
 
 def _example_path(name: str) -> str:
@@ -53,34 +139,86 @@ def _load(paths, config: str) -> list[Experiment]:
 
 
 def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """Read ``t,u`` (and possibly more columns) from a CSV file."""
+    """Read ``t,u`` (and possibly more columns) from a CSV file.
+
+    The time column gets the checks of a measurement file (:mod:`rotorbayes.data`): finite,
+    strictly increasing, uniformly sampled, in seconds (a step of ``MAX_SAMPLE_INTERVAL``
+    or more, or a record longer than ``MAX_DURATION``, is refused), and a last line without
+    its line break (a truncated file) is refused; messages name the file and the line.
+    """
+    from .data import _check_time_unit, _RowProblem
+
     p = Path(path)
-    if not p.exists():
-        raise CLIError(f"{p}: input file not found")
-    lines = [ln for ln in p.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
-    if not lines:
+    try:
+        with open(p, encoding="utf-8-sig", newline=None) as fh:
+            lines = fh.read().split("\n")
+    except FileNotFoundError:
+        raise CLIError(f"--input-file {p}: file not found (looked in "
+                       f"{p.resolve().parent}); check the path") from None
+    except IsADirectoryError:
+        raise CLIError(f"--input-file {p}: is a folder; give the CSV file inside it") from None
+    except UnicodeDecodeError:
+        raise CLIError(f"--input-file {p}: not a UTF-8 text file; export the input as "
+                       "plain-text CSV with columns t,u") from None
+    except OSError as exc:
+        raise CLIError(f"--input-file {p}: cannot be read ({exc.strerror})") from None
+    numbered = [(k, ln) for k, ln in enumerate(lines, start=1)
+                if ln.strip() and not ln.lstrip().startswith("#")]
+    if not numbered:
         raise CLIError(f"{p}: the file is empty; it needs a header 't,u' and rows of numbers")
-    header = [h.strip() for h in lines[0].split(",")]
+    hline, htext = numbered[0]
+    header = [h.strip() for h in htext.split(",")]
     if "t" not in header or "u" not in header:
-        raise CLIError(f"{p}: line 1: the header {lines[0]!r} must contain the columns t and u")
+        raise CLIError(f"{p}, line {hline}: the header {htext!r} must contain the columns t "
+                       "and u (comma-separated)")
     it, iu = header.index("t"), header.index("u")
-    t, u = [], []
-    for k, ln in enumerate(lines[1:], start=2):
+    t, u, rows = [], [], []
+    for k, ln in numbered[1:]:
         f = ln.split(",")
         try:
-            t.append(float(f[it]))
-            u.append(float(f[iu]))
-        except (ValueError, IndexError):
-            raise CLIError(f"{p}: row {k}: {ln!r} is not a row of numbers matching the header"
-                           ) from None
+            if len(f) != len(header):
+                raise ValueError
+            tk, uk = float(f[it]), float(f[iu])
+        except ValueError:
+            raise CLIError(f"{p}, line {k}: {ln.strip()!r} is not a row of {len(header)} numbers "
+                           f"matching the header {htext.strip()!r}") from None
+        t.append(tk)
+        u.append(uk)
+        rows.append(k)
+    # A complete file ends with a line break; without one the last number may be cut.
+    if rows and lines[-1].strip():
+        raise CLIError(f"{p}, line {rows[-1]}: the last line {lines[-1].strip()[:80]!r} does "
+                       "not end with a line break: the file looks truncated (cut while being "
+                       "written or copied), so its last number may be incomplete; copy the "
+                       "file again, or delete the last line")
+    if len(t) < 3:
+        raise CLIError(f"{p}: only {len(t)} data row(s); an input needs at least 3")
     t, u = np.array(t), np.array(u)
-    if not np.all(np.isfinite(u)) or not np.all(np.isfinite(t)):
-        raise CLIError(f"{p}: the t and u columns must be finite numbers")
+    for name, col in (("t", t), ("u", u)):
+        bad = np.flatnonzero(~np.isfinite(col))
+        if bad.size:
+            raise CLIError(f"{p}, line {rows[bad[0]]}: {name} is {col[bad[0]]!r}; every value "
+                           "must be a finite number")
     d = np.diff(t)
-    if t.size < 2 or np.any(d <= 0):
-        raise CLIError(f"{p}: time must increase from row to row")
-    if np.max(np.abs(d - np.median(d))) > 1e-6 * np.median(d):
-        raise CLIError(f"{p}: time must be uniformly sampled; resample the input first")
+    bad = np.flatnonzero(d <= 0)
+    if bad.size:
+        raise CLIError(f"{p}, line {rows[bad[0] + 1]}: time {t[bad[0] + 1]!r} is not after "
+                       f"{t[bad[0]]!r}; time must increase from row to row")
+    try:
+        _check_time_unit(t, d)
+    except _RowProblem as exc:
+        raise CLIError(f"{p}, line {rows[exc.row]}: {exc.problem}") from None
+    step = float(np.median(d))
+    dev = np.abs(d - step) / step
+    bad = np.flatnonzero(dev > 1e-6)
+    if bad.size:
+        raise CLIError(f"{p}, line {rows[bad[0] + 1]}: time step {d[bad[0]]:.9g} s differs "
+                       f"from the median step {step:.9g} s; time must be uniformly sampled -- "
+                       "resample the input first")
+    if not MIN_RATE <= 1.0 / step <= MAX_RATE:
+        raise CLIError(f"{p}: sampled at {1.0 / step:.6g} Hz (step {step:.6g} s); simulate "
+                       f"needs {MIN_RATE:g} Hz to {MAX_RATE:g} Hz (the rig's encoders are read "
+                       "at 1 kHz); resample the input")
     return t - t[0], u
 
 
@@ -123,31 +261,91 @@ def _param_spec(spec: str | None):
 
 
 # ------------------------------------------------------------------------------- simulate
+def _plot_format(path: Path) -> None:
+    """Refuse a figure file name whose format matplotlib cannot write."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    ext = path.suffix[1:].lower()
+    if ext and ext not in kinds:
+        raise CLIError(f"--plot {path}: cannot write a .{ext} figure; use one of "
+                       f"{', '.join('.' + k for k in sorted(kinds))} (e.g. --plot "
+                       f"{path.with_suffix('.png')})")
+
+
 def cmd_simulate(a) -> int:
-    from .model import simulate
+    from .model import Model, simulate
+    from .outputs import _tmp_name
     from .signals import make_signal
 
+    # Everything the user can get wrong is checked before the simulation.
+    if a.input_file:
+        ignored = [flag for flag, v in (("--duration", a.duration), ("--rate", a.rate),
+                                        ("--input", a.input)) if v is not None]
+        if ignored:
+            raise CLIError(
+                f"--input-file {a.input_file} gives the input, its duration and its sampling "
+                f"rate (the t column), so {' and '.join(ignored)} would be ignored; leave "
+                f"{'it' if len(ignored) == 1 else 'them'} out (resample the file to change the "
+                "rate)")
+    out = check_output_file(a.out, flag="--out", force=a.force)
+    plot = None
+    if a.plot:
+        plot = check_output_file(a.plot, flag="--plot", force=a.force)
+        _plot_format(plot)
+        if plot.resolve() == out.resolve():
+            raise CLIError(f"--plot {plot} is the --out file; give the figure another name")
+    model = Model(a.model, a.add or ())
+    try:
+        params = _resolve_values(a.params, model)
+    except _params.ParameterError as exc:
+        raise CLIError(f"--params {a.params}: {exc}" if a.params and str(a.params) not in
+                       str(exc) else str(exc)) from None
     if a.input_file:
         t, u = _read_input_file(a.input_file)
+        source = a.input_file
     else:
+        a.input = a.input or "est"
+        a.duration = 30.0 if a.duration is None else a.duration
+        a.rate = 1000.0 if a.rate is None else a.rate
         t, u = make_signal(a.input, a.duration, rate=a.rate, seed=a.seed)
+        source = f"{a.input} seed={a.seed}"
     dt = float(t[1] - t[0])
-    out = Path(a.out)
-    if out.exists() and not a.force:
-        raise CLIError(f"{out} exists; choose another --out or pass --force to overwrite it")
-    from .model import Model
-
-    params = _resolve_values(a.params, Model(a.model, a.add or ()))
     t0 = time.perf_counter()
-    sim = simulate(params, u, dt=dt, config=a.model, alpha0=a.alpha0,
-                   effects=a.add or (), quantize_angles=a.quantize,
-                   noise_std=a.noise, seed=a.seed)
+    try:
+        sim = simulate(params, u, dt=dt, config=a.model, alpha0=a.alpha0,
+                       effects=a.add or (), quantize_angles=a.quantize,
+                       noise_std=a.noise, seed=a.seed)
+    except SimulationError as exc:
+        where = f"the values of --params {a.params}" if a.params else "these parameter values"
+        raise CLIError(f"{exc} ({where}); change the value named") from None
     el = time.perf_counter() - t0
+    # The header records everything needed to make the file again.
     meta = {"source": "rotorbayes simulate (synthetic)", "config": a.model,
-            "input": a.input_file or f"{a.input} seed={a.seed}",
+            "input": source, "rate_hz": f"{1 / dt:.10g}", "duration_s": f"{t[-1]:.10g}",
             "params": a.params or f"default ({_params.DEFAULT_SET[a.model]})",
-            "alpha0": sim.params["alpha0"], "quantized": a.quantize, "noise_std": a.noise}
-    save_experiment(sim.to_experiment(), out, overwrite=a.force, meta=meta)
+            "effects": ", ".join(model.effect_names) or "none",
+            "added_effects": ", ".join(a.add or ()) or "none",
+            "alpha0": sim.params["alpha0"], "quantized": a.quantize, "noise_std": a.noise,
+            "seed": a.seed}
+    meta.update({f"param.{n}": repr(float(v)) for n, v in sim.params.items()})
+    fig_tmp = None
+    try:
+        if plot is not None:
+            import matplotlib.pyplot as plt
+
+            from .plots import plot_simulation
+
+            fig, _ = plot_simulation(sim)
+            fig_tmp = _tmp_name(plot)
+            fig.savefig(fig_tmp, dpi=110, format=plot.suffix[1:] or None)
+            plt.close(fig)
+        save_experiment(sim.to_experiment(), out, overwrite=a.force, meta=meta)
+        if fig_tmp is not None:
+            os.replace(fig_tmp, plot)
+    finally:
+        if fig_tmp is not None and fig_tmp.exists():
+            fig_tmp.unlink()
     n_stick = int(np.sum(sim.events[:, 2] == 0)) if sim.events.size else 0
     print(f"simulated {a.model} configuration, {sim.t[-1]:.1f} s at {1 / dt:.0f} Hz in "
           f"{1e3 * el:.1f} ms; {len(sim.events)} stick/slip switches ({n_stick} stick onsets)")
@@ -155,12 +353,8 @@ def cmd_simulate(a) -> int:
         print(f"lower disc sticks {100 * sim.stick_fraction('l'):.1f} % of the time; "
               f"string torsion {sim.alpha.min():.3f} .. {sim.alpha.max():.3f} rad")
     print(f"wrote {out}")
-    if a.plot:
-        from .plots import plot_simulation
-
-        fig, _ = plot_simulation(sim)
-        fig.savefig(a.plot, dpi=110)
-        print(f"wrote {a.plot}")
+    if plot is not None:
+        print(f"wrote {plot}")
     return 0
 
 
@@ -224,21 +418,56 @@ def _problem_from_args(a, exps, start_spec=None):
     base_spec = a.base or start_spec
     base = _resolve_values(base_spec, model) if base_spec else None
     channels = tuple(_csv_list(a.channels, "--channels")) if a.channels else None
-    weights = None
-    if a.weights:
-        weights = {}
-        for item in a.weights.split(","):
-            k, eq, v = item.partition("=")
-            try:
-                weights[k.strip()] = float(v)
-            except ValueError:
-                raise CLIError(f"--weights: {item!r} must look like theta_l=1 (channel=weight)"
-                               ) from None
-            if not eq:
-                raise CLIError(f"--weights: {item!r} must look like theta_l=1 (channel=weight)")
+    weights = _parse_weights(a.weights, a.model, channels, a.prescribed_upper) \
+        if a.weights is not None else None
     prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
                    fixed=fixed)
     return prob, from_upper
+
+
+def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> dict:
+    """``--weights theta_l=1,theta_u=0.1``: channel names and positive finite weights."""
+    if config == "upper":
+        valid = ("theta_u",)
+    elif prescribed_upper:
+        valid = ("theta_l",)
+    else:
+        valid = ("theta_u", "theta_l")
+    if channels:
+        valid = tuple(c for c in valid if c in channels) or valid
+    example = ",".join(f"{c}={w}" for c, w in zip(valid, ("1", "0.1"), strict=False))
+    form = (f"write CHANNEL=WEIGHT pairs separated by commas, e.g. --weights {example} "
+            f"(channels of this fit: {', '.join(valid)})")
+    weights: dict[str, float] = {}
+    items = [x.strip() for x in text.split(",")]
+    if not any(items):
+        raise CLIError(f"--weights {text!r} is empty; {form}")
+    for item in items:
+        if not item:
+            raise CLIError(f"--weights {text!r}: an empty entry (two commas?); {form}")
+        name, eq, value = item.partition("=")
+        name, value = name.strip(), value.strip()
+        if not eq:
+            sep = next((c for c in ":; " if c in item), None)
+            hint = f"use '=' instead of {sep!r}; " if sep else ""
+            raise CLIError(f"--weights: {item!r} has no '='; {hint}{form}")
+        if name not in valid:
+            what = ("not a channel of this fit" if name in ("theta_u", "theta_l", "alpha")
+                    else "an unknown channel")
+            raise CLIError(f"--weights: {name!r} is {what}; {form}")
+        if name in weights:
+            raise CLIError(f"--weights: {name} is given twice; give each channel once")
+        try:
+            w = float(value)
+        except ValueError:
+            raise CLIError(f"--weights: the weight {value!r} of {name} is not a number; "
+                           f"{form}") from None
+        if not (math.isfinite(w) and w > 0):
+            raise CLIError(f"--weights: the weight of {name} is {value}; it must be a finite "
+                           "number > 0 (a channel you do not want to fit is left out with "
+                           "--channels instead)")
+        weights[name] = w
+    return weights
 
 
 def _resolve_values(spec, model) -> dict[str, float]:
@@ -426,11 +655,11 @@ def run_fit(a, out: Path) -> dict:
                           f"max |e| {st['max_abs_error']:.3g} rad")
             fig, _ = plot_fit(ex.t, meas, simd, mode=s.mode_l, metrics=txt,
                               title=f"{a.model}: {label} data {Path(str(ex.path)).name}")
-            fig.savefig(out / f"fit_{label}_{i}.png", dpi=100)
+            _save_fig(fig, out / f"fit_{label}_{i}.png")
     shape_discs = ("u",) if a.model == "upper" else ("u", "l")
     fig, _ = plot_friction(res.params, discs=shape_discs,
                            title=f"fitted friction, {a.model} configuration")
-    fig.savefig(out / "friction.png", dpi=100)
+    _save_fig(fig, out / "friction.png")
     print(f"\nwrote {out / 'fit.json'} and figures in {out}/")
     for wtxt in assessment.warnings:
         print(f"warning: {wtxt}", file=sys.stderr)
@@ -477,9 +706,32 @@ def _json_default(o):
     raise TypeError(type(o))
 
 
+class Interrupted(Exception):
+    """Ctrl-C, reported in one message (what was kept, how to continue); exit code 130."""
+
+
+def _fit_interrupted(exc: KeyboardInterrupt, out: str) -> Interrupted:
+    """The message for Ctrl-C during a fit: nothing written, the best point so far."""
+    from .inference.least_squares import FitInterrupted
+
+    text = f"nothing was written to {out}/"
+    if isinstance(exc, FitInterrupted):
+        vals = "\n".join(f"{n} = {v!r}" for n, v in zip(exc.names, exc.x, strict=True)
+                         if "[" not in n)
+        text += (f". The best point after {exc.nfev} evaluations (SSR {exc.ssr:.6g} rad²) "
+                 f"was:\n{vals}\nTo continue from it, save these lines in a file such as "
+                 "best.toml and run the fit again with --p0 best.toml")
+    else:
+        text += " (no fit evaluation had finished yet)"
+    return Interrupted(text)
+
+
 def cmd_fit(a) -> int:
-    out = _out_dir(a.out, a.force)
-    doc = run_fit(a, out)
+    try:
+        with output_folder(a.out, a.force) as out:
+            doc = run_fit(a, out)
+    except KeyboardInterrupt as exc:
+        raise _fit_interrupted(exc, a.out) from None
     return 0 if doc["success"] else 1
 
 
@@ -487,52 +739,72 @@ def cmd_multistart(a) -> int:
     from . import inference as E
     from .plots import plot_parameter_spread, plot_waterfall
 
-    out = _out_dir(a.out, a.force)
-    exps = _load(a.data, a.model)
-    prob, _ = _problem_from_args(a, exps)
-    around = None
-    if a.around:
-        around = _params.resolve(_param_spec(a.around), config=a.model)
-    how = (f"log-normal spread {a.spread:.2f} around {a.around}" if around
-           else "Latin hypercube over the bounds")
-    print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
-    ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
-                      workers=a.workers, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
-                      gtol=a.gtol)
-    order = np.argsort(ms.ssr)
-    print("\nbest end points:")
-    print(" rank  cluster        SSR   " + " ".join(f"{n:>10}" for n in ms.names))
-    for r, i in enumerate(order[: min(10, len(order))]):
-        print(f" {r + 1:4d}  {ms.clusters[i]:7d}  {ms.ssr[i]:9.4g}   "
-              + " ".join(f"{v:10.4g}" for v in ms.ends[i]))
-    summary = ms.summary()
-    print("\n" + summary)
-    doc = {"config": a.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
-           "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters, "summary": summary,
-           "data": [str(e.path) for e in exps]}
-    (out / "multistart.json").write_text(json.dumps(doc, indent=2, default=_json_default))
-    fig, _ = plot_waterfall(ms.ssr, title=f"multistart, {a.model}: sorted final SSR")
-    fig.savefig(out / "waterfall.png", dpi=100)
-    fig, _ = plot_parameter_spread(ms.names, ms.ends, ms.ssr,
-                                   title="end points (colour: log10 SSR above best)")
-    fig.savefig(out / "parameter_spread.png", dpi=100)
-    (out / "summary.txt").write_text(summary + "\n")
-    print(f"\nwrote {out}/multistart.json, waterfall.png, parameter_spread.png, summary.txt")
+    with output_folder(a.out, a.force) as out:
+        exps = _load(a.data, a.model)
+        prob, _ = _problem_from_args(a, exps)
+        around = None
+        if a.around:
+            around = _params.resolve(_param_spec(a.around), config=a.model)
+        how = (f"log-normal spread {a.spread:.2f} around {a.around}" if around
+               else "Latin hypercube over the bounds")
+        print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
+        ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
+                          workers=a.workers, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
+                          gtol=a.gtol)
+        n_done = int(ms.ssr.size) + len(ms.failed)
+        if ms.interrupted and n_done == 0:
+            raise Interrupted(f"no start had finished; nothing was written to {a.out}/")
+        order = np.argsort(ms.ssr)
+        print("\nbest end points:")
+        print(" rank  cluster        SSR   " + " ".join(f"{n:>10}" for n in ms.names))
+        for r, i in enumerate(order[: min(10, len(order))]):
+            print(f" {r + 1:4d}  {ms.clusters[i]:7d}  {ms.ssr[i]:9.4g}   "
+                  + " ".join(f"{v:10.4g}" for v in ms.ends[i]))
+        summary = ms.summary()
+        print("\n" + summary)
+        doc = {"config": a.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
+               "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters,
+               "summary": summary, "data": [str(e.path) for e in exps],
+               "n_requested": a.starts, "n_finished": n_done, "interrupted": ms.interrupted,
+               "start_index": ms.start_index, "failed": {str(k): v for k, v in
+                                                         ms.failed.items()}}
+        (out / "multistart.json").write_text(json.dumps(doc, indent=2, default=_json_default))
+        written = ["multistart.json"]
+        if ms.ssr.size:
+            fig, _ = plot_waterfall(ms.ssr, title=f"multistart, {a.model}: sorted final SSR")
+            _save_fig(fig, out / "waterfall.png")
+            fig, _ = plot_parameter_spread(ms.names, ms.ends, ms.ssr,
+                                           title="end points (colour: log10 SSR above best)")
+            _save_fig(fig, out / "parameter_spread.png")
+            written += ["waterfall.png", "parameter_spread.png"]
+        (out / "summary.txt").write_text(summary + "\n")
+        written.append("summary.txt")
+    print(f"\nwrote {a.out}/: {', '.join(written)}")
+    if ms.interrupted:
+        rest = a.starts - n_done
+        raise Interrupted(
+            f"interrupted after {n_done} of {a.starts} starts; the finished ones are in "
+            f"{a.out}/ (multistart.json, summary.txt). For the other {rest}, run again with "
+            f"--starts {rest} --seed {a.seed + 1} and another --out (a new seed gives new "
+            "starts), or repeat the whole command with --force")
     return 0
 
 
 def cmd_demo(a) -> int:
     """The main job on bundled data: the thesis's coupled step from P0, with validation."""
-    out = _out_dir(a.out, a.force)
     ns = argparse.Namespace(
         model="coupled", data=["example:coupled_est"], validate=["example:coupled_val"],
         p0="thesis:5.2:P0", base=None, free=None, fixed=None, add=None, without=None,
-        channels=None, restarts=6,
+        channels=None, restarts=6, out=a.out, force=a.force,
         weights=None, prescribed_upper=False, max_nfev=100, ftol=1e-10, xtol=1e-10,
         gtol=1e-10)
     print("rotorbayes demo: least squares on the bundled (synthetic) coupled-configuration "
           "data, from the thesis's P0 (table 5.2)\n")
-    doc = run_fit(ns, out)
+    try:
+        with output_folder(a.out, a.force) as out:
+            doc = run_fit(ns, out)
+    except KeyboardInterrupt as exc:
+        raise _fit_interrupted(exc, a.out) from None
     return 0 if doc["success"] else 1
 
 
@@ -601,6 +873,104 @@ def cmd_compare(a) -> int:
     return 0
 
 
+def cmd_sample(a) -> int:
+    """emcee from a least-squares fit, checkpointed; --resume continues the same chains."""
+    from .inference import posterior as PO
+    from .inference import sampling as S
+    from .inference.likelihood import LogPosterior, load_priors
+    from .results import load_fit
+
+    src = Path(a.source)
+    if a.resume:
+        settings_path = src / "settings.json"
+        if not settings_path.exists():
+            raise CLIError(f"{src}: no settings.json; --resume needs a folder written by "
+                           "`rotorbayes sample`")
+        settings = json.loads(settings_path.read_text())
+        out = src
+        if a.steps is not None:
+            if a.steps < settings["steps"]:
+                raise CLIError(f"--steps {a.steps} is below the {settings['steps']} steps "
+                               "already asked for; give the new total")
+            settings["steps"] = a.steps
+    else:
+        if a.steps is None:
+            a.steps = 2000
+        for flag, v, lo in (("--walkers", a.walkers, 4), ("--steps", a.steps, 10),
+                            ("--ensembles", a.ensembles, 1)):
+            if v < lo:
+                raise CLIError(f"{flag} {v}: give at least {lo}")
+        settings = {"fit": str(Path(a.source).resolve()), "walkers": a.walkers,
+                    "steps": a.steps, "ensembles": a.ensembles, "seed": a.seed,
+                    "noise": a.noise, "ar1": a.ar1,
+                    "priors": str(Path(a.priors).resolve()) if a.priors else None}
+        out = Path(a.out) if a.out else None
+        if out is None:
+            raise CLIError("give --out FOLDER for the posterior (or --resume FOLDER)")
+        if out.exists() and any(out.iterdir()) and not a.force:
+            raise CLIError(f"{out}/ already holds results; continue them with "
+                           f"`rotorbayes sample {out} --resume --steps N`, choose another "
+                           "--out or pass --force")
+    fit = load_fit(settings["fit"])
+    priors = load_priors(settings["priors"], fit.problem) if settings["priors"] else None
+    lp = LogPosterior(fit.problem, fit.x, priors=priors, noise=settings["noise"],
+                      ar1=settings["ar1"])
+    if settings["walkers"] < 2 * lp.ndim:
+        raise CLIError(f"--walkers {settings['walkers']}: emcee needs at least twice the "
+                       f"{lp.ndim} sampled coordinates; give --walkers {2 * lp.ndim} or more")
+    out.mkdir(parents=True, exist_ok=True)
+    S.save_settings(out, settings)
+    print(f"sampling {lp.ndim} coordinates ({', '.join(lp.coord_names)}) of {fit.folder}/ "
+          f"with {settings['walkers']} walkers x {settings['steps']} steps x "
+          f"{settings['ensembles']} independent ensembles; noise: "
+          f"{'AR(1), sampled' if lp.ar1 else settings['noise']}; checkpoint {out}/chain.h5 "
+          "(every step: a kill loses nothing, --resume continues)")
+    interrupted = False
+    try:
+        runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
+                        n_steps=settings["steps"], n_ensembles=settings["ensembles"],
+                        seed=settings["seed"], progress=not a.quiet)
+    except KeyboardInterrupt:
+        interrupted = True
+        print(f"\ninterrupted: every finished step is in {out}/chain.h5; continue with "
+              f"`rotorbayes sample {out} --resume`", file=sys.stderr)
+        return 130
+    names = lp.coord_names
+    warnings = S.convergence(runs, names)
+    if lp.n_failed:
+        warnings.append(f"{lp.n_failed} proposals could not be simulated (counted in "
+                        "sample_stats.failed_simulations; they got -inf)")
+    idata = PO.inference_data(lp, runs, max_draws=a.max_draws)
+    rows = PO.summary_table(idata, lp, runs)
+    if len(runs) >= 2:
+        bad = [r["parameter"] for r in rows if not r["r_hat"] < 1.01]
+        if bad:
+            warnings.append(f"R-hat across the {len(runs)} ensembles is >= 1.01 for "
+                            f"{', '.join(bad)}: they have not converged to one distribution")
+    else:
+        warnings.append("one ensemble: no R-hat (the walkers of an ensemble are not "
+                        "independent chains); use --ensembles 2 or more")
+    md = PO.table_markdown(rows)
+    print("\n" + md)
+    tmp = out / ".posterior.nc.tmp"
+    idata.to_netcdf(str(tmp))
+    tmp.replace(out / "posterior.nc")
+    _write_text(out / "summary.md", md + "\n")
+    _write_text(out / "summary.csv", PO.table_csv(rows))
+    from . import posterior_figures as PF
+
+    _save_fig(PF.plot_corner(idata, fit.problem), out / "corner.png")
+    _save_fig(PF.plot_trace(runs, names)[0], out / "trace.png")
+    _save_fig(PF.plot_predictive(idata, fit.problem)[0], out / "predictive.png")
+    _save_fig(PF.plot_correlation(idata, fit.problem)[0], out / "correlation.png")
+    _write_text(out / "warnings.txt", "\n".join(warnings) + "\n")
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"\nwrote posterior.nc, summary.md/.csv, corner.png, trace.png, predictive.png, "
+          f"correlation.png in {out}/ ({lp.n_calls} log-posterior evaluations)")
+    return 1 if interrupted else 0
+
+
 def _write_text(path: Path, text: str) -> None:
     """Write a file atomically (a temporary file beside it, then a rename)."""
     tmp = path.with_name(f".{path.name}.tmp")
@@ -649,7 +1019,9 @@ def _add_fit_args(p, *, multi=False):
     p.add_argument("--model", required=True, choices=["upper", "coupled", "brake"],
                    help="rig configuration")
     p.add_argument("data", nargs="+", help="measurement CSV file(s), or example:NAME")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", required=True,
+                   help="output folder (created, with missing parent folders; it appears only "
+                   "when the run succeeds)")
     p.add_argument("--free", help="comma-separated parameters to estimate (default: the "
                    "configuration's, plus alpha0 per experiment with several experiments)")
     p.add_argument("--fixed", help="comma-separated parameters to keep fixed")
@@ -661,63 +1033,89 @@ def _add_fit_args(p, *, multi=False):
     p.add_argument("--without", action="append", metavar="EFFECT",
                    help="switch off an effect of the configuration's base model (repeatable)")
     p.add_argument("--channels", help="theta_l, theta_u or theta_l,theta_u")
-    p.add_argument("--weights", help="channel weights, e.g. theta_l=1,theta_u=0.1")
+    p.add_argument("--weights", metavar="CHANNEL=W,...",
+                   help="channel weights (> 0), e.g. theta_l=1,theta_u=0.1 (default: 1 each)")
     p.add_argument("--prescribed-upper", action="store_true",
                    help="drive the lower disc with the measured theta_u")
-    p.add_argument("--max-nfev", type=int, default=200, help="evaluation budget per fit")
-    p.add_argument("--ftol", type=float, default=1e-10)
-    p.add_argument("--xtol", type=float, default=1e-10)
-    p.add_argument("--gtol", type=float, default=1e-10)
-    p.add_argument("--force", action="store_true", help="overwrite results in --out")
+    p.add_argument("--max-nfev", type=_ranged(int, ge=1, why=" (residual evaluations)"),
+                   default=200, metavar="N", help="evaluation budget per fit")
+    for tol in ("ftol", "xtol", "gtol"):
+        p.add_argument(f"--{tol}", type=_ranged(gt=0, why=" (a convergence tolerance)"),
+                       default=1e-10, help=f"{tol} of scipy.optimize.least_squares")
+    p.add_argument("--force", action="store_true",
+                   help="replace the results in --out (only once the new run has succeeded)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="rotorbayes", description=__doc__)
+    from . import __version__
+
+    ap = _Parser(prog="rotorbayes", description=__doc__)
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                    help="print the version and exit")
     sub = ap.add_subparsers(dest="cmd", required=True)
 
     s = sub.add_parser("simulate", help="simulate an experiment and write a measurement CSV")
-    s.add_argument("--model", default="brake", choices=["upper", "coupled", "brake"])
-    s.add_argument("--input", default="est", choices=["est", "val"],
-                   help="generated input: est (quasi-random levels) or val (multisine)")
-    s.add_argument("--input-file", help="CSV with columns t,u (overrides --input)")
-    s.add_argument("--duration", type=float, default=30.0, help="seconds (generated input)")
-    s.add_argument("--rate", type=float, default=1000.0, help="samples per second")
-    s.add_argument("--seed", type=int, default=0, help="seed of the input and the noise")
-    s.add_argument("--params", help="named set (thesis:4.3:P_ref), TOML file or fit.json")
-    s.add_argument("--alpha0", type=float, help="initial string torsion [rad]")
+    s.add_argument("--model", default="brake", choices=["upper", "coupled", "brake"],
+                   help="rig configuration")
+    s.add_argument("--input", choices=["est", "val"],
+                   help="generated input: est (quasi-random levels) or val (multisine) "
+                   "(default: est)")
+    s.add_argument("--input-file", help="CSV with columns t,u in s and V, uniformly sampled; "
+                   "gives the input, duration and rate (so not with --input, --duration, "
+                   "--rate)")
+    s.add_argument("--duration", type=_ranged(gt=0, le=7200, why=" seconds (experiments on "
+                   "the rig last seconds to about an hour)"),
+                   help="seconds of generated input, > 0 and <= 7200 (default: 30)")
+    s.add_argument("--rate", type=_rate, help=f"samples per second, {MIN_RATE:g} to "
+                   f"{MAX_RATE:g} (default: 1000)")
+    s.add_argument("--seed", type=_ranged(int, ge=0), default=0,
+                   help="seed of the input and the noise")
+    s.add_argument("--params", help="named set (thesis:4.3:P_ref), TOML file or fit.json "
+                   "(default: the configuration's P_ref)")
+    s.add_argument("--alpha0", type=_ranged(ge=-10, le=10, why=" rad (the bounds of alpha0)"),
+                   help="initial string torsion [rad] (default: from --params)")
     s.add_argument("--add", action="append", metavar="EFFECT",
                    help="switch an effect on (repeatable): a catalogue name or FILE.py:NAME; "
                    "its parameters come from --params (null values otherwise)")
     s.add_argument("--quantize", action="store_true", help="round to encoder counts")
-    s.add_argument("--noise", type=float, default=0.0, help="Gaussian noise std [rad]")
-    s.add_argument("--out", required=True, help="output CSV")
-    s.add_argument("--plot", help="also save a figure (PNG)")
-    s.add_argument("--force", action="store_true", help="overwrite --out")
+    s.add_argument("--noise", type=_ranged(ge=0, why=" rad (a standard deviation)"),
+                   default=0.0, help="Gaussian noise std [rad]")
+    s.add_argument("--out", required=True, help="output CSV (its folder must exist)")
+    s.add_argument("--plot", help="also save a figure (.png, .pdf, .svg, ...; its folder "
+                   "must exist)")
+    s.add_argument("--force", action="store_true", help="overwrite --out and --plot")
     s.set_defaults(func=cmd_simulate)
 
     f = sub.add_parser("fit", help="least squares from a start P0")
     _add_fit_args(f)
-    f.add_argument("--validate", nargs="*", help="validation CSV file(s)")
+    f.add_argument("--validate", action="append", metavar="FILE",
+                   help="a validation CSV file or example:NAME; repeat the option for several "
+                   "(--validate a.csv --validate b.csv)")
     f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json "
                    "(default: a start computed from the data); a fit.json of an upper-"
                    "configuration fit also fixes the upper-disc parameters it estimated")
-    f.add_argument("--restarts", type=int, default=6,
+    f.add_argument("--restarts", type=_ranged(int, ge=0), default=6,
                    help="without --p0: extra fits around the data start when the first one "
                    "ends above 3x the encoder floor")
     f.set_defaults(func=cmd_fit)
 
     m = sub.add_parser("multistart", help="many fits from spread starts; waterfall and spread")
     _add_fit_args(m)
-    m.add_argument("--starts", type=int, default=32)
-    m.add_argument("--around", help="spread starts around this set instead of the bounds")
-    m.add_argument("--spread", type=float, default=0.3, help="log-sd of the spread")
-    m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--workers", type=int, default=2, help="parallel fits")
+    m.add_argument("--starts", type=_ranged(int, ge=1, why=" (one fit per start)"),
+                   default=32, metavar="N", help="number of fits from different starts")
+    m.add_argument("--around", help="spread starts around this set (named set, TOML or "
+                   "fit.json) instead of over the bounds")
+    m.add_argument("--spread", type=_ranged(gt=0, le=5, why=" (the log-sd of the start "
+                   "factors; 0.3 spreads by about ±30 %)"), default=0.3,
+                   help="log-sd of the spread around --around")
+    m.add_argument("--seed", type=_ranged(int, ge=0), default=0, help="seed of the starts")
+    m.add_argument("--workers", type=_ranged(int, ge=1, le=256, why=" (parallel fits)"),
+                   default=2, metavar="N", help="parallel fits")
     m.set_defaults(func=cmd_multistart)
 
     d = sub.add_parser("demo", help="the main job on the bundled example data")
-    d.add_argument("--out", default="demo_out")
-    d.add_argument("--force", action="store_true")
+    d.add_argument("--out", default="demo_out", help="output folder")
+    d.add_argument("--force", action="store_true", help="replace the results in --out")
     d.set_defaults(func=cmd_demo)
 
     g = sub.add_parser("diagnose", help="is the remaining error noise? which effect is "
@@ -736,8 +1134,33 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--force", action="store_true", help="overwrite results in --out")
     c.set_defaults(func=cmd_compare)
 
+    sp = sub.add_parser("sample", help="posterior sampling with emcee from a fit "
+                        "(checkpointed; --resume continues)")
+    sp.add_argument("source", help="a fit folder, or with --resume a sample folder")
+    sp.add_argument("--out", help="output folder (new runs)")
+    sp.add_argument("--resume", action="store_true",
+                    help="continue the chains in SOURCE (a folder written by sample)")
+    sp.add_argument("--walkers", type=int, default=32, help="walkers per ensemble")
+    sp.add_argument("--steps", type=int, default=None,
+                    help="total steps per ensemble (default 2000; with --resume the new "
+                    "total)")
+    sp.add_argument("--ensembles", type=int, default=2,
+                    help="independent ensembles (>= 2 for R-hat)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--noise", choices=["floor", "sampled"], default="floor",
+                    help="channel noise fixed at the encoder floor, or sampled (prior 1/σ)")
+    sp.add_argument("--ar1", action="store_true", help="AR(1) errors per channel")
+    sp.add_argument("--priors", help="TOML with a [priors] table (default: uniform within "
+                    "the physical bounds)")
+    sp.add_argument("--max-draws", type=int, default=500,
+                    help="draws per ensemble kept in posterior.nc")
+    sp.add_argument("--quiet", action="store_true", help="no progress bar")
+    sp.add_argument("--force", action="store_true", help="overwrite results in --out")
+    sp.set_defaults(func=cmd_sample)
+
     p = sub.add_parser("params", help="list parameters and named sets, or show one set")
-    p.add_argument("name", nargs="?")
+    p.add_argument("name", nargs="?", help="a named set (thesis:4.2:P0), TOML file or "
+                   "fit.json")
     p.set_defaults(func=cmd_params)
 
     e = sub.add_parser("effects", help="list the catalogue of physical effects")
@@ -750,10 +1173,35 @@ def main(argv=None) -> int:
     ap = build_parser()
     a = ap.parse_args(argv)
     try:
-        return a.func(a)
+        code = a.func(a)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return code
+    except Interrupted as exc:
+        print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C): {exc}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C); no partial output was left behind",
+              file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        # The reader (e.g. `| head`) stopped reading: not an error of ours. Python's recipe:
+        # point stdout at devnull so the flush at exit does not fail again.
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+        return 141
     except (CLIError, DataFileError, _params.ParameterError, ValueError, FileExistsError,
-            SimulationError, ResultError) as exc:
+            SimulationError, ResultError, OutputError) as exc:
         print(f"rotorbayes {a.cmd}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if exc.filename is None:  # not about a path the user gave: a bug, show it
+            raise
+        what = exc.strerror or type(exc).__name__
+        print(f"rotorbayes {a.cmd}: error: {exc.filename}: {what}; check the path and its "
+              "permissions", file=sys.stderr)
         return 2
 
 

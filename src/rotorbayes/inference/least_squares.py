@@ -28,6 +28,18 @@ class StartError(SimulationError):
     """The start point of a fit cannot be simulated (the integrator's reason included)."""
 
 
+class FitInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a fit, with the best point evaluated so far.
+
+    Attributes: ``names`` (free parameters), ``x`` (their values at the best point),
+    ``ssr`` (its sum of squared residuals) and ``nfev`` (evaluations done).
+    """
+
+    def __init__(self, names: list[str], x: np.ndarray, ssr: float, nfev: int) -> None:
+        super().__init__(f"interrupted after {nfev} evaluations (best SSR {ssr:.6g})")
+        self.names, self.x, self.ssr, self.nfev = names, x, ssr, nfev
+
+
 #: Penalty residual [rad] the optimiser sees for parameter sets the integrator rejects.
 FAIL_RESIDUAL = 1e3
 
@@ -157,6 +169,7 @@ def fit(
     scale = _scale(problem, x0)
     lo, hi = problem.lower / scale, problem.upper / scale
     counter = {"n": 0, "best": math.inf}
+    best_x: dict = {}  # the best point so far, reported if the fit is interrupted
 
     last: dict = {}
 
@@ -166,7 +179,8 @@ def fit(
         last["z"], last["r"] = z.copy(), r
         counter["n"] += 1
         s = float(r @ r)
-        counter["best"] = min(counter["best"], s)
+        if s < counter["best"]:
+            counter["best"], best_x["x"] = s, z * scale
         if verbose and counter["n"] % 10 == 0:
             print(
                 f"  evaluation {counter['n']:4d}  SSR {s:.6e}  best {counter['best']:.6e}",
@@ -193,18 +207,24 @@ def fit(
         return J * scale[None, :]
 
     t0 = time.perf_counter()
-    res = least_squares(
-        fun,
-        x0 / scale,
-        jac=jac,
-        bounds=(lo, hi),
-        method="trf",
-        x_scale=1.0,
-        ftol=ftol,
-        xtol=xtol,
-        gtol=gtol,
-        max_nfev=max_nfev,
-    )
+    try:
+        res = least_squares(
+            fun,
+            x0 / scale,
+            jac=jac,
+            bounds=(lo, hi),
+            method="trf",
+            x_scale=1.0,
+            ftol=ftol,
+            xtol=xtol,
+            gtol=gtol,
+            max_nfev=max_nfev,
+        )
+    except KeyboardInterrupt:
+        if "x" not in best_x:
+            raise
+        raise FitInterrupted(list(problem.names), best_x["x"], counter["best"],
+                             counter["n"]) from None
     seconds = time.perf_counter() - t0
     x = res.x * scale
     J = jac(res.x) / scale[None, :]

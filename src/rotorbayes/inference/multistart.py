@@ -180,12 +180,25 @@ def latin_hypercube(
                 X[:, j] = np.exp(np.log(lo[j]) + U[:, j] * (np.log(hi[j]) - np.log(lo[j])))
             else:
                 X[:, j] = lo[j] + U[:, j] * (hi[j] - lo[j])
-        return X
+        return _within_constraints(problem, X, U)
     from scipy.stats import norm
 
     fac = np.exp(spread * norm.ppf(np.clip(U, 1e-9, 1 - 1e-9)))
     X = np.where(around != 0, around * fac, spread * (U - 0.5) * (problem.upper - problem.lower))
     return np.clip(X, problem.lower, problem.upper)
+
+
+def _within_constraints(problem: Problem, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """Asymmetries drawn over their whole bounds mostly break ``Tc >= |dTc|``: draw them
+    as a fraction of their (drawn) mean level instead, so every start can be simulated."""
+    from ..kernel.terms import CONSTRAINTS
+
+    pos = {n: j for j, n in enumerate(problem.names)}
+    for names, _, _ in CONSTRAINTS:
+        if len(names) == 2 and all(n in pos for n in names):
+            a, b = pos[names[0]], pos[names[1]]
+            X[:, b] = (2 * U[:, b] - 1) * 0.9 * X[:, a]
+    return X
 
 
 def multistart(

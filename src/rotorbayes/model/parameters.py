@@ -222,6 +222,11 @@ def load_toml(path: str | Path) -> dict[str, float]:
         raw = tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ParameterError(f"{path}: parameter file not found") from None
+    except UnicodeDecodeError:
+        raise ParameterError(f"{path}: not a text file; write `name = value` lines") from None
+    except OSError as exc:  # a folder, no permission, ...
+        raise ParameterError(f"{path}: cannot read the parameter file ({exc.strerror})"
+                             ) from None
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(
             f"{path}: not valid TOML ({exc}); write `name = value` lines"
@@ -234,8 +239,20 @@ def load_toml(path: str | Path) -> dict[str, float]:
         if name not in INFO:
             raise ParameterError(f"{path}: {unknown_name_message(name)}")
         if not isinstance(val, int | float) or isinstance(val, bool):
-            raise ParameterError(f"{path}: {name} = {val!r} is not a number")
-        out[name] = float(val)
+            raise ParameterError(f"{path}: {name} = {val!r} is not a number; write a plain "
+                                 f"number, e.g. {name} = {INFO[name].lower:g}")
+        info = INFO[name]
+        val = float(val)
+        if math.isnan(val) and math.isnan(info.null) and name == "Ts_l":
+            out[name] = val  # Ts_l = nan means "equal to Tc_l" (no Stribeck peak)
+            continue
+        if not (info.lower <= val <= info.upper):
+            raise ParameterError(
+                f"{path}: {name} = {val:g} {info.unit} lies outside its physical bounds "
+                f"[{info.lower:g}, {info.upper:g}] ({info.description}); correct this value "
+                "in the file"
+            )
+        out[name] = val
     return out
 
 

@@ -1,0 +1,148 @@
+"""From chains to results: arviz InferenceData, the credible-interval table, warnings.
+
+The posterior draws are the thinned, burnt-in steps of every walker; arviz's ``chain``
+dimension is the *ensemble* (independent runs with their own seeds), ``draw`` the steps
+and walkers of one ensemble in step order, so ``arviz.rhat`` compares independent
+ensembles (not walkers, which are not independent) and split-R-hat sees a drift in time.
+ESS and τ in the table are emcee's (walkers × steps / τ per ensemble, summed), beside
+arviz's bulk ESS.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .likelihood import LogPosterior
+from .sampling import EnsembleRun, burn_thin
+
+
+def draws(logpost: LogPosterior, runs: list[EnsembleRun], max_draws: int = 500):
+    """Thinned draws per ensemble in parameter units: ``X (chains, draws, k)``, the
+    coordinates ``Z``, log-posterior and the (burn, thin) used."""
+    burn, thin = burn_thin(runs)
+    Zs, lps = [], []
+    for r in runs:
+        z = r.chain[burn::thin]  # (steps, walkers, ndim)
+        lp = r.log_prob[burn::thin]
+        z = z.reshape(-1, z.shape[-1])
+        lp = lp.reshape(-1)
+        if z.shape[0] > max_draws:
+            keep = np.linspace(0, z.shape[0] - 1, max_draws).astype(int)
+            z, lp = z[keep], lp[keep]
+        Zs.append(z)
+        lps.append(lp)
+    n = min(z.shape[0] for z in Zs)
+    Z = np.stack([z[:n] for z in Zs])
+    LP = np.stack([lp[:n] for lp in lps])
+    return Z, LP, burn, thin
+
+
+def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws: int = 500,
+                   predictive: bool = True):
+    """:class:`arviz.InferenceData` with posterior, sample_stats, pointwise
+    log_likelihood per experiment and channel, observed_data, constant_data (u) and
+    posterior_predictive (noise-free simulations)."""
+    import arviz as az
+
+    prob = logpost.problem
+    Z, LP, burn, thin = draws(logpost, runs, max_draws)
+    C, D, _ = Z.shape
+    flat = Z.reshape(C * D, -1)
+    X, S, P = logpost.split(flat)
+    posterior = {n: X[:, j].reshape(C, D) for j, n in enumerate(prob.names)}
+    for j, c in enumerate(logpost.channels):
+        if logpost.noise == "sampled":
+            posterior[f"sigma_{c}"] = S[:, j].reshape(C, D)
+        if logpost.ar1:
+            posterior[f"phi_{c}"] = P[:, j].reshape(C, D)
+    L, failed = logpost.pointwise(X, S, P)
+    loglik, observed, constant, pp, dims, coords = {}, {}, {}, {}, {}, {}
+    R = prob.residuals_batch(X) if predictive else None
+    for (c, a, b), ex_i in zip(logpost.segments, _exp_index(prob), strict=True):
+        ex = prob.experiments[ex_i]
+        key = f"{c}_exp{ex_i}"
+        loglik[key] = L[:, a:b].reshape(C, D, -1).astype(np.float32)
+        meas = ex.theta_u if c == "theta_u" else ex.theta_l
+        observed[key] = meas
+        dims[key] = [f"time_exp{ex_i}"]
+        coords[f"time_exp{ex_i}"] = ex.t
+        constant[f"u_exp{ex_i}"] = ex.u
+        dims[f"u_exp{ex_i}"] = [f"time_exp{ex_i}"]
+        if R is not None:
+            w = prob.weights[c]
+            pp[key] = (meas[None, :] - R[:, a:b] / w).reshape(C, D, -1).astype(np.float32)
+    acc = np.stack([np.full(D, float(np.mean(r.acceptance))) for r in runs])
+    stats = {"lp": LP, "acceptance_rate": acc,
+             "failed_simulations": np.full((C, D), logpost.n_failed)}
+    idata = az.from_dict(
+        posterior=posterior, sample_stats=stats, log_likelihood=loglik,
+        observed_data=observed, constant_data=constant,
+        posterior_predictive=pp or None, dims=dims, coords=coords,
+    )
+    idata.posterior.attrs.update({"burn_in_steps": burn, "thin": thin,
+                                  "ensembles": C, "walkers_steps_note":
+                                  "chain = independent ensemble; draw = steps x walkers"})
+    return idata
+
+
+def _exp_index(prob):
+    out = []
+    for i, _ in enumerate(prob.experiments):
+        out += [i] * len(prob.channels)
+    return out
+
+
+def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: float = 0.94):
+    """Rows: mean, sd, HDI, bulk ESS (arviz), ESS from τ (emcee), R-hat, τ, unit."""
+    import arviz as az
+
+    prob = logpost.problem
+    summ = az.summary(idata, hdi_prob=hdi, kind="all", round_to="none")
+    rows = []
+    for j, n in enumerate(logpost.coord_names):
+        pname = n[4:] if n.startswith("log_") and n[4:] in prob.names else n
+        var = pname if pname in summ.index else (
+            "sigma_" + n[10:] if n.startswith("log_sigma_") else pname)
+        if var not in summ.index:
+            continue
+        s = summ.loc[var]
+        taus = [r.tau[j] for r in runs]
+        steps = [r.chain.shape[0] for r in runs]
+        walkers = runs[0].chain.shape[1]
+        ess_tau = sum(st * walkers / t for st, t in zip(steps, taus, strict=True)
+                      if np.isfinite(t) and t > 0)
+        unit = prob.info(var).unit if var in prob.names else "rad" if "sigma" in var else "-"
+        lo_k = [k for k in s.index if k.startswith("hdi_")]
+        rows.append({
+            "parameter": var, "mean": float(s["mean"]), "sd": float(s["sd"]),
+            "hdi_low": float(s[lo_k[0]]), "hdi_high": float(s[lo_k[1]]),
+            "ess_bulk": float(s["ess_bulk"]), "ess_tau": float(ess_tau),
+            "r_hat": float(s["r_hat"]), "tau": float(np.nanmax(taus)) if np.any(
+                np.isfinite(taus)) else math.nan,
+            "unit": unit,
+        })
+    return rows
+
+
+def table_markdown(rows, hdi: float = 0.94) -> str:
+    pct = f"{100 * hdi:.0f} % HDI"
+    head = (f"| parameter | mean | sd | {pct} | ESS (arviz bulk) | ESS (walkers × steps / τ) "
+            "| R-hat | τ [steps] | unit |\n|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in rows:
+        lines.append(
+            f"| {r['parameter']} | {r['mean']:.6g} | {r['sd']:.3g} | [{r['hdi_low']:.6g}, "
+            f"{r['hdi_high']:.6g}] | {r['ess_bulk']:.0f} | {r['ess_tau']:.0f} | "
+            f"{r['r_hat']:.3f} | {r['tau']:.1f} | {r['unit']} |"
+        )
+    return "\n".join(lines)
+
+
+def table_csv(rows) -> str:
+    keys = list(rows[0]) if rows else []
+    out = [",".join(keys)]
+    for r in rows:
+        out.append(",".join(str(r[k]) for k in keys))
+    return "\n".join(out) + "\n"

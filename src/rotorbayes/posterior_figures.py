@@ -1,0 +1,107 @@
+"""Figures of a posterior: corner plot (with multistart end points if given), traces,
+posterior-predictive bands over the data, and the correlation matrix."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .plots import _plt
+
+
+def _labels(prob, names):
+    out = []
+    for n in names:
+        try:
+            unit = prob.info(n).unit
+        except KeyError:
+            unit = "rad" if n.startswith("sigma") else "-"
+        out.append(f"{n} [{unit}]")
+    return out
+
+
+def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
+    """Corner plot of the free parameters; ``overlay`` (m, k) marks e.g. multistart end
+    points."""
+    import corner
+
+    names = list(prob.names)
+    X = np.column_stack([idata.posterior[n].values.reshape(-1) for n in names])
+    fig = corner.corner(X, labels=_labels(prob, names), show_titles=True, title_fmt=".4g",
+                        quantiles=[0.03, 0.5, 0.97], title_kwargs={"fontsize": 8},
+                        label_kwargs={"fontsize": 8}, truths=truth)
+    if overlay is not None and len(overlay):
+        k = len(names)
+        axes = np.array(fig.axes).reshape(k, k)
+        for i in range(k):
+            for j in range(i):
+                axes[i, j].plot(overlay[:, j], overlay[:, i], "x", color="tab:red", ms=4,
+                                label="multistart end points" if (i, j) == (1, 0) else None)
+        axes[1, 0].legend(fontsize=7, loc="best")
+    fig.suptitle("posterior (3 %, 50 %, 97 % quantiles)", fontsize=10)
+    return fig
+
+
+def plot_trace(runs, coord_names):
+    """Walker traces per coordinate and ensemble (sampling coordinates)."""
+    plt = _plt()
+    k = len(coord_names)
+    fig, axes = plt.subplots(k, 1, figsize=(10, 1.5 * k + 0.8), sharex=True, squeeze=False,
+                             constrained_layout=True)
+    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red"]
+    for j, n in enumerate(coord_names):
+        ax = axes[j, 0]
+        for e, r in enumerate(runs):
+            ax.plot(r.chain[:, :, j], color=colors[e % 4], alpha=0.15, lw=0.5)
+        ax.set_ylabel(n, fontsize=8)
+    axes[-1, 0].set_xlabel("step (colour: ensemble)")
+    fig.suptitle("walker traces in sampling coordinates (log_ = natural log of the parameter)")
+    return fig, axes
+
+
+def plot_predictive(idata, prob, *, i: int = 0):
+    """Measured angles with the posterior-predictive 94 % band (noise-free simulations),
+    and the error of the median."""
+    plt = _plt()
+    chans = list(prob.channels)
+    ex = prob.experiments[i]
+    fig, axes = plt.subplots(2 * len(chans), 1, figsize=(10, 2.4 * 2 * len(chans) + 0.6),
+                             sharex=True, squeeze=False, constrained_layout=True)
+    for k, c in enumerate(chans):
+        key = f"{c}_exp{i}"
+        sims = idata.posterior_predictive[key].values.reshape(-1, ex.n)
+        lo, med, hi = np.percentile(sims, [3, 50, 97], axis=0)
+        meas = idata.observed_data[key].values
+        ax = axes[2 * k, 0]
+        ax.plot(ex.t, meas, color="k", lw=1, label="measured")
+        ax.fill_between(ex.t, lo, hi, color="tab:orange", alpha=0.4, label="94 % band")
+        ax.set_ylabel(f"{c} [rad]")
+        ax.legend(loc="upper left", fontsize=8)
+        ax2 = axes[2 * k + 1, 0]
+        ax2.fill_between(ex.t, meas - hi, meas - lo, color="tab:orange", alpha=0.4,
+                         label="measured − band")
+        ax2.plot(ex.t, meas - med, color="tab:blue", lw=0.8, label="measured − median")
+        ax2.axhline(0, color="k", lw=0.5)
+        ax2.set_ylabel(f"{c} error [rad]")
+        ax2.legend(loc="upper left", fontsize=8)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle(f"posterior predictive, experiment {ex.name or i}")
+    return fig, axes
+
+
+def plot_correlation(idata, prob):
+    """Posterior correlation matrix of the free parameters."""
+    plt = _plt()
+    names = list(prob.names)
+    X = np.column_stack([idata.posterior[n].values.reshape(-1) for n in names])
+    C = np.corrcoef(X, rowvar=False)
+    fig, ax = plt.subplots(figsize=(1.0 + 0.6 * len(names), 0.8 + 0.6 * len(names)),
+                           constrained_layout=True)
+    im = ax.imshow(C, vmin=-1, vmax=1, cmap="RdBu_r")
+    ax.set_xticks(range(len(names)), names, rotation=60, fontsize=8)
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    for i in range(len(names)):
+        for j in range(len(names)):
+            ax.text(j, i, f"{C[i, j]:.2f}", ha="center", va="center", fontsize=6)
+    fig.colorbar(im, ax=ax, label="posterior correlation")
+    ax.set_title("posterior correlation")
+    return fig, ax
