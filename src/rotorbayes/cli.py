@@ -172,6 +172,13 @@ def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
         raise CLIError(f"{p}, line {hline}: the header {htext!r} must contain the columns t "
                        "and u (comma-separated)")
     it, iu = header.index("t"), header.index("u")
+    # A complete file ends with a line break; without one the last number may be cut.
+    if lines[-1].strip() and len(numbered) > 1 and not lines[-1].lstrip().startswith("#"):
+        raise CLIError(f"{p}, line {len(lines)}: the last line {lines[-1].strip()[:80]!r} "
+                       "does not end with a line break: the file looks truncated (cut while "
+                       "being written or copied), so its last number may be incomplete; copy "
+                       "the file again, or delete the last line (if it is complete, end it "
+                       "with a line break)")
     t, u, rows = [], [], []
     for k, ln in numbered[1:]:
         f = ln.split(",")
@@ -185,12 +192,6 @@ def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
         t.append(tk)
         u.append(uk)
         rows.append(k)
-    # A complete file ends with a line break; without one the last number may be cut.
-    if rows and lines[-1].strip():
-        raise CLIError(f"{p}, line {rows[-1]}: the last line {lines[-1].strip()[:80]!r} does "
-                       "not end with a line break: the file looks truncated (cut while being "
-                       "written or copied), so its last number may be incomplete; copy the "
-                       "file again, or delete the last line")
     if len(t) < 3:
         raise CLIError(f"{p}: only {len(t)} data row(s); an input needs at least 3")
     t, u = np.array(t), np.array(u)
@@ -288,10 +289,10 @@ def cmd_simulate(a) -> int:
                 f"rate (the t column), so {' and '.join(ignored)} would be ignored; leave "
                 f"{'it' if len(ignored) == 1 else 'them'} out (resample the file to change the "
                 "rate)")
-    out = check_output_file(a.out, flag="--out", force=a.force)
+    out = check_output_file(a.out, flag="--out", force=a.force, example="sim.csv")
     plot = None
     if a.plot:
-        plot = check_output_file(a.plot, flag="--plot", force=a.force)
+        plot = check_output_file(a.plot, flag="--plot", force=a.force, example="sim.png")
         _plot_format(plot)
         if plot.resolve() == out.resolve():
             raise CLIError(f"--plot {plot} is the --out file; give the figure another name")
@@ -732,6 +733,12 @@ def cmd_fit(a) -> int:
             doc = run_fit(a, out)
     except KeyboardInterrupt as exc:
         raise _fit_interrupted(exc, a.out) from None
+    except SimulationError as exc:
+        from .inference import StartError
+
+        if isinstance(exc, StartError) and a.p0 and a.p0 not in str(exc):
+            raise CLIError(f"--p0 {a.p0}: {exc}") from None
+        raise
     return 0 if doc["success"] else 1
 
 
@@ -971,6 +978,69 @@ def cmd_sample(a) -> int:
     return 1 if interrupted else 0
 
 
+def cmd_identify(a) -> int:
+    """Fisher eigen-analysis in words, profile likelihoods, multistart on the corner plot."""
+    from .inference import identify as I
+    from .results import load_fit
+
+    fit = load_fit(a.fit)
+    prob = fit.problem
+    profiles = _csv_list(a.profiles, "--profiles") or []
+    for n in profiles:
+        if n not in prob.names:
+            raise CLIError(f"--profiles: {n} is not a free parameter of {fit.folder}/; the "
+                           f"free ones are {', '.join(prob.names)}")
+    if a.points < 3:
+        raise CLIError(f"--points {a.points}: give at least 3 grid points")
+    out = _out_dir(a.out, a.force)
+    F = I.fisher(prob, fit.x)
+    words = I.describe(F)
+    print(f"Fisher information of {fit.folder}/ at the fit (noise at the encoder floor; "
+          "log coordinates for positive parameters):")
+    print("  eigenvalues " + ", ".join(f"{v:.3g}" for v in F.eigenvalues))
+    for w in words:
+        print("  " + w)
+    doc = {"fit": str(fit.folder), "fisher": F.as_dict(), "words": words, "profiles": []}
+    from . import posterior_figures as PF
+
+    _save_fig(PF.plot_fisher(F)[0], out / "fisher.png")
+    written = ["identify.json", "fisher.png"]
+    if profiles:
+        se = dict(zip(prob.names, fit.doc and [fit.doc["estimates"][n]["stderr"] or 0.0
+                                               for n in prob.names], strict=True))
+        for n in profiles:
+            t0 = time.perf_counter()
+            pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n),
+                           workers=a.workers)
+            doc["profiles"].append(pr)
+            inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
+                      if d is not None and math.isfinite(d) and d < 3.84]
+            print(f"profile of {n}: {a.points} points in {time.perf_counter() - t0:.1f} s; "
+                  + (f"95 % interval (Δχ² < 3.84) within [{min(inside):.7g}, {max(inside):.7g}] "
+                     f"{pr['unit']}" if inside else "no grid point within Δχ² < 3.84")
+                  + ("; the interval reaches the grid's edge: widen it" if inside and (
+                      min(inside) == pr["grid"][0] or max(inside) == pr["grid"][-1]) else ""))
+        _save_fig(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
+        written.append("profiles.png")
+    if a.posterior:
+        import arviz as az
+
+        idata = az.from_netcdf(Path(a.posterior) / "posterior.nc")
+        overlay = None
+        if a.multistart:
+            ms = json.loads((Path(a.multistart) / "multistart.json").read_text())
+            if ms.get("names") != list(prob.names):
+                raise CLIError(f"{a.multistart}: its free parameters {ms.get('names')} "
+                               f"differ from the fit's {list(prob.names)}")
+            overlay = np.array(ms["ends"])
+        _save_fig(PF.plot_corner(idata, prob, overlay=overlay), out / "corner.png")
+        written.append("corner.png")
+    _write_text(out / "identify.json", strict_json(doc))
+    _write_text(out / "summary.txt", "\n".join(words) + "\n")
+    print(f"\nwrote {', '.join(written)}, summary.txt in {out}/")
+    return 0
+
+
 def _write_text(path: Path, text: str) -> None:
     """Write a file atomically (a temporary file beside it, then a rename)."""
     tmp = path.with_name(f".{path.name}.tmp")
@@ -1157,6 +1227,18 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
     sp.add_argument("--force", action="store_true", help="overwrite results in --out")
     sp.set_defaults(func=cmd_sample)
+
+    i = sub.add_parser("identify", help="which parameter combinations the data fix: "
+                       "Fisher directions in words, profile likelihoods")
+    i.add_argument("fit", help="a folder written by `rotorbayes fit`")
+    i.add_argument("--out", required=True, help="output folder")
+    i.add_argument("--profiles", help="comma-separated free parameters to profile")
+    i.add_argument("--points", type=int, default=11, help="grid points per profile")
+    i.add_argument("--workers", type=int, default=2, help="parallel profile fits")
+    i.add_argument("--posterior", help="a sample folder: corner plot of its posterior")
+    i.add_argument("--multistart", help="a multistart folder: its end points on the corner")
+    i.add_argument("--force", action="store_true", help="overwrite results in --out")
+    i.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("params", help="list parameters and named sets, or show one set")
     p.add_argument("name", nargs="?", help="a named set (thesis:4.2:P0), TOML file or "

@@ -162,7 +162,8 @@ def _remove_created(created: list[Path]) -> None:
             break
 
 
-def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False) -> Path:
+def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False,
+                      example: str = "out.csv") -> Path:
     """Refuse, before any work, an output file whose folder is missing or that exists.
 
     Returns the path. Raises :class:`OutputError` naming the path and the fix.
@@ -171,7 +172,7 @@ def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False
     folder = p.parent
     if p.is_dir():
         raise OutputError(f"{flag} {p}: is a folder; give a file name (e.g. {flag} "
-                          f"{p / 'out'}{p.suffix or ''})")
+                          f"{p / example})")
     if not folder.is_dir():
         what = "is a file, not a folder" if folder.exists() else "does not exist"
         raise OutputError(f"{flag} {p}: the folder {folder}/ {what}; create it first "

@@ -105,3 +105,43 @@ def plot_correlation(idata, prob):
     fig.colorbar(im, ax=ax, label="posterior correlation")
     ax.set_title("posterior correlation")
     return fig, ax
+
+
+def plot_fisher(F):
+    """Eigenvalues of the Fisher information and the eigenvectors' components."""
+    plt = _plt()
+    k = len(F.names)
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(5 + 0.5 * k, 0.6 * k + 2.2),
+                                 constrained_layout=True,
+                                 gridspec_kw={"width_ratios": [1, 1.6]})
+    a1.semilogy(range(k), F.eigenvalues, "o-")
+    a1.set_xlabel("direction (sloppiest first)")
+    a1.set_ylabel("eigenvalue (1/relative units²)")
+    a1.set_title("Fisher information spectrum", fontsize=9)
+    im = a2.imshow(F.vectors, cmap="RdBu_r", vmin=-1, vmax=1, aspect="auto")
+    a2.set_yticks(range(k), [f"{'log ' if lg else ''}{n}" for n, lg in
+                             zip(F.names, F.log, strict=True)], fontsize=8)
+    a2.set_xticks(range(k), [f"{i}" for i in range(k)])
+    a2.set_xlabel("direction (sloppiest first)")
+    a2.set_title("eigenvector components", fontsize=9)
+    fig.colorbar(im, ax=a2)
+    return fig, (a1, a2)
+
+
+def plot_profiles(profiles):
+    """Profile likelihoods: Δχ² against each profiled parameter, the 95 % line."""
+    plt = _plt()
+    n = len(profiles)
+    fig, axes = plt.subplots(1, n, figsize=(4 * n, 3.2), squeeze=False,
+                             constrained_layout=True)
+    for ax, pr in zip(axes[0], profiles, strict=True):
+        g = np.array(pr["grid"], float)
+        d = np.array([np.nan if v is None else v for v in pr["delta_chi2"]], float)
+        ax.plot(g, d, "o-")
+        ax.axhline(3.84, color="tab:red", ls="--", lw=1, label="95 % (Δχ² = 3.84)")
+        ax.axvline(pr["estimate"], color="k", lw=0.6)
+        ax.set_xlabel(f"{pr['parameter']} [{pr['unit']}]")
+        ax.set_ylabel("Δχ² (others refitted)")
+        ax.legend(fontsize=7)
+    fig.suptitle("profile likelihoods")
+    return fig, axes
