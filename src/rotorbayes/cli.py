@@ -658,7 +658,7 @@ def run_fit(a, out: Path) -> dict:
                               title=f"{a.model}: {label} data {Path(str(ex.path)).name}")
             _save_fig(fig, out / f"fit_{label}_{i}.png")
     shape_discs = ("u",) if a.model == "upper" else ("u", "l")
-    fig, _ = plot_friction(res.params, discs=shape_discs,
+    fig, _ = plot_friction(res.params, discs=shape_discs, shape=prob.shape,
                            title=f"fitted friction, {a.model} configuration")
     _save_fig(fig, out / "friction.png")
     print(f"\nwrote {out / 'fit.json'} and figures in {out}/")
@@ -715,7 +715,7 @@ def _fit_interrupted(exc: KeyboardInterrupt, out: str) -> Interrupted:
     """The message for Ctrl-C during a fit: nothing written, the best point so far."""
     from .inference.least_squares import FitInterrupted
 
-    text = f"nothing was written to {out}/"
+    text = f"interrupted (Ctrl-C); nothing was written to {out}/"
     if isinstance(exc, FitInterrupted):
         vals = "\n".join(f"{n} = {v!r}" for n, v in zip(exc.names, exc.x, strict=True)
                          if "[" not in n)
@@ -744,7 +744,7 @@ def cmd_fit(a) -> int:
 
 def cmd_multistart(a) -> int:
     from . import inference as E
-    from .plots import plot_parameter_spread, plot_waterfall
+    from .plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
     with output_folder(a.out, a.force) as out:
         exps = _load(a.data, a.model)
@@ -760,7 +760,8 @@ def cmd_multistart(a) -> int:
                           gtol=a.gtol)
         n_done = int(ms.ssr.size) + len(ms.failed)
         if ms.interrupted and n_done == 0:
-            raise Interrupted(f"no start had finished; nothing was written to {a.out}/")
+            raise Interrupted(f"interrupted (Ctrl-C) before any start had finished; nothing "
+                              f"was written to {a.out}/")
         order = np.argsort(ms.ssr)
         print("\nbest end points:")
         print(" rank  cluster        SSR   " + " ".join(f"{n:>10}" for n in ms.names))
@@ -778,10 +779,15 @@ def cmd_multistart(a) -> int:
         (out / "multistart.json").write_text(json.dumps(doc, indent=2, default=_json_default))
         written = ["multistart.json"]
         if ms.ssr.size:
-            fig, _ = plot_waterfall(ms.ssr, title=f"multistart, {a.model}: sorted final SSR")
+            floor = quantisation_floor_ssr(prob)
+            fig, _ = plot_waterfall(ms.ssr, labels=ms.clusters, n_failed=len(ms.failed),
+                                    noise_floor_ssr=floor,
+                                    title=f"multistart, {a.model}: sorted final SSR")
             _save_fig(fig, out / "waterfall.png")
-            fig, _ = plot_parameter_spread(ms.names, ms.ends, ms.ssr,
-                                           title="end points (colour: log10 SSR above best)")
+            fig, _ = plot_parameter_spread(
+                ms.names, ms.ends, ms.ssr, clusters=ms.clusters, noise_floor_ssr=floor,
+                units={n: prob.info(n).unit for n in ms.names},
+                title=f"multistart, {a.model}: end points")
             _save_fig(fig, out / "parameter_spread.png")
             written += ["waterfall.png", "parameter_spread.png"]
         (out / "summary.txt").write_text(summary + "\n")
@@ -790,7 +796,7 @@ def cmd_multistart(a) -> int:
     if ms.interrupted:
         rest = a.starts - n_done
         raise Interrupted(
-            f"interrupted after {n_done} of {a.starts} starts; the finished ones are in "
+            f"interrupted (Ctrl-C) after {n_done} of {a.starts} starts; the finished ones are in "
             f"{a.out}/ (multistart.json, summary.txt). For the other {rest}, run again with "
             f"--starts {rest} --seed {a.seed + 1} and another --out (a new seed gives new "
             "starts), or repeat the whole command with --force")
@@ -1259,7 +1265,7 @@ def main(argv=None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not at exit
         return code
     except Interrupted as exc:
-        print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C): {exc}", file=sys.stderr)
+        print(f"rotorbayes {a.cmd}: {exc}", file=sys.stderr)
         return 130
     except KeyboardInterrupt:
         print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C); no partial output was left behind",

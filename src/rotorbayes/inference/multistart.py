@@ -198,7 +198,7 @@ def _within_constraints(problem: Problem, X: np.ndarray, U: np.ndarray) -> np.nd
         if len(names) == 2 and all(n in pos for n in names):
             a, b = pos[names[0]], pos[names[1]]
             X[:, b] = (2 * U[:, b] - 1) * 0.9 * X[:, a]
-    return X
+    return np.clip(X, problem.lower, problem.upper)
 
 
 def multistart(
