@@ -57,7 +57,7 @@ def main(argv=None) -> dict:
         if not a.force:
             raise SystemExit(f"{out}/ already holds a walk-through; pass --force to replace it")
         shutil.rmtree(out)
-    out.mkdir(parents=True)
+    out.mkdir(parents=True, exist_ok=True)
     report = io.StringIO()
 
     class Tee:

@@ -108,3 +108,20 @@ def test_hidden_effect_walkthrough_reaches_the_floor(tmp_path):
     assert last["adequate"] and max(last["rms_over_floor"].values()) < 1.5
     assert (tmp_path / "walk" / "compare_chain" / "chain.png").exists()
     assert "walk-through done" in (tmp_path / "walk" / "report.txt").read_text()
+
+
+def test_identifiability_showcase_finds_the_scale_symmetry(tmp_path):
+    res = _load("identifiability").main(["--quick", "--out", str(tmp_path / "id")])
+    a = res["A"]["cosines"]
+    # The posterior's main axis, the sloppiest Fisher direction and the thesis's step from
+    # P_ref to P (table 4.2) point the same way in log space.
+    assert a["posterior_vs_fisher"] > 0.98 and a["posterior_vs_thesis_step"] > 0.97
+    assert a["fisher_vs_thesis_step"] > 0.97
+    # Ratios to J_l are far better determined than the scale.
+    assert max(res["A"]["sd_log_ratios"]) < min(res["A"]["sd_log"])
+    # theta_u prescribed: singular Fisher matrix, posterior spread along the ridge to a bound.
+    assert res["B"]["eig_ratio"] < 1e-10 and min(res["B"]["span"]) > 3
+    assert res["B"]["k_alpha_max_over_bound"] > 0.8
+    assert max(res["B"]["sd_log_ratios"]) < 1e-3
+    # The default (upper disc fitted too) recovers the scale.
+    assert all(abs(v - 1) < 1e-3 for v in res["C"]["recovered"].values())

@@ -104,8 +104,9 @@ class _Formatter(argparse.HelpFormatter):
 
     def _get_help_string(self, action):
         text = action.help or ""
-        if ("%(default)" in text or "default" in text or action.default in (None, False)
-                or action.default is argparse.SUPPRESS or not action.option_strings):
+        if ("%(default)" in text or "default" in text or action.default is None
+                or action.default is False or action.default is argparse.SUPPRESS
+                or not action.option_strings or not text):
             return text
         return f"{text} (default: %(default)s)"
 
@@ -117,6 +118,14 @@ class _Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kw):
         kw.setdefault("formatter_class", _Formatter)
         super().__init__(*args, **kw)
+
+    def add_argument(self, *args, **kw):
+        # An option without help text would hide its default; give it one that shows it.
+        default = kw.get("default")
+        if (kw.get("help") is None and args and str(args[0]).startswith("-")
+                and default is not None and default is not False):
+            kw["help"] = "(default: %(default)s)"
+        return super().add_argument(*args, **kw)
 
     def error(self, message):
         sys.stderr.write(f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
@@ -344,6 +353,12 @@ def cmd_simulate(a) -> int:
         save_experiment(sim.to_experiment(), out, overwrite=a.force, meta=meta)
         if fig_tmp is not None:
             os.replace(fig_tmp, plot)
+    except FileExistsError:
+        raise
+    except OSError as exc:
+        target = plot if fig_tmp is not None and out.exists() else out
+        raise CLIError(f"cannot write {target} ({exc.strerror or exc}); check that its folder "
+                       "is writable and has space, or choose another path") from None
     finally:
         if fig_tmp is not None and fig_tmp.exists():
             fig_tmp.unlink()
@@ -717,7 +732,7 @@ def _fit_interrupted(exc: KeyboardInterrupt, out: str) -> Interrupted:
 
     text = f"interrupted (Ctrl-C); nothing was written to {out}/"
     if isinstance(exc, FitInterrupted):
-        vals = "\n".join(f"{n} = {v!r}" for n, v in zip(exc.names, exc.x, strict=True)
+        vals = "\n".join(f"{n} = {float(v)!r}" for n, v in zip(exc.names, exc.x, strict=True)
                          if "[" not in n)
         text += (f". The best point after {exc.nfev} evaluations (SSR {exc.ssr:.6g} rad²) "
                  f"was:\n{vals}\nTo continue from it, save these lines in a file such as "
@@ -1259,7 +1274,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     ap = build_parser()
-    a = ap.parse_args(argv)
+    try:
+        a = ap.parse_args(argv)
+    except SystemExit as exc:  # --help, --version (0) or a usage error (2), already printed
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         code = a.func(a)
         sys.stdout.flush()  # a closed pipe shows here, not at exit

@@ -252,10 +252,14 @@ class LogPosterior:
         w = np.empty(J.shape[0])
         for (c, a, b) in self.segments:
             w[a:b] = 1.0 / (self.floor[c] * self.problem.weights[c])
-        Jw = J * w[:, None]
-        cov = np.linalg.pinv(Jw.T @ Jw, rcond=1e-12)
         d = np.where(self.log, x_fit, 1.0)  # to log coordinates
-        cov_z = cov / np.outer(d, d)
+        Jz = J * w[:, None] * d[None, :]
+        lam, V = np.linalg.eigh(Jz.T @ Jz)
+        # Directions the data do not determine (an exact symmetry) get a 1 % spread, so
+        # the ensemble's stretch moves can travel along them.
+        var = np.where(lam > 1e-10 * max(lam.max(), 1e-300), 1.0 / np.maximum(lam, 1e-300),
+                       1e-4 / scale**2)
+        cov_z = (V * var) @ V.T
         z0 = self.to_z(x_fit)
         out = np.empty((n_walkers, self.ndim))
         evals = np.linalg.eigvalsh(cov_z)

@@ -143,6 +143,7 @@ def sample(
 ) -> list[EnsembleRun]:
     """Run (or continue) ``n_ensembles`` ensembles into ``folder/chain.h5``."""
     folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     path = folder / "chain.h5"
     for e in range(n_ensembles):
         t0 = time.perf_counter()
