@@ -676,7 +676,7 @@ def run_fit(a, out: Path) -> dict:
     fig, _ = plot_friction(res.params, discs=shape_discs, shape=prob.shape,
                            title=f"fitted friction, {a.model} configuration")
     _save_fig(fig, out / "friction.png")
-    print(f"\nwrote {out / 'fit.json'} and figures in {out}/")
+    print(f"\nwrote {Path(a.out) / 'fit.json'} and figures in {a.out}/")
     for wtxt in assessment.warnings:
         print(f"warning: {wtxt}", file=sys.stderr)
     return doc

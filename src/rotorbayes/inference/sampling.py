@@ -43,7 +43,7 @@ def _backend(path: Path, name: str) -> emcee.backends.HDFBackend:
 
 def run_ensemble(
     logpost: LogPosterior,
-    path: Path,
+    path: Path | None,
     name: str,
     *,
     n_walkers: int,
@@ -57,9 +57,9 @@ def run_ensemble(
     Returns the number of steps taken in this call.  A group that already holds steps is
     continued from its last state and random state (``--resume``).
     """
-    backend = _backend(path, name)
+    backend = _backend(path, name) if path is not None else emcee.backends.Backend()
     done = 0
-    if path.exists():
+    if path is not None and path.exists():
         try:
             done = backend.iteration
         except (KeyError, OSError):
@@ -67,7 +67,7 @@ def run_ensemble(
     if done >= n_steps:
         return 0
     if done == 0:
-        if path.exists():
+        if path is not None and path.exists():
             backend.reset(n_walkers, logpost.ndim)
         rng = np.random.default_rng(seed)
         p0 = logpost.start_ball(x_fit, n_walkers, rng)
@@ -78,21 +78,25 @@ def run_ensemble(
     sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
                                     backend=backend)
     sampler.run_mcmc(state, n_steps - done, progress=progress, store=True)
+    if path is None:
+        return _run_of(backend, name)
     return n_steps - done
 
 
-def read_ensemble(path: Path, name: str) -> EnsembleRun:
-    b = _backend(path, name)
-    chain = b.get_chain()
-    lp = b.get_log_prob()
-    acc = b.accepted / max(b.iteration, 1)
+def _run_of(backend, name: str) -> EnsembleRun:
+    chain = backend.get_chain()
     tau = np.full(chain.shape[2], np.nan)
     if chain.shape[0] >= 20:
         try:
             tau = emcee.autocorr.integrated_time(chain, tol=0)
         except Exception:  # noqa: BLE001 - too short: τ stays unknown
             pass
-    return EnsembleRun(name, chain, lp, acc, np.asarray(tau, float))
+    return EnsembleRun(name, chain, backend.get_log_prob(),
+                       backend.accepted / max(backend.iteration, 1), np.asarray(tau, float))
+
+
+def read_ensemble(path: Path, name: str) -> EnsembleRun:
+    return _run_of(_backend(path, name), name)
 
 
 def burn_thin(runs: list[EnsembleRun]) -> tuple[int, int]:
@@ -133,7 +137,7 @@ def save_settings(folder: Path, settings: dict) -> None:
 def sample(
     logpost: LogPosterior,
     x_fit,
-    folder: Path,
+    folder: Path | None,
     *,
     n_walkers: int = 32,
     n_steps: int = 2000,
@@ -141,7 +145,12 @@ def sample(
     seed: int = 0,
     progress: bool = True,
 ) -> list[EnsembleRun]:
-    """Run (or continue) ``n_ensembles`` ensembles into ``folder/chain.h5``."""
+    """Run (or continue) ``n_ensembles`` ensembles into ``folder/chain.h5`` (in memory,
+    without checkpoints, when ``folder`` is None)."""
+    if folder is None:
+        return [run_ensemble(logpost, None, f"ensemble{e}", n_walkers=n_walkers,
+                             n_steps=n_steps, x_fit=x_fit, seed=seed + 1000 * e,
+                             progress=progress) for e in range(n_ensembles)]
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "chain.h5"
