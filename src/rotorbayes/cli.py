@@ -819,21 +819,40 @@ def cmd_multistart(a) -> int:
 
 
 def cmd_demo(a) -> int:
-    """The main job on bundled data: the thesis's coupled step from P0, with validation."""
-    ns = argparse.Namespace(
-        model="coupled", data=["example:coupled_est"], validate=["example:coupled_val"],
-        p0="thesis:5.2:P0", base=None, free=None, fixed=None, add=None, without=None,
-        channels=None, restarts=6, out=a.out, force=a.force,
-        weights=None, prescribed_upper=False, max_nfev=100, ftol=1e-10, xtol=1e-10,
-        gtol=1e-10)
-    print("rotorbayes demo: least squares on the bundled (synthetic) coupled-configuration "
-          "data, from the thesis's P0 (table 5.2)\n")
-    try:
-        with output_folder(a.out, a.force) as out:
-            doc = run_fit(ns, out)
-    except KeyboardInterrupt as exc:
-        raise _fit_interrupted(exc, a.out) from None
-    return 0 if doc["success"] else 1
+    """The whole story on the bundled hidden-effect data (the bundled analysis file)."""
+    from importlib.resources import files
+
+    from .study import run
+
+    path = files("rotorbayes") / "data" / "demo.toml"
+    out = Path(a.out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"--out {out}: is a file; give a folder name")
+    print(f"rotorbayes demo: the bundled (synthetic) coupled data with a hidden physical "
+          f"effect: first fit from the data, diagnosis, effects added one at a time, the "
+          f"posterior, identifiability and an HTML report, into {out}/\n"
+          f"(the analysis file: {path}; rerunning skips the stages whose inputs did not "
+          "change; --force reruns all)")
+    t0 = time.perf_counter()
+    rec = run(path, quiet=a.quiet, force=a.force, out=out)
+    print(f"\ndemo done in {time.perf_counter() - t0:.0f} s; effects added: "
+          f"{', '.join(rec.get('added_effects', [])) or 'none'}")
+    if rec.get("report"):
+        print(f"open the report: {rec['report']}")
+    return 0
+
+
+def cmd_run(a) -> int:
+    """A whole study from an analysis file."""
+    from .study import run
+
+    t0 = time.perf_counter()
+    rec = run(a.analysis, quiet=a.quiet, force=a.force)
+    print(f"\nstudy done in {time.perf_counter() - t0:.0f} s; outputs and run.json in "
+          f"{Path(rec['final_fit']).parent}/")
+    if rec.get("report"):
+        print(f"report: {rec['report']}")
+    return 0
 
 
 def cmd_diagnose(a) -> int:
@@ -1204,10 +1223,20 @@ def build_parser() -> argparse.ArgumentParser:
                    default=2, metavar="N", help="parallel fits")
     m.set_defaults(func=cmd_multistart)
 
-    d = sub.add_parser("demo", help="the main job on the bundled example data")
-    d.add_argument("--out", default="demo_out", help="output folder")
-    d.add_argument("--force", action="store_true", help="replace the results in --out")
+    d = sub.add_parser("demo", help="the whole story on the bundled hidden-effect data: "
+                       "fit, diagnose, add effects, sample, identify, HTML report")
+    d.add_argument("--out", default="rotorbayes-demo", help="output folder")
+    d.add_argument("--force", action="store_true", help="rerun every stage")
+    d.add_argument("--quiet", action="store_true", help="print only the summary (the log "
+                   "file in the output folder has everything)")
     d.set_defaults(func=cmd_demo)
+
+    r = sub.add_parser("run", help="a whole study from an analysis file (TOML; see "
+                       "docs/analysis_file.md)")
+    r.add_argument("analysis", help="the analysis file")
+    r.add_argument("--force", action="store_true", help="rerun every stage")
+    r.add_argument("--quiet", action="store_true", help="print only the summary")
+    r.set_defaults(func=cmd_run)
 
     g = sub.add_parser("diagnose", help="is the remaining error noise? which effect is "
                        "missing? (writes diagnosis.json and figures into the fit folder)")

@@ -160,8 +160,13 @@ def diagnose(
                    f"the error is at the floor ({worst:.2f}x) but "
                    f"{significant[0].effect} is significant")
         top = significant[0] if significant else None
-        if top is not None and (foreign is None or
-                                foreign.strongest[0] in EXPLAINS.get(top.effect, ())):
+        if top is not None and foreign is not None:
+            # The foreign dependence vetoes the claim only if it clearly beats every
+            # variable the top effect could produce, on the same disc's map.
+            own = [r2 for var, r2 in foreign.ranking if var in EXPLAINS.get(top.effect, ())]
+            if own and foreign.strongest[1] < max(own) + 0.2:
+                foreign = None
+        if top is not None and foreign is None:
             claimed = top.effect
             tie = [s.effect for s in significant[1:] if s.effect in top.alike]
             est = ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in

@@ -112,6 +112,10 @@ def _rank(M: np.ndarray, feats: dict[str, np.ndarray]) -> list[tuple[str, float]
             s = feats["direction"]
             X = np.column_stack([one, s, np.sin(h * v), np.cos(h * v), s * np.sin(h * v),
                                  s * np.cos(h * v)])
+        elif k == "time":
+            # A drift is a trend, not any function of time (which would explain everything).
+            tt = (v - v.mean()) / max(np.ptp(v), 1e-12)
+            X = np.column_stack([one, tt, tt**2])
         else:
             if np.ptp(v) == 0:
                 continue

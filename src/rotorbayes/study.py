@@ -1,0 +1,368 @@
+"""A whole study from one file: ``rotorbayes run analysis.toml`` (and ``rotorbayes demo``).
+
+The analysis file (TOML; reference in ``docs/analysis_file.md``) names the data, the
+configuration, the fit, the diagnosis loop, the sampler, the identifiability study and the
+report.  :func:`load_analysis` validates all of it before any work starts: unknown tables
+or keys, unknown parameter names, inconsistent prior bounds and missing files are errors
+that name the file and the key.
+
+:func:`run` executes the stages through the same code as the commands (each stage's
+arguments are parsed by the CLI's own parser), writes every stage into its folder under
+``out``, a log of everything printed to ``out/log.txt``, and ``out/run.json`` with package
+versions, seeds, the analysis text, the data's SHA-256 and each stage's input hash and time.
+Re-running skips a stage whose input hash (its part of the analysis file, the data, and
+the output of the stage before it) is unchanged and whose output is still there.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import hashlib
+import io
+import json
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .model import effects as _effects
+from .model.parameters import INFO, ParameterError
+
+#: Tables and keys the analysis file may hold (key -> expected type(s)).
+SCHEMA: dict[str, dict[str, tuple]] = {
+    "analysis": {"name": (str,), "out": (str,), "config": (str,), "data": (list,),
+                 "validate": (list,), "seed": (int,)},
+    "fit": {"p0": (str,), "free": (list,), "fixed": (list,), "effects": (list,),
+            "channels": (list,), "max_nfev": (int,)},
+    "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float)},
+    "sample": {"walkers": (int,), "steps": (int,), "ensembles": (int,), "noise": (str,),
+               "ar1": (bool,)},
+    "priors": {},
+    "identify": {"profiles": (list,), "points": (int,)},
+    "report": {"html": (bool,)},
+}
+
+
+class AnalysisError(ValueError):
+    """The analysis file is invalid; the message names the file and the key."""
+
+
+@dataclass
+class Analysis:
+    path: Path
+    text: str
+    doc: dict
+    base_dir: Path = field(init=False)
+
+    def __post_init__(self):
+        self.base_dir = self.path.resolve().parent
+
+    def table(self, name: str) -> dict:
+        return self.doc.get(name, {})
+
+    @property
+    def out(self) -> Path:
+        p = Path(self.doc["analysis"]["out"])
+        return p if p.is_absolute() else self.base_dir / p
+
+    def resolve(self, spec: str) -> str:
+        """A data/effect path relative to the analysis file (``example:`` kept)."""
+        if spec.startswith(("example:", "thesis:")):
+            return spec
+        path_part, sep, rest = spec.partition(".py:")
+        if sep:
+            p = Path(path_part + ".py")
+            return str(p if p.is_absolute() else self.base_dir / p) + ":" + rest
+        p = Path(spec)
+        return str(p if p.is_absolute() else self.base_dir / p)
+
+
+def _err(path, key, text) -> AnalysisError:
+    return AnalysisError(f"{path}: [{key}] {text}")
+
+
+def load_analysis(path: str | Path) -> Analysis:
+    """Read and validate an analysis file (see the module docstring)."""
+    from .examples import example_path
+
+    p = Path(path)
+    if not p.exists():
+        raise AnalysisError(f"{p}: analysis file not found")
+    text = p.read_text()
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise AnalysisError(f"{p}: not valid TOML ({exc})") from None
+    for t, v in doc.items():
+        if t not in SCHEMA:
+            raise AnalysisError(f"{p}: unknown table [{t}]; the tables are "
+                                f"{', '.join(f'[{s}]' for s in SCHEMA)}")
+        if not isinstance(v, dict):
+            raise AnalysisError(f"{p}: {t} must be a table ([{t}]), not a value")
+        if t == "priors":
+            continue
+        for k, val in v.items():
+            if k not in SCHEMA[t]:
+                raise _err(p, t, f"unknown key {k!r}; valid keys: {', '.join(SCHEMA[t])}")
+            if not isinstance(val, SCHEMA[t][k]) or (isinstance(val, bool) and bool not in
+                                                     SCHEMA[t][k]):
+                want = " or ".join(x.__name__ for x in SCHEMA[t][k])
+                raise _err(p, t, f"{k} = {val!r} must be a {want}")
+    a = Analysis(p, text, doc)
+    an = doc.get("analysis")
+    if not an:
+        raise AnalysisError(f"{p}: the [analysis] table is missing (it names the data, the "
+                            "configuration and the output folder)")
+    for k in ("out", "config", "data"):
+        if k not in an:
+            raise _err(p, "analysis", f"{k} is missing")
+    if an["config"] not in ("upper", "coupled", "brake"):
+        raise _err(p, "analysis", f"config = {an['config']!r}; choose upper, coupled or brake")
+    if not an["data"]:
+        raise _err(p, "analysis", "data is empty; list at least one measurement file")
+    for key in ("data", "validate"):
+        for f in an.get(key, []):
+            if not isinstance(f, str):
+                raise _err(p, "analysis", f"{key}: {f!r} must be a file name")
+            if f.startswith("example:"):
+                try:
+                    example_path(f)
+                except Exception as exc:  # noqa: BLE001 - reported with the key
+                    raise _err(p, "analysis", f"{key}: {exc}") from None
+            elif not Path(a.resolve(f)).exists():
+                raise _err(p, "analysis", f"{key}: file {f!r} not found (relative paths are "
+                           f"relative to {a.base_dir})")
+    fit = a.table("fit")
+    for key in ("free", "fixed"):
+        for n in fit.get(key, []):
+            b = str(n).split("[")[0]
+            if b not in INFO:
+                raise _err(p, "fit", f"{key}: unknown parameter {n!r}; valid names are: "
+                           f"{', '.join(INFO)}")
+    for e in fit.get("effects", []):
+        try:
+            _effects.resolve([a.resolve(e) if ".py:" in e else e])
+        except Exception as exc:  # noqa: BLE001 - the effect registry explains
+            raise _err(p, "fit", f"effects: {exc}") from None
+    for c in fit.get("channels", []):
+        if c not in ("theta_u", "theta_l"):
+            raise _err(p, "fit", f"channels: {c!r}; choose theta_u and/or theta_l")
+    s = a.table("sample")
+    if "noise" in s and s["noise"] not in ("floor", "sampled"):
+        raise _err(p, "sample", f"noise = {s['noise']!r}; choose floor or sampled")
+    for k in ("walkers", "steps", "ensembles"):
+        if k in s and s[k] < 1:
+            raise _err(p, "sample", f"{k} = {s[k]} must be >= 1")
+    for n, spec in a.table("priors").items():
+        if n not in INFO:
+            raise _err(p, "priors", f"unknown parameter {n!r}; valid names are: "
+                       f"{', '.join(INFO)}")
+        if not isinstance(spec, dict):
+            raise _err(p, "priors", f"{n} must be a table like {{ dist = \"normal\", "
+                       "mean = 0.08, sd = 0.004 }")
+        lo, hi = spec.get("lower", INFO[n].lower), spec.get("upper", INFO[n].upper)
+        if not lo < hi:
+            raise _err(p, "priors", f"{n}: lower {lo} must be below upper {hi}")
+    for n in a.table("identify").get("profiles", []):
+        if n not in INFO:
+            raise _err(p, "identify", f"profiles: unknown parameter {n!r}")
+    return a
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _file_sha(spec: str) -> str:
+    from .examples import example_path
+
+    path = example_path(spec) if spec.startswith("example:") else Path(spec)
+    return _sha(Path(path).read_bytes())
+
+
+def _versions() -> dict:
+    import importlib.metadata as md
+
+    out = {"python": sys.version.split()[0]}
+    for pkg in ("rotorbayes", "numpy", "scipy", "numba", "emcee", "arviz", "corner", "h5py",
+                "matplotlib"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+class _Tee(io.TextIOBase):
+    def __init__(self, log, echo):
+        self.log, self.echo = log, echo
+
+    def write(self, s):
+        self.log.write(s)
+        if self.echo is not None:
+            self.echo.write(s)
+        return len(s)
+
+    def flush(self):
+        self.log.flush()
+        if self.echo is not None:
+            self.echo.flush()
+
+
+def run(path: str | Path, *, quiet: bool = False, force: bool = False,
+        out: str | Path | None = None) -> dict:
+    """Run the study an analysis file describes; returns the run record (run.json).
+
+    ``out`` overrides the file's output folder (the demo writes into the current folder);
+    ``force`` reruns every stage even if its inputs are unchanged.
+    """
+    from .cli import build_parser
+
+    a = load_analysis(path)
+    out = Path(out) if out is not None else a.out
+    out.mkdir(parents=True, exist_ok=True)
+    record_path = out / "run.json"
+    old = {}
+    if record_path.exists() and not force:
+        try:
+            old = {s["name"]: s for s in json.loads(record_path.read_text()).get("stages", [])}
+        except (OSError, ValueError, KeyError):
+            old = {}
+    an = a.table("analysis")
+    data = [a.resolve(f) for f in an["data"]]
+    val = [a.resolve(f) for f in an.get("validate", [])]
+    data_hashes = [{"path": f, "sha256": _file_sha(f)} for f in data + val]
+    seed = an.get("seed", 0)
+    record = {
+        "analysis_file": str(Path(path).resolve()), "analysis_text": a.text,
+        "versions": _versions(), "seeds": {"analysis": seed, "sample": seed},
+        "data": data_hashes, "stages": [],
+        "started": datetime.datetime.now().isoformat(timespec="seconds"),
+    }
+    parser = build_parser()
+    log = (out / "log.txt").open("a")
+    tee = _Tee(log, None if quiet else sys.stdout)
+    print(f"\n==== rotorbayes run {path} ({record['started']})", file=tee)
+
+    def stage(name: str, folder: Path, inputs: str, argv: list[str], done_file: str):
+        h = _sha(inputs.encode())
+        prev = old.get(name)
+        if prev and prev.get("input_hash") == h and (folder / done_file).exists():
+            print(f"\n---- {name}: inputs unchanged, kept {folder}/", file=tee)
+            record["stages"].append({**prev, "skipped": True})
+            return True
+        print(f"\n---- {name}: rotorbayes {' '.join(argv)}", file=tee, flush=True)
+        t0 = time.perf_counter()
+        args = parser.parse_args(argv)
+        with contextlib.redirect_stdout(tee):
+            code = args.func(args)
+        sec = time.perf_counter() - t0
+        record["stages"].append({"name": name, "folder": str(folder), "seconds": sec,
+                                 "input_hash": h, "skipped": False, "exit_code": code})
+        _write_record(record_path, record)
+        if code not in (0, 1):
+            raise AnalysisError(f"stage {name} failed (exit code {code}); see {out}/log.txt")
+        return code == 0
+
+    def digest(folder: Path, *names) -> str:
+        return "".join(_sha((folder / n).read_bytes()) for n in names if (folder / n).exists())
+
+    base = "\n".join(json.dumps(a.table(t), sort_keys=True) for t in ("analysis", "fit"))
+    base += json.dumps(data_hashes)
+    fit_t = a.table("fit")
+    fit_args = ["--model", an["config"], *data]
+    for v in val:
+        fit_args += ["--validate", v]
+    for k in ("free", "fixed", "channels"):
+        if fit_t.get(k):
+            fit_args += [f"--{k}", ",".join(fit_t[k])]
+    if fit_t.get("max_nfev"):
+        fit_args += ["--max-nfev", str(fit_t["max_nfev"])]
+    for e in fit_t.get("effects", []):
+        fit_args += ["--add", a.resolve(e) if ".py:" in e else e]
+    first = out / "fit0"
+    p0 = ["--p0", a.resolve(fit_t["p0"]) if not fit_t["p0"].startswith("thesis:") else
+          fit_t["p0"]] if fit_t.get("p0") else []
+    stage("fit0", first, base, ["fit", *fit_args, *p0, "--out", str(first), "--force"],
+          "fit.json")
+    fit = first
+    dg = a.table("diagnose")
+    added: list[str] = []
+    if "diagnose" in a.doc:
+        noise = ["--noise", str(dg["noise_std"])] if dg.get("noise_std") else []
+        for k in range(1, dg.get("max_steps", 3) + 2):
+            stage(f"diagnose{k - 1}", fit, digest(fit, "fit.json") + json.dumps(dg),
+                  ["diagnose", str(fit), *noise], "diagnosis.json")
+            d = json.loads((fit / "diagnosis.json").read_text())
+            if d["adequate"] or not d.get("claimed_effect") or not dg.get("add_effects", True):
+                break
+            if k > dg.get("max_steps", 3):
+                print(f"\nmax_steps = {dg.get('max_steps', 3)} reached; the model is still "
+                      "inadequate", file=tee)
+                break
+            eff = d["claimed_effect"]
+            added.append(eff)
+            nxt = out / f"fit{k}"
+            stage(f"fit{k}", nxt, digest(fit, "fit.json", "diagnosis.json") + base,
+                  ["fit", *fit_args, "--p0", str(fit), "--add", eff, "--out", str(nxt),
+                   "--force"], "fit.json")
+            fit = nxt
+        stage("compare", out / "compare", digest(fit, "fit.json"),
+              ["compare", str(fit), "--out", str(out / "compare"), "--force"], "compare.json")
+    if "sample" in a.doc:
+        s = a.table("sample")
+        argv = ["sample", str(fit), "--out", str(out / "posterior"), "--force",
+                "--walkers", str(s.get("walkers", 32)), "--steps", str(s.get("steps", 2000)),
+                "--ensembles", str(s.get("ensembles", 2)), "--seed", str(seed),
+                "--noise", s.get("noise", "floor")]
+        if s.get("ar1"):
+            argv.append("--ar1")
+        if a.table("priors"):
+            pri = out / "priors.toml"
+            pri.write_text("[priors]\n" + "".join(
+                f"{n} = {{ {', '.join(f'{k} = {json.dumps(v)}' for k, v in spec.items())} }}\n"
+                for n, spec in a.table("priors").items()))
+            argv += ["--priors", str(pri)]
+        if quiet:
+            argv.append("--quiet")
+        stage("sample", out / "posterior", digest(fit, "fit.json") + json.dumps(s)
+              + json.dumps(a.table("priors"), sort_keys=True), argv, "posterior.nc")
+    if "identify" in a.doc:
+        i = a.table("identify")
+        argv = ["identify", str(fit), "--out", str(out / "identify"), "--force",
+                "--points", str(i.get("points", 11))]
+        if i.get("profiles"):
+            argv += ["--profiles", ",".join(i["profiles"])]
+        if (out / "posterior" / "posterior.nc").exists():
+            argv += ["--posterior", str(out / "posterior")]
+        stage("identify", out / "identify", digest(fit, "fit.json") + json.dumps(i), argv,
+              "identify.json")
+    record["added_effects"] = added
+    record["final_fit"] = str(fit)
+    record["finished"] = datetime.datetime.now().isoformat(timespec="seconds")
+    _write_record(record_path, record)
+    if a.table("report").get("html", True):
+        try:
+            from .report.html import build_report
+        except ImportError:
+            print("\n(report: the HTML report module is not available in this version)",
+                  file=tee)
+        else:
+            with contextlib.redirect_stdout(tee):
+                rp = build_report(out)
+            record["report"] = str(rp)
+            _write_record(record_path, record)
+            print(f"\nreport: {rp}", file=tee)
+    log.close()
+    return record
+
+
+def _write_record(path: Path, record: dict) -> None:
+    tmp = path.with_name(".run.json.tmp")
+    tmp.write_text(json.dumps(record, indent=2))
+    tmp.replace(path)
+
+
+__all__ = ["Analysis", "AnalysisError", "ParameterError", "load_analysis", "run"]
