@@ -9,9 +9,20 @@ Quick start::
 
 The pipeline, one subpackage per stage: :mod:`rotorbayes.model` (parameters, effects,
 configurations, simulation) -> :mod:`rotorbayes.kernel` (compiled terms and solver) ->
-:mod:`rotorbayes.inference` (problems, least squares, multistart, the parallel map).
+:mod:`rotorbayes.inference` (problems, least squares, multistart, the likelihood and
+sampling, identifiability, the parallel map) -> :mod:`rotorbayes.diagnosis` (verdict,
+missing effects, missing torque, comparisons) -> :mod:`rotorbayes.study` (a whole study
+from an analysis file).
 See ``docs/model.md`` for the equations and ``docs/effects.md`` for the effects.
 """
+
+import os as _os
+
+# The integrator's batches run on numba's threads; a BLAS pool on the same two cores would
+# fight them (the linear algebra here is small).  Set before NumPy loads, unless the user
+# chose otherwise.
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    _os.environ.setdefault(_v, "1")
 
 from . import data, signals
 from .data import Experiment, load_experiment, save_experiment

@@ -39,9 +39,9 @@ from ..model import effects as _effects
 #: Stribeck grid (velocity rad/s, shape) of the sup-score test.
 WS_GRID = tuple(np.geomspace(0.1, 10.0, 9))
 DELTA_GRID = (0.7, 1.0, 1.5, 2.0, 3.0)
-#: |J̃| / |J| below which an effect counts as inside the free parameters' span.
+#: ``|J̃| / |J|`` below which an effect counts as inside the free parameters' span.
 EQUIVALENT_RATIO = 1e-3
-#: |cos| between two candidates' J̃ above which they cannot be told apart.
+#: ``|cos|`` between two candidates' J̃ above which they cannot be told apart.
 ALIKE_COSINE = 0.98
 
 

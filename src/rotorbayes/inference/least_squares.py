@@ -276,7 +276,7 @@ def quality(
     k: int | None = None,
 ) -> list[dict]:
     """Per experiment and channel (theta_l, theta_u, alpha as in the thesis): R², NRMSE
-    fit %, max |error|, SSR, plus AICc and BIC of the fitted channels.
+    fit %, max ``|error|``, SSR, plus AICc and BIC of the fitted channels.
 
     ``experiments`` default to the problem's own (estimation data); pass validation
     experiments to evaluate the same parameters on other inputs (``alpha0`` of a

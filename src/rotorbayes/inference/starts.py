@@ -2,7 +2,7 @@
 
 Least squares on a stick-slip model has many basins; a start from a thesis table lands in
 the wrong one when the rig differs from the thesis's.  The rig's equations are linear in
-most parameters once the angles' derivatives are known:
+most parameters once the angles' derivatives are known::
 
     J_u θu'' = k_m u − Tc_u s_u − dTc_u − b_u ωu − db_u |ωu| + k_alpha α          (upper)
     0        = J_l θl'' + Tc_l s_l + dTc_l + b_l ωl + db_l |ωl|

@@ -1,0 +1,149 @@
+"""Speed of the posterior: log-posterior throughput, one residual evaluation, and (with
+``--ess``) the wall time of a brake posterior to ESS >= 1000 for every parameter.
+
+One run measures, side by side, on the 30 s brake experiment at 1 kHz (thesis table 4.3
+P_ref, ``estimation_signal(30.0, seed=1)``, quantised; the brake's default free set of 13
+parameters):
+
+1. log-posterior evaluations per second for 32 walkers in one vectorised call (all walkers
+   in one parallel kernel batch), with numba's threads at 1 and at 2;
+2. one residual evaluation (``Problem.residuals``), its median time, and its largest
+   distance in theta_l from the independent event-driven reference integrator
+   (``tests/reference.py``), beside the plain-Python ``solve_ivp`` switch model of
+   ``bench_integrator.py`` (time and ratio);
+3. with ``--ess``: emcee (2 ensembles x 32 walkers) from the least-squares point on the
+   200 Hz bundled brake data until every parameter's ESS (walkers x steps / τ, summed over
+   the ensembles) is >= 1000; wall time and ESS per minute.
+
+Targets (issue 9): one 30 s brake residual <= 0.7 ms (goal 0.5 ms) within 1.5e-5 rad of
+the reference; >= 300x faster than the Python switch model.
+
+Usage::
+
+    python benchmarks/bench_sampling.py [--ess] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+
+import rotorbayes as rb  # noqa: E402
+from rotorbayes import inference as E  # noqa: E402
+from rotorbayes.inference import sampling as S  # noqa: E402
+from rotorbayes.inference.likelihood import LogPosterior  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load(path: Path, name: str):
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ess", action="store_true", help="also sample a brake posterior to "
+                    "ESS >= 1000 (minutes)")
+    ap.add_argument("--json")
+    a = ap.parse_args()
+    out: dict = {"cores": os.cpu_count()}
+    p = rb.parameters.thesis_set("4.3", "P_ref")
+    t, u = rb.signals.estimation_signal(30.0, seed=1)
+    dt = float(t[1] - t[0])
+    sim = rb.simulate(p, u, dt=dt, config="brake", alpha0=0.0, quantize_angles=True)
+    ex = sim.to_experiment("brake_1khz")
+    prob = E.Problem("brake", [ex], base=p)
+    x = prob.x_from(p)
+    lp = LogPosterior(prob, x)
+    rng = np.random.default_rng(0)
+    z0 = lp.to_z(x)
+    Z = z0[None, :] + 1e-7 * rng.standard_normal((32, lp.ndim))
+    lp(Z)  # warm-up
+    rates = {}
+    for th in (1, 2):
+        numba.set_num_threads(th)
+        lp(Z)
+        times = []
+        for _ in range(7):
+            t0 = time.perf_counter()
+            lp(Z)
+            times.append(time.perf_counter() - t0)
+        rates[th] = 32 / statistics.median(times)
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    out["logpost_evals_per_s"] = rates
+    # One residual evaluation and its accuracy against the reference integrator.
+    prob.residuals(x)
+    times = []
+    for _ in range(30):
+        t0 = time.perf_counter()
+        prob.residuals(x)
+        times.append(time.perf_counter() - t0)
+    t_res = statistics.median(times)
+    ref = _load(ROOT / "tests" / "reference.py", "rb_reference")
+    r = ref.reference_simulate(dict(p, alpha0=0.0), t, u, config="brake")
+    th_l = r["theta_l"]
+    ours = rb.Simulator("brake", u, dt).simulate(p).theta_l
+    err = float(np.max(np.abs(ours - th_l)))
+    bench = _load(ROOT / "benchmarks" / "bench_integrator.py", "rb_bench_integrator")
+    t0 = time.perf_counter()
+    bench.python_simulate(p, t, u)
+    t_py = time.perf_counter() - t0
+    out.update(residual_ms=1e3 * t_res, residual_max_error_rad=err, python_s=t_py,
+               ratio=t_py / t_res)
+    print(f"brake, 30 s at 1 kHz, {prob.n_residuals} residuals, {len(prob.names)} free "
+          f"parameters, {os.cpu_count()} cores")
+    print(f"log-posterior, 32 walkers in one call: {rates[1]:.0f} evaluations/s on 1 thread, "
+          f"{rates[2]:.0f}/s on 2 threads (x{rates[2] / rates[1]:.2f})")
+    print(f"one residual evaluation: median {1e3 * t_res:.2f} ms (target <= 0.7 ms: "
+          f"{'PASS' if t_res <= 7e-4 else 'FAIL'}); max |theta_l - reference| {err:.2g} rad "
+          f"(target 1.5e-5: {'PASS' if err <= 1.5e-5 else 'FAIL'})")
+    print(f"plain-Python solve_ivp switch model: {t_py:.2f} s, {t_py / t_res:.0f}x slower "
+          f"(goal >= 300x: {'met' if t_py / t_res >= 300 else 'not met'})")
+    if a.ess:
+        exb = rb.load_example("brake_est")
+        pb = E.Problem("brake", [exb])
+        res = E.fit_from_data(pb).result
+        lpb = LogPosterior(pb, res.x)
+        t0 = time.perf_counter()
+        steps, runs = 500, []
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            while True:
+                runs = S.sample(lpb, res.x, Path(tmp), n_walkers=32, n_steps=steps,
+                                n_ensembles=2, progress=False)
+                ess = np.zeros(lpb.ndim)
+                for r_ in runs:
+                    ess += r_.chain.shape[0] * r_.chain.shape[1] / np.where(
+                        np.isfinite(r_.tau), r_.tau, np.inf)
+                if np.all(ess >= 1000) or steps >= 20000:
+                    break
+                steps = int(steps * 1.6)
+        wall = time.perf_counter() - t0
+        out.update(ess_min=float(ess.min()), ess_wall_s=wall, ess_steps=steps,
+                   ess_per_minute=float(ess.min() / (wall / 60)))
+        print(f"brake posterior (200 Hz bundled data, {lpb.ndim} coordinates, 2 x 32 "
+              f"walkers): {steps} steps, min ESS {ess.min():.0f} in {wall:.0f} s "
+              f"({ess.min() / (wall / 60):.0f} ESS per minute for the slowest parameter)")
+    if a.json:
+        Path(a.json).write_text(json.dumps(out, indent=2, default=float))
+
+
+if __name__ == "__main__":
+    main()
