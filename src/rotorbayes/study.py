@@ -335,10 +335,12 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
                 "--points", str(i.get("points", 11))]
         if i.get("profiles"):
             argv += ["--profiles", ",".join(i["profiles"])]
-        if (out / "posterior" / "posterior.nc").exists():
+        post = ""
+        if "sample" in a.doc and (out / "posterior" / "posterior.nc").exists():
             argv += ["--posterior", str(out / "posterior")]
-        stage("identify", out / "identify", digest(fit, "fit.json") + json.dumps(i), argv,
-              "identify.json")
+            post = digest(out / "posterior", "summary.csv")
+        stage("identify", out / "identify", digest(fit, "fit.json") + json.dumps(i) + post,
+              argv, "identify.json")
     record["added_effects"] = added
     record["final_fit"] = str(fit)
     record["finished"] = datetime.datetime.now().isoformat(timespec="seconds")

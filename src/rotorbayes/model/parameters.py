@@ -261,7 +261,7 @@ def resolve(spec, *, config: str | None = None) -> dict[str, float]:
 
     Parameters
     ----------
-    spec : None, str, path or mapping
+    spec : None, str, pathlib.Path or mapping
         ``None`` gives the configuration's default set; a string is a named set
         (``'thesis:4.2:P0'``) or a TOML file path; a mapping overrides the default
         set of ``config`` name by name.
