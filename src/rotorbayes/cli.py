@@ -1097,6 +1097,25 @@ def _save_fig(fig, path: Path, dpi: int = 100) -> None:
     tmp.replace(path)
 
 
+def cmd_report(a) -> int:
+    """report.html: one self-contained page for a study or any result folder."""
+    from .report import ReportError, write_report
+
+    try:
+        rep = write_report(a.folder, a.out)
+    except ReportError as exc:
+        raise CLIError(str(exc)) from None
+    size = rep.size
+    human = f"{size / 1e6:.1f} MB" if size >= 1e6 else f"{size / 1e3:.0f} kB"
+    print(f"wrote {rep.path} ({human}, {size} bytes)")
+    print(f"sections: {', '.join(rep.sections)}")
+    if rep.absent:
+        print(f"absent (not in {a.folder}): {', '.join(rep.absent)}")
+    for p in rep.problems:
+        print(f"warning: section {p}", file=sys.stderr)
+    return 0
+
+
 def cmd_params(a) -> int:
     if a.name:
         p = _params.resolve(_param_spec(a.name))
@@ -1290,6 +1309,13 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--force", action="store_true", help="overwrite results in --out")
     i.set_defaults(func=cmd_identify)
 
+    rp = sub.add_parser("report", help="report.html: one self-contained HTML page (figures "
+                        "embedded) for a study folder or any fit/compare/sample/identify folder")
+    rp.add_argument("folder", help="a folder written by run, demo, fit, compare, sample or "
+                    "identify")
+    rp.add_argument("--out", help="the HTML file to write (default: FOLDER/report.html)")
+    rp.set_defaults(func=cmd_report)
+
     p = sub.add_parser("params", help="list parameters and named sets, or show one set")
     p.add_argument("name", nargs="?", help="a named set (thesis:4.2:P0), TOML file or "
                    "fit.json")
@@ -1301,14 +1327,82 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+class _Capture:
+    """A stream that writes through and keeps a copy (for the output folder's log)."""
+
+    def __init__(self, stream):
+        self.stream, self.parts = stream, []
+
+    def write(self, text):
+        self.parts.append(text)
+        return self.stream.write(text)
+
+    def flush(self):
+        self.stream.flush()
+
+    def isatty(self):
+        return self.stream.isatty()
+
+    def fileno(self):
+        return self.stream.fileno()
+
+
+def _log_folder(a) -> Path | None:
+    """The folder a command's results went to (its log.txt goes there too)."""
+    if a.cmd in ("fit", "multistart", "sample", "identify") and getattr(a, "out", None):
+        return Path(a.out)
+    if a.cmd == "sample" and getattr(a, "resume", False):
+        return Path(a.source)
+    if a.cmd == "diagnose":
+        return Path(a.fit)
+    if a.cmd == "compare":
+        return Path(a.out) if a.out else Path(a.fits[-1]) / "compare"
+    return None
+
+
+class _logged:
+    """Keep what a command prints and append it to ``log.txt`` in its output folder."""
+
+    def __init__(self, a):
+        self.a = a
+
+    def __enter__(self):
+        self.out, self.err = sys.stdout, sys.stderr
+        self.cap_out, self.cap_err = _Capture(sys.stdout), _Capture(sys.stderr)
+        sys.stdout, sys.stderr = self.cap_out, self.cap_err
+        return self
+
+    def __exit__(self, *exc):
+        sys.stdout, sys.stderr = self.out, self.err
+        folder = _log_folder(self.a)
+        # Only a command that ran to its end logs: a refused one must not touch a folder.
+        if exc[0] is None and folder is not None and folder.is_dir():
+            import datetime
+
+            stamp = datetime.datetime.now().isoformat(timespec="seconds")
+            text = "".join(self.cap_out.parts)
+            # Progress bars (carriage returns) are for the terminal, not the log.
+            err = "".join(p for p in self.cap_err.parts if "\r" not in p and "it/s" not in p)
+            try:
+                with (folder / "log.txt").open("a") as fh:
+                    fh.write(f"==== {stamp} rotorbayes {' '.join(self.a._argv)}\n{text}")
+                    if err:
+                        fh.write(f"---- stderr\n{err}")
+            except OSError:
+                pass
+        return False
+
+
 def main(argv=None) -> int:
     ap = build_parser()
     try:
         a = ap.parse_args(argv)
     except SystemExit as exc:  # --help, --version (0) or a usage error (2), already printed
         return exc.code if isinstance(exc.code, int) else 2
+    a._argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        code = a.func(a)
+        with _logged(a):
+            code = a.func(a)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
         return code
     except Interrupted as exc:
