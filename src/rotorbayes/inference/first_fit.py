@@ -24,7 +24,7 @@ from ..data import quantisation_floor
 from .assess import NEAR_FLOOR
 from .least_squares import FitResult, StartError, fit
 from .multistart import latin_hypercube
-from .parallel import get_mapper
+from .parallel import get_mapper, progress
 from .problem import Problem
 from .starts import DataStart, data_start
 
@@ -97,7 +97,8 @@ def fit_from_data(
             return None, str(exc)
 
     best = res
-    for i, (r, why) in get_mapper("threads", workers).map(one, list(starts)):
+    for i, (r, why) in progress(get_mapper("threads", workers).map(one, list(starts)),
+                                restarts, "restarts", enabled=verbose):
         row = {"start": starts[i].tolist(), "ssr": r.ssr if r else None,
                "success": bool(r and r.success), "failed": why}
         out.restarts.append(row)

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..data import quantisation_floor
 from .least_squares import fit
-from .parallel import get_mapper
+from .parallel import get_mapper, progress
 from .problem import Problem, local_name
 
 
@@ -135,7 +135,8 @@ def profile(
         res = sub.residuals(r.x)
         return float(np.sum((res * w) ** 2))
 
-    values = dict(get_mapper("threads", workers).map(one, list(grid)))
+    values = dict(progress(get_mapper("threads", workers).map(one, list(grid)), len(grid),
+                           f"profile {name}"))
     chi2 = np.array([values[i] for i in range(len(grid))])
     r0 = problem.residuals(x)
     chi2_min = float(np.sum((r0 * w) ** 2))

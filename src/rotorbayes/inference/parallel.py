@@ -80,3 +80,19 @@ def map_ordered(fn: Callable, items: Iterable, mapper: Mapper | None = None) -> 
     for i, r in (mapper or get_mapper()).map(fn, items):
         out[i] = r
     return out
+
+
+def progress(results: Iterator, total: int, desc: str, *, enabled: bool = True) -> Iterator:
+    """Wrap a mapper's ``(index, result)`` stream with a progress bar (tqdm, on stderr) when
+    ``enabled`` and stderr is a terminal; otherwise pass it through unchanged."""
+    import sys
+
+    if not enabled or not sys.stderr.isatty():
+        yield from results
+        return
+    from tqdm import tqdm
+
+    with tqdm(total=total, desc=desc, unit="task", leave=False) as bar:
+        for item in results:
+            bar.update(1)
+            yield item
