@@ -42,7 +42,7 @@ from .model import (
     simulate,
 )  # fmt: skip
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 __all__ = [
     "CONFIGS", "NAMES", "Effect", "Experiment", "Model", "Parameter", "ParameterError",
