@@ -96,8 +96,17 @@ def fit_chain(folder: Path) -> list[FitInfo]:
         info = load_fit_info(cur)
         out.append(info)
         parent = info.doc.get("parent")
-        cur = Path(parent) if parent else None
+        cur = _moved(Path(parent), cur) if parent else None
     return out[::-1]
+
+
+def _moved(path: Path, near: Path) -> Path:
+    """``path`` as recorded, or, if it is gone (the study folder was moved or copied, or the
+    path was relative to another working folder), the folder of that name beside ``near``."""
+    if (path / "fit.json").exists():
+        return path
+    sibling = near.parent / path.name
+    return sibling if (sibling / "fit.json").exists() else path
 
 
 def _sub(root: Path, kind: str, preferred: str) -> Path | None:
@@ -138,8 +147,9 @@ def discover(folder: str | Path) -> Found:
                           "analysis.toml` or `rotorbayes demo` first")
     found = Found(root, "study", run=run)
     final = None
-    if run and run.get("final_fit") and (Path(run["final_fit"]) / "fit.json").exists():
-        final = Path(run["final_fit"])
+    if run and run.get("final_fit"):
+        p = _moved(Path(run["final_fit"]), root / "x")
+        final = p if (p / "fit.json").exists() else None
     if final is None:
         fits = [d for d in subs if kind_of(d) == "fit"]
         # The final fit is the end of the longest chain (ties: the last by name).

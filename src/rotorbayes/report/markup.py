@@ -7,8 +7,13 @@ markup return :class:`Raw` so tables know not to escape it again.
 from __future__ import annotations
 
 import base64
+import hashlib
 import html
+import io
 import math
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass, field
 from pathlib import Path
 
 
@@ -41,11 +46,12 @@ def num(x, digits: int = 4) -> Raw:
         return Raw("0")
     if 1e-3 <= abs(v) < 1e6:
         s = f"{v:.{digits}g}"
-        if "e" not in s:
-            return Raw(s.replace("-", "−"))
+        if "e" in s:  # 2712 rather than 2.71 × 10³
+            s = f"{v:.0f}"
+        return Raw(s.replace("-", "−"))
     m, e = f"{v:.{max(digits - 1, 0)}e}".split("e")
     m = m.rstrip("0").rstrip(".") if "." in m else m
-    return Raw(f"{m.replace('-', '−')}\u202f×\u202f10<sup>{int(e)}</sup>")
+    return Raw(f"{m.replace('-', '−')}\u202f×\u202f10<sup>{str(int(e)).replace('-', '−')}</sup>")
 
 
 def pval(p) -> Raw:
@@ -69,13 +75,15 @@ def table(headers, rows, *, cls: str = "", numeric: tuple[int, ...] = (), captio
           row_cls=None) -> Raw:
     """An HTML table; ``numeric`` column indices are right-aligned; ``row_cls(i)`` may give a
     class per row."""
-    nc = ' class="n"'
+    nc, nw = ' class="n"', ' class="nw"'
+    # A unit column never breaks a unit ("N m s/rad") over lines.
+    nowrap = {i for i, h in enumerate(headers) if str(h).strip().lower() == "unit"}
     head = "".join(f"<th{nc if i in numeric else ''}>{cell(h)}</th>"
                    for i, h in enumerate(headers))
     body = []
     for k, r in enumerate(rows):
         rc = row_cls(k) if row_cls else ""
-        tds = "".join(f"<td{nc if i in numeric else ''}>{cell(v)}</td>"
+        tds = "".join(f"<td{nc if i in numeric else nw if i in nowrap else ''}>{cell(v)}</td>"
                       for i, v in enumerate(r))
         rattr = f' class="{esc(rc)}"' if rc else ""
         body.append(f"<tr{rattr}>{tds}</tr>")
@@ -105,15 +113,95 @@ MIME = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".svg"
         ".gif": "image/gif", ".webp": "image/webp"}
 
 
+def compact_png(data: bytes) -> bytes:
+    """A PNG re-encoded with a 256-colour palette (no dithering) when that is smaller: the
+    figures are line art, for which this looks the same at a third of the size. The original
+    bytes if Pillow is missing or the image cannot be read."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return data
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            im.load()
+            if im.mode in ("RGBA", "LA") or (im.mode == "P" and "transparency" in im.info):
+                rgba = im.convert("RGBA")
+                im = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+                im.alpha_composite(rgba)
+            q = im.convert("RGB").quantize(256, method=Image.Quantize.FASTOCTREE,
+                                           dither=Image.Dither.NONE)
+            buf = io.BytesIO()
+            q.save(buf, "PNG", optimize=True)
+    except Exception:  # noqa: BLE001 - an odd image is embedded as it is
+        return data
+    out = buf.getvalue()
+    return out if len(out) < len(data) else data
+
+
+@dataclass
+class FigureStore:
+    """The figures embedded so far: identical files are embedded once (later ones link to
+    the first); ``compact`` re-encodes PNGs with :func:`compact_png`."""
+
+    compact: bool = True
+    seen: dict = field(default_factory=dict)  # sha256 -> (anchor id, caption)
+    count: int = 0
+    raw_bytes: int = 0
+    embedded_bytes: int = 0
+
+
+_STORE: ContextVar[FigureStore | None] = ContextVar("rotorbayes_report_figures", default=None)
+
+
+@contextmanager
+def figure_store(compact: bool = True):
+    """Collect the figures of one page (see :class:`FigureStore`)."""
+    store = FigureStore(compact)
+    token = _STORE.set(store)
+    try:
+        yield store
+    finally:
+        _STORE.reset(token)
+
+
 def figure(path: Path, caption: str) -> Raw:
     """``path`` embedded as a data URI with its caption, or a note that it is missing."""
     if not path.exists():
         return Raw(f'<p class="note">Figure {esc(path.name)} is not in {esc(path.parent)}/.</p>')
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    store = _STORE.get() or FigureStore(compact=False)
+    data = path.read_bytes()
+    key = hashlib.sha256(data).hexdigest()
+    if key in store.seen:
+        anchor, first = store.seen[key]
+        return Raw(f'<p class="note">{esc(caption)} ({esc(path.name)}): the same figure as '
+                   f'<a href="#{anchor}">{esc(first)}</a> above.</p>')
+    store.count += 1
+    anchor = f"fig-{store.count}"
+    size = png_size(data)
+    store.seen[key] = (anchor, caption)
     mime = MIME.get(path.suffix.lower(), "application/octet-stream")
-    return Raw(f'<figure><img src="data:{mime};base64,{data}" alt="{esc(caption)}" '
-               f'title="{esc(path.name)}"><figcaption>{esc(caption)} '
+    store.raw_bytes += len(data)
+    if store.compact and mime == "image/png":
+        data = compact_png(data)
+    store.embedded_bytes += len(data)
+    b64 = base64.b64encode(data).decode("ascii")
+    dims = f' width="{size[0]}" height="{size[1]}"' if size else ""
+    wide = ' class="wide"' if size is None or size[0] >= WIDE_PX else ""
+    return Raw(f'<figure id="{anchor}"{wide}><img src="data:{mime};base64,{b64}"{dims} '
+               f'alt="{esc(caption)}" title="{esc(path.name)}"><figcaption>{esc(caption)} '
                f'<span class="file">({esc(path.name)})</span></figcaption></figure>')
+
+
+#: Figures at least this wide (pixels) take the whole width of the page; narrower ones may
+#: stand side by side.
+WIDE_PX = 900
+
+
+def png_size(data: bytes) -> tuple[int, int] | None:
+    """Width and height from a PNG's header, None for anything else."""
+    if len(data) >= 24 and data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    return None
 
 
 def markdown_table(text: str) -> Raw | None:
@@ -149,7 +237,7 @@ CSS = """
 html{scroll-behavior:smooth}
 body{margin:0;color:var(--fg);background:var(--bg);font:15px/1.5 system-ui,-apple-system,
 "Segoe UI",Roboto,"Helvetica Neue",Arial,sans-serif}
-main{max-width:1120px;margin:0 auto;padding:24px 28px 64px}
+main{max-width:1220px;margin:0 auto;padding:24px 28px 64px}
 header.top{border-bottom:3px solid var(--accent);margin-bottom:18px;padding-bottom:10px}
 h1{font-size:26px;margin:0 0 4px}
 h2{font-size:21px;margin:0 0 10px;padding-bottom:4px;border-bottom:1px solid var(--line)}
@@ -161,7 +249,9 @@ nav.toc{background:var(--soft);border:1px solid var(--line);border-radius:6px;pa
 margin:12px 0 6px}
 nav.toc ol{margin:4px 0;padding-left:22px;columns:2;column-gap:32px}
 nav.toc li{margin:1px 0}
-nav.toc .absent-list{color:var(--muted);font-size:13.5px;margin:6px 0 0}
+nav.toc .absent-list{color:var(--muted);font-size:13.5px;margin:8px 0 0;border-top:1px solid
+var(--line);padding-top:6px}
+nav.toc .absent-list ul{margin:2px 0;padding-left:22px}
 a{color:var(--accent);text-decoration:none}
 a:hover{text-decoration:underline}
 .verdict{border-radius:6px;padding:12px 18px;border:1px solid var(--line);background:var(--soft)}
@@ -182,6 +272,8 @@ thead th{background:var(--soft);border-bottom:2px solid var(--line);white-space:
 tbody tr:nth-child(even){background:#fafbfc}
 td.n,th.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 table.kv th{background:none;font-weight:600;white-space:nowrap;color:var(--muted);width:1%}
+table.grouped tbody tr.grp-a td{background:#fff}
+table.grouped tbody tr.grp-b td{background:#f4f6f8}
 tr.good td{background:var(--goodbg)}
 tr.bad td{background:var(--badbg)}
 tr.muted td{color:var(--muted)}
@@ -191,9 +283,13 @@ monospace;font-size:12.5px}
 pre{background:var(--soft);border:1px solid var(--line);border-radius:5px;padding:10px 12px;
 overflow-x:auto;white-space:pre-wrap;word-break:break-word}
 .hash{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:11.5px;word-break:break-all}
-.path{font-size:12px;color:var(--muted);word-break:break-all}
+.path{font-size:12px;color:var(--muted);overflow-wrap:anywhere}
+.small{font-size:12.5px;color:var(--muted)}
+.nw{white-space:nowrap}
 figure{margin:14px 0;text-align:center}
-figure img{max-width:100%;height:auto;border:1px solid var(--line);border-radius:4px}
+figure img{max-width:100%;max-height:1150px;width:auto;height:auto;border:1px solid var(--line);
+border-radius:4px}
+.figs figure.wide{grid-column:1/-1}
 figcaption{font-size:13px;color:var(--muted);margin-top:4px}
 figcaption .file{font-size:12px}
 .figs{display:grid;grid-template-columns:repeat(auto-fit,minmax(440px,1fr));gap:8px 18px;
