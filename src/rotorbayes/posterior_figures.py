@@ -53,6 +53,7 @@ def plot_trace(runs, coord_names):
         for e, r in enumerate(runs):
             ax.plot(r.chain[:, :, j], color=colors[e % 4], alpha=0.15, lw=0.5)
         ax.set_ylabel(n, fontsize=8)
+        ax.ticklabel_format(axis="y", useOffset=False)
     axes[-1, 0].set_xlabel("step (colour: ensemble)")
     fig.suptitle("walker traces in sampling coordinates (log_ = natural log of the parameter)")
     return fig, axes

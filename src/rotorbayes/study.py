@@ -185,8 +185,10 @@ def _file_sha(spec: str) -> str:
 def _versions() -> dict:
     import importlib.metadata as md
 
-    out = {"python": sys.version.split()[0]}
-    for pkg in ("rotorbayes", "numpy", "scipy", "numba", "emcee", "arviz", "corner", "h5py",
+    from . import __version__
+
+    out = {"python": sys.version.split()[0], "rotorbayes": __version__}
+    for pkg in ("numpy", "scipy", "numba", "emcee", "arviz", "corner", "h5py",
                 "matplotlib"):
         try:
             out[pkg] = md.version(pkg)
