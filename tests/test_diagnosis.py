@@ -162,3 +162,25 @@ def test_cli_fit_diagnose_add_chain(tmp_path, capsys):
     assert doc2["assessment"]["worst_ratio_to_floor"] < 1.5
     assert main(["diagnose", str(f2)]) == 0
     assert "ADEQUATE" in capsys.readouterr().out
+
+
+def test_data_noisier_than_the_encoder_set_their_own_floor():
+    """A simulator that adds Gaussian noise (2e-4 rad, 1 kHz): the jitter of the measured
+    angles becomes the floor, said in words; without a hidden effect the verdict is
+    adequate, with string damping hidden it is found."""
+    for extra, eff in (({}, ()), ({"c_alpha": 0.003}, ("string_damping",))):
+        p = dict(resolve(COUPLED, config="coupled"), **extra)
+        t, u = rb.signals.make_signal("est", 30.0, rate=1000.0, seed=5)
+        sim = rb.simulate(p, u, dt=1e-3, config="coupled", effects=eff,
+                          quantize_angles=True, noise_std=2e-4, seed=3)
+        prob = E.Problem("coupled", [sim.to_experiment("noisy")])
+        floors, notes = prob.noise_floors()
+        assert all(abs(f / 2e-4 - 1) < 0.1 for f in floors.values()), floors
+        res = E.fit_from_data(prob).result
+        a = E.assess(res, E.quality(prob, res.x))
+        d = diagnose(prob, res.x)
+        assert any("jitters at" in w for w in a.warnings) and "noise floor" in a.verdict
+        if not eff:
+            assert d.adequate and a.worst_ratio < 1.1
+        else:
+            assert not d.adequate and d.claimed == "string_damping"

@@ -47,6 +47,7 @@ __all__ = [
     "UPPER_COUNTS_PER_REV",
     "LOWER_COUNTS_PER_REV",
     "quantisation_floor",
+    "jitter_rms",
     "COLUMNS",
     "UPPER_COLUMNS",
     "MAX_ANGULAR_RATE",
@@ -85,6 +86,24 @@ def quantisation_floor(channel: str) -> float:
         raise ValueError(
             f"unknown channel {channel!r}; choose theta_u, theta_l or alpha"
         ) from None
+
+
+def jitter_rms(theta: np.ndarray, window: int = 11) -> float:
+    """Sample-to-sample noise of a measured angle [rad RMS]: the residual of a local cubic
+    fit (Savitzky-Golay, ``window`` samples), corrected for the fit's own leverage.
+
+    For encoder-quantised data of a moving disc it is about the quantisation floor; a
+    clearly larger value means the data carry other noise (electrical, or added by a
+    simulator), which the noise floor must include.
+    """
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    theta = np.asarray(theta, float)
+    if theta.size < 3 * window:
+        return float("nan")
+    c0 = float(savgol_coeffs(window, 3)[window // 2])
+    r = theta - savgol_filter(theta, window, 3)
+    return float(np.sqrt(np.mean(r**2) / (1.0 - c0)))
 
 
 #: Column names of a file with the lower disc, in the order :func:`save_experiment` writes them.

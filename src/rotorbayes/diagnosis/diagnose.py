@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data import quantisation_floor
 from ..inference.assess import AT_FLOOR
 from ..inference.problem import Problem
 from .score import EffectScore, _rms_ratios, score_tests
@@ -126,7 +125,7 @@ def diagnose(
         (0 for synthetic quantised data; the floor becomes ``sqrt(q²/12 + noise_std²)``).
     """
     t0 = time.perf_counter()
-    floor = {c: math.hypot(quantisation_floor(c), noise_std) for c in problem.channels}
+    floor, notes = problem.noise_floors(noise_std if noise_std else None)
     r = problem.residuals(x)
     if not np.all(np.isfinite(r)):
         raise ValueError("the model cannot be simulated at this fit; nothing to diagnose")
@@ -134,7 +133,7 @@ def diagnose(
     worst = max(ratios.values())
     ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor)
     maps = missing_torque(problem, x)
-    evidence = [
+    evidence = notes + [
         "residual RMS / noise floor: "
         + ", ".join(f"{c} {v:.2f} (floor {floor[c]:.2g} rad)" for c, v in ratios.items())
     ]

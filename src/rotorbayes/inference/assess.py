@@ -37,6 +37,7 @@ class Assessment:
     warnings: list[str] = field(default_factory=list)
     at_bound: list[str] = field(default_factory=list)
     fixed_suspects: list[dict] = field(default_factory=list)
+    jitter_floor: bool = False  # a floor is the data's own jitter, not the encoder's step
 
     @property
     def worst_ratio(self) -> float:
@@ -45,6 +46,14 @@ class Assessment:
 
     @property
     def verdict(self) -> str:
+        text = self._verdict()
+        if self.jitter_floor:
+            text = text.replace("the encoder floor", "the noise floor").replace(
+                "the quantisation RMS", "the floor (the data's jitter is above the encoder's "
+                "quantisation)")
+        return text
+
+    def _verdict(self) -> str:
         w = self.worst_ratio
         if not math.isfinite(w):
             return "no fitted channel could be simulated"
@@ -81,12 +90,13 @@ class Assessment:
         }
 
 
-def channel_rows(problem, quality_rows, data: str) -> list[dict]:
-    """RMS per experiment and channel with its quantisation floor and the ratio."""
+def channel_rows(problem, quality_rows, data: str, floors: dict | None = None) -> list[dict]:
+    """RMS per experiment and channel with its noise floor and the ratio."""
     out = []
+    floors = floors or {}
     for r in quality_rows:
         for c, st in r["channels"].items():
-            floor = quantisation_floor(c)
+            floor = floors.get(c, quantisation_floor(c))
             rms = math.sqrt(st["ssr"] / st["n"])
             out.append(
                 {
@@ -109,8 +119,11 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessmen
     validation data; ``sources`` says where each fixed value came from (for the words).
     """
     prob = result.problem
-    a = Assessment(channels=channel_rows(prob, q_est, "estimation") + channel_rows(
-        prob, q_val, "validation"))
+    floors, notes = prob.noise_floors()
+    a = Assessment(channels=channel_rows(prob, q_est, "estimation", floors) + channel_rows(
+        prob, q_val, "validation", floors))
+    a.warnings.extend(notes)
+    a.jitter_floor = bool(notes)
     sources = sources or {}
     if not result.success:
         a.warnings.append(f"the fit did not converge: {result.message}")
@@ -146,7 +159,7 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessmen
                 "wrong basin, a missing effect or a wrong fixed value"
             )
     # Free parameters the residual does not depend on.
-    sigma = min(quantisation_floor(c) for c in prob.channels)
+    sigma = min(floors.values())
     for j, n in enumerate(result.names):
         info = prob.info(n)
         s = max(abs(result.x[j]), 1e-3 * (info.upper - info.lower))

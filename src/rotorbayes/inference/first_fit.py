@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data import quantisation_floor
 from .assess import NEAR_FLOOR
 from .least_squares import FitResult, StartError, fit
 from .multistart import latin_hypercube
@@ -45,11 +44,12 @@ def floor_ratio(problem: Problem, x: np.ndarray) -> float:
     if not ev.ok:
         return math.inf
     worst, off = 0.0, 0
+    floors, _ = problem.noise_floors()
     for ex in problem.experiments:
         for c in problem.channels:
             r = ev.residuals[off : off + ex.n] / problem.weights[c]
             off += ex.n
-            worst = max(worst, math.sqrt(float(r @ r) / ex.n) / quantisation_floor(c))
+            worst = max(worst, math.sqrt(float(r @ r) / ex.n) / floors[c])
     return worst
 
 

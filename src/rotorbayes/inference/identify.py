@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data import quantisation_floor
 from .least_squares import fit
 from .parallel import get_mapper, progress
 from .problem import Problem, local_name
@@ -45,10 +44,11 @@ class Fisher:
 
 
 def _weights(problem: Problem) -> np.ndarray:
+    floors, _ = problem.noise_floors()
     w = []
     for ex in problem.experiments:
         for c in problem.channels:
-            w.append(np.full(ex.n, 1.0 / quantisation_floor(c)))
+            w.append(np.full(ex.n, 1.0 / floors[c]))
     return np.concatenate(w)
 
 

@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import quantisation_floor
 from ..model.parameters import ParameterError
 from .problem import Problem, local_name
 
@@ -145,7 +144,8 @@ class LogPosterior:
             pr = (priors or {}).get(b) or (priors or {}).get(n)
             self.priors[n] = pr or Prior("uniform", problem.lower[j], problem.upper[j])
         self.channels = list(problem.channels)
-        self.floor = {c: quantisation_floor(c) for c in self.channels}
+        # The noise floor of each channel (quantisation, or the data's jitter if larger).
+        self.floor, self.floor_notes = problem.noise_floors()
         names = [f"log_{n}" if lg else n for n, lg in zip(problem.names, self.log, strict=True)]
         if self.noise == "sampled":
             names += [f"log_sigma_{c}" for c in self.channels]

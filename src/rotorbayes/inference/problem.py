@@ -277,6 +277,40 @@ class Problem:
                 self.lower[pos[b]] = max(self.lower[pos[b]], -self.base[a])
                 self.upper[pos[b]] = min(self.upper[pos[b]], self.base[a])
 
+    def noise_floors(self, noise_std: float | None = None) -> tuple[dict, list[str]]:
+        """The noise floor [rad RMS] of every fitted channel, and notes in words.
+
+        ``noise_std`` given: ``sqrt(q²/12 + noise_std²)``.  Otherwise the encoder
+        quantisation floor ``q/√12``, unless the measured angles jitter clearly more than
+        that (:func:`rotorbayes.data.jitter_rms` above 1.3× the quantisation floor): then
+        the data carry other noise, and the jitter is the floor (said in the notes, so a
+        verdict is never "far from the floor" only because the encoder is not the only
+        noise).
+        """
+        from ..data import jitter_rms, quantisation_floor
+
+        floors, notes = {}, []
+        for c in self.channels:
+            q = quantisation_floor(c)
+            if noise_std is not None:
+                floors[c] = math.hypot(q, noise_std)
+                continue
+            j = max(
+                (jitter_rms(ex.theta_u if c == "theta_u" else ex.theta_l)
+                 for ex in self.experiments),
+                default=math.nan,
+            )
+            if math.isfinite(j) and j > 1.3 * q:
+                floors[c] = j
+                notes.append(
+                    f"the measured {c} jitters at {j:.2g} rad RMS from sample to sample, "
+                    f"above the encoder quantisation ({q:.2g} rad): the data carry other "
+                    f"noise, and {j:.2g} rad is used as the floor (give --noise to set it)"
+                )
+            else:
+                floors[c] = q
+        return floors, notes
+
     def info(self, name: str):
         """Metadata of a (possibly per-experiment) parameter name."""
         return self.model.info[local_name(name)[0]]
