@@ -575,7 +575,8 @@ def load_experiment(
             header_index + 1,
             f"no theta_l column (header {','.join(names)!r}): this looks like an "
             "upper-configuration file (string removed), but the lower disc's angle was "
-            "expected; load the coupled/brake measurement, or pass expect_lower=False",
+            "expected; use --model upper for it (in Python: expect_lower=False), or load "
+            "the coupled/brake measurement",
         )
     if expect_lower is False and has_lower:
         raise DataFileError(
@@ -583,7 +584,8 @@ def load_experiment(
             header_index + 1,
             f"the file has a theta_l column (header {','.join(names)!r}), but an "
             "upper-configuration file without the lower disc was expected; load the "
-            "upper-configuration measurement, or pass expect_lower=True/None",
+            "upper-configuration measurement, or use --model coupled or brake for this file "
+            "(in Python: expect_lower=True)",
         )
 
     # Trailing blank lines (an editor's final newline) are harmless; blank lines *inside* the

@@ -69,18 +69,21 @@ def plot_predictive(idata, prob, *, i: int = 0):
                              sharex=True, squeeze=False, constrained_layout=True)
     for k, c in enumerate(chans):
         key = f"{c}_exp{i}"
-        sims = idata.posterior_predictive[key].values.reshape(-1, ex.n)
+        da = idata.posterior_predictive[key]
+        tp = da[da.dims[-1]].values  # the predictive group's own (decimated) time axis
+        sims = da.values.reshape(-1, tp.size)
         lo, med, hi = np.percentile(sims, [3, 50, 97], axis=0)
-        meas = idata.observed_data[key].values
+        full = idata.observed_data[key].values
+        meas = np.interp(tp, ex.t, full)
         ax = axes[2 * k, 0]
-        ax.plot(ex.t, meas, color="k", lw=1, label="measured")
-        ax.fill_between(ex.t, lo, hi, color="tab:orange", alpha=0.4, label="94 % band")
+        ax.plot(ex.t, full, color="k", lw=1, label="measured")
+        ax.fill_between(tp, lo, hi, color="tab:orange", alpha=0.4, label="94 % band")
         ax.set_ylabel(f"{c} [rad]")
         ax.legend(loc="upper left", fontsize=8)
         ax2 = axes[2 * k + 1, 0]
-        ax2.fill_between(ex.t, meas - hi, meas - lo, color="tab:orange", alpha=0.4,
+        ax2.fill_between(tp, meas - hi, meas - lo, color="tab:orange", alpha=0.4,
                          label="measured − band")
-        ax2.plot(ex.t, meas - med, color="tab:blue", lw=0.8, label="measured − median")
+        ax2.plot(tp, meas - med, color="tab:blue", lw=0.8, label="measured − median")
         ax2.axhline(0, color="k", lw=0.5)
         ax2.set_ylabel(f"{c} error [rad]")
         ax2.legend(loc="upper left", fontsize=8)

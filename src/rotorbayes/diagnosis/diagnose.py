@@ -84,8 +84,8 @@ class Diagnosis:
         lines = [f"verdict: {'ADEQUATE' if self.adequate else 'INADEQUATE'} — {self.verdict}"]
         lines += [f"  {e}" for e in self.evidence]
         lines.append("")
-        lines.append("catalogue effects that are off, best first (score tests at the fit; "
-                     f"p adjusted by Holm over {len(self.ranking)} effects):")
+        lines.append("catalogue effects that are off, best first by adjusted p (score tests "
+                     f"at the fit; p adjusted by Holm over {len(self.ranking)} effects):")
         lines.append(f"  {'effect':<26} {'p':>9} {'p adj.':>9} {'pred. RMS/floor':>16}  "
                      "one-step estimate")
         for s in self.ranking:
@@ -138,6 +138,10 @@ def diagnose(
         + ", ".join(f"{c} {v:.2f} (floor {floor[c]:.2g} rad)" for c, v in ratios.items())
     ]
     significant = [s for s in ranking if s.p_adjusted < LEVEL and not s.equivalent_to_free]
+    # A claim must also promise a fall of the error: an effect whose one-step prediction
+    # does not lower the SSR (a non-smooth effect probed by a secant, far from the fit) is
+    # significant but not the answer.
+    promising = [s for s in significant if s.predicted_ssr < 0.99 * float(r @ r)]
     at_floor = worst <= AT_FLOOR
     adequate = at_floor and not significant
     strongest = max(
@@ -158,7 +162,9 @@ def diagnose(
                    if not at_floor else
                    f"the error is at the floor ({worst:.2f}x) but "
                    f"{significant[0].effect} is significant")
-        top = significant[0] if significant else None
+        top = promising[0] if promising else (significant[0] if significant else None)
+        if top is not None and top not in promising:
+            top = None
         if top is not None and foreign is not None:
             # The foreign dependence vetoes the claim only if it clearly beats every
             # variable the top effect could produce, on the same disc's map.

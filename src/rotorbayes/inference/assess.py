@@ -158,6 +158,13 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessmen
                 f"{b_} = {p[b_]:.4g}): the fit was stopped by it, which usually means a "
                 "wrong basin, a missing effect or a wrong fixed value"
             )
+    und = result.undetermined()
+    if und:
+        a.warnings.append(
+            f"the data do not determine {', '.join(und)} (the Jacobian is singular along a "
+            "direction they take part in): their standard errors are infinite and their "
+            "values arbitrary along it; fix one of them or give more informative data"
+        )
     # Free parameters the residual does not depend on.
     sigma = min(floors.values())
     for j, n in enumerate(result.names):

@@ -84,6 +84,9 @@ def describe(F: Fisher, *, n: int = 2) -> list[str]:
                    f"changes the fit by one standard deviation of the noise — "
                    + ("only their ratios are determined by these data"
                       if wdt > 0.05 else "their common scale is determined too"))
+        elif len(movers) >= 2 and kind == "stiffest":
+            txt = (f"{kind} direction ({coords}): this combination is the best determined; "
+                   f"1-σ width {wdt:.3g} in relative units")
         elif len(movers) >= 2:
             txt = (f"{kind} direction ({coords}): these trade off against each other; "
                    f"1-σ width {wdt:.3g} in relative units")

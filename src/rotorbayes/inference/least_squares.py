@@ -95,10 +95,33 @@ class FitResult:
             return cov / np.outer(d, d)
 
     def covariance(self) -> np.ndarray:
-        """Gauss-Newton covariance ``s² (JᵀJ)⁻¹`` with ``s² = SSR / (n - k)``."""
+        """Gauss-Newton covariance ``s² (JᵀJ)⁻¹`` with ``s² = SSR / (n - k)``.
+
+        Computed in scaled coordinates; where ``JᵀJ`` is singular (directions the data
+        do not determine, e.g. a parameter without influence), the variance of every
+        parameter that takes part in such a direction is ``inf``, not the tiny number a
+        pseudo-inverse would give.
+        """
         k = len(self.names)
         s2 = self.ssr / max(self.n_residuals - k, 1)
-        return s2 * np.linalg.pinv(self.jac.T @ self.jac, rcond=1e-13)
+        d = np.linalg.norm(self.jac, axis=0)
+        d = np.where(d > 0, d, 1.0)
+        Js = self.jac / d
+        w, V = np.linalg.eigh(Js.T @ Js)
+        small = w <= 1e-12 * max(w.max(), 1e-300)
+        inv = np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))
+        cov = (V * inv) @ V.T / np.outer(d, d) * s2
+        if small.any():
+            hit = np.any(np.abs(V[:, small]) > 0.1, axis=1)
+            cov[hit, :] = np.nan
+            cov[:, hit] = np.nan
+            cov[hit, hit] = np.inf
+        return cov
+
+    def undetermined(self) -> list[str]:
+        """Free parameters in a direction the data do not determine (singular JᵀJ)."""
+        return [n for n, v in zip(self.names, np.diag(self.covariance()), strict=True)
+                if not np.isfinite(v)]
 
     def sloppy_directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Eigenvalues (ascending) and eigenvectors of the Fisher information in

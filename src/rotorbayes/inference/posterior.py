@@ -17,8 +17,11 @@ import numpy as np
 from .likelihood import LogPosterior
 from .sampling import EnsembleRun, burn_thin
 
+#: Time points per experiment kept in the posterior-predictive group.
+PREDICTIVE_POINTS = 1500
 
-def draws(logpost: LogPosterior, runs: list[EnsembleRun], max_draws: int = 500):
+
+def draws(logpost: LogPosterior, runs: list[EnsembleRun], max_draws: int = 100):
     """Thinned draws per ensemble in parameter units: ``X (chains, draws, k)``, the
     coordinates ``Z``, log-posterior and the (burn, thin) used."""
     burn, thin = burn_thin(runs)
@@ -39,7 +42,7 @@ def draws(logpost: LogPosterior, runs: list[EnsembleRun], max_draws: int = 500):
     return Z, LP, burn, thin
 
 
-def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws: int = 500,
+def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws: int = 100,
                    predictive: bool = True):
     """:class:`arviz.InferenceData` with posterior, sample_stats, pointwise
     log_likelihood per experiment and channel, observed_data, constant_data (u) and
@@ -58,7 +61,7 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
         if logpost.ar1:
             posterior[f"phi_{c}"] = P[:, j].reshape(C, D)
     L, failed = logpost.pointwise(X, S, P)
-    loglik, observed, constant, pp, dims, coords = {}, {}, {}, {}, {}, {}
+    loglik, observed, constant, pp, dims, coords, dims_pp = {}, {}, {}, {}, {}, {}, {}
     R = prob.residuals_batch(X) if predictive else None
     for (c, a, b), ex_i in zip(logpost.segments, _exp_index(prob), strict=True):
         ex = prob.experiments[ex_i]
@@ -71,16 +74,24 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
         constant[f"u_exp{ex_i}"] = ex.u
         dims[f"u_exp{ex_i}"] = [f"time_exp{ex_i}"]
         if R is not None:
+            # The predictive bands need far fewer time points than the fit: at most
+            # PREDICTIVE_POINTS per experiment, on their own time axis.
             w = prob.weights[c]
-            pp[key] = (meas[None, :] - R[:, a:b] / w).reshape(C, D, -1).astype(np.float32)
+            step = max(1, int(np.ceil(ex.n / PREDICTIVE_POINTS)))
+            sims = (meas[None, :] - R[:, a:b] / w)[:, ::step]
+            pp[key] = sims.reshape(C, D, -1).astype(np.float32)
+            dims_pp[key] = [f"time_pred_exp{ex_i}"]
+            coords[f"time_pred_exp{ex_i}"] = ex.t[::step]
     acc = np.stack([np.full(D, float(np.mean(r.acceptance))) for r in runs])
     stats = {"lp": LP, "acceptance_rate": acc,
              "failed_simulations": np.full((C, D), logpost.n_failed)}
     idata = az.from_dict(
         posterior=posterior, sample_stats=stats, log_likelihood=loglik,
-        observed_data=observed, constant_data=constant,
-        posterior_predictive=pp or None, dims=dims, coords=coords,
+        observed_data=observed, constant_data=constant, dims=dims, coords=coords,
     )
+    if pp:
+        idata.add_groups(posterior_predictive=az.from_dict(
+            posterior_predictive=pp, dims=dims_pp, coords=coords).posterior_predictive)
     idata.posterior.attrs.update({"burn_in_steps": burn, "thin": thin,
                                   "ensembles": C, "walkers_steps_note":
                                   "chain = independent ensemble; draw = steps x walkers"})

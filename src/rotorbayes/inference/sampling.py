@@ -119,12 +119,12 @@ def convergence(runs: list[EnsembleRun], names: list[str]) -> list[str]:
         bad = [f"{nm} (τ {t:.0f})" for nm, t in zip(names, r.tau, strict=True)
                if not (np.isfinite(t) and n > 50 * t)]
         if bad:
-            out.append(f"ensemble {r.name}: {n} steps are not more than 50 τ for "
+            out.append(f"{r.name}: {n} steps are not more than 50 τ for "
                        f"{', '.join(bad)}: run longer (--resume --steps N) before trusting "
                        "the intervals")
         acc = float(np.mean(r.acceptance))
         if not 0.15 <= acc <= 0.7:
-            out.append(f"ensemble {r.name}: acceptance {acc:.2f} (expected 0.2-0.5)")
+            out.append(f"{r.name}: acceptance {acc:.2f} (expected 0.2-0.5)")
     return out
 
 

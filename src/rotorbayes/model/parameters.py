@@ -309,7 +309,7 @@ def table_markdown() -> str:
     """A markdown table of every parameter with unit, bounds and meaning."""
     rows = ["| name | unit | bounds | null | meaning |", "|---|---|---|---|---|"]
     for p in INFO.values():
-        null = "= Tc_l" if math.isnan(p.null) else f"{p.null:g}"
+        null = ("= Tc_l" if p.name == "Ts_l" else "—") if math.isnan(p.null) else f"{p.null:g}"
         rows.append(
             f"| `{p.name}` | {p.unit} | [{p.lower:g}, {p.upper:g}] | {null} | {p.description} |"
         )
