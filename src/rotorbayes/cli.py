@@ -1040,7 +1040,6 @@ def cmd_sample(a) -> int:
 
 def cmd_identify(a) -> int:
     """Fisher eigen-analysis in words, profile likelihoods, multistart on the corner plot."""
-    from .inference import identify as I
     from .results import load_fit
 
     fit = load_fit(a.fit)
@@ -1052,10 +1051,24 @@ def cmd_identify(a) -> int:
                            f"free ones are {', '.join(prob.names)}")
     if a.points < 3:
         raise CLIError(f"--points {a.points}: give at least 3 grid points")
-    out = _out_dir(a.out, a.force)
+    if a.posterior and not (Path(a.posterior) / "posterior.nc").exists():
+        raise CLIError(f"--posterior {a.posterior}: no posterior.nc there; give a folder "
+                       "written by `rotorbayes sample`")
+    if a.multistart and not (Path(a.multistart) / "multistart.json").exists():
+        raise CLIError(f"--multistart {a.multistart}: no multistart.json there; give a folder "
+                       "written by `rotorbayes multistart`")
+    with output_folder(a.out, a.force) as out:
+        written = _identify_into(a, fit, prob, profiles, out)
+    print(f"\nwrote {', '.join(written)} in {a.out}/")
+    return 0
+
+
+def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
+    from .inference import identify as I
+
     F = I.fisher(prob, fit.x)
     words = I.describe(F)
-    print(f"Fisher information of {fit.folder}/ at the fit (noise at the encoder floor; "
+    print(f"Fisher information of {fit.folder}/ at the fit (noise at each channel's floor; "
           "log coordinates for positive parameters):")
     print("  eigenvalues " + ", ".join(f"{v:.3g}" for v in F.eigenvalues))
     for w in words:
@@ -1097,8 +1110,7 @@ def cmd_identify(a) -> int:
         written.append("corner.png")
     _write_text(out / "identify.json", strict_json(doc))
     _write_text(out / "summary.txt", "\n".join(words) + "\n")
-    print(f"\nwrote {', '.join(written)}, summary.txt in {out}/")
-    return 0
+    return [*written, "summary.txt"]
 
 
 def _write_text(path: Path, text: str) -> None:
