@@ -21,7 +21,13 @@ from .examples import example_path
 from .model import SimulationError
 from .model import effects as _effects
 from .model import parameters as _params
-from .outputs import OutputError, check_output_file, output_folder
+from .outputs import (
+    OutputError,
+    check_output_file,
+    output_folder,
+    save_figure_atomic,
+    write_text_atomic,
+)
 from .results import ResultError
 
 DESCRIPTION = (
@@ -685,11 +691,11 @@ def run_fit(a, out: Path) -> dict:
                           f"max |e| {st['max_abs_error']:.3g} rad")
             fig, _ = plot_fit(ex.t, meas, simd, mode=s.mode_l, metrics=txt,
                               title=f"{a.model}: {label} data {Path(str(ex.path)).name}")
-            _save_fig(fig, out / f"fit_{label}_{i}.png")
+            save_figure_atomic(fig, out / f"fit_{label}_{i}.png")
     shape_discs = ("u",) if a.model == "upper" else ("u", "l")
     fig, _ = plot_friction(res.params, discs=shape_discs, shape=prob.shape,
                            title=f"fitted friction, {a.model} configuration")
-    _save_fig(fig, out / "friction.png")
+    save_figure_atomic(fig, out / "friction.png")
     print(f"\nwrote {Path(a.out) / 'fit.json'} and figures in {a.out}/")
     for wtxt in assessment.warnings:
         print(f"warning: {wtxt}", file=sys.stderr)
@@ -812,12 +818,12 @@ def cmd_multistart(a) -> int:
             fig, _ = plot_waterfall(ms.ssr, labels=ms.clusters, n_failed=len(ms.failed),
                                     noise_floor_ssr=floor,
                                     title=f"multistart, {a.model}: sorted final SSR")
-            _save_fig(fig, out / "waterfall.png")
+            save_figure_atomic(fig, out / "waterfall.png")
             fig, _ = plot_parameter_spread(
                 ms.names, ms.ends, ms.ssr, clusters=ms.clusters, noise_floor_ssr=floor,
                 units={n: prob.info(n).unit for n in ms.names},
                 title=f"multistart, {a.model}: end points")
-            _save_fig(fig, out / "parameter_spread.png")
+            save_figure_atomic(fig, out / "parameter_spread.png")
             written += ["waterfall.png", "parameter_spread.png"]
         (out / "summary.txt").write_text(summary + "\n")
         written.append("summary.txt")
@@ -886,11 +892,11 @@ def cmd_diagnose(a) -> int:
     print(d.text())
     doc = d.as_dict()
     doc["fit"] = str(fit.folder)
-    _write_text(fit.folder / "diagnosis.json", strict_json(doc))
+    write_text_atomic(fit.folder / "diagnosis.json", strict_json(doc))
     fig, _ = plot_candidates(fit.problem, fit.x, d)
-    _save_fig(fig, fit.folder / "diagnosis_candidates.png")
+    save_figure_atomic(fig, fit.folder / "diagnosis_candidates.png")
     fig, _ = plot_torque_map(d)
-    _save_fig(fig, fit.folder / "missing_torque.png")
+    save_figure_atomic(fig, fit.folder / "missing_torque.png")
     print(f"\nwrote {fit.folder}/diagnosis.json, diagnosis_candidates.png, missing_torque.png "
           f"({d.seconds:.1f} s)")
     return 0
@@ -917,11 +923,11 @@ def cmd_compare(a) -> int:
     views = C.residual_views(last.problem, last.x)
     for name, (fig, _) in (("error_vs_state.png", F.plot_error_vs_state(views)),
                            ("residual_correlation.png", F.plot_residual_correlation(views))):
-        _save_fig(fig, out / name)
+        save_figure_atomic(fig, out / name)
     written = ["compare.json", "error_vs_state.png", "residual_correlation.png"]
     if len(fits) > 1:
         fig, _ = F.plot_chain(doc)
-        _save_fig(fig, out / "chain.png")
+        save_figure_atomic(fig, out / "chain.png")
         written.append("chain.png")
     for c, v in views["channels"].items():
         lags, acf = v["acf"]
@@ -935,7 +941,7 @@ def cmd_compare(a) -> int:
                     " (the error is structured, not noise)")
         print(f"{c}: {100 * outside:.0f} % of autocorrelation lags 1..{lags.max()} outside the "
               "99 % band of a white residual" + note)
-    _write_text(out / "compare.json", strict_json(doc))
+    write_text_atomic(out / "compare.json", strict_json(doc))
     print(f"\nwrote {', '.join(written)} in {out}/")
     return 0
 
@@ -1022,15 +1028,15 @@ def cmd_sample(a) -> int:
     tmp = out / ".posterior.nc.tmp"
     idata.to_netcdf(str(tmp))
     tmp.replace(out / "posterior.nc")
-    _write_text(out / "summary.md", md + "\n")
-    _write_text(out / "summary.csv", PO.table_csv(rows))
+    write_text_atomic(out / "summary.md", md + "\n")
+    write_text_atomic(out / "summary.csv", PO.table_csv(rows))
     from . import posterior_figures as PF
 
-    _save_fig(PF.plot_corner(idata, fit.problem), out / "corner.png")
-    _save_fig(PF.plot_trace(runs, names)[0], out / "trace.png")
-    _save_fig(PF.plot_predictive(idata, fit.problem)[0], out / "predictive.png")
-    _save_fig(PF.plot_correlation(idata, fit.problem)[0], out / "correlation.png")
-    _write_text(out / "warnings.txt", "\n".join(warnings) + "\n")
+    save_figure_atomic(PF.plot_corner(idata, fit.problem), out / "corner.png")
+    save_figure_atomic(PF.plot_trace(runs, names)[0], out / "trace.png")
+    save_figure_atomic(PF.plot_predictive(idata, fit.problem)[0], out / "predictive.png")
+    save_figure_atomic(PF.plot_correlation(idata, fit.problem)[0], out / "correlation.png")
+    write_text_atomic(out / "warnings.txt", "\n".join(warnings) + "\n")
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"\nwrote posterior.nc, summary.md/.csv, corner.png, trace.png, predictive.png, "
@@ -1076,7 +1082,7 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
     doc = {"fit": str(fit.folder), "fisher": F.as_dict(), "words": words, "profiles": []}
     from . import posterior_figures as PF
 
-    _save_fig(PF.plot_fisher(F)[0], out / "fisher.png")
+    save_figure_atomic(PF.plot_fisher(F)[0], out / "fisher.png")
     written = ["identify.json", "fisher.png"]
     if profiles:
         se = dict(zip(prob.names, fit.doc and [fit.doc["estimates"][n]["stderr"] or 0.0
@@ -1093,7 +1099,7 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
                      f"{pr['unit']}" if inside else "no grid point within Δχ² < 3.84")
                   + ("; the interval reaches the grid's edge: widen it" if inside and (
                       min(inside) == pr["grid"][0] or max(inside) == pr["grid"][-1]) else ""))
-        _save_fig(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
+        save_figure_atomic(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
         written.append("profiles.png")
     if a.posterior:
         import arviz as az
@@ -1106,27 +1112,11 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
                 raise CLIError(f"{a.multistart}: its free parameters {ms.get('names')} "
                                f"differ from the fit's {list(prob.names)}")
             overlay = np.array(ms["ends"])
-        _save_fig(PF.plot_corner(idata, prob, overlay=overlay), out / "corner.png")
+        save_figure_atomic(PF.plot_corner(idata, prob, overlay=overlay), out / "corner.png")
         written.append("corner.png")
-    _write_text(out / "identify.json", strict_json(doc))
-    _write_text(out / "summary.txt", "\n".join(words) + "\n")
+    write_text_atomic(out / "identify.json", strict_json(doc))
+    write_text_atomic(out / "summary.txt", "\n".join(words) + "\n")
     return [*written, "summary.txt"]
-
-
-def _write_text(path: Path, text: str) -> None:
-    """Write a file atomically (a temporary file beside it, then a rename)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
-def _save_fig(fig, path: Path, dpi: int = 100) -> None:
-    import matplotlib.pyplot as plt
-
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=dpi)
-    plt.close(fig)
-    tmp.replace(path)
 
 
 def cmd_report(a) -> int:

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from .model import effects as _effects
 from .model.parameters import INFO, ParameterError
+from .outputs import write_text_atomic
 
 #: Tables and keys the analysis file may hold (key -> expected type(s)).
 SCHEMA: dict[str, dict[str, tuple]] = {
@@ -364,9 +365,7 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
 
 
 def _write_record(path: Path, record: dict) -> None:
-    tmp = path.with_name(".run.json.tmp")
-    tmp.write_text(json.dumps(record, indent=2))
-    tmp.replace(path)
+    write_text_atomic(path, json.dumps(record, indent=2))
 
 
 __all__ = ["Analysis", "AnalysisError", "ParameterError", "load_analysis", "run"]

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..inference.assess import AT_FLOOR
 from ..inference.problem import Problem
-from .score import EffectScore, _rms_ratios, score_tests
+from .score import EffectScore, score_tests
 from .torque import TorqueMap, missing_torque
 
 #: Significance level of the ranking (after Holm's correction).
@@ -129,7 +129,7 @@ def diagnose(
     r = problem.residuals(x)
     if not np.all(np.isfinite(r)):
         raise ValueError("the model cannot be simulated at this fit; nothing to diagnose")
-    ratios = _rms_ratios(problem, r, floor)
+    ratios = problem.rms_over_floor(r, floor)
     worst = max(ratios.values())
     ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor)
     maps = missing_torque(problem, x)

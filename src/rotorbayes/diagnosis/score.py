@@ -278,7 +278,7 @@ def score_tests(
                 one_sided=one_sided,
                 step=step,
                 predicted_ssr=pred_ssr,
-                predicted_rms_ratio=_rms_ratios(problem, r_new, floor),
+                predicted_rms_ratio=problem.rms_over_floor(r_new, floor),
                 distinct_ratio=ratio,
                 equivalent_to_free=ratio < EQUIVALENT_RATIO,
                 equivalences=list(e.equivalences),
@@ -305,19 +305,6 @@ def score_tests(
 
     out.sort(key=key)
     return out
-
-
-def _rms_ratios(problem: Problem, r: np.ndarray, floor: dict) -> dict[str, float]:
-    """Residual RMS over the floor per channel (all experiments pooled)."""
-    acc = {c: [0.0, 0] for c in problem.channels}
-    off = 0
-    for ex in problem.experiments:
-        for c in problem.channels:
-            seg = r[off : off + ex.n] / problem.weights[c]
-            acc[c][0] += float(seg @ seg)
-            acc[c][1] += ex.n
-            off += ex.n
-    return {c: math.sqrt(s / n) / floor[c] for c, (s, n) in acc.items()}
 
 
 def _holm(scores: list[EffectScore]) -> None:

@@ -39,18 +39,11 @@ class FirstFit:
 
 
 def floor_ratio(problem: Problem, x: np.ndarray) -> float:
-    """Worst fitted channel's residual RMS over its quantisation floor at ``x``."""
+    """Worst fitted channel's residual RMS over its noise floor at ``x``."""
     ev = problem.evaluate(x)
     if not ev.ok:
         return math.inf
-    worst, off = 0.0, 0
-    floors, _ = problem.noise_floors()
-    for ex in problem.experiments:
-        for c in problem.channels:
-            r = ev.residuals[off : off + ex.n] / problem.weights[c]
-            off += ex.n
-            worst = max(worst, math.sqrt(float(r @ r) / ex.n) / floors[c])
-    return worst
+    return max(problem.rms_over_floor(ev.residuals).values())
 
 
 def fit_from_data(

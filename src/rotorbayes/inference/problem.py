@@ -289,6 +289,10 @@ class Problem:
         """
         from ..data import jitter_rms, quantisation_floor
 
+        cache = self.__dict__.setdefault("_floors_cache", {})
+        if noise_std in cache:  # the data do not change: compute the jitter once
+            f, n = cache[noise_std]
+            return dict(f), list(n)
         floors, notes = {}, []
         for c in self.channels:
             q = quantisation_floor(c)
@@ -309,7 +313,22 @@ class Problem:
                 )
             else:
                 floors[c] = q
+        cache[noise_std] = (dict(floors), list(notes))
         return floors, notes
+
+    def rms_over_floor(self, r: np.ndarray, floors: Mapping | None = None) -> dict:
+        """Residual RMS over the noise floor per fitted channel (experiments pooled) of a
+        residual vector ``r`` laid out as :meth:`residuals` lays it out."""
+        floors = floors if floors is not None else self.noise_floors()[0]
+        acc = {c: [0.0, 0] for c in self.channels}
+        off = 0
+        for ex in self.experiments:
+            for c in self.channels:
+                seg = r[off : off + ex.n] / self.weights[c]
+                acc[c][0] += float(seg @ seg)
+                acc[c][1] += ex.n
+                off += ex.n
+        return {c: math.sqrt(s / n) / floors[c] for c, (s, n) in acc.items()}
 
     def info(self, name: str):
         """Metadata of a (possibly per-experiment) parameter name."""

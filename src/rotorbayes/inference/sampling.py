@@ -23,6 +23,7 @@ from pathlib import Path
 import emcee
 import numpy as np
 
+from ..outputs import write_text_atomic
 from .likelihood import LogPosterior
 
 
@@ -129,9 +130,7 @@ def convergence(runs: list[EnsembleRun], names: list[str]) -> list[str]:
 
 
 def save_settings(folder: Path, settings: dict) -> None:
-    tmp = folder / ".settings.json.tmp"
-    tmp.write_text(json.dumps(settings, indent=2))
-    tmp.replace(folder / "settings.json")
+    write_text_atomic(Path(folder) / "settings.json", json.dumps(settings, indent=2))
 
 
 def sample(

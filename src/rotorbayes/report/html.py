@@ -13,12 +13,12 @@ from __future__ import annotations
 import datetime
 import hashlib
 import math
-import os
 import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..outputs import write_text_atomic
 from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
     CSS,
@@ -863,13 +863,7 @@ def write_report(folder: str | Path, out: str | Path | None = None, *,
     if not path.parent.is_dir():
         raise ReportError(f"{path}: its folder {path.parent} does not exist; create it or "
                           "choose another --out")
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(rep.html, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_text_atomic(path, rep.html)
     rep.path = path
     return rep
 
