@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .assess import NEAR_FLOOR
-from .least_squares import FitResult, StartError, fit
-from .multistart import latin_hypercube
+from .least_squares import FitResult, fit
+from .multistart import fit_or_reason, latin_hypercube
 from .parallel import get_mapper, progress
 from .problem import Problem
 from .starts import DataStart, data_start
@@ -84,10 +84,7 @@ def fit_from_data(
     starts = latin_hypercube(problem, restarts, rng, around=x0, spread=spread)
 
     def one(xs):
-        try:
-            return fit(problem, xs, parallel=False, **fit_kw), ""
-        except (StartError, ValueError, RuntimeError) as exc:
-            return None, str(exc)
+        return fit_or_reason(problem, xs, **fit_kw)
 
     best = res
     for i, (r, why) in progress(get_mapper("threads", workers).map(one, list(starts)),

@@ -201,6 +201,15 @@ def _within_constraints(problem: Problem, X: np.ndarray, U: np.ndarray) -> np.nd
     return np.clip(X, problem.lower, problem.upper)
 
 
+def fit_or_reason(problem: Problem, x0, **fit_kw) -> tuple[FitResult | None, str]:
+    """One fit of a multistart or restart: ``(result, "")``, or ``(None, why)`` when the
+    start cannot be fitted (outside the bounds, not simulable): a failure, not a minimum."""
+    try:
+        return fit(problem, x0, parallel=False, **fit_kw), ""
+    except (ParameterError, ValueError, RuntimeError) as exc:
+        return None, str(exc)
+
+
 def multistart(
     problem: Problem,
     n_starts: int = 32,
@@ -229,10 +238,7 @@ def multistart(
     t0 = time.perf_counter()
 
     def one(x0):
-        try:
-            return fit(problem, x0, parallel=False, **fit_kw), ""
-        except (ParameterError, ValueError, RuntimeError) as exc:
-            return None, str(exc)
+        return fit_or_reason(problem, x0, **fit_kw)
 
     results: dict[int, tuple] = {}
     interrupted = False
