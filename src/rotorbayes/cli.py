@@ -948,6 +948,7 @@ def cmd_compare(a) -> int:
 
 def cmd_sample(a) -> int:
     """emcee from a least-squares fit, checkpointed; --resume continues the same chains."""
+    from .inference import arviz_compat as AZ
     from .inference import posterior as PO
     from .inference import sampling as S
     from .inference.likelihood import LogPosterior, load_priors
@@ -1026,7 +1027,7 @@ def cmd_sample(a) -> int:
     md = PO.table_markdown(rows)
     print("\n" + md)
     tmp = out / ".posterior.nc.tmp"
-    idata.to_netcdf(str(tmp))
+    AZ.save(idata, tmp)
     tmp.replace(out / "posterior.nc")
     write_text_atomic(out / "summary.md", md + "\n")
     write_text_atomic(out / "summary.csv", PO.table_csv(rows))
@@ -1102,9 +1103,9 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
         save_figure_atomic(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
         written.append("profiles.png")
     if a.posterior:
-        import arviz as az
+        from .inference import arviz_compat as AZ
 
-        idata = az.from_netcdf(Path(a.posterior) / "posterior.nc")
+        idata = AZ.load(Path(a.posterior) / "posterior.nc")
         overlay = None
         if a.multistart:
             ms = json.loads((Path(a.multistart) / "multistart.json").read_text())

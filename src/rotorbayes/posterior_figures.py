@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .inference import arviz_compat as AZ
 from .plots import _plt
 
 
@@ -25,7 +26,8 @@ def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
     import corner
 
     names = list(prob.names)
-    X = np.column_stack([idata.posterior[n].values.reshape(-1) for n in names])
+    post = AZ.group(idata, "posterior")
+    X = np.column_stack([post[n].values.reshape(-1) for n in names])
     fig = corner.corner(X, labels=_labels(prob, names), show_titles=True, title_fmt=".4g",
                         quantiles=[0.03, 0.5, 0.97], title_kwargs={"fontsize": 8},
                         label_kwargs={"fontsize": 8}, truths=truth)
@@ -69,11 +71,11 @@ def plot_predictive(idata, prob, *, i: int = 0):
                              sharex=True, squeeze=False, constrained_layout=True)
     for k, c in enumerate(chans):
         key = f"{c}_exp{i}"
-        da = idata.posterior_predictive[key]
+        da = AZ.group(idata, "posterior_predictive")[key]
         tp = da[da.dims[-1]].values  # the predictive group's own (decimated) time axis
         sims = da.values.reshape(-1, tp.size)
         lo, med, hi = np.percentile(sims, [3, 50, 97], axis=0)
-        full = idata.observed_data[key].values
+        full = AZ.group(idata, "observed_data")[key].values
         meas = np.interp(tp, ex.t, full)
         ax = axes[2 * k, 0]
         ax.plot(ex.t, full, color="k", lw=1, label="measured")
@@ -96,7 +98,8 @@ def plot_correlation(idata, prob):
     """Posterior correlation matrix of the free parameters."""
     plt = _plt()
     names = list(prob.names)
-    X = np.column_stack([idata.posterior[n].values.reshape(-1) for n in names])
+    post = AZ.group(idata, "posterior")
+    X = np.column_stack([post[n].values.reshape(-1) for n in names])
     C = np.corrcoef(X, rowvar=False)
     fig, ax = plt.subplots(figsize=(1.0 + 0.6 * len(names), 0.8 + 0.6 * len(names)),
                            constrained_layout=True)

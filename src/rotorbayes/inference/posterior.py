@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from . import arviz_compat as AZ
 from .likelihood import LogPosterior
 from .sampling import EnsembleRun, burn_thin
 
@@ -44,11 +45,10 @@ def draws(logpost: LogPosterior, runs: list[EnsembleRun], max_draws: int = 100):
 
 def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws: int = 100,
                    predictive: bool = True):
-    """:class:`arviz.InferenceData` with posterior, sample_stats, pointwise
+    """The posterior container of the installed arviz line (InferenceData on 0.2x, a
+    DataTree on 1.x; see :mod:`.arviz_compat`) with posterior, sample_stats, pointwise
     log_likelihood per experiment and channel, observed_data, constant_data (u) and
     posterior_predictive (noise-free simulations)."""
-    import arviz as az
-
     prob = logpost.problem
     Z, LP, burn, thin = draws(logpost, runs, max_draws)
     C, D, _ = Z.shape
@@ -85,17 +85,16 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
     acc = np.stack([np.full(D, float(np.mean(r.acceptance))) for r in runs])
     stats = {"lp": LP, "acceptance_rate": acc,
              "failed_simulations": np.full((C, D), logpost.n_failed)}
-    idata = az.from_dict(
-        posterior=posterior, sample_stats=stats, log_likelihood=loglik,
-        observed_data=observed, constant_data=constant, dims=dims, coords=coords,
-    )
+    groups = {"posterior": posterior, "sample_stats": stats, "log_likelihood": loglik,
+              "observed_data": observed, "constant_data": constant}
     if pp:
-        idata.add_groups(posterior_predictive=az.from_dict(
-            posterior_predictive=pp, dims=dims_pp, coords=coords).posterior_predictive)
-    idata.posterior.attrs.update({"burn_in_steps": burn, "thin": thin,
-                                  "ensembles": C, "walkers_steps_note":
-                                  "chain = independent ensemble; draw = steps x walkers"})
-    return idata
+        groups["posterior_predictive"] = pp
+    group_dims = {"log_likelihood": dims, "observed_data": dims, "constant_data": dims,
+                  "posterior_predictive": dims_pp}
+    attrs = {"posterior": {"burn_in_steps": burn, "thin": thin, "ensembles": C,
+                           "walkers_steps_note":
+                           "chain = independent ensemble; draw = steps x walkers"}}
+    return AZ.from_groups(groups, dims=group_dims, coords=coords, attrs=attrs)
 
 
 def _exp_index(prob):
@@ -107,10 +106,8 @@ def _exp_index(prob):
 
 def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: float = 0.94):
     """Rows: mean, sd, HDI, bulk ESS (arviz), ESS from τ (emcee), R-hat, τ, unit."""
-    import arviz as az
-
     prob = logpost.problem
-    summ = az.summary(idata, hdi_prob=hdi, kind="all", round_to="none")
+    summ = AZ.summary(idata, hdi_prob=hdi)
     rows = []
     for j, n in enumerate(logpost.coord_names):
         pname = n[4:] if n.startswith("log_") and n[4:] in prob.names else n
@@ -125,11 +122,11 @@ def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: fl
         ess_tau = sum(st * walkers / t for st, t in zip(steps, taus, strict=True)
                       if np.isfinite(t) and t > 0)
         unit = prob.info(var).unit if var in prob.names else "rad" if "sigma" in var else "-"
-        lo_k = [k for k in s.index if k.startswith("hdi_")]
         rows.append({
             "parameter": var, "mean": float(s["mean"]), "sd": float(s["sd"]),
-            "hdi_low": float(s[lo_k[0]]), "hdi_high": float(s[lo_k[1]]),
-            "ess_bulk": float(s["ess_bulk"]), "ess_tau": float(ess_tau),
+            "hdi_low": float(s["hdi_low"]), "hdi_high": float(s["hdi_high"]),
+            "ess_bulk": float(s["ess_bulk"]), "ess_tail": float(s["ess_tail"]),
+            "ess_tau": float(ess_tau),
             "r_hat": float(s["r_hat"]), "tau": float(np.nanmax(taus)) if np.any(
                 np.isfinite(taus)) else math.nan,
             "unit": unit,
