@@ -29,6 +29,15 @@ integration is therefore restarted at *every* such breakpoint (and at every outp
 time), so that each ``solve_ivp`` call only ever sees an analytic right-hand side.  Within
 a segment the effective voltage is an exact linear function of time.
 
+Continuous input (``u_func``): instead of samples, the voltage may be given as a function
+of time evaluated exactly wherever the solver needs it (an amplifier that follows a smooth
+command, not a line between samples).  The delay, offset and dead zone still apply:
+``v(t) = deadzone(u_func(max(t - t_delay, t[0])) + u_offset)``.  Breakpoints are then the
+sample times, ``t[0] + t_delay`` (end of the held start), the caller's ``u_breaks``
+(times where ``u_func`` is not smooth, shifted by the delay) and the dead-zone crossings
+(located by root finding); within a segment the right-hand side and the stick-band event
+functions evaluate ``u_func`` itself.
+
 Inside a slip mode the friction law is extended smoothly across omega = 0 (the Stribeck
 power is continued as an odd function, ``x**delta -> sign(x)*|x|**delta``) so that the
 DOP853 steps that overshoot the zero crossing before the event is located see a smooth
@@ -177,6 +186,96 @@ def _input_segments(bp: np.ndarray, t: np.ndarray, u: np.ndarray, p: dict):
     return ua, ub
 
 
+def _held(u_func: Callable, t0: float) -> Callable:
+    """``u_func`` with its value at ``t0`` held before ``t0`` (scalar or array times)."""
+
+    def f(tau):
+        if np.ndim(tau) == 0:
+            return float(u_func(tau if tau > t0 else t0))
+        return np.asarray(u_func(np.maximum(np.asarray(tau, dtype=float), t0)), dtype=float)
+
+    return f
+
+
+def _snap(e: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
+    """Times ``e`` within ``tol`` of a sample time replaced by that sample time."""
+    if e.size == 0:
+        return e
+    idx = np.clip(np.searchsorted(t, e), 1, t.size - 1) if t.size > 1 else np.zeros(e.size, int)
+    lo, hi = t[idx - 1] if t.size > 1 else t[idx], t[idx]
+    e = np.where(np.abs(e - lo) <= tol, lo, e)
+    return np.where(np.abs(hi - e) <= tol, hi, e)
+
+
+def _breakpoints_func(
+    t: np.ndarray, u_func: Callable, u_breaks, p: dict, tol: float, n_probe: int = 8
+) -> np.ndarray:
+    """Breakpoints of a continuous input: the first and last sample time, the end of the
+    held start (``t[0] + t_delay``), the delayed non-smooth times of ``u_func`` and the
+    times where the dead zone's edges are crossed (sign changes on a probe grid of
+    ``n_probe`` points per sample interval, then brentq).  Points within ``tol`` of a
+    sample time become that sample time.  Other sample times are *not* breakpoints: the
+    input is smooth there, and the solution is read from the solver's dense output."""
+    from scipy.optimize import brentq
+
+    t0, t1 = t[0], t[-1]
+    d = p["t_delay"]
+    extra = [np.array([t0 + d])] if d != 0.0 else []
+    if u_breaks is not None:
+        extra.append(np.asarray(u_breaks, dtype=float).ravel() + d)
+    dz = p["u_deadzone"]
+    if dz > 0.0 and t.size > 1:
+        uf = _held(u_func, t0)
+        off = p["u_offset"]
+        grid = np.union1d(t, np.concatenate(extra)) if extra else t
+        grid = grid[(grid >= t0) & (grid <= t1)]
+        frac = np.linspace(0.0, 1.0, n_probe + 1)
+        tp = np.union1d((grid[:-1, None] + frac[None, :] * np.diff(grid)[:, None]).ravel(),
+                        grid)
+        vp = uf(tp - d) + off
+        roots = []
+        for level in (dz, -dz):
+            g = vp - level
+            for k in np.flatnonzero(g[:-1] * g[1:] < 0.0):
+                roots.append(
+                    brentq(lambda s, lv=level: uf(s - d) + off - lv, tp[k], tp[k + 1],
+                           xtol=1e-15, rtol=4 * np.finfo(float).eps)
+                )
+        extra.append(np.asarray(roots, dtype=float))
+    e = np.concatenate(extra) if extra else np.zeros(0)
+    e = _snap(e[(e > t0 - tol) & (e < t1 + tol)], t, tol)
+    e = e[(e > t0) & (e < t1)]
+    return np.union1d(np.array([t0, t1]) if t.size > 1 else t[:1], _unique_with_tol(e, tol))
+
+
+def _input_functions(bp: np.ndarray, t: np.ndarray, u_func: Callable, p: dict) -> list:
+    """The effective voltage on each segment [bp[i], bp[i+1]] as a function of time:
+    ``u_func`` delayed (held before t[0]), offset, and on the segment's side of the dead
+    zone (dead-zone crossings are breakpoints, so the side is the midpoint's)."""
+    uf = _held(u_func, float(t[0]))
+    d, off, dz = p["t_delay"], p["u_offset"], p["u_deadzone"]
+    mid = 0.5 * (bp[:-1] + bp[1:])
+    vmid = uf(mid - d) + off if mid.size else np.zeros(0)
+
+    def plain(t_):
+        return uf(t_ - d) + off
+
+    out = []
+    for vm in vmid:
+        if dz > 0.0 and abs(vm) <= dz:
+            out.append(_zero)
+        elif dz > 0.0:
+            shift = dz * (1.0 if vm > 0 else -1.0)
+            out.append(lambda t_, s=shift: uf(t_ - d) + off - s)
+        else:
+            out.append(plain)
+    return out
+
+
+def _zero(t_: float) -> float:
+    return 0.0
+
+
 # --------------------------------------------------------------------------------------
 # model pieces
 # --------------------------------------------------------------------------------------
@@ -234,6 +333,8 @@ def reference_simulate(
     dense_output: bool = False,
     extra_torque: Callable | None = None,
     friction_shift: Callable | None = None,
+    u_func: Callable | None = None,
+    u_breaks: np.ndarray | None = None,
 ) -> dict:
     """Reference (event-driven, exact switching) simulation of the rig.
 
@@ -266,6 +367,13 @@ def reference_simulate(
         must be smooth in time and state (no kinks; kinks of v are breakpoints already)
         and keep the friction levels non-negative.  Without them (None) the results are
         bitwise those of the version without hooks.
+    u_func : optional continuous input ``u_func(tau) -> V`` used instead of ``u`` (give
+        ``u=None``): called with a float or a float array of times in ``[t[0], t[-1]]``
+        (before ``t[0]`` the value at ``t[0]`` is held); it must be smooth between the
+        times listed in ``u_breaks``.  Without it the samples ``u`` are interpolated
+        linearly (the results are bitwise those of the version without this option).
+    u_breaks : times [s] at which ``u_func`` is not smooth (e.g. the ends of a transition);
+        they are delayed like the input and become breakpoints of the integration.
     dense_output : if True, the result also contains ``"sol"``, a callable mapping an
         array of times in [t[0], t[-1]] to a (4, n) array
         [theta_u, omega_u, theta_l, omega_l] (rows of absent discs are NaN).
@@ -297,6 +405,11 @@ def reference_simulate(
         if thp.shape != t.shape:
             raise ValueError("theta_u_prescribed must have the same shape as t")
         u_arr = None
+    elif u_func is not None:
+        if u is not None:
+            raise ValueError("give the input as samples u or as u_func, not both")
+        u_arr = None
+        thp = None
     else:
         if u is None:
             raise ValueError("u is required for this config")
@@ -304,11 +417,23 @@ def reference_simulate(
         if u_arr.shape != t.shape:
             raise ValueError("u must have the same shape as t")
         thp = None
+    if u_func is not None and config == "prescribed":
+        raise ValueError("u_func has no meaning for config 'prescribed'")
+    cont = u_func is not None
 
     dt_min = float(np.min(np.diff(t))) if t.size > 1 else 1.0
     tol_bp = 1e-9 * dt_min
-    bp = _breakpoints(t, u_arr, p, config, tol_bp)
+    if cont:
+        bp = _breakpoints_func(t, u_func, u_breaks, p, tol_bp)
+    else:
+        bp = _breakpoints(t, u_arr, p, config, tol_bp)
     is_sample = np.isin(bp, t)  # exact, because sample times are kept verbatim
+    # Continuous input: sample times strictly inside a segment are read from the dense
+    # output of the solver call that covers them.
+    next_sample = 1
+    # Steps no longer than a sample interval, as on the sample path (a slip mode's smooth
+    # extension across omega = 0 is then only ever evaluated close to the event).
+    step_cap = {"max_step": dt_min} if cont else {}
     nseg = bp.size - 1
 
     if config == "prescribed":
@@ -317,6 +442,9 @@ def reference_simulate(
         pa = thm + pslope * (bp[:-1] - mid)
         pb = pslope
         ua = ub = np.zeros(nseg)
+    elif cont:
+        ua = ub = pa = pb = np.zeros(nseg)
+        vfs = _input_functions(bp, t, u_func, p)
     else:
         ua, ub = _input_segments(bp, t, u_arr, p) if nseg else (np.zeros(0), np.zeros(0))
         pa = pb = np.zeros(nseg)
@@ -340,7 +468,7 @@ def reference_simulate(
     # ---- state & torques ----------------------------------------------------------------
     # y = [theta_u, omega_u, theta_l, omega_l]; for "prescribed" y[0:2] are unused (the
     # upper motion is pa + pb*(t - a)); for "upper" y[2:4] stay 0.
-    seg = {"a": bp[0], "ua": 0.0, "ub": 0.0, "pa": 0.0, "pb": 0.0}
+    seg = {"a": bp[0], "ua": 0.0, "ub": 0.0, "pa": 0.0, "pb": 0.0, "vf": None}
 
     def upper_kin(t_: float, y: list) -> tuple[float, float]:
         if config == "prescribed":
@@ -355,7 +483,7 @@ def reference_simulate(
 
     def hook_args(t_: float, y: list) -> tuple:
         thu, wu = upper_kin(t_, y) if has_upper or config == "prescribed" else (0.0, 0.0)
-        v = seg["ua"] + seg["ub"] * (t_ - seg["a"])
+        v = seg["vf"](t_) if cont else seg["ua"] + seg["ub"] * (t_ - seg["a"])
         thl, wl = (y[2], y[3]) if has_lower else (0.0, 0.0)
         return t_, thu, wu, thl, wl, v
 
@@ -372,7 +500,7 @@ def reference_simulate(
         return float(a_), float(b_)
 
     def te_upper(t_: float, y: list) -> float:
-        ue = seg["ua"] + seg["ub"] * (t_ - seg["a"])
+        ue = seg["vf"](t_) if cont else seg["ua"] + seg["ub"] * (t_ - seg["a"])
         return km * ue + string_torque(t_, y) + extra(t_, y)[0]
 
     def te_lower(t_: float, y: list) -> float:
@@ -382,13 +510,14 @@ def reference_simulate(
         a = seg["a"]
         sua, sub = seg["ua"], seg["ub"]
         spa, spb = seg["pa"], seg["pb"]
+        vf = seg["vf"]
         if config == "upper":
 
             def rhs(t_, yy):
                 y0, y1, _, _ = yy.tolist()
                 if mu == 0:
                     return [0.0, 0.0, 0.0, 0.0]
-                ue = sua + sub * (t_ - a)
+                ue = vf(t_) if cont else sua + sub * (t_ - a)
                 yl = [y0, y1, 0.0, 0.0]
                 f = fr_u(y1, mu) + mu * shift(t_, yl)[0]
                 return [y1, (km * ue - f + extra(t_, yl)[0]) * iJu, 0.0, 0.0]
@@ -412,7 +541,7 @@ def reference_simulate(
                 shu, shl = shift(t_, yl)
                 exu, exl = extra(t_, yl)
                 if mu != 0:
-                    ue = sua + sub * (t_ - a)
+                    ue = vf(t_) if cont else sua + sub * (t_ - a)
                     dwu = (km * ue - fr_u(y1, mu) - mu * shu + Tsr + exu) * iJu
                 else:
                     dwu = 0.0
@@ -511,11 +640,15 @@ def reference_simulate(
         seg["ub"] = float(ub[i])
         seg["pa"] = float(pa[i])
         seg["pb"] = float(pb[i])
+        if cont:
+            seg["vf"] = vfs[i]
 
     if nseg:
         set_segment(0)
     elif config == "prescribed":
         seg["pa"] = float(thp[0])
+    elif cont:
+        seg["vf"] = _input_functions(np.array([t[0], t[0] + 1.0]), t, u_func, p)[0]
     else:
         seg["ua"] = float(_input_segments(np.array([t[0], t[0] + 1.0]), t, u_arr, p)[0][0])
 
@@ -556,6 +689,13 @@ def reference_simulate(
             if span <= 1e-14 * max(1.0, abs(b_i)):
                 f = rhs(tc, np.asarray(y))
                 y = [y[k] + f[k] * span for k in range(4)]
+                if cont:
+                    k1 = int(np.searchsorted(t, b_i, side="left"))
+                    for k in range(next_sample, k1):
+                        Y[:, k] = y
+                        MU[k], ML[k] = mu, ml
+                    next_sample = max(next_sample, k1)
+                    out_i = max(out_i, k1)
                 if dense_output:
                     pieces.append((tc, b_i, _ConstPiece(np.asarray(y))))
                 tc = b_i
@@ -571,7 +711,8 @@ def reference_simulate(
                 atol=atol,
                 events=evs,
                 first_step=first,
-                dense_output=dense_output,
+                dense_output=dense_output or cont,
+                **step_cap,
             )
             n_calls += 1
             if sol.status < 0:
@@ -584,6 +725,14 @@ def reference_simulate(
                     h_hint = 4.0 * h_max
             y_new = sol.y[:, -1].tolist()
             t_new = float(sol.t[-1])
+            if cont:
+                k1 = int(np.searchsorted(t, t_new, side="left"))
+                if k1 > next_sample:
+                    ks = np.arange(next_sample, k1)
+                    Y[:, ks] = np.asarray(sol.sol(t[ks])).reshape(4, -1)
+                    MU[ks], ML[ks] = mu, ml
+                    next_sample = k1
+                    out_i = k1
             if dense_output:
                 pieces.append((tc, t_new, sol.sol))
             if sol.status == 1:
@@ -626,6 +775,7 @@ def reference_simulate(
             Y[:, out_i] = y
             MU[out_i], ML[out_i] = modes["u"], modes["l"]
             out_i += 1
+            next_sample = out_i
 
     assert out_i == n_out, (out_i, n_out)
 

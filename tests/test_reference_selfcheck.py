@@ -454,3 +454,85 @@ def test_angle_dependent_friction_shift_is_converged_and_consistent():
     band = Ts + BRAKE["Tc_l"] * 0.3 * np.sin(r11["theta_l"] + 0.7)
     assert np.all(r11["omega_l"][stuck] == 0.0)
     assert np.all(np.abs(ka * alpha[stuck]) <= band[stuck] + 1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# 7. continuous input functions (u_func)
+# --------------------------------------------------------------------------------------
+def _smooth_steps(T: float):
+    # levels joined by raised-cosine transitions, with reversals and a hold at 0 V
+    knots = [(0.5, 0.8, 2.5), (2.5, 2.8, 0.0), (3.5, 3.6, -2.8), (5.5, 5.9, 1.0),
+             (7.0, 7.2, -0.3)]  # fmt: skip
+    levels = [0.0] + [k[2] for k in knots]
+
+    def f(tau):
+        tau = np.asarray(tau, dtype=float)
+        v = np.full(tau.shape, levels[0])
+        for (s, e, _), a, b in zip(knots, levels[:-1], levels[1:], strict=True):
+            x = np.clip((tau - s) / (e - s), 0.0, 1.0)
+            v = np.where(tau >= s, a + (b - a) * 0.5 * (1 - np.cos(np.pi * x)), v)
+        return float(v) if v.ndim == 0 else v
+
+    breaks = np.array([k[0] for k in knots] + [k[1] for k in knots])
+    return f, breaks[breaks < T]
+
+
+@pytest.mark.parametrize("config", ["upper", "brake"])
+def test_continuous_input_equal_to_the_interpolant_matches_the_sample_path(config):
+    # u_func = the linear interpolant of the samples (kinks at the sample times, listed as
+    # u_breaks): the continuous path must reproduce the sample path, with delay, offset and
+    # a dead zone whose edges the input crosses inside samples.
+    params = dict(BRAKE, u_offset=0.03, t_delay=0.0123, u_deadzone=0.11, c_alpha=0.002)
+    dt = 1e-2
+    t = np.arange(0.0, 9.0 + 0.5 * dt, dt)
+    f, _ = _smooth_steps(9.0)
+    u = f(t) * 1.0
+    lin = reference_simulate(params, t, u, config)
+    cont = reference_simulate(params, t, None, config, u_func=lambda s: np.interp(s, t, u),
+                              u_breaks=t)  # fmt: skip
+    assert _max_diff(lin, cont) < 1e-8
+    assert _same_events(lin, cont, 1e-8)
+    assert len(lin["events"]) >= 4 and "stick" in _kinds(lin, "u")
+
+
+def test_continuous_input_is_converged_and_differs_from_the_interpolant():
+    params = dict(BRAKE, t_delay=0.0077, u_deadzone=0.2)
+    dt = 1e-2
+    t = np.arange(0.0, 9.0 + 0.5 * dt, dt)
+    f, breaks = _smooth_steps(9.0)
+    kw = dict(u_func=f, u_breaks=breaks)
+    r9 = reference_simulate(params, t, None, "brake", rtol=1e-9, atol=1e-11, **kw)
+    r11 = reference_simulate(params, t, None, "brake", **kw)
+    r13 = reference_simulate(params, t, None, "brake", rtol=1e-13, atol=1e-14, **kw)
+    assert _max_diff(r11, r13) < 1e-9 and _same_events(r11, r13, 1e-9)
+    assert _max_diff(r9, r13) < 1e-7
+    # the output grid does not change the solution (only where it is reported)
+    t2 = np.arange(0.0, 9.0 + 0.25 * dt, dt / 2)
+    fine = reference_simulate(params, t2, None, "brake", **kw)
+    for key in STATES:
+        assert np.max(np.abs(fine[key][::2] - r11[key])) < 1e-9
+    # and the continuous input is not the interpolant: at 100 Hz the paths differ
+    lin = reference_simulate(params, t, f(t), "brake")
+    assert _max_diff(lin, r11, ("theta_u",)) > 1e-6
+    assert {"slip+", "slip-"} <= set(_kinds(r11, "l")) and "stick" in _kinds(r11, "u")
+
+
+def test_continuous_input_hold_before_start_and_refusals():
+    params = dict(BRAKE, t_delay=0.3)
+    t = np.arange(0.0, 3.0 + 5e-3, 1e-2)
+    seen = []
+
+    def f(tau):
+        seen.append(np.min(tau))
+        return 0.8 + 0.5 * np.sin(2.0 * np.asarray(tau))
+
+    reference_simulate(params, t, None, "upper", u_func=f)
+    assert min(seen) >= 0.0  # never asked before t[0]: the value at t[0] is held
+    # delayed by d: the same as the input shifted by d and held at its start
+    r = reference_simulate(params, t, None, "upper", u_func=f)
+    g = reference_simulate(dict(params, t_delay=0.0), t, None, "upper",
+                           u_func=lambda s: f(np.maximum(np.asarray(s) - 0.3, 0.0)),
+                           u_breaks=[0.3])  # fmt: skip
+    assert _max_diff(r, g) < 1e-9
+    with pytest.raises(ValueError, match="not both"):
+        reference_simulate(params, t, f(t), "upper", u_func=f)
