@@ -196,10 +196,15 @@ def next_kink(t, t1, c, u, split_delayed):
     """The first time in ``(t, t1)`` at which the effective voltage has a slope jump that
     falls inside a Runge-Kutta step, or ``t1`` if there is none.
 
-    * dead zone: where the offset, delayed input crosses ``±u_deadzone``;
-    * delay (``split_delayed``, i.e. one step per sample): the delayed sample times.
+    * delay: the end of the held start, ``t = t_delay`` (before it the input is held at
+      ``u[0]``; after it the input ramps with its first slope: the largest kink a delay
+      makes, and the only one that is not a delayed sample time of the undelayed grid
+      when the delay is a whole number of samples);
+    * delay (``split_delayed``, i.e. one step per sample): every delayed sample time.
 
-    Kinks closer than ``1e-9`` samples to either end are ignored.
+    Kinks closer than ``1e-9`` samples to either end are ignored, so the result moves
+    continuously with ``t_delay``: a kink that reaches a step boundary leaves a segment
+    of zero length, which is no segment at all.
     """
     dt = c[_DT]
     d = c[_TDEL]
@@ -207,6 +212,8 @@ def next_kink(t, t1, c, u, split_delayed):
     n = u.shape[0]
     tiny = 1e-9 * dt
     best = t1
+    if d > 0.0 and t + tiny < d < best - tiny:
+        best = d
     if split_delayed and d > 0.0:
         k = math.floor((t - d) / dt) + 1.0
         if k < 0.0:
@@ -246,7 +253,7 @@ def next_kink(t, t1, c, u, split_delayed):
 @njit(cache=True, error_model="numpy", inline="always")
 def has_kinks(c, split_delayed):
     """Whether :func:`next_kink` can find anything for these constants."""
-    return c[_UDZ] > 0.0 or (split_delayed and c[_TDEL] > 0.0)
+    return c[_UDZ] > 0.0 or c[_TDEL] > 0.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
