@@ -1003,7 +1003,7 @@ def cmd_sample(a) -> int:
     try:
         runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
                         n_steps=settings["steps"], n_ensembles=settings["ensembles"],
-                        seed=settings["seed"], progress=not a.quiet)
+                        seed=settings["seed"], progress=not a.quiet and sys.stderr.isatty())
     except KeyboardInterrupt:
         interrupted = True
         print(f"\ninterrupted: every finished step is in {out}/chain.h5; continue with "

@@ -20,26 +20,91 @@ def _labels(prob, names):
     return out
 
 
+def corner_bins(n_draws: int) -> int:
+    """Histogram bins per axis for ``n_draws`` draws.
+
+    corner's default of 20 bins puts 200 draws into 400 cells of a 2-D histogram: most
+    cells hold 0 or 1 draw, the density levels of the contours coincide and the contours
+    are noise. About 0.7 √n bins per axis leaves a few draws in each occupied cell.
+    """
+    return int(np.clip(round(0.7 * np.sqrt(max(n_draws, 1))), 6, 30))
+
+
+#: Fewer draws than this: points only, no density contours (they would be noise).
+MIN_DRAWS_FOR_CONTOURS = 60
+
+
+def _inner_ticks(lo: float, hi: float):
+    """At most three round ticks, none within 12 % of the ends of [lo, hi]."""
+    from matplotlib.ticker import FixedLocator, MaxNLocator
+
+    w = hi - lo
+    ticks = [t for t in MaxNLocator(4).tick_values(lo, hi)
+             if lo + 0.12 * w <= t <= hi - 0.12 * w]
+    return FixedLocator(ticks[:3] if len(ticks) <= 3 else ticks[::2])
+
+
 def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
     """Corner plot of the free parameters; ``overlay`` (m, k) marks e.g. multistart end
-    points."""
+    points.
+
+    Each diagonal panel is titled with the median and sd, with as many digits as the sd
+    resolves; tick labels are full numbers (no offset text, which corner would otherwise
+    draw over the neighbouring panel's labels).
+    """
     import corner
+    from matplotlib.ticker import ScalarFormatter
+
+    from .numformat import fmt_value
 
     names = list(prob.names)
     post = AZ.group(idata, "posterior")
     X = np.column_stack([post[n].values.reshape(-1) for n in names])
-    fig = corner.corner(X, labels=_labels(prob, names), show_titles=True, title_fmt=".4g",
-                        quantiles=[0.03, 0.5, 0.97], title_kwargs={"fontsize": 8},
-                        label_kwargs={"fontsize": 8}, truths=truth)
+    X = X[np.all(np.isfinite(X), axis=1)]
+    n = X.shape[0]
+    ranges, degenerate = [], False
+    for j in range(X.shape[1]):
+        lo, hi = float(X[:, j].min()), float(X[:, j].max())
+        if not hi - lo > 1e-12 * max(abs(lo), abs(hi), 1e-300):
+            # Every draw has the same value (a parameter pinned at a bound, say): give the
+            # axis a width so corner can draw it, and draw no contours across it.
+            pad = 1e-9 * max(abs(lo), 1e-12)
+            lo, hi, degenerate = lo - pad, hi + pad, True
+        ranges.append((lo, hi))
+    labels = _labels(prob, names)
+    fig = corner.corner(X, bins=corner_bins(n), range=ranges, labels=labels,
+                        quantiles=[0.03, 0.5, 0.97], show_titles=False,
+                        plot_contours=n >= MIN_DRAWS_FOR_CONTOURS and not degenerate,
+                        plot_density=n >= MIN_DRAWS_FOR_CONTOURS and not degenerate,
+                        max_n_ticks=3, label_kwargs={"fontsize": 8}, labelpad=0.12,
+                        truths=truth)
+    k = len(names)
+    axes = np.array(fig.axes).reshape(k, k)
+    for i in range(k):
+        for j in range(i + 1):
+            ax = axes[i, j]
+            # No tick near a panel's edge: there its label would meet the next panel's.
+            ax.xaxis.set_major_locator(_inner_ticks(*ranges[j]))
+            if j < i:
+                ax.yaxis.set_major_locator(_inner_ticks(*ranges[i]))
+            for axis in (ax.xaxis, ax.yaxis):
+                f = axis.get_major_formatter()
+                if isinstance(f, ScalarFormatter):
+                    f.set_useOffset(False)
+                    f.set_scientific(False)
+            ax.tick_params(labelsize=7)
+        med, sd = float(np.median(X[:, i])), float(np.std(X[:, i]))
+        unit = labels[i][len(names[i]) + 1:]
+        axes[i, i].set_title(f"{names[i]} = {fmt_value(med, sd)}\n± {sd:.2g} {unit}",
+                             fontsize=8)
     if overlay is not None and len(overlay):
-        k = len(names)
-        axes = np.array(fig.axes).reshape(k, k)
         for i in range(k):
             for j in range(i):
                 axes[i, j].plot(overlay[:, j], overlay[:, i], "x", color="tab:red", ms=4,
                                 label="multistart end points" if (i, j) == (1, 0) else None)
         axes[1, 0].legend(fontsize=7, loc="best")
-    fig.suptitle("posterior (3 %, 50 %, 97 % quantiles)", fontsize=10)
+    fig.suptitle(f"posterior, {n} draws (dashed: 3 %, 50 %, 97 % quantiles; "
+                 "title: median ± sd)", fontsize=10)
     return fig
 
 
@@ -148,6 +213,10 @@ def plot_profiles(profiles):
         ax.axhline(3.84, color="tab:red", ls="--", lw=1, label="95 % (Δχ² = 3.84)")
         ax.axvline(pr["estimate"], color="k", lw=0.6)
         ax.set_xlabel(f"{pr['parameter']} [{pr['unit']}]")
+        # Full numbers on the ticks: an offset text ("1e-6+4.14e-2") would sit on the label.
+        ax.ticklabel_format(axis="x", useOffset=False, style="plain")
+        ax.xaxis.set_major_locator(_inner_ticks(*ax.get_xlim()))
+        ax.tick_params(axis="x", labelrotation=30, labelsize=8)
         ax.set_ylabel("Δχ² (others refitted)")
         ax.legend(fontsize=7)
     fig.suptitle("profile likelihoods")
