@@ -124,6 +124,10 @@ MAX_SAMPLE_INTERVAL = 0.5
 #: hour; a longer record with a small step is fast-sampled data in milliseconds (10 kHz data in
 #: ms has the step 0.1 of a legitimate 10 Hz file, but 30 s of it "last" 30 000 s).
 MAX_DURATION = 7200.0
+#: Largest |angle| a file may hold (rad): the fastest turning for the longest record.
+MAX_ABS_ANGLE = MAX_ANGULAR_RATE * MAX_DURATION
+#: Largest |input voltage| a file may hold (V); beyond ±5 V a file is only warned about.
+MAX_ABS_INPUT = 1000.0
 
 _COUNTS_PER_REV = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}
 _ENCODER_NAME = {"theta_u": "upper", "theta_l": "lower"}
@@ -361,6 +365,25 @@ def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
                 row,
                 f"{key} is {float(values[row])!r}; every value must be a finite number -- "
                 "repair or remove this sample (and keep the sampling uniform)",
+            )
+    # Magnitudes no experiment can have: corrupt values, before any unit guess.
+    for key, limit, why in (
+            ("u", MAX_ABS_INPUT, f"no amplifier of the rig gives more than {MAX_ABS_INPUT:g} V "
+             "(the thesis's gives ±5 V)"),
+            ("theta_u", MAX_ABS_ANGLE, f"no experiment reaches it ({MAX_ANGULAR_RATE:g} rad/s "
+             f"for {MAX_DURATION:g} s is {MAX_ABS_ANGLE:g} rad)"),
+            ("theta_l", MAX_ABS_ANGLE, f"no experiment reaches it ({MAX_ANGULAR_RATE:g} rad/s "
+             f"for {MAX_DURATION:g} s is {MAX_ABS_ANGLE:g} rad)")):
+        if key not in cols:
+            continue
+        over = np.flatnonzero(np.abs(cols[key]) > limit)
+        if over.size:
+            row = int(over[0])
+            unit = "V" if key == "u" else "rad"
+            raise _RowProblem(
+                row,
+                f"{key} is {float(cols[key][row])!r} {unit}: {why}; the value is corrupt or in "
+                "another unit -- repair or remove this sample",
             )
     t = cols["t"]
     dt = np.diff(t)

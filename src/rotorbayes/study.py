@@ -21,9 +21,9 @@ import datetime
 import hashlib
 import io
 import json
+import math
 import sys
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +43,32 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "priors": {},
     "identify": {"profiles": (list,), "points": (int,)},
     "report": {"html": (bool,)},
+}
+
+
+#: Numeric keys and their allowed ranges, checked before any work (beyond them a run would
+#: not end, not fit on a disk, or mean nothing).
+LIMITS: dict[str, dict[str, tuple[float, float]]] = {
+    "analysis": {"seed": (0, 2**31 - 1)},
+    "fit": {"max_nfev": (1, 1_000_000)},
+    "diagnose": {"max_steps": (0, 20), "noise_std": (0.0, 1.0)},
+    "sample": {"walkers": (4, 10_000), "steps": (10, 10_000_000), "ensembles": (1, 64)},
+    "identify": {"points": (3, 1001)},
+}
+
+#: Keys that must not be empty, and what to write instead.
+NON_EMPTY = {
+    "out": "name the output folder (relative to the analysis file), e.g. out = \"results\"",
+    "name": "give the study a name or leave the key out",
+    "config": "choose upper, coupled or brake",
+    "data": "list at least one measurement file",
+    "validate": "list validation files or leave the key out",
+    "free": "list parameters or leave the key out (the configuration's default)",
+    "fixed": "list parameters or leave the key out",
+    "effects": "list effects or leave the key out",
+    "channels": "choose theta_u and/or theta_l, or leave the key out (all channels)",
+    "profiles": "list parameters or leave the key out",
+    "p0": "name a start or leave the key out (a start from the data)",
 }
 
 
@@ -87,15 +113,12 @@ def _err(path, key, text) -> AnalysisError:
 def load_analysis(path: str | Path) -> Analysis:
     """Read and validate an analysis file (see the module docstring)."""
     from .examples import example_path
+    from .tomlfile import read_toml, read_toml_text
 
     p = Path(path)
-    if not p.exists():
-        raise AnalysisError(f"{p}: analysis file not found")
-    text = p.read_text()
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise AnalysisError(f"{p}: not valid TOML ({exc})") from None
+    doc = read_toml(p, AnalysisError, "analysis file",
+                    "see docs/analysis_file.md for the tables and keys")
+    text = read_toml_text(p, AnalysisError, "analysis file")
     for t, v in doc.items():
         if t not in SCHEMA:
             raise AnalysisError(f"{p}: unknown table [{t}]; the tables are "
@@ -111,6 +134,15 @@ def load_analysis(path: str | Path) -> Analysis:
                                                      SCHEMA[t][k]):
                 want = " or ".join(x.__name__ for x in SCHEMA[t][k])
                 raise _err(p, t, f"{k} = {val!r} must be a {want}")
+            if isinstance(val, list) and not all(isinstance(x, str) for x in val):
+                raise _err(p, t, f"{k} = {val!r} must be a list of strings (names in quotes)")
+            if k in LIMITS.get(t, {}):
+                lo, hi = LIMITS[t][k]
+                if isinstance(val, float) and not math.isfinite(val) or not lo <= val <= hi:
+                    raise _err(p, t, f"{k} = {val!r} must lie between {lo:g} and {hi:g}")
+            if isinstance(val, (str, list)) and k in NON_EMPTY and not (
+                    val.strip() if isinstance(val, str) else val):
+                raise _err(p, t, f"{k} is empty; {NON_EMPTY[k]}")
     a = Analysis(p, text, doc)
     an = doc.get("analysis")
     if not an:
@@ -143,8 +175,16 @@ def load_analysis(path: str | Path) -> Analysis:
                 raise _err(p, "fit", f"{key}: unknown parameter {n!r}; valid names are: "
                            f"{', '.join(INFO)}")
     for e in fit.get("effects", []):
+        if ".py:" in e:
+            # A user effect file is code: validation only checks it is there (it runs when
+            # the study's fit imports it).
+            f = Path(a.resolve(e).rpartition(":")[0])
+            if not f.is_file():
+                raise _err(p, "fit", f"effects: effect file {f} not found (relative paths "
+                           f"are relative to {a.base_dir})")
+            continue
         try:
-            _effects.resolve([a.resolve(e) if ".py:" in e else e])
+            _effects.resolve([e])
         except Exception as exc:  # noqa: BLE001 - the effect registry explains
             raise _err(p, "fit", f"effects: {exc}") from None
     for c in fit.get("channels", []):
@@ -163,6 +203,15 @@ def load_analysis(path: str | Path) -> Analysis:
         if not isinstance(spec, dict):
             raise _err(p, "priors", f"{n} must be a table like {{ dist = \"normal\", "
                        "mean = 0.08, sd = 0.004 }")
+        from .inference.likelihood import check_prior_spec
+
+        try:
+            check_prior_spec(spec, n)
+        except ParameterError as exc:
+            raise _err(p, "priors", str(exc)) from None
+        if spec.get("dist", "uniform") not in ("uniform", "loguniform", "normal"):
+            raise _err(p, "priors", f"{n}: dist {spec['dist']!r}; choose uniform, "
+                       "loguniform or normal")
         lo, hi = spec.get("lower", INFO[n].lower), spec.get("upper", INFO[n].upper)
         if not lo < hi:
             raise _err(p, "priors", f"{n}: lower {lo} must be below upper {hi}")

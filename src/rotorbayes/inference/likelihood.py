@@ -22,7 +22,6 @@ log-posterior, all rows in one parallel kernel batch (emcee's ``vectorize=True``
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,6 +61,25 @@ class Prior:
         return f"{self.kind} on [{self.lower:g}, {self.upper:g}] {unit}"
 
 
+#: The keys of one prior's table and their types.
+PRIOR_KEYS = {"dist": (str,), "lower": (int, float), "upper": (int, float),
+              "mean": (int, float), "sd": (int, float)}
+
+
+def check_prior_spec(spec: Mapping, where: str) -> None:
+    """Refuse unknown keys, wrong types and non-finite numbers in one prior's table
+    (``ParameterError`` starting with ``where``); the analysis file uses it too."""
+    for k, v in spec.items():
+        if k not in PRIOR_KEYS:
+            raise ParameterError(f"{where}: unknown key {k!r}; a prior has "
+                                 f"{', '.join(PRIOR_KEYS)}")
+        if not isinstance(v, PRIOR_KEYS[k]) or isinstance(v, bool):
+            want = "a string" if k == "dist" else "a number"
+            raise ParameterError(f"{where}: {k} = {v!r} must be {want}")
+        if k != "dist" and not math.isfinite(v):
+            raise ParameterError(f"{where}: {k} = {v!r} must be a finite number")
+
+
 def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
     """Priors from a TOML file: one table per parameter, e.g.
 
@@ -71,12 +89,16 @@ def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
         k_alpha = { dist = "normal", mean = 0.080, sd = 0.004 }
         J_l = { dist = "loguniform", lower = 0.01, upper = 0.2 }
     """
+    from ..tomlfile import read_toml
+
     p = Path(path)
-    try:
-        doc = tomllib.loads(p.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise ParameterError(f"{p}: cannot read the priors ({exc})") from None
+    doc = read_toml(p, ParameterError, "priors file",
+                    'write a [priors] table, e.g. k_alpha = { dist = "normal", mean = 0.08, '
+                    'sd = 0.004 }')
     table = doc.get("priors", doc)
+    if not isinstance(table, Mapping):
+        raise ParameterError(f"{p}: priors = {table!r} must be a table: write [priors] on its "
+                             "own line, then one line per parameter")
     out = {}
     names = problem.names_base()
     for name, spec in table.items():
@@ -88,6 +110,7 @@ def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
         if not isinstance(spec, Mapping):
             raise ParameterError(f"{p}: [priors] {name} must be a table like "
                                  "{ dist = \"normal\", mean = 0.08, sd = 0.004 }")
+        check_prior_spec(spec, f"{p}: [priors] {name}")
         info = problem.info(name)
         kind = spec.get("dist", "uniform")
         if kind not in ("uniform", "loguniform", "normal"):

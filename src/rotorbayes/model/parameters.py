@@ -14,7 +14,6 @@ that came before it (upper part -> lower part -> brake), as in the thesis's proc
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -211,30 +210,42 @@ def thesis_set(table: str, row: str) -> dict[str, float]:
     return dict(_THESIS_SETS[key])
 
 
-def load_toml(path: str | Path) -> dict[str, float]:
+def load_toml(path: str | Path, _chain: tuple[str, ...] = ()) -> dict[str, float]:
     """Read a parameter file.
 
     The file holds ``name = value`` pairs, at top level or in a ``[parameters]``
-    table, and optionally ``base = "thesis:4.2:P0"`` naming the set it overrides.
+    table, and optionally ``base = "thesis:4.2:P0"`` naming the set (or another parameter
+    file) it overrides. A chain of ``base`` files that comes back to a file is an error.
     """
+    from ..tomlfile import read_toml
+
     path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ParameterError(f"{path}: parameter file not found") from None
-    except UnicodeDecodeError:
-        raise ParameterError(f"{path}: not a text file; write `name = value` lines") from None
-    except OSError as exc:  # a folder, no permission, ...
-        raise ParameterError(f"{path}: cannot read the parameter file ({exc.strerror})"
-                             ) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(
-            f"{path}: not valid TOML ({exc}); write `name = value` lines"
-        ) from None
+    here = str(path.resolve())
+    if here in _chain:
+        loop = " -> ".join([*_chain[_chain.index(here):], here])
+        raise ParameterError(f"{path}: its base files name each other in a loop ({loop}); "
+                             "end the chain with a named set such as base = \"thesis:4.2:P0\"")
+    raw = read_toml(path, ParameterError, "parameter file")
     base = raw.pop("base", None)
     table = raw.pop("parameters", {})
+    if not isinstance(table, dict):
+        raise ParameterError(f"{path}: parameters = {table!r} must be a table: write "
+                             "[parameters] on its own line, then `name = value` lines")
+    clash = sorted(set(raw) & set(table))
+    if clash:
+        raise ParameterError(f"{path}: {', '.join(clash)} given both at the top and in "
+                             "[parameters]; give each value once")
     values = {**raw, **table}
-    out: dict[str, float] = resolve(base) if base is not None else {}
+    if base is not None and not isinstance(base, str):
+        raise ParameterError(f"{path}: base = {base!r} must be a string naming a set "
+                             "(\"thesis:4.2:P0\") or another parameter file")
+    if base is not None and not base.startswith("thesis:"):
+        b = Path(base)
+        base = b if b.is_absolute() or b.exists() else path.parent / b
+    out: dict[str, float] = {}
+    if base is not None:
+        out = (resolve(base) if isinstance(base, str)
+               else {**resolve(None), **load_toml(base, (*_chain, here))})
     for name, val in values.items():
         if name not in INFO:
             raise ParameterError(f"{path}: {unknown_name_message(name)}")
