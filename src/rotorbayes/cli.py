@@ -7,6 +7,7 @@ A thin layer: it parses arguments, calls the library and prints; the knowledge l
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -16,12 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
+from . import exitcodes as EXIT
 from .data import DataFileError, Experiment, load_experiment, save_experiment
 from .examples import example_path
 from .model import SimulationError
 from .model import effects as _effects
 from .model import parameters as _params
 from .outputs import (
+    InterruptGuard,
     OutputError,
     check_output_file,
     output_folder,
@@ -64,6 +67,8 @@ def _out_dir(path: str, force: bool) -> Path:
 #: disc last milliseconds and the encoders' steps (1e-4 rad) are crossed many times per
 #: sample; the thesis's rig is sampled at 1 kHz. Above 100 kHz no encoder of the rig is read.
 MIN_RATE, MAX_RATE = 100.0, 1e5
+#: Upper limits of sample's sizes: beyond them a run would not end or fit on a disk.
+MAX_WALKERS, MAX_STEPS = 10_000, 10_000_000
 
 
 def _number(text: str, kind=float) -> float:
@@ -410,7 +415,11 @@ def _model_from_args(a, n_experiments: int):
     inherited: list[str] = []
     doc = _fit_json(getattr(a, "p0", None))
     if doc is not None and doc.get("config") == a.model:
-        inherited = [e for e in doc.get("added_effects", []) if e not in added]
+        from .results import check_effect_files
+
+        where = Path(a.p0) / "fit.json" if Path(a.p0).is_dir() else Path(a.p0)
+        specs = check_effect_files(doc, where, getattr(a, "trust_effects", False))
+        inherited = [e for e in specs if e not in added]
     if (n_experiments > 1 and a.model != "upper" and "initial_torsion" not in added
             and "initial_torsion" not in inherited):
         added.append("initial_torsion")
@@ -527,6 +536,31 @@ def _fmt_params(prob, names, x, se=None, x0=None, at_bound=()) -> str:
     return "\n".join(rows)
 
 
+def _uncertainty_words(res) -> str:
+    """What the standard errors mean, in a few lines (inference.uncertainty)."""
+    u = res.uncertainty
+    infl = u.inflation()
+    ok = np.isfinite(infl)
+    lines = ["std. errors: honest — rounding to encoder counts simulated as it is, model "
+             "error from the residuals' time blocks, an allowance for the input between "
+             "samples"]
+    if ok.any():
+        j = int(np.nanargmax(np.where(ok, infl, -np.inf)))
+        lines.append(
+            f"  they are {np.median(infl[ok]):.2g}x (median; {u.names[j]} {infl[j]:.2g}x) the "
+            f"ones independent noise at the floor would give; the rounding alone leaves "
+            f"the information of about {u.n_eff:.3g} independent samples of {u.n_samples}")
+    sh = u.shares()
+    tot = {k: np.nanmean([v[k] for v in sh.values()]) for k in ("noise", "model_error",
+                                                                   "input_hold")}
+    lines.append(f"  variance, mean over parameters: noise {100 * tot['noise']:.0f} %, model "
+                 f"error {100 * tot['model_error']:.0f} %, input between samples "
+                 f"{100 * tot['input_hold']:.0f} %")
+    if u.warning():
+        lines.append("  warning: " + u.warning())
+    return "\n".join(lines)
+
+
 def _quality_table(rows, label: str) -> str:
     from .metrics import ChannelFit, fit_table
 
@@ -554,10 +588,15 @@ def _sources(a, prob, fixed_from_upper: dict) -> dict[str, str]:
     return src
 
 
-def run_fit(a, out: Path) -> dict:
-    """Fit, print and write fit.json + figures; returns the JSON document."""
+def run_fit(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
+    """Fit, print and write fit.json + figures; returns the JSON document.
+
+    ``guard`` (an :class:`~rotorbayes.outputs.InterruptGuard`) is started once the fit has
+    finished: a Ctrl-C after that keeps the result.
+    """
     from . import inference as E
     from .plots import plot_fit, plot_friction
+    from .results import data_record
 
     exps = _load(a.data, a.model)
     val = _load(a.validate, a.model) if a.validate else []
@@ -603,6 +642,8 @@ def run_fit(a, out: Path) -> dict:
             E.local_name(n)[0], "")) for n in prob.names}
         if ff.restarts:
             print(f"{len(ff.restarts)} restarts tried; kept {ff.chose}")
+    if guard is not None:
+        guard.start()  # the work is done: from here on Ctrl-C must not throw it away
     status = "" if res.success else "DID NOT CONVERGE: "
     print(f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
           f"{res.seconds:.1f} s)\n")
@@ -610,6 +651,8 @@ def run_fit(a, out: Path) -> dict:
     q_val = E.quality(prob, res.x, val) if val else []
     assessment = E.assess(res, q_est, q_val, sources=sources)
     print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound))
+    if res.uncertainty is not None:
+        print(_uncertainty_words(res))
     print()
     print(_quality_table(q_est, "estimation data"))
     if q_val:
@@ -655,7 +698,14 @@ def run_fit(a, out: Path) -> dict:
         "added_effects": [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
                           for e in prob.model.added],
         "channels": list(prob.channels),
-        "data": [str(e.path) for e in exps], "validation": [str(e.path) for e in val],
+        # Absolute paths (a fit folder works from any working folder), paths relative to the
+        # fit folder (a project moved whole) and hashes; effect files' hashes (they are code).
+        "data": [str(Path(e.path).absolute()) for e in exps],
+        "validation": [str(Path(e.path).absolute()) for e in val],
+        "data_files": data_record([e.path for e in exps], Path(a.out)),
+        "validation_files": data_record([e.path for e in val], Path(a.out)),
+        "effect_files": {e.source: _effects.file_sha256(e.source) for e in prob.model.added
+                         if e.source != "catalogue"},
         "success": res.success, "message": res.message, "nfev": res.nfev,
         "seconds": res.seconds, "ssr": res.ssr, "n_residuals": res.n_residuals,
         "start": chose,
@@ -665,9 +715,11 @@ def run_fit(a, out: Path) -> dict:
         "parent": _parent_of(a.p0),
         "assessment": assessment.as_dict(),
         "parameters": parameters,
-        "estimates": {n: {"value": float(v), "stderr": float(s), "start": float(s0),
-                          "unit": prob.info(n).unit}
-                      for n, v, s, s0 in zip(res.names, res.x, res.stderr, res.x0, strict=True)},
+        "estimates": {n: {"value": float(v), "stderr": float(s), "stderr_iid": float(si),
+                          "start": float(s0), "unit": prob.info(n).unit}
+                      for n, v, s, si, s0 in zip(res.names, res.x, res.stderr, res.stderr_iid,
+                                                 res.x0, strict=True)},
+        "uncertainty": res.uncertainty.as_dict() if res.uncertainty is not None else None,
         "params": res.params,
         "quality": {"estimation": [{k: v for k, v in r.items() if k != "simulation"}
                                    for r in q_est],
@@ -763,9 +815,10 @@ def _fit_interrupted(exc: KeyboardInterrupt, out: str) -> Interrupted:
 
 
 def cmd_fit(a) -> int:
+    guard = InterruptGuard()
     try:
         with output_folder(a.out, a.force) as out:
-            doc = run_fit(a, out)
+            doc = run_fit(a, out, guard)
     except KeyboardInterrupt as exc:
         raise _fit_interrupted(exc, a.out) from None
     except SimulationError as exc:
@@ -774,14 +827,20 @@ def cmd_fit(a) -> int:
         if isinstance(exc, StartError) and a.p0 and a.p0 not in str(exc):
             raise CLIError(f"--p0 {a.p0}: {exc}") from None
         raise
-    return 0 if doc["success"] else 1
+    finally:
+        guard.stop()
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) after the fit had finished; its results were "
+                          f"kept, complete, in {a.out}/ (fit.json and the figures)")
+    return EXIT.DONE if doc["success"] else EXIT.NOT_CONVERGED
 
 
 def cmd_multistart(a) -> int:
     from . import inference as E
     from .plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
-    with output_folder(a.out, a.force) as out:
+    guard = InterruptGuard()
+    with guard, output_folder(a.out, a.force) as out:
         exps = _load(a.data, a.model)
         prob, _ = _problem_from_args(a, exps)
         around = None
@@ -793,6 +852,7 @@ def cmd_multistart(a) -> int:
         ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
                           workers=a.workers, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
                           gtol=a.gtol)
+        guard.start()  # the starts are done: from here on Ctrl-C must not throw them away
         n_done = int(ms.ssr.size) + len(ms.failed)
         if ms.interrupted and n_done == 0:
             raise Interrupted(f"interrupted (Ctrl-C) before any start had finished; nothing "
@@ -835,6 +895,9 @@ def cmd_multistart(a) -> int:
             f"{a.out}/ (multistart.json, summary.txt). For the other {rest}, run again with "
             f"--starts {rest} --seed {a.seed + 1} and another --out (a new seed gives new "
             "starts), or repeat the whole command with --force")
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) after all {n_done} starts had finished; the "
+                          f"results were kept, complete, in {a.out}/")
     return 0
 
 
@@ -881,7 +944,7 @@ def cmd_diagnose(a) -> int:
     from .diagnosis.figures import plot_candidates, plot_torque_map
     from .results import load_fit
 
-    fit = load_fit(a.fit)
+    fit = load_fit(a.fit, trust_effects=a.trust_effects)
     if a.noise is not None and not (a.noise >= 0 and math.isfinite(a.noise)):
         raise CLIError(f"--noise {a.noise}: give the Gaussian noise std in rad (>= 0)")
     print(f"diagnosing {fit.folder}/ ({fit.doc['config']} configuration, "
@@ -892,11 +955,18 @@ def cmd_diagnose(a) -> int:
     print(d.text())
     doc = d.as_dict()
     doc["fit"] = str(fit.folder)
-    write_text_atomic(fit.folder / "diagnosis.json", strict_json(doc))
-    fig, _ = plot_candidates(fit.problem, fit.x, d)
-    save_figure_atomic(fig, fit.folder / "diagnosis_candidates.png")
-    fig, _ = plot_torque_map(d)
-    save_figure_atomic(fig, fit.folder / "missing_torque.png")
+    from .outputs import folder_lock
+
+    # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
+    with folder_lock(fit.folder, flag="diagnose"), InterruptGuard().start() as guard:
+        figs = [(plot_candidates(fit.problem, fit.x, d)[0], "diagnosis_candidates.png"),
+                (plot_torque_map(d)[0], "missing_torque.png")]
+        for fig, name in figs:
+            save_figure_atomic(fig, fit.folder / name)
+        write_text_atomic(fit.folder / "diagnosis.json", strict_json(doc))
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) after the diagnosis had finished; it was "
+                          f"kept, complete, in {fit.folder}/ (diagnosis.json and figures)")
     print(f"\nwrote {fit.folder}/diagnosis.json, diagnosis_candidates.png, missing_torque.png "
           f"({d.seconds:.1f} s)")
     return 0
@@ -908,16 +978,21 @@ def cmd_compare(a) -> int:
     from .diagnosis import figures as F
     from .results import load_fit
 
-    fits = [load_fit(f) for f in a.fits]
+    fits = [load_fit(f, trust_effects=a.trust_effects) for f in a.fits]
     if len(fits) == 1:
-        fits = fits[0].chain()
+        fits = fits[0].chain(trust_effects=a.trust_effects)
         if len(fits) > 1:
             print(f"comparing the chain of {len(fits)} fits that led to {a.fits[0]}")
     last = fits[-1]
     out = Path(a.out) if a.out else last.folder / "compare"
-    if out.exists() and any(out.iterdir()) and not a.force and a.out:
-        raise CLIError(f"{out}/ already holds results; choose another --out or pass --force")
-    out.mkdir(parents=True, exist_ok=True)
+    # FIT/compare (the default) is derived from the fits: it is simply made again.
+    with output_folder(out, a.force or not a.out) as tmp:
+        written = _compare_into(fits, last, tmp, C, F)
+    print(f"\nwrote {', '.join(written)} in {out}/")
+    return 0
+
+
+def _compare_into(fits, last, out: Path, C, F) -> list[str]:
     doc = C.compare_fits(fits)
     print(C.table(doc))
     views = C.residual_views(last.problem, last.x)
@@ -942,74 +1017,207 @@ def cmd_compare(a) -> int:
         print(f"{c}: {100 * outside:.0f} % of autocorrelation lags 1..{lags.max()} outside the "
               "99 % band of a white residual" + note)
     write_text_atomic(out / "compare.json", strict_json(doc))
-    print(f"\nwrote {', '.join(written)} in {out}/")
-    return 0
+    return written
+
+
+#: Files ``sample`` derives from chain.h5 (rewritten by every run, --resume included).
+SAMPLE_OUTPUTS = ("posterior.nc", "summary.md", "summary.csv", "corner.png", "trace.png",
+                  "predictive.png", "correlation.png", "warnings.txt")
+
+
+def _read_settings(src: Path) -> dict:
+    """settings.json of a sample folder, checked; refused (CLIError) when absent or damaged."""
+    path = src / "settings.json"
+    if not src.is_dir():
+        raise CLIError(f"{src}: no such folder; --resume needs a folder written by "
+                       "`rotorbayes sample`")
+    if not path.exists():
+        raise CLIError(f"{src}: no settings.json; --resume needs a folder written by "
+                       "`rotorbayes sample`")
+    try:
+        settings = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise CLIError(f"{path}: cannot be read ({exc}): damaged; --resume cannot continue "
+                       "this run. Start again with `rotorbayes sample FIT --out "
+                       f"{src} --force`") from None
+    need = {"fit": str, "walkers": int, "steps": int, "ensembles": int, "seed": int,
+            "noise": str, "ar1": bool}
+    bad = [k for k, t in need.items() if not isinstance(settings.get(k) if isinstance(
+        settings, dict) else None, t)]
+    if bad:
+        raise CLIError(f"{path}: {', '.join(bad)} missing or of the wrong type: damaged or "
+                       "not written by `rotorbayes sample`; start again with `rotorbayes "
+                       f"sample FIT --out {src} --force`")
+    return settings
 
 
 def cmd_sample(a) -> int:
     """emcee from a least-squares fit, checkpointed; --resume continues the same chains."""
-    from .inference import arviz_compat as AZ
-    from .inference import posterior as PO
-    from .inference import sampling as S
-    from .inference.likelihood import LogPosterior, load_priors
-    from .results import load_fit
+    from .outputs import clean_stale, folder_lock
 
     src = Path(a.source)
     if a.resume:
-        settings_path = src / "settings.json"
-        if not settings_path.exists():
-            raise CLIError(f"{src}: no settings.json; --resume needs a folder written by "
-                           "`rotorbayes sample`")
-        settings = json.loads(settings_path.read_text())
+        if a.out and Path(a.out).absolute() != src.absolute():
+            raise CLIError(f"--resume continues {src}/ in place; leave out --out {a.out}")
         out = src
-        if a.steps is not None:
-            if a.steps < settings["steps"]:
-                raise CLIError(f"--steps {a.steps} is below the {settings['steps']} steps "
-                               "already asked for; give the new total")
-            settings["steps"] = a.steps
     else:
         if a.steps is None:
             a.steps = 2000
-        for flag, v, lo in (("--walkers", a.walkers, 4), ("--steps", a.steps, 10),
-                            ("--ensembles", a.ensembles, 1)):
-            if v < lo:
-                raise CLIError(f"{flag} {v}: give at least {lo}")
+        if not a.out:
+            raise CLIError("give --out FOLDER for the posterior (or --resume FOLDER)")
+        out = Path(a.out)
+        if out.exists() and not out.is_dir():
+            raise CLIError(f"--out {out}: is a file, not a folder; give a new folder name")
+        if not out.parent.is_dir():
+            raise CLIError(f"--out {out}: the folder {out.parent}/ does not exist; create it "
+                           "first or choose another --out")
+    _check_sample_target(a, out)
+    with folder_lock(out):
+        _check_sample_target(a, out)  # again, under the lock
+        clean_stale(out)
+        return _sample_locked(a, src, out)
+
+
+def _check_sample_target(a, out: Path) -> None:
+    if not a.resume and out.is_dir() and any(out.iterdir()) and not a.force:
+        raise CLIError(f"{out}/ already holds results; continue them with "
+                       f"`rotorbayes sample {out} --resume --steps N`, choose another "
+                       "--out or pass --force")
+
+
+def _sample_locked(a, src: Path, out: Path) -> int:
+    import shutil
+
+    from .inference import sampling as S
+    from .inference.likelihood import LogPosterior, load_priors
+    from .outputs import check_free_space
+    from .results import load_fit
+
+    if a.resume:
+        settings = _read_settings(src)
+        if a.steps is not None:
+            settings["steps"] = a.steps  # checked against the steps held, below
+    else:
         settings = {"fit": str(Path(a.source).resolve()), "walkers": a.walkers,
                     "steps": a.steps, "ensembles": a.ensembles, "seed": a.seed,
                     "noise": a.noise, "ar1": a.ar1,
                     "priors": str(Path(a.priors).resolve()) if a.priors else None}
-        out = Path(a.out) if a.out else None
-        if out is None:
-            raise CLIError("give --out FOLDER for the posterior (or --resume FOLDER)")
-        if out.exists() and any(out.iterdir()) and not a.force:
-            raise CLIError(f"{out}/ already holds results; continue them with "
-                           f"`rotorbayes sample {out} --resume --steps N`, choose another "
-                           "--out or pass --force")
-    fit = load_fit(settings["fit"])
-    priors = load_priors(settings["priors"], fit.problem) if settings["priors"] else None
+    fit = load_fit(settings["fit"], trust_effects=a.trust_effects)
+    priors = load_priors(settings["priors"], fit.problem) if settings.get("priors") else None
     lp = LogPosterior(fit.problem, fit.x, priors=priors, noise=settings["noise"],
                       ar1=settings["ar1"])
     if settings["walkers"] < 2 * lp.ndim:
         raise CLIError(f"--walkers {settings['walkers']}: emcee needs at least twice the "
                        f"{lp.ndim} sampled coordinates; give --walkers {2 * lp.ndim} or more")
-    out.mkdir(parents=True, exist_ok=True)
+    if not a.resume:
+        # The walkers start around the fit: a prior that excludes it cannot be sampled.
+        z0 = np.asarray(lp.to_z(fit.x), float)[None, :]
+        if not np.isfinite(lp.log_prior(z0)[0]):
+            where = f"--priors {a.priors}" if a.priors else "the priors"
+            raise CLIError(f"{where} give zero probability to the fit's point in "
+                           f"{fit.folder}/ (a value outside a prior's lower..upper); widen "
+                           "that prior or fit again (nothing was written)")
+    n_res = int(fit.doc.get("n_residuals") or 0)
+    need = S.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
+                         settings["ensembles"]) + 8 * a.max_draws * settings["ensembles"] \
+        * settings["walkers"] * max(n_res, 1) // 4 + 2_000_000
+    chain = out / "chain.h5"
+    if a.resume:
+        held = S.check_checkpoint(chain, n_walkers=settings["walkers"], ndim=lp.ndim,
+                                  n_ensembles=settings["ensembles"])
+        most = max(held.values(), default=0)
+        if settings["steps"] < most:
+            raise CLIError(f"--steps {settings['steps']} is below the {most} steps {chain} "
+                           "already holds; give the new total (at least that many)")
+        have = chain.stat().st_size if chain.exists() else 0
+        check_free_space(out, max(need - have, 2_000_000), what=f"sample {out}")
+        if not held and not chain.exists():
+            print(f"{out}/ holds no finished step yet (the run was stopped before its first "
+                  "step): sampling starts at step 0")
+    else:
+        check_free_space(out.parent, need, what=f"--out {out}")
+    created = not out.exists()
+    if not a.resume and not created:
+        # --force: the new run's checkpoint must live in OUT to be resumable, so the old
+        # results go now (after every check has passed).
+        for p in out.iterdir():
+            if p.name == "log.txt":
+                continue
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+    out.mkdir(exist_ok=True)
     S.save_settings(out, settings)
     print(f"sampling {lp.ndim} coordinates ({', '.join(lp.coord_names)}) of {fit.folder}/ "
           f"with {settings['walkers']} walkers x {settings['steps']} steps x "
           f"{settings['ensembles']} independent ensembles; noise: "
           f"{'AR(1), sampled' if lp.ar1 else settings['noise']}; checkpoint {out}/chain.h5 "
-          "(every step: a kill loses nothing, --resume continues)")
-    interrupted = False
+          "(every step: a kill loses nothing, --resume continues)", flush=True)
+    stale = [n for n in SAMPLE_OUTPUTS if (out / n).exists()]
+    guard = InterruptGuard().start()  # Ctrl-C: stop between two steps, never inside one
     try:
-        runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
-                        n_steps=settings["steps"], n_ensembles=settings["ensembles"],
-                        seed=settings["seed"], progress=not a.quiet and sys.stderr.isatty())
-    except KeyboardInterrupt:
-        interrupted = True
-        print(f"\ninterrupted: every finished step is in {out}/chain.h5; continue with "
-              f"`rotorbayes sample {out} --resume`", file=sys.stderr)
-        return 130
+        try:
+            runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
+                            n_steps=settings["steps"], n_ensembles=settings["ensembles"],
+                            seed=settings["seed"], progress=not a.quiet and sys.stderr.isatty(),
+                            should_stop=lambda: guard.hit > 0)
+        except RuntimeError as exc:
+            if "cannot place the walkers" not in str(exc):
+                raise
+            raise CLIError(f"{fit.folder}/: {exc}") from None
+        except S.SamplingStopped as exc:
+            earlier = (f" ({', '.join(stale)} still describe the earlier, shorter run "
+                       "until then)") if stale else ""
+            raise Interrupted(
+                f"interrupted (Ctrl-C): {exc.ensemble} stopped after step {exc.step} of "
+                f"{exc.total}; every finished step is kept in {out}/chain.h5 (settings in "
+                f"settings.json). Continue with `rotorbayes sample {out} --resume`{earlier}"
+            ) from None
+        except BaseException as exc:
+            if created and not S.steps_held(chain):
+                shutil.rmtree(out, ignore_errors=True)  # nothing done: leave no folder
+            if EXIT.is_disk_full(exc) and not isinstance(exc, EXIT.EnvironmentFailure):
+                _die_disk_full(out, exc)
+            raise
+        written = _write_sample_outputs(a, out, lp, fit, runs, guard)
+    finally:
+        guard.stop()
+    return written
+
+
+def _die_disk_full(out: Path, exc: BaseException) -> None:
+    """The disk filled up in the middle of an HDF5 write. h5py's objects are then in a state
+    in which tearing them down can crash the interpreter, so say what happened and leave at
+    once (the lock goes with the process)."""
+    print(f"rotorbayes sample: error: {out}/chain.h5: the disk is full (no space left on the "
+          "device) while a step was being written; the steps finished before it are in the "
+          f"checkpoint. Free some space and continue with `rotorbayes sample {out} "
+          "--resume` (if the checkpoint is refused as damaged, start again with --force)",
+          file=sys.__stderr__, flush=True)
+    with contextlib.suppress(Exception):
+        sys.__stdout__.flush()
+    os._exit(EXIT.ENVIRONMENT)
+
+
+def _write_sample_outputs(a, out: Path, lp, fit, runs, guard) -> int:
+    """The summary, InferenceData and figures from finished chains; Ctrl-C between two
+    files stops with a true account of what is on disk."""
+    from . import posterior_figures as PF
+    from .inference import arviz_compat as AZ
+    from .inference import posterior as PO
+    from .inference import sampling as S
+
     names = lp.coord_names
+    done: list[str] = []
+
+    def checkpoint() -> None:
+        if guard.hit:
+            left = [n for n in SAMPLE_OUTPUTS if n not in done]
+            raise Interrupted(
+                f"interrupted (Ctrl-C) after the sampling had finished; the chains are "
+                f"complete in {out}/chain.h5"
+                + (f"; written: {', '.join(done)}" if done else "")
+                + f"; not yet rewritten: {', '.join(left)}. `rotorbayes sample {out} "
+                "--resume` writes them from the chains (no new steps)")
+
     warnings = S.convergence(runs, names)
     if lp.n_failed:
         warnings.append(f"{lp.n_failed} proposals could not be simulated (counted in "
@@ -1024,32 +1232,52 @@ def cmd_sample(a) -> int:
     else:
         warnings.append("one ensemble: no R-hat (the walkers of an ensemble are not "
                         "independent chains); use --ensembles 2 or more")
-    md = PO.table_markdown(rows)
+    unc = lp.uncertainty
+    if unc is not None and unc.warning():
+        warnings.append(unc.warning())
+    if lp.noise == "floor":
+        warnings.append("--noise floor counts every sample as independent: on data where a "
+                        "disc sticks or turns slowly the intervals are too narrow (the "
+                        "default, --noise robust, widens them to what the errors support)")
+    md = PO.table_markdown(rows, assumptions=unc.assumptions() if unc is not None else None)
     print("\n" + md)
+    checkpoint()
     tmp = out / ".posterior.nc.tmp"
-    AZ.save(idata, tmp)
-    tmp.replace(out / "posterior.nc")
-    write_text_atomic(out / "summary.md", md + "\n")
-    write_text_atomic(out / "summary.csv", PO.table_csv(rows))
-    from . import posterior_figures as PF
-
-    save_figure_atomic(PF.plot_corner(idata, fit.problem), out / "corner.png")
-    save_figure_atomic(PF.plot_trace(runs, names)[0], out / "trace.png")
-    save_figure_atomic(PF.plot_predictive(idata, fit.problem)[0], out / "predictive.png")
-    save_figure_atomic(PF.plot_correlation(idata, fit.problem)[0], out / "correlation.png")
-    write_text_atomic(out / "warnings.txt", "\n".join(warnings) + "\n")
+    try:
+        AZ.save(idata, tmp)
+        tmp.replace(out / "posterior.nc")
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+    done.append("posterior.nc")
+    for name, write in (
+            ("summary.md", lambda p: write_text_atomic(p, md + "\n")),
+            ("summary.csv", lambda p: write_text_atomic(p, PO.table_csv(rows))),
+            ("corner.png", lambda p: save_figure_atomic(PF.plot_corner(idata, fit.problem), p)),
+            ("trace.png", lambda p: save_figure_atomic(PF.plot_trace(runs, names)[0], p)),
+            ("predictive.png",
+             lambda p: save_figure_atomic(PF.plot_predictive(idata, fit.problem)[0], p)),
+            ("correlation.png",
+             lambda p: save_figure_atomic(PF.plot_correlation(idata, fit.problem)[0], p)),
+            ("warnings.txt", lambda p: write_text_atomic(p, "\n".join(warnings) + "\n"))):
+        checkpoint()
+        write(out / name)
+        done.append(name)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     print(f"\nwrote posterior.nc, summary.md/.csv, corner.png, trace.png, predictive.png, "
           f"correlation.png in {out}/ ({lp.n_calls} log-posterior evaluations)")
-    return 1 if interrupted else 0
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) as the last file was written; the results "
+                          f"were kept, complete, in {out}/")
+    return EXIT.DONE
 
 
 def cmd_identify(a) -> int:
     """Fisher eigen-analysis in words, profile likelihoods, multistart on the corner plot."""
     from .results import load_fit
 
-    fit = load_fit(a.fit)
+    fit = load_fit(a.fit, trust_effects=a.trust_effects)
     prob = fit.problem
     profiles = _csv_list(a.profiles, "--profiles") or []
     for n in profiles:
@@ -1125,7 +1353,7 @@ def cmd_report(a) -> int:
     from .report import ReportError, write_report
 
     try:
-        rep = write_report(a.folder, a.out)
+        rep = write_report(a.folder, a.out, force=a.force)
     except ReportError as exc:
         raise CLIError(str(exc)) from None
     size = rep.size
@@ -1196,6 +1424,14 @@ def _add_fit_args(p, *, multi=False):
                        default=1e-10, help=f"{tol} of scipy.optimize.least_squares")
     p.add_argument("--force", action="store_true",
                    help="replace the results in --out (only once the new run has succeeded)")
+    _add_trust(p)
+
+
+def _add_trust(p) -> None:
+    p.add_argument("--trust-effects", action="store_true",
+                   help="import user effect files a result names even when they changed "
+                   "since the result was made, or it recorded no hash of them (effect files "
+                   "are Python code: read them first)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -1283,9 +1519,11 @@ def build_parser() -> argparse.ArgumentParser:
     g = sub.add_parser("diagnose", help="is the remaining error noise? which effect is "
                        "missing? (writes diagnosis.json and figures into the fit folder)")
     g.add_argument("fit", help="a folder written by `rotorbayes fit`")
-    g.add_argument("--noise", type=float, default=None,
+    g.add_argument("--noise", type=_ranged(ge=0, le=1, why=" rad (a standard deviation)"),
+                   default=None,
                    help="Gaussian measurement noise std [rad] besides encoder quantisation "
                    "(default 0)")
+    _add_trust(g)
     g.set_defaults(func=cmd_diagnose)
 
     c = sub.add_parser("compare", help="where the model fails (error against the state, "
@@ -1294,6 +1532,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("fits", nargs="+", help="fit folders (one: its chain of --p0 parents)")
     c.add_argument("--out", help="output folder (default: FIT/compare/ of the last fit)")
     c.add_argument("--force", action="store_true", help="overwrite results in --out")
+    _add_trust(c)
     c.set_defaults(func=cmd_compare)
 
     sp = sub.add_parser("sample", help="posterior sampling with emcee from a fit "
@@ -1302,24 +1541,33 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", help="output folder (new runs)")
     sp.add_argument("--resume", action="store_true",
                     help="continue the chains in SOURCE (a folder written by sample)")
-    sp.add_argument("--walkers", type=int, default=32, help="walkers per ensemble")
-    sp.add_argument("--steps", type=int, default=None,
+    sp.add_argument("--walkers", type=_ranged(int, ge=4, le=MAX_WALKERS,
+                                              why=" (walkers per ensemble)"),
+                    default=32, help="walkers per ensemble")
+    sp.add_argument("--steps", type=_ranged(int, ge=10, le=MAX_STEPS, why=" (steps per "
+                                            "ensemble)"), default=None,
                     help="total steps per ensemble (default 2000; with --resume the new "
                     "total)")
-    sp.add_argument("--ensembles", type=int, default=2,
+    sp.add_argument("--ensembles", type=_ranged(int, ge=1, le=64, why=" (independent "
+                                                "ensembles)"), default=2,
                     help="independent ensembles (>= 2 for R-hat)")
-    sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument("--noise", choices=["floor", "sampled"], default="floor",
-                    help="channel noise fixed at the encoder floor, or sampled (prior 1/σ)")
+    sp.add_argument("--seed", type=_ranged(int, ge=0, le=2**31 - 1), default=0)
+    sp.add_argument("--noise", choices=["robust", "floor", "sampled"], default="robust",
+                    help="robust: floor noise widened to the fit's honest covariance "
+                    "(correlated rounding while a disc sticks, model error, the input "
+                    "between samples); floor: i.i.d. at the encoder floor (too narrow on "
+                    "stick-slip data; to compare); sampled: σ sampled (prior 1/σ)")
     sp.add_argument("--ar1", action="store_true", help="AR(1) errors per channel")
     sp.add_argument("--priors", help="TOML with a [priors] table (default: uniform within "
                     "the physical bounds)")
-    sp.add_argument("--max-draws", type=int, default=100,
+    sp.add_argument("--max-draws", type=_ranged(int, ge=1, le=100_000, why=" (draws kept "
+                                                "per ensemble)"), default=100,
                     help="draws per ensemble kept in posterior.nc (with the pointwise "
                     "log-likelihood of every sample: about 2 x draws x samples x channels x "
                     "4 bytes)")
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
     sp.add_argument("--force", action="store_true", help="overwrite results in --out")
+    _add_trust(sp)
     sp.set_defaults(func=cmd_sample)
 
     i = sub.add_parser("identify", help="which parameter combinations the data fix: "
@@ -1327,18 +1575,25 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("fit", help="a folder written by `rotorbayes fit`")
     i.add_argument("--out", required=True, help="output folder")
     i.add_argument("--profiles", help="comma-separated free parameters to profile")
-    i.add_argument("--points", type=int, default=11, help="grid points per profile")
-    i.add_argument("--workers", type=int, default=2, help="parallel profile fits")
+    i.add_argument("--points", type=_ranged(int, ge=3, le=1001, why=" (grid points)"),
+                   default=11, help="grid points per profile")
+    i.add_argument("--workers", type=_ranged(int, ge=1, le=256, why=" (parallel fits)"),
+                   default=2, help="parallel profile fits")
     i.add_argument("--posterior", help="a sample folder: corner plot of its posterior")
     i.add_argument("--multistart", help="a multistart folder: its end points on the corner")
     i.add_argument("--force", action="store_true", help="overwrite results in --out")
+    _add_trust(i)
     i.set_defaults(func=cmd_identify)
 
     rp = sub.add_parser("report", help="report.html: one self-contained HTML page (figures "
                         "embedded) for a study folder or any fit/compare/sample/identify folder")
     rp.add_argument("folder", help="a folder written by run, demo, fit, compare, sample or "
                     "identify")
-    rp.add_argument("--out", help="the HTML file to write (default: FOLDER/report.html)")
+    rp.add_argument("--out", help="the HTML file to write, ending in .html (default: "
+                    "FOLDER/report.html); an existing file is replaced only if it is a report "
+                    "rotorbayes wrote")
+    rp.add_argument("--force", action="store_true",
+                    help="replace an existing .html file that is not a rotorbayes report")
     rp.set_defaults(func=cmd_report)
 
     p = sub.add_parser("params", help="list parameters and named sets, or show one set")
@@ -1432,11 +1687,13 @@ def main(argv=None) -> int:
         return code
     except Interrupted as exc:
         print(f"rotorbayes {a.cmd}: {exc}", file=sys.stderr)
-        return 130
+        return EXIT.INTERRUPTED
     except KeyboardInterrupt:
-        print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C); no partial output was left behind",
-              file=sys.stderr)
-        return 130
+        # Every command builds its results whole or not at all (a partial folder, atomic
+        # files), and keeps work that was done (InterruptGuard): what is left is true.
+        print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C) before its results were complete; "
+              "it wrote nothing new (earlier results, if any, are unchanged)", file=sys.stderr)
+        return EXIT.INTERRUPTED
     except BrokenPipeError:
         # The reader (e.g. `| head`) stopped reading: not an error of ours. Python's recipe:
         # point stdout at devnull so the flush at exit does not fail again.
@@ -1445,18 +1702,29 @@ def main(argv=None) -> int:
             os.dup2(devnull, sys.stdout.fileno())
         except (OSError, ValueError):
             pass
-        return 141
+        return EXIT.BROKEN_PIPE
+    except EXIT.Busy as exc:
+        print(f"rotorbayes {a.cmd}: busy: {exc}", file=sys.stderr)
+        return EXIT.BUSY
+    except EXIT.EnvironmentFailure as exc:
+        print(f"rotorbayes {a.cmd}: error: {exc}", file=sys.stderr)
+        return EXIT.ENVIRONMENT
     except (CLIError, DataFileError, _params.ParameterError, ValueError, FileExistsError,
             SimulationError, ResultError, OutputError) as exc:
         print(f"rotorbayes {a.cmd}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        if exc.filename is None:  # not about a path the user gave: a bug, show it
-            raise
+        return EXIT.REFUSED
+    except (OSError, RuntimeError, MemoryError) as exc:
+        if isinstance(exc, MemoryError) or EXIT.is_disk_full(exc) or (
+                isinstance(exc, OSError) and exc.errno in EXIT.ENVIRONMENT_ERRNOS):
+            print(f"rotorbayes {a.cmd}: error: {EXIT.describe_environment(exc)}",
+                  file=sys.stderr)
+            return EXIT.ENVIRONMENT
+        if not isinstance(exc, OSError) or exc.filename is None:
+            raise  # not about a path the user gave: a bug, show it
         what = exc.strerror or type(exc).__name__
         print(f"rotorbayes {a.cmd}: error: {exc.filename}: {what}; check the path and its "
               "permissions", file=sys.stderr)
-        return 2
+        return EXIT.REFUSED
 
 
 if __name__ == "__main__":

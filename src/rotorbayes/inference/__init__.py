@@ -4,6 +4,7 @@
 * :mod:`.least_squares` — :func:`fit` (the thesis's lsqnonlin method), :func:`quality`;
 * :mod:`.starts` — starts from the data (the equations of motion as a regression);
 * :mod:`.first_fit` — :func:`fit_from_data`: data start, fit, restarts if not at the floor;
+* :mod:`.uncertainty` — honest standard errors: block-robust, rounding simulated, input hold;
 * :mod:`.assess` — RMS against the encoder floor, and warnings on what to distrust;
 * :mod:`.multistart` — many fits from spread starts, clustered and explained;
 * :mod:`.parallel` — the one map layer for independent tasks.
@@ -11,16 +12,25 @@
 
 from .assess import Assessment, assess
 from .first_fit import FirstFit, fit_from_data
-from .least_squares import FAIL_RESIDUAL, FitResult, StartError, fit, quality
+from .least_squares import (
+    FAIL_RESIDUAL,
+    FitResult,
+    StartError,
+    attach_uncertainty,
+    fit,
+    quality,
+)
 from .multistart import MultistartResult, cluster_ends, describe_spread, latin_hypercube, multistart
 from .parallel import Mapper, get_mapper
 from .problem import CHANNELS, Evaluation, Problem, local_name
 from .starts import DataStart, data_start
+from .uncertainty import Uncertainty, fit_uncertainty
 
 __all__ = [
     "Assessment", "DataStart", "FirstFit", "StartError", "assess", "data_start",
     "fit_from_data", "CHANNELS", "Evaluation", "FAIL_RESIDUAL", "FitResult", "Mapper",
     "MultistartResult",
     "Problem", "cluster_ends", "describe_spread", "fit", "get_mapper", "latin_hypercube",
-    "local_name", "multistart", "quality",
+    "local_name", "multistart", "quality", "Uncertainty", "attach_uncertainty",
+    "fit_uncertainty",
 ]  # fmt: skip

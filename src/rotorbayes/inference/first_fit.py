@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .assess import NEAR_FLOOR
-from .least_squares import FitResult, fit
+from .least_squares import FitResult, attach_uncertainty, fit
 from .multistart import fit_or_reason, latin_hypercube
 from .parallel import get_mapper, progress
 from .problem import Problem
@@ -95,5 +95,7 @@ def fit_from_data(
         if r is not None and r.ssr < best.ssr:
             best = r
             out.chose = f"restart {i + 1} of {restarts} (spread {spread} around the data start)"
+    if best is not res and best.uncertainty is None and fit_kw.get("uncertainty", True):
+        attach_uncertainty(best)
     out.result = best
     return out

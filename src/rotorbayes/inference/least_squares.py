@@ -22,6 +22,7 @@ from .. import metrics as _metrics
 from ..data import Experiment
 from ..model.simulate import SimulationError
 from .problem import Problem
+from .uncertainty import Uncertainty, fit_uncertainty
 
 
 class StartError(SimulationError):
@@ -53,8 +54,12 @@ class FitResult:
     names, x, x0 : list, arrays
         Free parameter names, estimates and start values.
     stderr : array
-        Standard errors from the Gauss-Newton covariance ``s² (JᵀJ)⁻¹`` (``nan`` where
-        the information matrix is singular).
+        Honest standard errors (:mod:`.uncertainty`: block-robust, rounding simulated,
+        input-hold allowance) when the fit was asked for them (``uncertainty=True``, the
+        default); otherwise the i.i.d. Gauss-Newton ``s² (JᵀJ)⁻¹`` (``inf`` where the
+        information matrix is singular).
+    uncertainty : Uncertainty or None
+        The covariances behind ``stderr`` and what they assume.
     jac : array (n_residuals, k)
         Jacobian of the residuals at the solution (in parameter units).
     ssr, cost : float
@@ -76,6 +81,7 @@ class FitResult:
     njev: int
     seconds: float
     problem: Problem = field(repr=False)
+    uncertainty: Uncertainty | None = field(default=None, repr=False)
 
     @property
     def values(self) -> dict[str, float]:
@@ -87,9 +93,19 @@ class FitResult:
         """Complete parameter set of the first experiment at the estimate."""
         return self.problem.params_for(self.x, 0)
 
+    @property
+    def stderr_iid(self) -> np.ndarray:
+        """Standard errors if the errors were independent (Gauss-Newton, for comparison)."""
+        with np.errstate(invalid="ignore"):
+            return np.sqrt(np.diag(self.covariance()))
+
+    def honest_covariance(self) -> np.ndarray:
+        """The covariance behind ``stderr``: :attr:`uncertainty`'s total if computed."""
+        return self.uncertainty.cov if self.uncertainty is not None else self.covariance()
+
     def correlation(self) -> np.ndarray:
-        """Parameter correlation matrix from the Gauss-Newton covariance."""
-        cov = self.covariance()
+        """Parameter correlation matrix (of :meth:`honest_covariance`)."""
+        cov = self.honest_covariance()
         d = np.sqrt(np.abs(np.diag(cov)))
         with np.errstate(invalid="ignore", divide="ignore"):
             return cov / np.outer(d, d)
@@ -150,6 +166,7 @@ def fit(
     verbose: bool = False,
     parallel: bool = True,
     callback: Callable[[int, float], None] | None = None,
+    uncertainty: bool = True,
 ) -> FitResult:
     """Least squares from a start (thesis: MATLAB ``lsqnonlin``; here scipy's
     trust-region-reflective ``least_squares`` with bounds).
@@ -170,6 +187,10 @@ def fit(
         Simulate the Jacobian's perturbed sets in one parallel batch.
     callback : callable, optional
         Called as ``callback(n_evaluations, ssr)`` after each residual evaluation.
+    uncertainty : bool
+        Compute honest standard errors (:func:`.uncertainty.fit_uncertainty`, about 200
+        extra simulations); ``False`` keeps the i.i.d. Gauss-Newton ones (multistart's
+        many starts; :func:`attach_uncertainty` adds them later).
 
     Returns
     -------
@@ -273,7 +294,19 @@ def fit(
     cov = out.covariance()
     with np.errstate(invalid="ignore"):
         out.stderr = np.sqrt(np.diag(cov))
+    if uncertainty and ev.ok:
+        attach_uncertainty(out)
     return out
+
+
+def attach_uncertainty(res: FitResult, **kw) -> FitResult:
+    """Give ``res`` honest standard errors (:func:`.uncertainty.fit_uncertainty`)."""
+    r = res.problem.residuals(res.x)
+    if not np.all(np.isfinite(r)):
+        return res
+    res.uncertainty = fit_uncertainty(res.problem, res.x, res.jac, r, **kw)
+    res.stderr = res.uncertainty.stderr
+    return res
 
 
 def _explain(res) -> str:

@@ -10,11 +10,20 @@ log-posterior, all rows in one parallel kernel batch (emcee's ``vectorize=True``
 * **priors** (:class:`Prior`): uniform on θ within its physical bounds by default; log-
   uniform or normal per parameter from a config; an impossible point (outside the bounds,
   a broken validity constraint) returns ``-inf`` before any simulation.
-* **likelihood**: Gaussian per channel, ``σ`` fixed at the encoder quantisation floor
-  (default) or sampled with the scale-invariant prior ``p(σ) ∝ 1/σ``; optionally AR(1)
-  errors ``e_t = φ e_{t-1} + ε_t`` with ``φ`` sampled on (−1, 1) per channel, because the
-  residuals of a misspecified model are strongly autocorrelated and the independent-error
-  likelihood then overstates certainty.
+* **likelihood** (``noise``):
+
+  - ``"robust"`` (default): Gaussian at each channel's floor, *curvature-adjusted* so that
+    the posterior is as wide as the errors really make the estimate — rounding that is
+    constant while a disc sticks, errors correlated for as long as the motion that causes
+    them, the input's unknown behaviour between samples (:mod:`.uncertainty`).  The
+    log-likelihood at ``z`` is the Gaussian one at ``ẑ + C (z − ẑ)``, with ``C`` chosen so
+    that its curvature at the fit ``ẑ`` is the inverse of the fit's honest covariance
+    (an open-faced sandwich adjustment: the shape away from the fit, ridges and bounds
+    included, stays the model's own; the prior is untouched);
+  - ``"floor"``: the plain i.i.d. Gaussian at the floor.  It counts every sample as
+    independent and is too narrow on stick-slip data (kept to compare);
+  - ``"sampled"``: σ per channel with the scale-invariant prior ``p(σ) ∝ 1/σ``;
+    optionally AR(1) errors ``e_t = φ e_{t-1} + ε_t`` with ``φ`` sampled on (−1, 1).
 * a parameter set the integrator cannot simulate gives ``-inf`` and is counted
   (``n_failed``), never a plausible number.
 """
@@ -32,6 +41,8 @@ from ..model.parameters import ParameterError
 from .problem import Problem, local_name
 
 LOG_2PI = math.log(2 * math.pi)
+#: The likelihoods :class:`LogPosterior` offers (module docstring).
+NOISE_MODELS = ("robust", "floor", "sampled")
 
 
 @dataclass(frozen=True)
@@ -143,16 +154,19 @@ class LogPosterior:
         The least-squares point (sets which positive parameters are sampled in log).
     priors : mapping, optional
         ``{name: Prior}``; default uniform within the physical bounds.
-    noise : {'floor', 'sampled'}
-        Channel noise fixed at the quantisation floor, or sampled (log σ, prior 1/σ).
+    noise : {'robust', 'floor', 'sampled'}
+        ``robust``: floor noise, curvature-adjusted to the fit's honest covariance (module
+        docstring); ``floor``: i.i.d. at the floor; ``sampled``: log σ, prior 1/σ.
+    uncertainty : Uncertainty, optional
+        The fit's honest covariance for ``robust`` (computed here if not given).
     ar1 : bool
         AR(1) errors per channel (then σ is the innovation scale and is sampled).
     """
 
-    def __init__(self, problem: Problem, x_fit, *, priors=None, noise: str = "floor",
-                 ar1: bool = False):
-        if noise not in ("floor", "sampled"):
-            raise ValueError(f"noise must be 'floor' or 'sampled', not {noise!r}")
+    def __init__(self, problem: Problem, x_fit, *, priors=None, noise: str = "robust",
+                 ar1: bool = False, uncertainty=None):
+        if noise not in NOISE_MODELS:
+            raise ValueError(f"noise must be one of {', '.join(NOISE_MODELS)}, not {noise!r}")
         self.problem = problem
         self.noise = "sampled" if ar1 else noise
         self.ar1 = ar1
@@ -185,6 +199,71 @@ class LogPosterior:
                 off += ex.n
         self.n_failed = 0
         self.n_calls = 0
+        self.uncertainty = None
+        self.z_fit = self.to_z(x_fit)[: self.k]
+        self.adjust = None  # C of the curvature adjustment (k x k), robust noise only
+        if self.noise == "robust":
+            self.uncertainty = uncertainty or self._fit_uncertainty(x_fit)
+            self.adjust = self._adjustment(x_fit)
+
+    # ------------------------------------------------------------ robust adjustment
+    def _fit_uncertainty(self, x_fit):
+        from .uncertainty import fit_uncertainty
+
+        J, _ = self.problem.jacobian(x_fit)
+        return fit_uncertainty(self.problem, x_fit, J)
+
+    def _precision_iid(self, x_fit):
+        """Fisher information of the i.i.d. floor likelihood in sampling coordinates."""
+        J, _ = self.problem.jacobian(x_fit)
+        w = np.empty(J.shape[0])
+        for (c, a, b) in self.segments:
+            w[a:b] = 1.0 / (self.floor[c] * self.problem.weights[c])
+        d = np.where(self.log, x_fit, 1.0)  # dθ/dz
+        Jz = J * w[:, None] * d[None, :]
+        return Jz.T @ Jz
+
+    def target_cov_z(self, x_fit) -> np.ndarray:
+        """The honest covariance in sampling coordinates (``inf`` where undetermined)."""
+        x = np.asarray(x_fit, float)
+        d = np.where(self.log, x, 1.0)
+        return self.uncertainty.cov / np.outer(d, d)
+
+    def _adjustment(self, x_fit):
+        """``C`` with ``Cᵀ H C = V⁻¹``: H the i.i.d. precision, V the honest covariance,
+        both in sampling coordinates.  Directions the data do not determine (or whose honest
+        variance is not finite) keep ``C = I``."""
+        x_fit = np.asarray(x_fit, float)
+        H = self._precision_iid(x_fit)
+        V = self.target_cov_z(x_fit)
+        k = self.k
+        bad = ~np.all(np.isfinite(V), axis=0) | ~np.isfinite(np.diag(V))
+        C = np.eye(k)
+        ok = ~bad
+        if ok.sum() == 0:
+            return C
+        Hs = H[np.ix_(ok, ok)]
+        Vs = V[np.ix_(ok, ok)]
+        lam, U = np.linalg.eigh(0.5 * (Hs + Hs.T))
+        good = lam > 1e-12 * max(lam.max(), 1e-300)
+        if not good.all():
+            return C  # an exact symmetry among the determined ones: leave the model's shape
+        W = (U * np.sqrt(lam)).T  # H = WᵀW
+        Wi = U / np.sqrt(lam)  # W⁻¹
+        S = W @ Vs @ W.T  # target in the frame where the i.i.d. posterior is N(0, I)
+        mu, Q = np.linalg.eigh(0.5 * (S + S.T))
+        mu = np.maximum(mu, 1e-300)
+        Cw = (Q / np.sqrt(mu)) @ Q.T  # S^(-1/2)
+        C[np.ix_(ok, ok)] = Wi @ Cw @ W
+        return C
+
+    def evaluation_points(self, Z: np.ndarray) -> np.ndarray:
+        """Where the likelihood is evaluated for coordinates ``Z`` (the adjustment)."""
+        if self.adjust is None:
+            return Z
+        Z = np.array(Z, float, copy=True)
+        Z[:, : self.k] = self.z_fit + (Z[:, : self.k] - self.z_fit) @ self.adjust.T
+        return Z
 
     # ------------------------------------------------------------------ coordinates
     def to_z(self, x: np.ndarray, sigma: Mapping | None = None, phi: Mapping | None = None):
@@ -260,7 +339,7 @@ class LogPosterior:
         ok = np.isfinite(lp)
         self.n_calls += int(ok.sum())
         if ok.any():
-            X, S, P = self.split(Z[ok])
+            X, S, P = self.split(self.evaluation_points(Z[ok]))
             L, failed = self.pointwise(X, S, P)
             ll = np.where(failed, -np.inf, np.nansum(L, axis=1))
             self.n_failed += int(failed.sum())
@@ -271,13 +350,11 @@ class LogPosterior:
         """Walkers in a small ball around the fit shaped by the Gauss-Newton covariance
         (σ of the likelihood), each with a finite log-posterior."""
         x_fit = np.asarray(x_fit, float)
-        J, _ = self.problem.jacobian(x_fit)
-        w = np.empty(J.shape[0])
-        for (c, a, b) in self.segments:
-            w[a:b] = 1.0 / (self.floor[c] * self.problem.weights[c])
-        d = np.where(self.log, x_fit, 1.0)  # to log coordinates
-        Jz = J * w[:, None] * d[None, :]
-        lam, V = np.linalg.eigh(Jz.T @ Jz)
+        Hz = self._precision_iid(x_fit)
+        if self.adjust is not None:
+            # The adjusted likelihood's curvature: Cᵀ H C.
+            Hz = self.adjust.T @ Hz @ self.adjust
+        lam, V = np.linalg.eigh(0.5 * (Hz + Hz.T))
         # Directions the data do not determine (an exact symmetry) get a 1 % spread, so
         # the ensemble's stretch moves can travel along them.
         var = np.where(lam > 1e-10 * max(lam.max(), 1e-300), 1.0 / np.maximum(lam, 1e-300),

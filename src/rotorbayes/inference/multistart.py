@@ -204,6 +204,9 @@ def _within_constraints(problem: Problem, X: np.ndarray, U: np.ndarray) -> np.nd
 def fit_or_reason(problem: Problem, x0, **fit_kw) -> tuple[FitResult | None, str]:
     """One fit of a multistart or restart: ``(result, "")``, or ``(None, why)`` when the
     start cannot be fitted (outside the bounds, not simulable): a failure, not a minimum."""
+    # Many starts: the i.i.d. standard errors only; the caller attaches honest ones to the
+    # fit it keeps (attach_uncertainty).
+    fit_kw.setdefault("uncertainty", False)
     try:
         return fit(problem, x0, parallel=False, **fit_kw), ""
     except (ParameterError, ValueError, RuntimeError) as exc:

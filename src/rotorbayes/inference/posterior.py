@@ -131,21 +131,74 @@ def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: fl
                 np.isfinite(taus)) else math.nan,
             "unit": unit,
         })
+    _add_honesty_columns(rows, logpost)
     return rows
 
 
-def table_markdown(rows, hdi: float = 0.94) -> str:
+def _add_honesty_columns(rows, logpost: LogPosterior) -> None:
+    """Per parameter: the posterior sd against what i.i.d. noise at the floor would give,
+    and the shares of the fit's honest variance that are noise, model error shown by the
+    residuals, and the input-hold allowance (:mod:`.uncertainty`)."""
+    unc = logpost.uncertainty
+    if unc is None:
+        return
+    sh = unc.shares()
+    white = dict(zip(unc.names, unc.stderr_white, strict=True))
+    for r in rows:
+        n = r["parameter"]
+        if n not in sh:
+            continue
+        w = float(white[n])
+        r["sd_iid"] = w
+        r["sd_over_iid"] = r["sd"] / w if w > 0 and math.isfinite(w) else math.nan
+        r["share_noise"] = sh[n]["noise"]
+        r["share_model_error"] = sh[n]["model_error"]
+        r["share_input_hold"] = sh[n]["input_hold"]
+
+
+def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -> str:
     pct = f"{100 * hdi:.0f} % HDI"
+    honest = any("share_noise" in r for r in rows)
+    extra_h = " sd / i.i.d. sd | noise / model error / input hold |" if honest else ""
+    extra_s = "---|---|" if honest else ""
     head = (f"| parameter | mean | sd | {pct} | ESS (arviz bulk) | ESS (walkers × steps / τ) "
-            "| R-hat | τ [steps] | unit |\n|---|---|---|---|---|---|---|---|---|")
+            f"| R-hat | τ [steps] | unit |{extra_h}\n|---|---|---|---|---|---|---|---|---|"
+            + extra_s)
     lines = [head]
     for r in rows:
-        lines.append(
-            f"| {r['parameter']} | {r['mean']:.6g} | {r['sd']:.3g} | [{r['hdi_low']:.6g}, "
-            f"{r['hdi_high']:.6g}] | {r['ess_bulk']:.0f} | {r['ess_tau']:.0f} | "
-            f"{r['r_hat']:.3f} | {r['tau']:.1f} | {r['unit']} |"
+        line = (
+            f"| {r['parameter']} | {r['mean']:.6g} | {r['sd']:.3g} | "
+            f"[{_hdi_fmt(r['hdi_low'], r['hdi_high'])}] | {r['ess_bulk']:.0f} | "
+            f"{r['ess_tau']:.0f} | {r['r_hat']:.3f} | {r['tau']:.1f} | {r['unit']} |"
         )
+        if honest:
+            if "share_noise" in r and math.isfinite(r.get("share_noise", math.nan)):
+                line += (f" {r['sd_over_iid']:.2g} | {100 * r['share_noise']:.0f} / "
+                         f"{100 * r['share_model_error']:.0f} / "
+                         f"{100 * r['share_input_hold']:.0f} % |")
+            else:
+                line += " — | — |"
+        lines.append(line)
+    if honest:
+        lines.append("")
+        lines.append(
+            "sd / i.i.d. sd: how much wider the interval is than independent noise at the "
+            "encoder floor would make it (rounding is constant while a disc sticks; model "
+            "error lasts as long as the motion that causes it). The last column splits the "
+            "fit's variance into noise, model error the residuals show, and the allowance "
+            "for the input between samples.")
+        if assumptions:
+            lines.append(f"The intervals assume: {assumptions}.")
     return "\n".join(lines)
+
+
+def _hdi_fmt(lo: float, hi: float) -> str:
+    """Both ends with enough significant digits that they differ where they differ."""
+    digits = 6
+    if math.isfinite(lo) and math.isfinite(hi) and hi != lo:
+        scale = max(abs(lo), abs(hi))
+        digits = max(6, int(math.ceil(math.log10(scale / abs(hi - lo)))) + 3) if scale else 6
+    return f"{lo:.{digits}g}, {hi:.{digits}g}"
 
 
 def table_csv(rows) -> str:
