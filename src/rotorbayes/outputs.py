@@ -9,6 +9,15 @@
   temporary file in the same folder and :func:`os.replace`, so a reader never sees half a
   file and a failure leaves the old file (or none) in place.
 
+* :func:`folder_lock` is the one lock of a result folder (``flock`` on a hidden sibling file
+  ``.NAME.lock``): a second process that wants the same folder is refused at once with
+  :class:`~rotorbayes.exitcodes.Busy`. :func:`output_folder` takes it, and under it removes
+  the ``.NAME.partial-*`` folders an earlier killed run left behind (and says so).
+* :class:`InterruptGuard` turns Ctrl-C into a flag while results are being written, so an
+  interrupt after the work is done keeps the work.
+* :func:`check_free_space` refuses, before any work, a folder whose disk cannot hold the
+  results (:class:`~rotorbayes.exitcodes.EnvironmentFailure`, exit code 3).
+
 Errors a user can fix (the path is a file, a folder holds earlier results, a parent folder is
 missing) raise :class:`OutputError` with the path and the fix in the message.
 """
@@ -16,12 +25,18 @@ missing) raise :class:`OutputError` with the path and the fix in the message.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import secrets
 import shutil
+import signal
+import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
+
+from .exitcodes import Busy, EnvironmentFailure, describe_environment
 
 __all__ = [
     "OutputError",
@@ -30,6 +45,11 @@ __all__ = [
     "write_text_atomic",
     "save_figure_atomic",
     "PARTIAL_TAG",
+    "folder_lock",
+    "clean_stale",
+    "InterruptGuard",
+    "check_free_space",
+    "MIN_FREE_BYTES",
 ]
 
 #: Part of the name of the temporary folder a result is built in (``.NAME.partial-XXXX``).
@@ -111,26 +131,178 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _remove_created(created)
-        raise OutputError(f"{flag} {out}: cannot create the folder {out.parent} "
-                          f"({exc.strerror}); choose another {flag}") from None
+        raise EnvironmentFailure(f"{flag} {out}: cannot create the folder {out.parent} ("
+                                 f"{describe_environment(exc, '')}); choose another {flag}"
+                                 ) from None
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL_TAG}", dir=out.parent))
-    except OSError as exc:
-        _remove_created(created)
-        raise OutputError(f"{flag} {out}: cannot write into {out.parent} ({exc.strerror}); "
-                          f"choose another {flag}") from None
-    # mkdtemp makes the folder private (0700); a result folder gets the usual permissions.
-    with contextlib.suppress(OSError):
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)
-    try:
-        yield tmp
-        _move_into_place(tmp, out, force, flag)
+        with folder_lock(out, flag=flag):
+            _check_folder_target(out, force, flag)  # again: another run may have finished
+            clean_stale(out)
+            check_free_space(out.parent, MIN_FREE_BYTES, what=f"{flag} {out}")
+            try:
+                tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL_TAG}",
+                                            dir=out.parent))
+            except OSError as exc:
+                raise EnvironmentFailure(f"{flag} {out}: cannot write into {out.parent} ("
+                                         f"{describe_environment(exc, '')}); choose another "
+                                         f"{flag}") from None
+            # mkdtemp makes the folder private (0700); a result folder gets the usual
+            # permissions.
+            with contextlib.suppress(OSError):
+                umask = os.umask(0)
+                os.umask(umask)
+                os.chmod(tmp, 0o777 & ~umask)
+            try:
+                yield tmp
+                _move_into_place(tmp, out, force, flag)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
         _remove_created(created)
         raise
+
+
+#: Free space a result folder's disk must have before a run starts (bytes). A fit folder
+#: with its figures takes about 0.2-1 MB; runs that know their size ask for more.
+MIN_FREE_BYTES = 2_000_000
+
+
+def check_free_space(folder: str | os.PathLike, need: int, *, what: str) -> None:
+    """Refuse (:class:`EnvironmentFailure`) when ``folder``'s disk has less than ``need``
+    bytes free: better before the work than a disk-full error after it."""
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return  # no statistics (an exotic file system): the writes will tell
+    free = st.f_bavail * st.f_frsize
+    if st.f_blocks > 0 and free < need:
+        raise EnvironmentFailure(
+            f"{what}: the disk of {folder} has {free / 1e6:.2f} MB free, less than the "
+            f"{need / 1e6:.2f} MB the results need; free some space or choose a folder on "
+            "another disk (nothing was written)")
+
+
+#: Locks this process holds (a command that locks a folder twice does not block itself).
+_HELD: dict[str, int] = {}
+
+
+def _lock_path(out: Path) -> Path:
+    return out.parent / f".{out.name}.lock"
+
+
+@contextlib.contextmanager
+def folder_lock(path: str | os.PathLike, *, flag: str = "--out") -> Iterator[None]:
+    """Hold the one lock of result folder ``path`` (its parent folder must exist).
+
+    The lock is ``flock`` on ``.NAME.lock`` beside the folder; it is released (and the file
+    removed) when the block ends, and by the kernel when the process dies, even by SIGKILL.
+    Raises :class:`Busy` when another process holds it, :class:`EnvironmentFailure` when the
+    lock file cannot be made.
+    """
+    out = Path(path)
+    key = str(out.absolute())
+    if key in _HELD:
+        yield
+        return
+    lock = _lock_path(out)
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as exc:
+            raise EnvironmentFailure(f"{flag} {out}: cannot make the lock file {lock} ("
+                                     f"{describe_environment(exc, '')})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            try:
+                owner = os.read(fd, 64).decode(errors="replace").strip()
+            except OSError:
+                owner = ""
+            os.close(fd)
+            who = f" (process {owner})" if owner.isdigit() else ""
+            raise Busy(f"{out}/ is in use by another rotorbayes process{who}; two runs must "
+                       "not write one result folder. Wait for it to finish (or stop it) and "
+                       f"run again, or choose another {flag}") from None
+        # The holder before us may have removed the file between our open and our lock.
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    with contextlib.suppress(OSError):
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+    _HELD[key] = fd
+    try:
+        yield
+    finally:
+        del _HELD[key]
+        with contextlib.suppress(OSError):
+            os.unlink(lock)
+        os.close(fd)
+
+
+def clean_stale(out: Path) -> list[str]:
+    """Remove what a killed run left beside ``out`` (call it under :func:`folder_lock`).
+
+    ``.NAME.partial-*`` folders are unfinished results: removed. ``.NAME.old-*`` is an
+    earlier result moved aside while a new one was put in place: put back when ``out`` is
+    missing (a kill between the two renames), else removed. Says what it did on stderr.
+    """
+    done = []
+    for p in sorted(out.parent.glob(f".{out.name}{PARTIAL_TAG}*")):
+        shutil.rmtree(p, ignore_errors=True)
+        done.append(f"removed {p.name}/, an unfinished result left by an interrupted run")
+    for p in sorted(out.parent.glob(f".{out.name}.old-*")):
+        if not out.exists():
+            os.rename(p, out)
+            done.append(f"restored {out}/ from {p.name}/ (a run was killed while replacing "
+                        "it)")
+        else:
+            shutil.rmtree(p, ignore_errors=True)
+            done.append(f"removed {p.name}/, a replaced result a killed run had not yet "
+                        "deleted")
+    for msg in done:
+        print(f"note: {msg}", file=sys.stderr)
+    return done
+
+
+class InterruptGuard:
+    """While started, Ctrl-C (SIGINT) is recorded instead of raised.
+
+    Use it from the moment the work is done until its results are in place, then
+    :meth:`stop`: :attr:`hit` says whether the user asked to stop meanwhile. A guard
+    started outside the main thread does nothing (signals go to the main thread).
+    """
+
+    def __init__(self) -> None:
+        self.hit = 0
+        self._old = None
+        self._on = False
+
+    def _handler(self, signum, frame) -> None:
+        self.hit += 1
+
+    def start(self) -> InterruptGuard:
+        if not self._on and threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGINT, self._handler)
+            self._on = True
+        return self
+
+    def stop(self) -> int:
+        if self._on:
+            signal.signal(signal.SIGINT, self._old)
+            self._on = False
+        return self.hit
+
+    def __enter__(self) -> InterruptGuard:
+        return self  # ``with guard:`` only makes sure it is stopped at the block's end
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
 
 
 def _move_into_place(tmp: Path, out: Path, force: bool, flag: str) -> None:
@@ -181,8 +353,8 @@ def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False
         raise OutputError(f"{flag} {p}: the file exists; choose another {flag} or pass "
                           "--force to overwrite it")
     if not os.access(folder, os.W_OK):
-        raise OutputError(f"{flag} {p}: the folder {folder}/ is not writable; choose "
-                          f"another {flag}")
+        raise EnvironmentFailure(f"{flag} {p}: the folder {folder}/ is not writable (permission"
+                                 f" denied); make it writable or choose another {flag}")
     return p
 
 

@@ -5,12 +5,23 @@
 files), data files, free parameters, channels, weights, the full parameter set and the
 parent fit it started from.  :func:`load_fit` rebuilds it; ``diagnose``, ``compare`` and
 ``sample`` start from there.
+
+* Data files are recorded by absolute path, by a path relative to the fit folder and by
+  SHA-256, so a fit folder works from any working folder, and a project folder moved whole
+  (data and results together) still finds its data.
+* Effect files are code.  A fit records the SHA-256 of every user effect file it ran;
+  opening the folder again (``compare``, ``diagnose``, ``sample``, ``identify``, ``fit
+  --p0``) refuses to import an effect file that is gone or has changed since, unless the
+  user says ``--trust-effects`` (:func:`check_effect_files`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,14 +50,14 @@ class LoadedFit:
         p = self.doc.get("parent")
         return Path(p) if p else None
 
-    def chain(self) -> list[LoadedFit]:
+    def chain(self, *, trust_effects: bool = False) -> list[LoadedFit]:
         """This fit and its ancestors (``--p0`` fit folders), oldest first."""
         out, seen, cur = [self], {self.folder.resolve()}, self
         while cur.parent is not None and (cur.parent / "fit.json").exists():
             if cur.parent.resolve() in seen:
                 break
             seen.add(cur.parent.resolve())
-            cur = load_fit(cur.parent)
+            cur = load_fit(cur.parent, trust_effects=trust_effects)
             out.append(cur)
         return out[::-1]
 
@@ -61,27 +72,120 @@ def fit_json_path(spec: str | Path) -> Path:
     return p
 
 
-def load_fit(spec: str | Path) -> LoadedFit:
-    """Rebuild the problem and the fitted point of a fit folder (or its fit.json)."""
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+TRUST_HINT = ("effect files are Python code that runs when a result is opened: read the file, "
+              "and only if you trust it pass --trust-effects (or fit again)")
+
+
+def check_effect_files(doc: dict, where: Path, trust: bool = False) -> list[str]:
+    """The ``added_effects`` of a fit.json, with user effect files checked before any import.
+
+    Each ``FILE.py:NAME`` must exist and have the SHA-256 the fit recorded; otherwise
+    :class:`ResultError` (a changed or unrecorded file is accepted with ``trust``, with a
+    warning on stderr). Relative paths of older results are tried from the working folder
+    and from the fit folder. Returns the specs to build the model from.
+    """
+    recorded = doc.get("effect_files") or {}
+    if not isinstance(recorded, dict):
+        recorded = {}
+    out = []
+    for spec in doc.get("added_effects", []):
+        if not isinstance(spec, str):
+            raise ResultError(f"{where}: added_effects holds {spec!r}, not an effect name")
+        path_s, sep, name = spec.rpartition(":")
+        if not (sep and path_s.endswith(".py")):
+            out.append(spec)
+            continue
+        p = Path(path_s)
+        if not p.is_absolute() and not p.is_file():
+            p = where.parent / p
+        if not p.is_file():
+            raise ResultError(f"{where}: its effect file {path_s} is gone; restore it (the fit "
+                              "cannot be rebuilt without it) or fit again")
+        sha = file_sha256(p)
+        then = recorded.get(path_s) or recorded.get(str(p.resolve()))
+        if then != sha:
+            what = ("changed since the fit" if then else
+                    "has no SHA-256 recorded with the result (an older rotorbayes, or not "
+                    "written by rotorbayes)")
+            if not trust:
+                raise ResultError(f"{where}: the effect file {p} {what}; {TRUST_HINT}")
+            print(f"warning: {where}: the effect file {p} {what}; importing it because of "
+                  "--trust-effects", file=sys.stderr)
+        out.append(f"{p.resolve()}:{name}")
+    return out
+
+
+def data_path(spec: str, doc: dict, index: int, key: str, fit_json: Path) -> Path:
+    """Find a data file of a fit: as recorded (absolute), relative to the fit folder, then
+    relative to the working folder; ResultError naming the places tried."""
+    tried = [Path(spec)]
+    rel = None
+    with_meta = doc.get(f"{key}_files")
+    if isinstance(with_meta, list) and index < len(with_meta) and isinstance(
+            with_meta[index], dict):
+        rel = with_meta[index].get("relative")
+    if isinstance(rel, str):
+        tried.append(fit_json.parent / rel)
+    if not Path(spec).is_absolute():
+        tried.append(fit_json.parent / spec)
+    for p in tried:
+        if p.is_file():
+            return p
+    places = ", ".join(dict.fromkeys(str(p) for p in tried))
+    raise ResultError(f"{fit_json}: its data file {spec} is gone (looked for {places}); "
+                      "restore it or fit again")
+
+
+def data_record(paths: list, fit_folder: Path) -> list[dict]:
+    """What a fit records of its data files: absolute path, path relative to the fit
+    folder, SHA-256."""
+    out = []
+    for p in paths:
+        ap = Path(p).absolute()
+        out.append({"path": str(ap), "relative": os.path.relpath(ap, fit_folder.absolute()),
+                    "sha256": file_sha256(ap)})
+    return out
+
+
+def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
+    """Rebuild the problem and the fitted point of a fit folder (or its fit.json).
+
+    User effect files are checked first (:func:`check_effect_files`).
+    """
     from .inference import Problem
 
     path = fit_json_path(spec)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise ResultError(f"{path}: cannot read it ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ResultError(f"{path}: not a fit written by `rotorbayes fit` (not a JSON object)")
     need = ("config", "data", "free", "params", "estimates", "channels")
     missing = [k for k in need if k not in doc]
     if missing:
         raise ResultError(f"{path}: lacks {', '.join(missing)}; it was written by an older "
                           "rotorbayes: fit again to make a folder this version can read")
     config = doc["config"]
+    if config not in CONFIGURATIONS:
+        raise ResultError(f"{path}: config {config!r} is not a configuration of the rig")
     base_on = set(CONFIGURATIONS[config].base_effects)
     without = sorted(base_on - set(doc.get("effects", [])))
-    model = Model(config, doc.get("added_effects", []), without=without,
+    added = check_effect_files(doc, path, trust_effects)
+    model = Model(config, added, without=without,
                   prescribed_upper=bool(doc.get("prescribed_upper", False)))
-    exps = [_load(p, config, path) for p in doc["data"]]
-    val = [_load(p, config, path) for p in doc.get("validation", [])]
+    exps = [_load(data_path(p, doc, i, "data", path), config)
+            for i, p in enumerate(doc["data"])]
+    val = [_load(data_path(p, doc, i, "validation", path), config)
+           for i, p in enumerate(doc.get("validation", []))]
     base = {k: (math.nan if v is None else float(v)) for k, v in doc["params"].items()}
     names_base: list[str] = []
     for n in doc["free"]:
@@ -94,9 +198,7 @@ def load_fit(spec: str | Path) -> LoadedFit:
     return LoadedFit(path.parent, doc, prob, x, val)
 
 
-def _load(p: str, config: str, where: Path):
-    if not Path(p).exists():
-        raise ResultError(f"{where}: its data file {p} is gone; restore it or fit again")
+def _load(p: Path, config: str):
     return load_experiment(p, expect_lower=config != "upper")
 
 

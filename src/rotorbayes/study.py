@@ -271,16 +271,68 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
     ``force`` reruns every stage even if its inputs are unchanged.
     """
     from .cli import build_parser
+    from .outputs import clean_stale, folder_lock
 
     a = load_analysis(path)
     out = Path(out) if out is not None else a.out
-    out.mkdir(parents=True, exist_ok=True)
+    _check_out(a, out, force)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        from .exitcodes import EnvironmentFailure, describe_environment
+
+        raise EnvironmentFailure(f"{a.path}: [analysis] out: cannot create {out.parent} ("
+                                 f"{describe_environment(exc, '')})") from None
+    with folder_lock(out, flag=f"{a.path}: [analysis] out ="):
+        _check_out(a, out, force)  # again, under the lock
+        clean_stale(out)
+        return _run_locked(a, path, out, quiet=quiet, force=force,
+                           build_parser=build_parser)
+
+
+def _owner_matches(a: Analysis, out: Path) -> tuple[bool, str]:
+    """Whether ``out/run.json`` was written by this analysis (the same file, or the same
+    text), and what wrote it, in words."""
+    try:
+        rec = json.loads((out / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False, "an unreadable run.json"
+    if not isinstance(rec, dict):
+        return False, "a run.json that is not a study's record"
+    same_file = rec.get("analysis_file") == str(a.path.resolve())
+    same_text = rec.get("analysis_text") == a.text
+    return same_file or same_text, f"the analysis {rec.get('analysis_file')!r}"
+
+
+def _check_out(a: Analysis, out: Path, force: bool) -> None:
+    """Refuse an output folder that holds anything but this analysis's own earlier run
+    (recognised by its run.json), unless ``force``."""
+    if out.exists() and not out.is_dir():
+        raise AnalysisError(f"{a.path}: [analysis] out = {str(out)!r} is a file, not a "
+                            "folder; name a new folder")
+    if force or not out.is_dir() or not any(out.iterdir()):
+        return
+    if not (out / "run.json").exists():
+        raise AnalysisError(
+            f"{a.path}: [analysis] out: {out}/ already holds files that no study wrote (no "
+            "run.json); choose another out, or pass --force to write the study into it "
+            "(its fit0/, posterior/, ... folders would be replaced)")
+    ok, who = _owner_matches(a, out)
+    if not ok:
+        raise AnalysisError(
+            f"{a.path}: [analysis] out: {out}/ holds the results of another analysis "
+            f"({who}); choose another out, or pass --force to replace them")
+
+
+def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool,
+                build_parser) -> dict:
+    out.mkdir(exist_ok=True)
     record_path = out / "run.json"
     old = {}
     if record_path.exists() and not force:
         try:
             old = {s["name"]: s for s in json.loads(record_path.read_text()).get("stages", [])}
-        except (OSError, ValueError, KeyError):
+        except Exception:  # noqa: BLE001 - an unreadable record: every stage runs again
             old = {}
     an = a.table("analysis")
     data = [a.resolve(f) for f in an["data"]]
@@ -294,7 +346,18 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
         "started": datetime.datetime.now().isoformat(timespec="seconds"),
     }
     parser = build_parser()
-    log = (out / "log.txt").open("a")
+    log = (out / "log.txt").open("a", encoding="utf-8")
+    try:
+        return _stages(a, path, out, record, record_path, old, parser, log, quiet, data, val,
+                       data_hashes, seed, an)
+    finally:
+        log.close()
+
+
+def _stages(a, path, out, record, record_path, old, parser, log, quiet, data, val,  # noqa: C901
+            data_hashes, seed, an) -> dict:
+    from .cli import Interrupted
+
     tee = _Tee(log, None if quiet else sys.stdout)
     print(f"\n==== rotorbayes run {path} ({record['started']})", file=tee)
 
@@ -308,8 +371,18 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
         print(f"\n---- {name}: rotorbayes {' '.join(argv)}", file=tee, flush=True)
         t0 = time.perf_counter()
         args = parser.parse_args(argv)
-        with contextlib.redirect_stdout(tee):
-            code = args.func(args)
+        args._argv = argv
+        try:
+            with contextlib.redirect_stdout(tee):
+                code = args.func(args)
+        except (KeyboardInterrupt, Interrupted) as exc:
+            kept = [s["name"] for s in record["stages"]]
+            said = f" ({exc})" if isinstance(exc, Interrupted) else ""
+            raise Interrupted(
+                f"interrupted (Ctrl-C) in stage {name}{said}. The stages finished before it "
+                f"are kept in {out}/ ({', '.join(kept) or 'none'}; run.json records them); "
+                f"run the same command again to go on: unchanged finished stages are "
+                "skipped") from None
         sec = time.perf_counter() - t0
         record["stages"].append({"name": name, "folder": str(folder), "seconds": sec,
                                  "input_hash": h, "skipped": False, "exit_code": code})
@@ -323,6 +396,11 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
 
     base = "\n".join(json.dumps(a.table(t), sort_keys=True) for t in ("analysis", "fit"))
     base += json.dumps(data_hashes)
+    # A user effect file is part of the model: a changed file reruns the fits.
+    effect_files = sorted({a.resolve(e).rpartition(":")[0] for e in
+                           a.table("fit").get("effects", []) if ".py:" in e})
+    record["effect_files"] = {f: _file_sha(f) for f in effect_files}
+    base += json.dumps(record["effect_files"], sort_keys=True)
     fit_t = a.table("fit")
     fit_args = ["--model", an["config"], *data]
     for v in val:
@@ -373,7 +451,7 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
             argv.append("--ar1")
         if a.table("priors"):
             pri = out / "priors.toml"
-            pri.write_text("[priors]\n" + "".join(
+            write_text_atomic(pri, "[priors]\n" + "".join(
                 f"{n} = {{ {', '.join(f'{k} = {json.dumps(v)}' for k, v in spec.items())} }}\n"
                 for n, spec in a.table("priors").items()))
             argv += ["--priors", str(pri)]
@@ -409,7 +487,6 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
             record["report"] = str(rp)
             _write_record(record_path, record)
             print(f"\nreport: {rp}", file=tee)
-    log.close()
     return record
 
 

@@ -10,19 +10,28 @@
   walkers of one ensemble are not independent chains (each move uses the others), so R-hat
   across walkers would mean little.  Burn-in and thinning come from the integrated
   autocorrelation time τ; convergence asks N > 50 τ for every parameter.
+* A checkpoint is checked before it is continued (:func:`check_checkpoint`): an empty,
+  truncated or overwritten ``chain.h5``, or one made with other walkers or coordinates, is
+  refused (:class:`CheckpointError`), never silently restarted.
+* ``should_stop`` (Ctrl-C, recorded by the caller) ends a run between two steps, after the
+  step is saved (:class:`SamplingStopped`); a disk that is nearly full ends it the same way
+  before HDF5 fails mid-write (:class:`~rotorbayes.exitcodes.EnvironmentFailure`).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import emcee
 import numpy as np
 
+from ..exitcodes import EnvironmentFailure
 from ..outputs import write_text_atomic
 from .likelihood import LogPosterior
 
@@ -42,6 +51,102 @@ def _backend(path: Path, name: str) -> emcee.backends.HDFBackend:
     return emcee.backends.HDFBackend(str(path), name=name)
 
 
+class CheckpointError(ValueError):
+    """``chain.h5`` is damaged or belongs to another run; the message says what to do."""
+
+
+class SamplingStopped(Exception):
+    """A run ended between two steps on request; every finished step is saved."""
+
+    def __init__(self, ensemble: str, step: int, total: int):
+        super().__init__(f"{ensemble} stopped after step {step} of {total}")
+        self.ensemble, self.step, self.total = ensemble, step, total
+
+
+def chain_bytes(n_walkers: int, ndim: int, n_steps: int, n_ensembles: int) -> int:
+    """About what ``chain.h5`` grows to (chain and log-probability in float64)."""
+    return int(8 * n_walkers * (ndim + 1) * n_steps * n_ensembles * 1.1) + 200_000
+
+
+def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
+                     n_ensembles: int) -> dict[str, int]:
+    """The steps each ensemble of ``path`` holds, after checking it can be continued.
+
+    A missing file holds nothing (a run killed before its first step). Raises
+    :class:`CheckpointError` for an empty, unreadable, truncated or foreign file.
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.exists():
+        return {}
+    fix = (f"--resume cannot continue it (its finished steps cannot be trusted). Keep it for "
+           f"inspection by moving it away; to start the sampling again from step 0, delete "
+           f"{path} and run --resume again, or run `rotorbayes sample FIT --out "
+           f"{path.parent} --force`")
+    size = path.stat().st_size
+    if size == 0:
+        raise CheckpointError(f"{path}: the checkpoint is empty (0 bytes): damaged; {fix}")
+    steps: dict[str, int] = {}
+    try:
+        with h5py.File(path, "r") as f:
+            for e in range(n_ensembles):
+                name = f"ensemble{e}"
+                if name not in f:
+                    continue  # killed before this ensemble began: it starts at step 0
+                g = f[name]
+                it = int(g.attrs["iteration"])
+                chain, logp = g["chain"], g["log_prob"]
+                if (int(g.attrs["nwalkers"]), int(g.attrs["ndim"])) != (n_walkers, ndim):
+                    raise CheckpointError(
+                        f"{path}: {name} holds {g.attrs['nwalkers']} walkers x "
+                        f"{g.attrs['ndim']} coordinates, but this run has {n_walkers} x "
+                        f"{ndim} (settings.json or the fit changed); {fix}")
+                if not 0 <= it <= chain.shape[0] or logp.shape[0] < it:
+                    raise CheckpointError(f"{path}: {name} says {it} steps but holds "
+                                          f"{chain.shape[0]}: damaged; {fix}")
+                for k in g.attrs:  # the random state: a write cut short shows here
+                    np.asarray(g.attrs[k])
+                np.asarray(g["accepted"][:])
+                if it:
+                    c = np.asarray(chain[it - 1])  # reading the data finds a truncation
+                    lp = np.asarray(logp[:it])
+                    np.asarray(chain[:it])
+                    if not np.all(np.isfinite(c)) or np.isnan(lp).any():
+                        raise CheckpointError(f"{path}: {name} holds non-numbers in its "
+                                              f"last step: damaged; {fix}")
+                    if not any(k.startswith("random_state_") for k in g.attrs):
+                        raise CheckpointError(f"{path}: {name} lacks the random state: "
+                                              f"damaged; {fix}")
+                steps[name] = it
+    except CheckpointError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - h5py raises OSError, KeyError, ValueError...
+        first = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
+        raise CheckpointError(f"{path}: cannot be read as a checkpoint ({first}): damaged "
+                              f"(truncated or overwritten?); {fix}") from None
+    return steps
+
+
+def steps_held(path: Path) -> int:
+    """The steps all ensembles of ``path`` hold (0 when absent or unreadable)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return sum(int(g.attrs.get("iteration", 0)) for g in f.values())
+    except Exception:  # noqa: BLE001 - absent or damaged: nothing usable
+        return 0
+
+
+def _free_bytes(folder: Path) -> float:
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return math.inf
+    return st.f_bavail * st.f_frsize if st.f_blocks > 0 else math.inf
+
+
 def run_ensemble(
     logpost: LogPosterior,
     path: Path | None,
@@ -52,23 +157,21 @@ def run_ensemble(
     x_fit=None,
     seed: int = 0,
     progress: bool = True,
+    done: int = 0,
+    should_stop: Callable[[], bool] | None = None,
 ) -> int:
     """Run (or continue) one ensemble until its HDF5 group holds ``n_steps`` steps.
 
-    Returns the number of steps taken in this call.  A group that already holds steps is
-    continued from its last state and random state (``--resume``).
+    ``done`` is the number of steps the group already holds (see :func:`check_checkpoint`);
+    such a group is continued from its last state and random state (``--resume``). Returns
+    the number of steps taken in this call. ``should_stop`` is asked after every saved step;
+    when it says yes, :class:`SamplingStopped` is raised.
     """
     backend = _backend(path, name) if path is not None else emcee.backends.Backend()
-    done = 0
-    if path is not None and path.exists():
-        try:
-            done = backend.iteration
-        except (KeyError, OSError):
-            done = 0
     if done >= n_steps:
         return 0
     if done == 0:
-        if path is not None and path.exists():
+        if path is not None:
             backend.reset(n_walkers, logpost.ndim)
         rng = np.random.default_rng(seed)
         p0 = logpost.start_ball(x_fit, n_walkers, rng)
@@ -78,7 +181,20 @@ def run_ensemble(
         state = None  # emcee continues from the backend's last sample and random state
     sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
                                     backend=backend)
-    sampler.run_mcmc(state, n_steps - done, progress=progress, store=True)
+    if state is None:
+        state = sampler._previous_state
+    # Room for ten more steps, so HDF5 never meets a full disk in the middle of a write.
+    step_bytes = 8 * n_walkers * (logpost.ndim + 1) * 10 + 100_000
+    k = done
+    for _ in sampler.sample(state, iterations=n_steps - done, progress=progress, store=True):
+        k += 1  # emcee has saved the step before it yields it
+        if path is not None and k < n_steps and _free_bytes(path.parent) < step_bytes:
+            raise EnvironmentFailure(
+                f"{path.parent}: the disk is nearly full; sampling stopped after step {k} of "
+                f"{n_steps} of {name} and every finished step is kept in {path}. Free some "
+                f"space and continue with `rotorbayes sample {path.parent} --resume`")
+        if should_stop is not None and k < n_steps and should_stop():
+            raise SamplingStopped(name, k, n_steps)
     if path is None:
         return _run_of(backend, name)
     return n_steps - done
@@ -143,9 +259,14 @@ def sample(
     n_ensembles: int = 2,
     seed: int = 0,
     progress: bool = True,
+    should_stop: Callable[[], bool] | None = None,
 ) -> list[EnsembleRun]:
     """Run (or continue) ``n_ensembles`` ensembles into ``folder/chain.h5`` (in memory,
-    without checkpoints, when ``folder`` is None)."""
+    without checkpoints, when ``folder`` is None).
+
+    An existing ``chain.h5`` is checked first (:func:`check_checkpoint`; a damaged one
+    raises :class:`CheckpointError`); ``should_stop`` see :func:`run_ensemble`.
+    """
     if folder is None:
         return [run_ensemble(logpost, None, f"ensemble{e}", n_walkers=n_walkers,
                              n_steps=n_steps, x_fit=x_fit, seed=seed + 1000 * e,
@@ -153,11 +274,15 @@ def sample(
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "chain.h5"
+    held = check_checkpoint(path, n_walkers=n_walkers, ndim=logpost.ndim,
+                            n_ensembles=n_ensembles)
     for e in range(n_ensembles):
         t0 = time.perf_counter()
-        taken = run_ensemble(logpost, path, f"ensemble{e}", n_walkers=n_walkers,
+        name = f"ensemble{e}"
+        taken = run_ensemble(logpost, path, name, n_walkers=n_walkers,
                              n_steps=n_steps, x_fit=x_fit, seed=seed + 1000 * e,
-                             progress=progress)
+                             progress=progress, done=held.get(name, 0),
+                             should_stop=should_stop)
         if progress and taken:
             print(f"ensemble {e}: {taken} steps in {time.perf_counter() - t0:.1f} s",
                   flush=True)

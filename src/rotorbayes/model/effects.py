@@ -290,15 +290,25 @@ def typical_start(effect: Effect, values: dict[str, float]) -> dict[str, float]:
 
 
 _LOADED: dict[tuple[str, str], Effect] = {}
+#: SHA-256 of each effect file as it was imported (results record it; see file_sha256).
+_FILE_SHA: dict[str, str] = {}
+
+
+def file_sha256(path: str | Path) -> str | None:
+    """The SHA-256 of an effect file as this process imported it (None if not imported)."""
+    return _FILE_SHA.get(str(Path(path).expanduser().resolve()))
 
 
 def load_user_effect(spec: str) -> Effect:
     """Import a user effect from ``'path/to/file.py:NAME'``.
 
     The file is the user's own Python code, imported like a configuration file (nothing
-    is unpickled); ``NAME`` must be an :class:`Effect` with a ``torque`` and/or
-    ``friction_shift`` function.  The functions are compiled by numba when a model uses
-    them (see :mod:`rotorbayes.model.configurations`).
+    is unpickled) -- it runs, so an effect file, like a script, must come from someone you
+    trust.  ``NAME`` is the variable holding an :class:`Effect` with a ``torque`` and/or
+    ``friction_shift`` function (or, when no variable has that name, the effect whose
+    ``name`` it is).  The functions are compiled by numba when a model uses them (see
+    :mod:`rotorbayes.model.configurations`).  The effect's ``source`` is the file's
+    absolute path; the SHA-256 of the bytes that were run is kept (:func:`file_sha256`).
     """
     path_s, sep, name = spec.rpartition(":")
     if not sep or not path_s.endswith(".py") or not name:
@@ -313,17 +323,28 @@ def load_user_effect(spec: str) -> Effect:
     if mod_name in sys.modules:
         module = sys.modules[mod_name]
     else:
+        try:
+            code_bytes = path.read_bytes()
+        except OSError as exc:
+            raise EffectError(f"{path_s}: cannot read the effect file ({exc.strerror})"
+                              ) from None
         spec_obj = importlib.util.spec_from_file_location(mod_name, path)
         module = importlib.util.module_from_spec(spec_obj)
         sys.modules[mod_name] = module
         try:
-            spec_obj.loader.exec_module(module)
+            # Run exactly the bytes that are hashed (not a second read of the file).
+            exec(compile(code_bytes, str(path), "exec"), module.__dict__)  # noqa: S102
         except Exception as exc:
             del sys.modules[mod_name]
             raise EffectError(
                 f"{path_s}: importing the effect file failed: {type(exc).__name__}: {exc}"
             ) from None
+        _FILE_SHA[str(path)] = hashlib.sha256(code_bytes).hexdigest()
     eff = getattr(module, name, None)
+    if not isinstance(eff, Effect):
+        # A result records the effect's own name, which may differ from its variable's.
+        by_name = [v for v in vars(module).values() if isinstance(v, Effect) and v.name == name]
+        eff = by_name[0] if by_name else eff
     if eff is None:
         found = [k for k, v in vars(module).items() if isinstance(v, Effect)]
         raise EffectError(
@@ -345,7 +366,7 @@ def load_user_effect(spec: str) -> Effect:
             f"{path_s}:{name}: parameter name(s) {', '.join(clash)} are built-in parameters; "
             "choose other names"
         )
-    eff = Effect(**{**eff.__dict__, "source": f"{path_s}"})
+    eff = Effect(**{**eff.__dict__, "source": str(path)})
     _LOADED[key] = eff
     return eff
 

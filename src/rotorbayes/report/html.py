@@ -286,6 +286,17 @@ def _read_lines(path: Path) -> list[str]:
     return [ln.strip() for ln in path.read_text().splitlines() if ln.strip()]
 
 
+def _owned_data(fit, spec: str, sha: str) -> bool:
+    """Whether the report may read a data file a fit.json names: its SHA-256 is the one the
+    fit recorded, or (older fits record none) it is a .csv file."""
+    recorded = [d.get("sha256") for key in ("data_files", "validation_files")
+                for d in (fit.doc.get(key) or []) if isinstance(d, dict)
+                and d.get("path") == spec]
+    if recorded:
+        return sha in recorded
+    return str(spec).lower().endswith(".csv")
+
+
 def _data(f: Found) -> Raw | None:
     from ..data import load_experiment
 
@@ -314,17 +325,25 @@ def _data(f: Found) -> Raw | None:
             p = Path(spec)
         sha = hashes.get(str(p.resolve()))
         name = Raw(f"{esc(p.name)}<br>{_path(p.parent)}")
-        if not p.exists():
+        if not p.is_file():  # (a device such as /dev/zero is never read)
             rows.append([role, name, Raw('<span class="tag bad">file not found</span>'),
                          None, None, None, "", Raw(f'<span class="hash">{esc(sha or "")}'
                                                    "</span>")])
             continue
         if not sha:
             sha, computed = _sha256(p), True
+        owned = _owned_data(fit, spec, sha) if fit is not None else True
+        if not owned:
+            # A result folder may come from anyone: read only files the result vouches for.
+            rows.append([role, name, "not read: not the file the fit recorded (another "
+                         "SHA-256, or not a .csv file)", None, None, None, "",
+                         Raw(f'<span class="hash">{esc(sha)}</span>')])
+            continue
         try:
             ex = load_experiment(p, expect_lower=config != "upper")
-        except Exception as exc:  # noqa: BLE001 - shown in the table
-            rows.append([role, name, f"cannot read it: {exc}", None, None, None, "",
+        except Exception:  # noqa: BLE001 - said, never quoted (the file may not be ours)
+            rows.append([role, name, "unreadable as a measurement file (`rotorbayes fit` "
+                         "names the problem)", None, None, None, "",
                          Raw(f'<span class="hash">{esc(sha)}</span>')])
             continue
         dur = float(ex.t[-1] - ex.t[0])
@@ -765,7 +784,7 @@ def _reproducibility(f: Found) -> Raw:
             for spec in fit.doc.get("data", []) + fit.doc.get("validation", []):
                 p = Path(spec)
                 rows.append([spec, Raw(f'<span class="hash">{esc(_sha256(p))}</span>')
-                             if p.exists() else "file not found"])
+                             if p.is_file() else "file not found"])
             out.append(Raw("<h3>Data hashes (computed now)</h3>"))
             out.append(table(["file", "SHA-256"], rows))
     return Raw("".join(out))
@@ -832,6 +851,7 @@ def _page(found: Found, bodies: dict[str, Raw], absent: dict[str, str],
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
+        REPORT_MARK,  # `report --out` overwrites only files that carry it
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         # No request may leave the page: everything is inline or a data: URI.
         "<meta http-equiv=\"Content-Security-Policy\" content=\"default-src 'none'; "
@@ -852,20 +872,49 @@ def _page(found: Found, bodies: dict[str, Raw], absent: dict[str, str],
     return "\n".join(parts) + "\n"
 
 
+#: The tag that marks a page as a report this program wrote.
+REPORT_MARK = '<meta name="generator" content="rotorbayes report">'
+
+
+def is_our_report(path: Path) -> bool:
+    """Whether ``path`` is an HTML report written by rotorbayes (its first 4 kB say so)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096).decode("utf-8", errors="replace")
+    except OSError:
+        return False
+    return REPORT_MARK in head or ("<title>" in head and "rotorbayes" in head
+                                   and "Content-Security-Policy" in head)
+
+
 def write_report(folder: str | Path, out: str | Path | None = None, *,
-                 compact: bool = True) -> Report:
+                 compact: bool = True, force: bool = False) -> Report:
     """Render the report of ``folder`` and write it atomically to ``out`` (default
     ``folder/report.html``; a folder given as ``out`` gets ``report.html`` inside)."""
-    rep = render_report(folder, compact=compact)
     path = Path(out) if out is not None else Path(folder) / "report.html"
     if path.is_dir():
         path = path / "report.html"
-    if not path.parent.is_dir():
-        raise ReportError(f"{path}: its folder {path.parent} does not exist; create it or "
-                          "choose another --out")
+    _check_report_path(path, force)
+    rep = render_report(folder, compact=compact)
+    _check_report_path(path, force)  # again: it may have appeared meanwhile
     write_text_atomic(path, rep.html)
     rep.path = path
     return rep
+
+
+def _check_report_path(path: Path, force: bool) -> None:
+    """Refuse a report file name that is not .html, or a file that is not our report."""
+    if not path.parent.is_dir():
+        raise ReportError(f"{path}: its folder {path.parent} does not exist; create it or "
+                          "choose another --out")
+    if path.suffix.lower() not in (".html", ".htm"):
+        raise ReportError(f"--out {path}: a report is an HTML file; give a name ending in "
+                          ".html (e.g. --out {path.with_suffix('.html')})")
+    if path.exists() and not path.is_file():
+        raise ReportError(f"--out {path}: is not a regular file; choose another --out")
+    if path.exists() and not force and not is_our_report(path):
+        raise ReportError(f"--out {path}: the file exists and is not a report written by "
+                          "rotorbayes; choose another --out, or pass --force to replace it")
 
 
 def build_report(folder: str | Path, out: str | Path | None = None, *,
