@@ -179,6 +179,8 @@ def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -
             else:
                 line += " — | — |"
         lines.append(line)
+    lines.append("")
+    lines.append(ESS_NOTE)
     if honest:
         lines.append("")
         lines.append(
@@ -190,6 +192,16 @@ def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -
         if assumptions:
             lines.append(f"The intervals assume: {assumptions}.")
     return "\n".join(lines)
+
+
+#: Why the two ESS columns differ (printed under the table).
+ESS_NOTE = (
+    "The two ESS columns count different things. ESS (arviz bulk) is arviz's rank-normalised "
+    "effective sample size of the draws kept in posterior.nc (at most --max-draws per "
+    "ensemble, thinned), so it can never exceed their number. ESS (walkers × steps / τ) is "
+    "emcee's: every post-burn-in step of every walker divided by the integrated "
+    "autocorrelation time τ, summed over the ensembles. The second is the one to compare "
+    "with the 50 τ rule; the first says how well posterior.nc alone represents the posterior.")
 
 
 def _hdi_fmt(lo: float, hi: float) -> str:
