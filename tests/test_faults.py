@@ -626,3 +626,26 @@ def test_absurd_numbers_in_a_csv_are_named_as_such(tmp_path):
         with pytest.raises(DataFileError, match=needle) as exc:
             load_experiment(f, expect_lower=False)
         assert "degrees" not in str(exc.value) and "line 6" in str(exc.value)
+
+
+@pytest.mark.parametrize("change", ['d["data"] = 5', 'd["free"] = [1]', 'd["estimates"] = {}',
+                                    'd["params"] = {"k_m": "x"}', 'd["config"] = [1]',
+                                    'd["channels"] = 7', 'd["data"] = ["/dev/zero"]',
+                                    'd["estimates"]["k_m"]["value"] = "y"'])
+def test_a_damaged_fit_json_is_refused_with_its_name(proj, tmp_path, change, capsys):
+    fit = tmp_path / "H"
+    shutil.copytree(proj / "fit", fit)
+    d = json.loads((fit / "fit.json").read_text())
+    exec(change, {"d": d})  # noqa: S102 - the damage, written as it reads
+    (fit / "fit.json").write_text(json.dumps(d))
+    assert main(["compare", str(fit), "--out", str(tmp_path / "c")]) == EXIT.REFUSED
+    err = capsys.readouterr().err
+    assert "fit.json" in err and "Traceback" not in err, err
+    assert not (tmp_path / "c").exists()
+
+
+def test_an_input_file_with_an_absurd_voltage_is_refused(tmp_path, capsys):
+    f = tmp_path / "in.csv"
+    f.write_text("t,u\n0,0\n0.001,1e300\n0.002,0\n0.003,0\n")
+    assert main(["simulate", "--input-file", str(f), "--out", str(tmp_path / "s.csv")]) == 2
+    assert "line 3: u is 1e+300 V" in capsys.readouterr().err

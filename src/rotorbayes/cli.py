@@ -231,6 +231,13 @@ def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
         if bad.size:
             raise CLIError(f"{p}, line {rows[bad[0]]}: {name} is {col[bad[0]]!r}; every value "
                            "must be a finite number")
+    from .data import MAX_ABS_INPUT
+
+    bad = np.flatnonzero(np.abs(u) > MAX_ABS_INPUT)
+    if bad.size:
+        raise CLIError(f"{p}, line {rows[bad[0]]}: u is {float(u[bad[0]])!r} V: no amplifier of the "
+                       f"rig gives more than {MAX_ABS_INPUT:g} V; the value is corrupt or not "
+                       "in volts -- repair the file")
     d = np.diff(t)
     bad = np.flatnonzero(d <= 0)
     if bad.size:

@@ -174,8 +174,16 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
     if missing:
         raise ResultError(f"{path}: lacks {', '.join(missing)}; it was written by an older "
                           "rotorbayes: fit again to make a folder this version can read")
+    shapes = {"data": list, "validation": list, "free": list, "channels": list,
+              "params": dict, "estimates": dict, "effects": list, "added_effects": list}
+    bad = [k for k, t in shapes.items() if k in doc and not isinstance(doc[k], t)]
+    bad += [k for k in ("data", "validation", "free", "channels", "added_effects")
+            if isinstance(doc.get(k), list) and not all(isinstance(v, str) for v in doc[k])]
+    if bad:
+        raise ResultError(f"{path}: {', '.join(sorted(set(bad)))} of the wrong type: damaged, or "
+                          "not written by `rotorbayes fit`; fit again")
     config = doc["config"]
-    if config not in CONFIGURATIONS:
+    if not isinstance(config, str) or config not in CONFIGURATIONS:
         raise ResultError(f"{path}: config {config!r} is not a configuration of the rig")
     base_on = set(CONFIGURATIONS[config].base_effects)
     without = sorted(base_on - set(doc.get("effects", [])))
@@ -186,15 +194,29 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
             for i, p in enumerate(doc["data"])]
     val = [_load(data_path(p, doc, i, "validation", path), config)
            for i, p in enumerate(doc.get("validation", []))]
-    base = {k: (math.nan if v is None else float(v)) for k, v in doc["params"].items()}
-    names_base: list[str] = []
-    for n in doc["free"]:
-        b = n.split("[")[0]
-        if b not in names_base:
-            names_base.append(b)
-    prob = Problem(model, exps, free=names_base, base=base,
-                   channels=tuple(doc["channels"]), weights=doc.get("weights"))
-    x = np.array([float(doc["estimates"][n]["value"]) for n in prob.names])
+    try:
+        base = {k: (math.nan if v is None else float(v)) for k, v in doc["params"].items()}
+    except (TypeError, ValueError) as exc:
+        raise ResultError(f"{path}: params holds a value that is not a number ({exc}): "
+                          "damaged, or not written by `rotorbayes fit`; fit again") from None
+    try:
+        names_base: list[str] = []
+        for n in doc["free"]:
+            b = n.split("[")[0]
+            if b not in names_base:
+                names_base.append(b)
+        prob = Problem(model, exps, free=names_base, base=base,
+                       channels=tuple(doc["channels"]), weights=doc.get("weights"))
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise ResultError(f"{path}: cannot rebuild the fit from it ({type(exc).__name__}: "
+                          f"{exc}): damaged, or written by another rotorbayes; fit again"
+                          ) from None
+    try:
+        x = np.array([float(doc["estimates"][n]["value"]) for n in prob.names])
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ResultError(f"{path}: estimates lack a number for a free parameter ("
+                          f"{type(exc).__name__}: {exc}): damaged, or written by another "
+                          "rotorbayes; fit again") from None
     return LoadedFit(path.parent, doc, prob, x, val)
 
 
