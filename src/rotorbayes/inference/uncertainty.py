@@ -19,7 +19,8 @@ fewer, and its standard errors come out 2–60× too small on stick-slip data.
   scores over contiguous :data:`BLOCK_SECONDS` blocks (both channels of a time window in one
   block): what errors correlated over a block do to the estimate, whatever their cause.  At
   the floor the residual *is* the noise, so this part is weighted by the share of the
-  residual's mean square above the floor, ``1 − floor²/RMS²``;
+  residual's mean square above the floor, ``1 − 1.05² floor²/RMS²`` (an RMS within 5 %
+  of the floor is noise);
 * **input hold** — the input between samples is a model too: the file holds samples, an
   amplifier holds or filters them, no file says which.  rotorbayes interpolates linearly;
   the same samples through a smooth (cubic-spline) interpolant move the estimate by
@@ -58,6 +59,9 @@ MIN_BLOCK_SECONDS = 0.2
 FAR_FROM_FLOOR = 3.0
 #: Upsampling factor of the smooth-input simulation of the input-hold allowance.
 HOLD_UPSAMPLE = 8
+#: Mean square of RMS/floor up to which the residual counts as noise alone (RMS 5 % above
+#: the floor: rounding while discs stick scatters the RMS that much around q/√12).
+NOISE_MS = 1.05**2
 #: Draws of the rounding simulation (:func:`rounding_covariance`).
 N_BOOT = 200
 
@@ -324,6 +328,10 @@ def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, fl
             # The phase moves the rounding pattern; the constant it would add is left out
             # (simulated data have none; a real rig's is at most half a count).
             err = quantize(sim + phi, cpr) - sim - phi
+            # Until a disc first leaves the count it started in, its encoder reads 0.
+            moved = np.abs(sim) >= q / 2
+            first = int(np.argmax(moved)) if moved.any() else n
+            err[:first] = -sim[:first]
             extra = floors[c] ** 2 - q * q / 12
             if extra > 0:
                 err = err + math.sqrt(extra) * rng.standard_normal(n)
@@ -416,7 +424,9 @@ def fit_uncertainty(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray | None 
     worst = max(ratios.values()) if ratios else math.nan
     # The floor's share of the residual's mean square (channels pooled, in floor units).
     ms = float(np.mean([v * v for v in ratios.values()])) if ratios else math.nan
-    noise_share = min(1.0, 1.0 / ms) if ms > 0 and math.isfinite(ms) else 1.0
+    # Rounding alone scatters the RMS a few per cent around the floor: an excess within
+    # NOISE_MS is noise, not model error.
+    noise_share = min(1.0, NOISE_MS / ms) if ms > 0 and math.isfinite(ms) else 1.0
     cov_round = None
     if rounding:
         cov_round = rounding_covariance(problem, x, J, r, floors, seed=seed)
