@@ -167,9 +167,12 @@ def test_sample_command_writes_inference_data(upper_fit, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_simulation_based_calibration_covers_the_truth_at_the_nominal_rates():
-    """SBC on the upper disc (k_m, b_u free; truth drawn from the prior; quantised data):
-    the 50 % and 90 % intervals cover the truth at their nominal rates within three
-    binomial standard deviations of the check itself, and the truth's ranks are uniform."""
+    """SBC where it is hard (issue 15): the brake configuration with stick-slip, a step-like
+    input whose levels are held 1-4 s, 6 s at 1 kHz, quantised; lower friction (Tc_l, b_l,
+    Ts_l) free, truth drawn from the prior.  With the default (robust) likelihood the 50 %
+    and 90 % posterior intervals cover the truth at their nominal rates within three
+    binomial standard deviations of the check itself, and the truth's ranks are uniform.
+    (The i.i.d. likelihood fails this on the same data: see analyses/sbc.py --noise floor.)"""
     import importlib.util
     from pathlib import Path
 
@@ -177,8 +180,9 @@ def test_simulation_based_calibration_covers_the_truth_at_the_nominal_rates():
     spec = importlib.util.spec_from_file_location("analyses_sbc", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    res = mod.main(["--datasets", "30", "--walkers", "10", "--steps", "300"])
-    for name in ("k_m", "b_u"):
+    res = mod.main(["--case", "brake", "--datasets", "20", "--walkers", "8",
+                    "--steps", "250"])
+    for name in ("Tc_l", "b_l", "Ts_l"):
         r = res[name]
         assert abs(r["cover50"] - 0.5) <= 3 * r["sd50"], r
         assert abs(r["cover90"] - 0.9) <= 3 * r["sd90"], r

@@ -191,8 +191,8 @@ def load_analysis(path: str | Path) -> Analysis:
         if c not in ("theta_u", "theta_l"):
             raise _err(p, "fit", f"channels: {c!r}; choose theta_u and/or theta_l")
     s = a.table("sample")
-    if "noise" in s and s["noise"] not in ("floor", "sampled"):
-        raise _err(p, "sample", f"noise = {s['noise']!r}; choose floor or sampled")
+    if "noise" in s and s["noise"] not in ("robust", "floor", "sampled"):
+        raise _err(p, "sample", f"noise = {s['noise']!r}; choose robust, floor or sampled")
     for k in ("walkers", "steps", "ensembles"):
         if k in s and s[k] < 1:
             raise _err(p, "sample", f"{k} = {s[k]} must be >= 1")
@@ -446,7 +446,7 @@ def _stages(a, path, out, record, record_path, old, parser, log, quiet, data, va
         argv = ["sample", str(fit), "--out", str(out / "posterior"), "--force",
                 "--walkers", str(s.get("walkers", 32)), "--steps", str(s.get("steps", 2000)),
                 "--ensembles", str(s.get("ensembles", 2)), "--seed", str(seed),
-                "--noise", s.get("noise", "floor")]
+                "--noise", s.get("noise", "robust")]
         if s.get("ar1"):
             argv.append("--ar1")
         if a.table("priors"):
