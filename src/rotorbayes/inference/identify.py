@@ -132,7 +132,7 @@ def profile(
                       channels=problem.channels, weights=problem.weights)
         start = sub.x_from({**base, **problem.values(x)})
         try:
-            r = fit(sub, start, parallel=False, max_nfev=max_nfev)
+            r = fit(sub, start, parallel=False, max_nfev=max_nfev, uncertainty=False)
         except Exception:  # noqa: BLE001 - an unsimulable grid point: no value
             return math.nan
         res = sub.residuals(r.x)
