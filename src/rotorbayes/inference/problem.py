@@ -119,7 +119,7 @@ class Problem:
     weights: Mapping[str, float] | None = None
     prescribed_upper: bool = False
     shape: str = "exp"
-    step: float = DEFAULT_STEP
+    step: float | None = DEFAULT_STEP
     fixed: Sequence[str] = ()
     names: list[str] = field(init=False)
 
@@ -418,17 +418,31 @@ class Problem:
             parts.append(self.weights[c] * (meas - sim))
         return np.concatenate(parts)
 
+    def _channel_columns(self, ex: Experiment, off: int):
+        """The kernel's residual-only arguments for experiment ``ex`` whose residuals start
+        at column ``off``: ``(measured, weight, column)`` for theta_u and theta_l, in the
+        order and with the weights of :meth:`_channel_residual` (``None`` if not fitted)."""
+        cols: dict[str, tuple | None] = {"theta_u": None, "theta_l": None}
+        for j, c in enumerate(self.channels):
+            meas = ex.theta_u if c == "theta_u" else ex.theta_l
+            cols[c] = (meas, self.weights[c], off + j * ex.n)
+        return cols["theta_u"], cols["theta_l"]
+
     def evaluate(self, x: np.ndarray) -> Evaluation:
-        """Residuals at ``x`` (``nan`` for failed experiments) and each status."""
-        out, status = [], []
+        """Residuals at ``x`` (``nan`` for failed experiments) and each status.
+
+        The kernel writes the weighted residuals straight into the vector (no simulated
+        angles are kept); the numbers are those of :meth:`_channel_residual` applied to
+        the simulated angles.
+        """
+        R = np.empty((1, self.n_residuals))
+        status = []
+        off = 0
         for i, (ex, sim) in enumerate(zip(self.experiments, self.sims, strict=True)):
-            st, thu, thl = sim.angles(sim.kernel_vector(self.params_for(x, i)))
-            status.append(st)
-            if st != _layout.OK:
-                out.append(np.full(ex.n * len(self.channels), np.nan))
-            else:
-                out.append(self._channel_residual(ex, thu, thl))
-        return Evaluation(np.concatenate(out), np.array(status))
+            kv = sim.kernel_vector(self.params_for(x, i))
+            status.append(sim.residuals_into(kv, R, 0, self._channel_columns(ex, off)))
+            off += ex.n * len(self.channels)
+        return Evaluation(R[0], np.array(status))
 
     def residuals(self, x: np.ndarray, *, penalty: float | None = None) -> np.ndarray:
         """Weighted residual vector [rad].
@@ -455,15 +469,9 @@ class Problem:
             vecs = [mdl.kernel_vectors(s[i]) for s in sets]
             P = np.array([v[0] for v in vecs])
             Q = np.array([v[1] for v in vecs]).reshape(m, -1)
-            st, thu, thl = sim.run_batch(P, Q)
-            k = ex.n * len(self.channels)
-            for j in range(m):
-                S[j, i] = st[j]
-                if st[j] != _layout.OK:
-                    R[j, off : off + k] = np.nan
-                else:
-                    R[j, off : off + k] = self._channel_residual(ex, thu[j], thl[j])
-            off += k
+            # Residuals straight from the kernel, every row in parallel (see evaluate).
+            S[:, i] = sim.residuals_batch_into(P, Q, R, self._channel_columns(ex, off))
+            off += ex.n * len(self.channels)
         return R, S
 
     def residuals_batch(self, X: np.ndarray, *, penalty: float | None = None) -> np.ndarray:

@@ -6,6 +6,13 @@ user) or a penalty / ``-inf`` (for least squares or a likelihood).
 """
 
 from .layout import NAMES, STATUS_MESSAGES
-from .solver import simulate_batch_into, simulate_into
+from .solver import residuals_batch_into, residuals_into, simulate_batch_into, simulate_into
 
-__all__ = ["NAMES", "STATUS_MESSAGES", "simulate_batch_into", "simulate_into"]
+__all__ = [
+    "NAMES",
+    "STATUS_MESSAGES",
+    "residuals_batch_into",
+    "residuals_into",
+    "simulate_batch_into",
+    "simulate_into",
+]

@@ -3,22 +3,26 @@
 Each disc is in one of three modes: slip in the positive direction (+1), slip in the
 negative direction (-1) or stick (0, velocity held at exactly zero, friction equal to the
 external torque).  Inside a mode the equations of motion are smooth, so they are integrated
-with the classical fourth-order Runge-Kutta method on a *fixed* grid aligned with the input
-samples.  A step ends early at
+with the classical fourth-order Runge-Kutta method on a *fixed* grid aligned with the
+(delayed) input samples: a step is an odd number of samples, so its middle stage falls
+halfway between two samples, and with an input delay the grid is shifted by the delay
+(:func:`rotorbayes.kernel.terms.grid_phase`), so the delayed samples and the end of the
+held start are step points too.  A step ends early at
 
 * an **event**, located inside the step by regula falsi on the Runge-Kutta map itself:
   slip -> zero velocity (``s * omega`` reaches 0; the disc sticks if its external torque
   lies in the static band, else it passes into the other direction), or stick -> slip
   (the external torque leaves the static band);
-* a **kink** of the effective input (a dead-zone edge, or a delayed sample time when the
-  step is one sample), found exactly by :func:`rotorbayes.kernel.terms.next_kink`; the
+* a **kink** of the effective input (a dead-zone edge), found exactly by
+  :func:`rotorbayes.kernel.terms.next_kink`; the
   step continues from there in the same mode, so every Runge-Kutta stage sees a smooth
   right-hand side.
 
 This is the limit of Leine's switch model as the stick band shrinks to zero.  Because the
-grid is fixed and every event or kink time is a root of a smooth function, the simulated
-angles are continuous (and piecewise smooth) in the parameters: no step-size controller
-introduces jitter that least squares or a sampler would see as noise.
+grid is fixed (moving only continuously with the delay) and every event or kink time is a
+root of a smooth function, the simulated angles are continuous (and piecewise smooth) in
+the parameters: no step-size controller introduces jitter that least squares or a sampler
+would see as noise.
 
 The physics lives in :mod:`rotorbayes.kernel.terms`; this module only integrates, locates
 and interpolates.  The kernel never raises: it returns a status code
@@ -46,6 +50,7 @@ from .terms import (
     derived,
     drive,
     effect_state_ok,
+    grid_phase,
     guards,
     has_kinks,
     modes_at_rest,
@@ -84,15 +89,19 @@ def _rk4(h, y, mu, ml, k1, dm, d1, m):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _hermite(s, h, ya, fa, yb, fb):
-    """Cubic Hermite interpolant at fraction ``s`` of a segment of length ``h``."""
-    s2 = s * s
-    s3 = s2 * s
-    h00 = 2.0 * s3 - 3.0 * s2 + 1.0
-    h10 = s3 - 2.0 * s2 + s
-    h01 = -2.0 * s3 + 3.0 * s2
-    h11 = s3 - s2
-    return h00 * ya + h * (h10 * fa + h11 * fb) + h01 * yb
+def _cubic(h, ya, fa, yb, fb):
+    """Coefficients (in powers of the fraction ``s``) of the cubic Hermite interpolant of
+    a segment of length ``h`` with values ``ya, yb`` and derivatives ``fa, fb``."""
+    ha = h * fa
+    hb = h * fb
+    dy = yb - ya
+    return ya, ha, 3.0 * dy - 2.0 * ha - hb, ha + hb - 2.0 * dy
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _horner(s, c):
+    """The cubic with coefficients ``c`` (from :func:`_cubic`) at fraction ``s``."""
+    return c[0] + s * (c[1] + s * (c[2] + s * c[3]))
 
 
 @njit(cache=True, error_model="numpy")
@@ -136,6 +145,193 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, u, thp):
                 fb *= 0.5
             side = 1
     return b
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _fail_residuals(r, row, col_u, col_l, n):
+    """A failed experiment: every residual of its channels is NaN."""
+    if col_u >= 0:
+        r[row, col_u : col_u + n] = np.nan
+    if col_l >= 0:
+        r[row, col_l : col_l + n] = np.nan
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _integrate(
+    p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    full, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+    meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
+):  # fmt: skip
+    """The solver: one experiment, either every output (``full``) or only residuals.
+
+    With ``full`` the angles, velocities and modes go to ``out_*`` and the first events to
+    ``events``.  Otherwise nothing but the residuals is written: ``r[row, col_u + k] =
+    w_u * (meas_u[k] - theta_u[k])`` (and the same for theta_l at ``col_l``; a column
+    below 0 skips the channel), from the very interpolant the full output uses, so both
+    paths give the same numbers.  A failed run writes NaN residuals.
+    """
+    n = u.shape[0]
+    bad = violations(p, cfg)
+    if bad.any() or substeps < 1 or stride < 1 or (stride > 1 and substeps > 1) or not dt > 0.0:
+        if full:
+            out_thu[:] = np.nan
+            out_wu[:] = np.nan
+            out_thl[:] = np.nan
+            out_wl[:] = np.nan
+        else:
+            _fail_residuals(r, row, col_u, col_l, n)
+        return BAD_PARAMETERS, 0
+    c = derived(p, dt)
+    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift)
+    max_ev = events.shape[0]
+    ratio = stride / substeps  # step length in samples
+    last = n - 1.0
+    # The step grid: every `ratio` samples, shifted by the input delay (grid_phase), so the
+    # delayed input's kinks -- its sample times and the end of its held start, t_delay --
+    # sit on the grid as the undelayed samples do; the middle stage of a step then falls
+    # halfway between two (delayed) samples.  Only dead-zone edges remain to be located
+    # inside a step (next_kink).
+    g = grid_phase(c, cfg, ratio)
+    jj = 0 if g > 1e-9 else 1
+    kinks = has_kinks(c)
+    y = (0.0, 0.0, 0.0, 0.0)
+    # The rig starts at rest; each disc sticks unless its torque breaks it loose.
+    d1 = drive(0.0, c, cfg, u, thp)
+    if cfg == CFG_PRESCRIBED:
+        y = (d1[2], d1[3], 0.0, 0.0)
+    mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], d1, m)
+    f = rhs(y[0], y[1], y[2], y[3], mu, ml, d1, m)
+    n_ev = 0
+    status = OK
+    if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], d1, m):
+        status = BAD_EFFECT
+    if full:
+        out_thu[0], out_wu[0], out_thl[0], out_wl[0] = y
+        out_mu[0], out_ml[0] = mu, ml
+    else:
+        if col_u >= 0:
+            r[row, col_u] = w_u * (meas_u[0] - y[0])
+        if col_l >= 0:
+            r[row, col_l] = w_l * (meas_l[0] - y[2])
+    kout = 1
+    t_end = 0.0
+    s_end = 0.0
+    while s_end < last:
+        if status != OK:
+            break
+        t = t_end
+        s_end = min(g + jj * ratio, last)
+        jj += 1
+        t_end = s_end * dt
+        n_step_ev = 0
+        while True:
+            t_tgt = next_kink(t, t_end, c, u) if kinks else t_end
+            rem = t_tgt - t
+            dm = drive(t + 0.5 * rem, c, cfg, u, thp)
+            d1 = drive(t_tgt, c, cfg, u, thp)
+            y1 = _rk4(rem, y, mu, ml, f, dm, d1, m)
+            gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
+            seg = rem
+            ok_step = gu1 >= 0.0 and gl1 >= 0.0
+            disc = -1
+            de = d1
+            if not ok_step:
+                # Locate the earliest event among the violated guards.
+                d0 = drive(t, c, cfg, u, thp)
+                gu0, gl0 = guards(y[0], y[1], y[2], y[3], mu, ml, d0, m)
+                for dsc in range(2):
+                    g1 = gu1 if dsc == 0 else gl1
+                    if g1 < 0.0:
+                        g0 = gu0 if dsc == 0 else gl0
+                        tl = _locate(t, rem, max(g0, 0.0), g1, dsc, y, mu, ml, f, m, u, thp)
+                        if disc < 0 or tl < seg:
+                            seg = tl
+                            disc = dsc
+                y1, de = _step_to(t, seg, y, mu, ml, f, m, u, thp)
+            fe = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, de, m)
+            t_seg = t + seg
+            if kout < n and kout * dt <= t_seg + 1e-9 * dt:
+                # Samples inside this single-mode segment, from its cubic Hermite
+                # interpolant (states and derivatives at both ends) in Horner form.
+                inv = 1.0 / seg if seg > 0.0 else 0.0
+                cu = _cubic(seg, y[0], f[0], y1[0], fe[0])
+                cl = _cubic(seg, y[2], f[2], y1[2], fe[2])
+                cwu = _cubic(seg, y[1], f[1], y1[1], fe[1])
+                cwl = _cubic(seg, y[3], f[3], y1[3], fe[3])
+                while kout < n and kout * dt <= t_seg + 1e-9 * dt:
+                    sfrac = (kout * dt - t) * inv if seg > 0.0 else 1.0
+                    if sfrac > 1.0:
+                        sfrac = 1.0
+                    if full:
+                        out_thu[kout] = _horner(sfrac, cu)
+                        out_wu[kout] = _horner(sfrac, cwu)
+                        out_thl[kout] = _horner(sfrac, cl)
+                        out_wl[kout] = _horner(sfrac, cwl)
+                        out_mu[kout], out_ml[kout] = mu, ml
+                    else:
+                        # The same interpolant as the full output, into the residual.
+                        if col_u >= 0:
+                            r[row, col_u + kout] = w_u * (meas_u[kout] - _horner(sfrac, cu))
+                        if col_l >= 0:
+                            r[row, col_l + kout] = w_l * (meas_l[kout] - _horner(sfrac, cl))
+                    kout += 1
+            y = y1
+            f = fe
+            if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], de, m):
+                status = BAD_EFFECT
+                break
+            t = t_seg
+            if ok_step:
+                if t_tgt >= t_end:
+                    break
+                continue  # a kink of the input: same modes, new segment
+            # Switch the disc whose guard fired: it is at zero velocity now.
+            if disc == 0:
+                y = (y[0], 0.0, y[2], y[3])
+            else:
+                y = (y[0], y[1], y[2], 0.0)
+            new_u, new_l = modes_at_rest(y[0], y[1], y[2], y[3], de, m)
+            if disc == 0:
+                mu = new_u
+                new = mu
+            else:
+                ml = new_l
+                new = ml
+            f = rhs(y[0], y[1], y[2], y[3], mu, ml, de, m)
+            if n_ev < max_ev:
+                events[n_ev, 0] = t
+                events[n_ev, 1] = disc
+                events[n_ev, 2] = new
+            n_ev += 1
+            n_step_ev += 1
+            if n_step_ev > _MAX_EVENTS_PER_STEP:
+                status = TOO_MANY_EVENTS
+                break
+            if t_end - t <= 1e-12 * dt:
+                break
+        if status == OK and not (
+            abs(y[1]) < _VMAX and abs(y[3]) < _VMAX and math.isfinite(y[0])
+            and math.isfinite(y[2])
+        ):  # fmt: skip
+            status = BLOW_UP
+        if status != OK:
+            break
+    if not full:
+        if status != OK:
+            _fail_residuals(r, row, col_u, col_l, n)
+        return status, n_ev
+    if status != OK:
+        out_thu[kout:] = np.nan
+        out_wu[kout:] = np.nan
+        out_thl[kout:] = np.nan
+        out_wl[kout:] = np.nan
+    elif cfg == CFG_PRESCRIBED:
+        out_thu[:] = thp
+        for k in range(n):
+            out_wu[k] = prescribed_velocity(k * dt, c, thp)
+    if cfg == CFG_UPPER:
+        out_thl[:] = 0.0 if status == OK else np.nan
+    return status, n_ev
 
 
 _F1 = types.float64[::1]
@@ -183,135 +379,44 @@ def simulate_into(
     -------
     status, n_events : int, int
     """
-    n = u.shape[0]
-    bad = violations(p, cfg)
-    if bad.any() or substeps < 1 or stride < 1 or (stride > 1 and substeps > 1) or not dt > 0.0:
-        out_thu[:] = np.nan
-        out_wu[:] = np.nan
-        out_thl[:] = np.nan
-        out_wl[:] = np.nan
-        return BAD_PARAMETERS, 0
-    c = derived(p, dt)
-    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift)
-    max_ev = events.shape[0]
-    ratio = stride / substeps  # step length in samples
-    n_steps = int(math.ceil((n - 1) / ratio - 1e-9))
-    # Kinks of the input inside a step: dead-zone edges always, delayed sample times when
-    # a step is one sample (with several samples per step they are as harmless as the
-    # undelayed ones, see docs/model.md).
-    split_delayed = stride == 1
-    kinks = has_kinks(c, split_delayed)
-    y = (0.0, 0.0, 0.0, 0.0)
-    # The rig starts at rest; each disc sticks unless its torque breaks it loose.
-    d1 = drive(0.0, c, cfg, u, thp)
-    if cfg == CFG_PRESCRIBED:
-        y = (d1[2], d1[3], 0.0, 0.0)
-    mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], d1, m)
-    f = rhs(y[0], y[1], y[2], y[3], mu, ml, d1, m)
-    n_ev = 0
-    status = OK
-    if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], d1, m):
-        status = BAD_EFFECT
-    out_thu[0], out_wu[0], out_thl[0], out_wl[0] = y
-    out_mu[0], out_ml[0] = mu, ml
-    kout = 1
-    t_end = 0.0
-    for j in range(n_steps):
-        if status != OK:
-            break
-        t = t_end
-        t_end = min((j + 1) * ratio, n - 1.0) * dt
-        n_step_ev = 0
-        while True:
-            t_tgt = next_kink(t, t_end, c, u, split_delayed) if kinks else t_end
-            rem = t_tgt - t
-            dm = drive(t + 0.5 * rem, c, cfg, u, thp)
-            d1 = drive(t_tgt, c, cfg, u, thp)
-            y1 = _rk4(rem, y, mu, ml, f, dm, d1, m)
-            gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
-            seg = rem
-            ok_step = gu1 >= 0.0 and gl1 >= 0.0
-            disc = -1
-            de = d1
-            if not ok_step:
-                # Locate the earliest event among the violated guards.
-                d0 = drive(t, c, cfg, u, thp)
-                gu0, gl0 = guards(y[0], y[1], y[2], y[3], mu, ml, d0, m)
-                for dsc in range(2):
-                    g1 = gu1 if dsc == 0 else gl1
-                    if g1 < 0.0:
-                        g0 = gu0 if dsc == 0 else gl0
-                        tl = _locate(t, rem, max(g0, 0.0), g1, dsc, y, mu, ml, f, m, u, thp)
-                        if disc < 0 or tl < seg:
-                            seg = tl
-                            disc = dsc
-                y1, de = _step_to(t, seg, y, mu, ml, f, m, u, thp)
-            fe = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, de, m)
-            # Samples inside this single-mode segment, from its Hermite interpolant.
-            t_seg = t + seg
-            while kout < n and kout * dt <= t_seg + 1e-9 * dt:
-                sfrac = (kout * dt - t) / seg if seg > 0.0 else 1.0
-                if sfrac > 1.0:
-                    sfrac = 1.0
-                out_thu[kout] = _hermite(sfrac, seg, y[0], f[0], y1[0], fe[0])
-                out_wu[kout] = _hermite(sfrac, seg, y[1], f[1], y1[1], fe[1])
-                out_thl[kout] = _hermite(sfrac, seg, y[2], f[2], y1[2], fe[2])
-                out_wl[kout] = _hermite(sfrac, seg, y[3], f[3], y1[3], fe[3])
-                out_mu[kout], out_ml[kout] = mu, ml
-                kout += 1
-            y = y1
-            f = fe
-            if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], de, m):
-                status = BAD_EFFECT
-                break
-            t = t_seg
-            if ok_step:
-                if t_tgt >= t_end:
-                    break
-                continue  # a kink of the input: same modes, new segment
-            # Switch the disc whose guard fired: it is at zero velocity now.
-            if disc == 0:
-                y = (y[0], 0.0, y[2], y[3])
-            else:
-                y = (y[0], y[1], y[2], 0.0)
-            new_u, new_l = modes_at_rest(y[0], y[1], y[2], y[3], de, m)
-            if disc == 0:
-                mu = new_u
-                new = mu
-            else:
-                ml = new_l
-                new = ml
-            f = rhs(y[0], y[1], y[2], y[3], mu, ml, de, m)
-            if n_ev < max_ev:
-                events[n_ev, 0] = t
-                events[n_ev, 1] = disc
-                events[n_ev, 2] = new
-            n_ev += 1
-            n_step_ev += 1
-            if n_step_ev > _MAX_EVENTS_PER_STEP:
-                status = TOO_MANY_EVENTS
-                break
-            if t_end - t <= 1e-12 * dt:
-                break
-        if status == OK and not (
-            abs(y[1]) < _VMAX and abs(y[3]) < _VMAX and math.isfinite(y[0])
-            and math.isfinite(y[2])
-        ):  # fmt: skip
-            status = BLOW_UP
-        if status != OK:
-            break
-    if status != OK:
-        out_thu[kout:] = np.nan
-        out_wu[kout:] = np.nan
-        out_thl[kout:] = np.nan
-        out_wl[kout:] = np.nan
-    elif cfg == CFG_PRESCRIBED:
-        out_thu[:] = thp
-        for k in range(n):
-            out_wu[k] = prescribed_velocity(k * dt, c, thp)
-    if cfg == CFG_UPPER:
-        out_thl[:] = 0.0 if status == OK else np.nan
-    return status, n_ev
+    no_f = np.empty(0)
+    return _integrate(
+        p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+        True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+    )  # fmt: skip
+
+
+_RESIDUALS_SIGNATURE = types.int64(
+    _F1, _F1, _F1, types.float64, types.int64, types.int64, types.int64, types.int64, _F1,
+    types.boolean, HOOK_TYPE, HOOK_TYPE,
+    _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
+    types.int64,
+)  # fmt: skip
+
+
+@njit(_RESIDUALS_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+def residuals_into(
+    p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
+):  # fmt: skip
+    """Integrate one experiment and write only its weighted residuals (no output arrays).
+
+    ``r[row, col_u + k] = w_u * (meas_u[k] - theta_u(k dt))`` for every sample ``k`` and
+    likewise ``theta_l`` at ``col_l``; a negative column leaves that channel out (its
+    measurement array may then be empty).  The numbers are those of :func:`simulate_into`
+    followed by the same subtraction.  A failed experiment has NaN residuals.
+
+    Returns the status code.
+    """
+    no_f = np.empty(0)
+    no_i = np.empty(0, dtype=np.int8)
+    status, _ = _integrate(
+        p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
+    )  # fmt: skip
+    return status
 
 
 _BATCH_SIGNATURE = types.void(
@@ -343,3 +448,27 @@ def simulate_batch_into(
             hook_shift, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
         )  # fmt: skip
         status[i] = s
+
+
+_RESIDUALS_BATCH_SIGNATURE = types.void(
+    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
+    types.int64, types.int64, types.int64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
+    _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
+    types.int64[::1],
+)  # fmt: skip
+
+
+@njit(_RESIDUALS_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+def residuals_batch_into(
+    P, Q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
+):  # fmt: skip
+    """:func:`residuals_into` for every row of ``P`` (and ``Q``) in parallel threads:
+    row ``i`` of ``R`` receives the residuals of parameter row ``i``, ``status[i]`` its
+    status.  Nothing is allocated per row."""
+    m = P.shape[0]
+    for i in prange(m):
+        status[i] = residuals_into(
+            P[i], Q[i], u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque,
+            hook_shift, meas_u, meas_l, w_u, w_l, R, i, col_u, col_l,
+        )  # fmt: skip

@@ -229,7 +229,7 @@ _CATALOGUE: tuple[Effect, ...] = (
         "residual proportional to the derivative of the response; cross-correlation with u "
         "peaks at a positive lag",
         motor=True,
-        kernel_term="terms.voltage, terms.next_kink (delayed sample times)",
+        kernel_term="terms.voltage, terms.grid_phase (the step grid follows the delay)",
     ),
     Effect(
         "motor_deadzone",

@@ -1,0 +1,93 @@
+"""The residual-only kernel path (``Problem.evaluate`` / ``residuals`` / ``residuals_batch``)
+gives the numbers of the full simulation followed by ``w * (measured - simulated)``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rotorbayes as rb
+from rotorbayes import inference as E
+from rotorbayes.kernel import layout
+from rotorbayes.model.parameters import thesis_set
+
+
+def _by_simulation(prob: E.Problem, x: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """The residual vector the slow way: full simulations, then the subtraction."""
+    parts, status = [], []
+    for i, (ex, sim) in enumerate(zip(prob.experiments, prob.sims, strict=True)):
+        st, thu, thl = sim.angles(sim.kernel_vector(prob.params_for(x, i)))
+        status.append(st)
+        for c in prob.channels:
+            s = thu if c == "theta_u" else thl
+            m = ex.theta_u if c == "theta_u" else ex.theta_l
+            parts.append(prob.weights[c] * (m - s) if st == layout.OK else np.full(ex.n, np.nan))
+    return np.concatenate(parts), status
+
+
+def _data(config, params, seconds=6.0, seed=2, alpha0=None, rate=1000.0):
+    t, u = rb.signals.estimation_signal(seconds, seed=seed, rate=rate)
+    sim = rb.simulate(params, u, dt=t[1] - t[0], config=config, alpha0=alpha0,
+                      quantize_angles=True)  # fmt: skip
+    return sim.to_experiment(f"{config}_{seed}")
+
+
+def _problems():
+    brake = thesis_set("4.3", "P_ref")
+    coupled = thesis_set("4.2", "P_ref")
+    upper = thesis_set("4.1", "P_ref")
+    ex_b1 = _data("brake", brake, seed=2, alpha0=0.4)
+    ex_b2 = _data("brake", brake, seed=5, alpha0=-0.3)
+    ex_c = _data("coupled", coupled, rate=200.0)
+    return {
+        "brake-two-experiments-both-channels": E.Problem(
+            "brake", [ex_b1, ex_b2], base=brake, channels=("theta_u", "theta_l"),
+            weights={"theta_u": 2.5, "theta_l": 0.7},
+        ),
+        "brake-lower-channel-then-upper": E.Problem(
+            "brake", [ex_b1], base=brake, channels=("theta_l", "theta_u")
+        ),
+        "coupled-200Hz-delay-deadzone": E.Problem(
+            "coupled", [ex_c], base=coupled, effects=["input_delay", "motor_deadzone"],
+        ),
+        "upper": E.Problem("upper", [_data("upper", upper)], base=upper),
+        "prescribed-upper": E.Problem(
+            "brake", [ex_b1], base=dict(brake, alpha0=0.4), prescribed_upper=True,
+            effects=["initial_torsion"],
+        ),
+    }  # fmt: skip
+
+
+PROBLEMS = _problems()
+
+
+@pytest.mark.parametrize("name", list(PROBLEMS))
+def test_residual_path_equals_simulation_then_subtraction(name):
+    prob = PROBLEMS[name]
+    x0 = prob.x_from(prob.base)
+    rng = np.random.default_rng(1)
+    X = x0 * (1 + 0.03 * rng.uniform(-1, 1, size=(5, x0.size)))
+    X = np.clip(X, prob.lower, prob.upper)
+    for x in X:
+        ev = prob.evaluate(x)
+        slow, status = _by_simulation(prob, x)
+        assert list(ev.status) == status
+        assert ev.residuals.shape == slow.shape
+        np.testing.assert_array_equal(ev.residuals, slow)
+        np.testing.assert_array_equal(prob.residuals(x), slow)
+    R = prob.residuals_batch(X)
+    for j, x in enumerate(X):
+        np.testing.assert_array_equal(R[j], _by_simulation(prob, x)[0])
+
+
+def test_failed_experiments_give_nan_residuals_and_the_others_stay():
+    prob = PROBLEMS["brake-two-experiments-both-channels"]
+    x = prob.x_from(prob.base)
+    bad = prob.x_from(dict(prob.base, J_l=-0.01))
+    ev = prob.evaluate(bad)
+    assert not ev.ok and np.all(np.isnan(ev.residuals))
+    assert list(ev.status) == [layout.BAD_PARAMETERS] * 2
+    R = prob.residuals_batch(np.array([x, bad, x]))
+    assert np.all(np.isfinite(R[0])) and np.all(np.isnan(R[1]))
+    np.testing.assert_array_equal(R[0], R[2])
+    np.testing.assert_array_equal(prob.residuals(bad, penalty=7.0), np.full(R.shape[1], 7.0))
