@@ -85,10 +85,10 @@ SETS: dict[str, list[dict[str, float]]] = {
              J_l=0.025, k_alpha=0.18, Tc_l=0.0077, b_l=0.022),
     ],
     "brake": [
-        # J_l 2.0x, k_alpha 0.53x, Tc_l 1.9x, b_l 2.1x, Ts_l 0.58x (2x Tc_l), ws_l 0.49x
+        # J_l 2.0x, k_alpha 2.1x, Tc_l 0.63x, b_l 1.9x, Ts_l 0.4x (3.7x Tc_l), ws_l 0.49x
         dict(k_m=2.7, J_u=0.4765, Tc_u=0.61, dTc_u=0.035, b_u=1.4, db_u=0.06,
-             J_l=0.083, k_alpha=0.041, Tc_l=0.09, b_l=0.022, db_l=0.004,
-             Ts_l=0.16, ws_l=0.7, delta_l=1.3),
+             J_l=0.083, k_alpha=0.16, Tc_l=0.03, b_l=0.02, db_l=0.003,
+             Ts_l=0.11, ws_l=0.7, delta_l=1.3),
         # J_l 0.6x, k_alpha 2.3x, Tc_l 0.42x, b_l 0.43x, Ts_l 0.4x (5.6x Tc_l), ws_l 2.5x
         dict(k_m=6.1, J_u=0.4765, Tc_u=0.17, dTc_u=-0.02, b_u=5.1, db_u=-0.15,
              J_l=0.025, k_alpha=0.18, Tc_l=0.02, b_l=0.0045, db_l=-0.001,

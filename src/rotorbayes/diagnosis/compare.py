@@ -10,6 +10,15 @@
   consecutive fits whose p-value accounts for autocorrelated residuals (the sample size is
   deflated to ``n (1 − ρ) / (1 + ρ)``, ρ the lag-1 autocorrelation of the richer model's
   residual).
+
+Every step is also weighed by its size, with the diagnosis's rule
+(:data:`rotorbayes.diagnosis.diagnose.MATERIAL_FRACTION`, ``MATERIAL_FLOOR_UNITS``): the
+change of the worst channel's RMS/floor (on validation data when there are some, else on
+the estimation data) is *material* when it falls by at least that fraction of its value and
+that many floor units.  With tens of thousands of samples an LR test finds any change
+"significant"; the step's ``verdict`` says "significant and material", "detectable but
+immaterial" (with the numbers), "not significant" or "worse", so a test is never read as
+an improvement that is not one.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ from .. import metrics as _metrics
 from ..data import quantisation_floor
 from ..inference.least_squares import quality
 from ..inference.starts import derivatives
+from .diagnose import LEVEL, MATERIAL_FLOOR_UNITS, MATERIAL_FRACTION, is_material
 
 #: z of the two-sided 99 % band of a white residual's correlations.
 Z99 = 2.5758
@@ -113,6 +123,42 @@ def lr_test(a: FitSummary, b: FitSummary) -> dict:
             "n_effective": n_eff, "rho": rho}
 
 
+def weigh_step(step: dict) -> dict:
+    """Size and significance of one step, in one word and a sentence (see the module
+    docstring): ``{"material": bool, "verdict": str, "words": str}``."""
+    est = step.get("estimation") or {}
+    val = step.get("validation")
+    on = val if val else est
+    if not on:
+        return {"material": False, "verdict": "not compared", "words": "no common data"}
+    before, after = on["worst_rms_over_floor"]
+    material = is_material(before, after)
+    lr = est.get("lr_test") or {}
+    p = lr.get("p_value", math.nan)
+    significant = bool(math.isfinite(p) and p < LEVEL)
+    where = "validation" if val else "estimation"
+    nums = (f"worst RMS/floor {before:.4g} -> {after:.4g} ({where}); SSR "
+            f"{on['ssr_change_percent']:+.3g} % ({where})")
+    if val and est:
+        nums += f", {est['ssr_change_percent']:+.3g} % (estimation)"
+    if math.isfinite(p):
+        nums += f"; LR test p {p:.2g}"
+    if after > before and not material and on["ssr_change_percent"] > 0:
+        verdict = "worse"
+    elif material and (significant or not math.isfinite(p)):
+        verdict = "significant and material"
+    elif material:
+        verdict = "material but not significant"
+    elif significant:
+        verdict = "detectable but immaterial"
+    else:
+        verdict = "not significant"
+    rule = (f"material = the worst RMS/floor falls by at least {100 * MATERIAL_FRACTION:g} % "
+            f"and {MATERIAL_FLOOR_UNITS:g} floor units")
+    return {"material": material, "verdict": verdict,
+            "words": f"{verdict}: {nums} ({rule})"}
+
+
 def compare_fits(fits) -> dict:
     """Before/after table of loaded fits (:class:`rotorbayes.results.LoadedFit`), in order."""
     out = {"fits": [], "steps": []}
@@ -140,9 +186,14 @@ def compare_fits(fits) -> dict:
                     a, b = prev["s"][data], cur[data]
                     step[data] = {
                         "ssr_ratio": b.ssr / a.ssr if a.ssr > 0 else math.nan,
+                        "ssr_change_percent": 100 * (b.ssr / a.ssr - 1) if a.ssr > 0
+                        else math.nan,
+                        "worst_rms_over_floor": [max(a.rms_over_floor.values()),
+                                                 max(b.rms_over_floor.values())],
                         "delta_aicc": b.aicc - a.aicc, "delta_bic": b.bic - a.bic,
                         "lr_test": lr_test(a, b) if data == "estimation" else None,
                     }
+            step.update(weigh_step(step))
             out["steps"].append(step)
         prev = {"label": label, "s": cur}
     return out
@@ -180,6 +231,8 @@ def table(doc: dict) -> str:
                     f"(effective n {lr['n_effective']:.0f} for lag-1 autocorrelation "
                     f"{lr['rho']:.3f})")
         lines.append(txt)
+        if "words" in s:
+            lines.append(f"    -> {s['words']}")
     return "\n".join(lines)
 
 

@@ -7,11 +7,37 @@
 2. the score tests of every catalogue effect that is off (:mod:`.score`), Holm-corrected;
 3. the missing-torque map (:mod:`.torque`) for what the catalogue does not hold.
 
-The verdict comes first and is a boolean, ``adequate``.  A catalogue effect is *claimed*
-only if its test is significant after correction, it is not equivalent to the free
-parameters, and the missing-torque map does not point at a variable the effect cannot
-produce (an angle or a drift in time); otherwise the text names the strongest dependence
-in words and points to writing a user effect (``docs/effects.md``).
+The verdict comes first and is a boolean, ``adequate``.
+
+The rule: significance is not enough
+------------------------------------
+With thousands of samples a score test detects effects far too small to matter: a delay of
+a thousandth of a sample (how the input's unknown shape between samples reads), a torque of
+a micro-newton-metre.  A catalogue effect is therefore *claimed* — and a fit called
+inadequate because of it — only when it is
+
+1. **significant**: its score test's p-value, Holm-corrected over the effects tested, is
+   below :data:`LEVEL`, and it is not equivalent to the free parameters;
+2. **material**: adding it is predicted (one Gauss-Newton step) to lower the worst fitted
+   channel's RMS/floor by at least :data:`MATERIAL_FRACTION` of its current value *and* by
+   at least :data:`MATERIAL_FLOOR_UNITS` floor units (1.01 -> 1.009 is immaterial; 392 -> 1.0
+   and 1.3 -> 1.0 are material);
+3. **resolvable**: its one-step size reaches what the data can resolve, as the effect's
+   registry entry states (:class:`rotorbayes.model.effects.Resolution`: a delay of at least
+   a tenth of a sample; a torque at least the friction level's autocorrelation-robust
+   standard error);
+
+and the missing-torque map does not point at a variable the effect cannot produce (an
+angle or a drift in time).  An effect that is significant but fails 2 or 3 is reported as
+*detectable but immaterial* (``immaterial`` in ``diagnosis.json``, with its p-value,
+predicted RMS/floor and size against resolution), never as a reason for INADEQUATE.
+
+The verdict: ``adequate`` when the worst channel is at the floor (at most
+:data:`rotorbayes.inference.assess.AT_FLOOR` times it) and no effect is claimed.  A fit
+above the floor is inadequate even when no catalogue effect is material — the error is not
+noise — and the text says that no catalogue effect would lower it, names the missing-torque
+map's dependence if the map can support one, and points to writing a user effect
+(``docs/effects.md``).
 """
 
 from __future__ import annotations
@@ -23,12 +49,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..inference.assess import AT_FLOOR
-from ..inference.problem import Problem
+from ..inference.problem import Problem, local_name
+from ..model import effects as _effects
 from .score import EffectScore, score_tests
 from .torque import TorqueMap, missing_torque
 
 #: Significance level of the ranking (after Holm's correction).
 LEVEL = 0.01
+#: A claim must be predicted to lower the worst channel's RMS/floor by at least this
+#: fraction of its current value ...
+MATERIAL_FRACTION = 0.05
+#: ... and by at least this many floor units.
+MATERIAL_FLOOR_UNITS = 0.1
 #: Missing-torque variables each catalogue effect can produce.
 EXPLAINS = {
     "upper_asymmetric_coulomb": {"direction", "velocity"},
@@ -44,6 +76,14 @@ EXPLAINS = {
 }
 #: Variables no catalogue effect produces: a strong dependence on them rules a claim out.
 FOREIGN = {"angle_1", "angle_2", "time"}
+
+
+def is_material(before: float, after: float) -> bool:
+    """Whether a change of the worst channel's RMS/floor from ``before`` to ``after`` is
+    material: a fall of at least :data:`MATERIAL_FRACTION` of ``before`` and at least
+    :data:`MATERIAL_FLOOR_UNITS` floor units."""
+    fall = before - after
+    return bool(fall >= MATERIAL_FRACTION * before and fall >= MATERIAL_FLOOR_UNITS)
 
 
 @dataclass
@@ -62,19 +102,31 @@ class Diagnosis:
     seconds: float
     noise_std: float = 0.0
     evidence: list[str] = field(default_factory=list)
+    judgements: dict[str, dict] = field(default_factory=dict)
+    immaterial: list[dict] = field(default_factory=list)
 
     def as_dict(self) -> dict:
+        ranking = []
+        for s in self.ranking:
+            row = s.as_dict()
+            if s.effect in self.judgements:
+                row["judgement"] = self.judgements[s.effect]
+            ranking.append(row)
         return {
             "adequate": self.adequate,
             "verdict": self.verdict,
             "claimed_effect": self.claimed,
             "advice": self.advice,
             "evidence": self.evidence,
+            "immaterial": self.immaterial,
+            "rule": {"level": LEVEL, "material_fraction": MATERIAL_FRACTION,
+                     "material_floor_units": MATERIAL_FLOOR_UNITS,
+                     "at_floor": AT_FLOOR},
             "rms_over_floor": self.rms_over_floor,
             "floor_rad": self.floor,
             "noise_std_rad": self.noise_std,
             "ssr": self.ssr,
-            "ranking": [s.as_dict() for s in self.ranking],
+            "ranking": ranking,
             "missing_torque": [m.as_dict() for m in self.maps],
             "level": LEVEL,
             "seconds": self.seconds,
@@ -84,8 +136,9 @@ class Diagnosis:
         lines = [f"verdict: {'ADEQUATE' if self.adequate else 'INADEQUATE'} — {self.verdict}"]
         lines += [f"  {e}" for e in self.evidence]
         lines.append("")
-        lines.append("catalogue effects that are off, best first by adjusted p (score tests "
-                     f"at the fit; p adjusted by Holm over {len(self.ranking)} effects):")
+        lines.append("catalogue effects that are off: those worth a claim first (largest "
+                     "predicted fall of the error first), then by adjusted p (score tests at "
+                     f"the fit; p adjusted by Holm over {len(self.ranking)} effects):")
         lines.append(f"  {'effect':<26} {'p':>9} {'p adj.':>9} {'pred. RMS/floor':>16}  "
                      "one-step estimate")
         for s in self.ranking:
@@ -97,8 +150,19 @@ class Diagnosis:
                 tag = "  [equivalent to the free parameters: cannot be told apart]"
             elif s.alike:
                 tag = f"  [indistinguishable here from {', '.join(s.alike)}]"
+            j = self.judgements.get(s.effect)
+            if j and j["significant"] and not j["claimable"]:
+                tag += "  [detectable but immaterial]"
             lines.append(f"  {s.effect:<26} {s.p_value:9.2g} {s.p_adjusted:9.2g} "
                          f"{pred:>16}  {est}{tag}")
+        if self.immaterial:
+            lines.append("")
+            lines.append("detectable but immaterial (significant, yet not worth a claim: "
+                         f"a claim needs a predicted fall of the worst RMS/floor of at least "
+                         f"{100 * MATERIAL_FRACTION:g} % and {MATERIAL_FLOOR_UNITS:g} floor "
+                         "units, and a size the data can resolve):")
+            for item in self.immaterial:
+                lines.append("  " + item["words"])
         lines.append("")
         lines.append("missing-torque map (measured angles, slip samples):")
         for m in self.maps:
@@ -131,53 +195,81 @@ def diagnose(
         raise ValueError("the model cannot be simulated at this fit; nothing to diagnose")
     ratios = problem.rms_over_floor(r, floor)
     worst = max(ratios.values())
-    ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor)
-    maps = missing_torque(problem, x)
+    context: dict = {}
+    ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor,
+                          context=context)
+    maps = missing_torque(problem, x, floors=floor)
     evidence = notes + [
         "residual RMS / noise floor: "
         + ", ".join(f"{c} {v:.2f} (floor {floor[c]:.2g} rad)" for c, v in ratios.items())
     ]
-    significant = [s for s in ranking if s.p_adjusted < LEVEL and not s.equivalent_to_free]
-    # A claim must also promise a fall of the error: an effect whose one-step prediction
-    # does not lower the SSR (a non-smooth effect probed by a secant, far from the fit) is
-    # significant but not the answer.
-    promising = [s for s in significant if s.predicted_ssr < 0.99 * float(r @ r)]
+    judgements = {s.effect: _judge(s, problem, x, worst, context) for s in ranking}
+    # Effects worth a claim come first, the one predicted to lower the error most first
+    # (all of them are significant: size decides; ties keep the score tests' order), then
+    # the rest by adjusted p.  The first row is what the advice names.
+    def order(s):
+        j = judgements[s.effect]
+        return ((0, float(f"{j['predicted_worst_rms_over_floor']:.3g}")) if j["claimable"]
+                else (1, 0.0))
+
+    ranking = sorted(ranking, key=order)
+    significant = [s for s in ranking if judgements[s.effect]["significant"]]
+    claimable = [s for s in significant if judgements[s.effect]["claimable"]]
+    immaterial = [dict(judgements[s.effect], effect=s.effect) for s in significant
+                  if not judgements[s.effect]["claimable"]]
     at_floor = worst <= AT_FLOOR
-    adequate = at_floor and not significant
+    adequate = at_floor and not claimable
     strongest = max(
-        (m for m in maps if m.strongest), key=lambda m: m.strongest[1], default=None
+        (m for m in maps if m.strongest and m.supports_words), key=lambda m: m.strongest[1],
+        default=None,
     )
     foreign = None
     if strongest is not None and strongest.strongest[0] in FOREIGN and \
-            strongest.strongest[1] > 0.5 and strongest.rms > 2 * strongest.noise_rms:
+            strongest.strongest[1] > 0.5:
         foreign = strongest
     claimed = None
+    n_imm = (f"; {len(immaterial)} detectable but immaterial, listed below"
+             if immaterial else "")
     if adequate:
         verdict = (f"the remaining error is consistent with measurement noise (worst channel "
-                   f"{worst:.2f}x the floor; no catalogue effect significant at "
-                   f"{LEVEL:g} after correction)")
+                   f"{worst:.2f}x the floor; no catalogue effect would change the fit "
+                   f"materially{n_imm})")
         advice = "Nothing to add: the model explains these data to the encoders' resolution."
+        if immaterial:
+            advice += (" What the tests detect is far too small to matter (see 'detectable "
+                       "but immaterial'); adding it would not change the fit materially.")
     else:
-        verdict = (f"the model does not explain the data: worst channel {worst:.3g}x the floor"
-                   if not at_floor else
-                   f"the error is at the floor ({worst:.2f}x) but "
-                   f"{significant[0].effect} is significant")
-        top = promising[0] if promising else (significant[0] if significant else None)
-        if top is not None and top not in promising:
-            top = None
+        top = claimable[0] if claimable else None
         if top is not None and foreign is not None:
             # The foreign dependence vetoes the claim only if it clearly beats every
             # variable the top effect could produce, on the same disc's map.
             own = [r2 for var, r2 in foreign.ranking if var in EXPLAINS.get(top.effect, ())]
             if own and foreign.strongest[1] < max(own) + 0.2:
                 foreign = None
+        if top is not None:
+            j = judgements[top.effect]
+            pred = j["predicted_worst_rms_over_floor"]
+            verdict = (f"the model does not explain the data: worst channel {worst:.3g}x the "
+                       f"floor; adding {top.effect} is predicted to lower it to {pred:.3g}x"
+                       if not at_floor else
+                       f"the error is near the floor ({worst:.2f}x) but {top.effect} is "
+                       f"significant and material (predicted {pred:.3g}x)")
+        else:
+            best = significant[0] if significant else None
+            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and no "
+                       "catalogue effect would lower it materially"
+                       + (f" (the best detectable, {best.effect}, is predicted to reach "
+                          f"{judgements[best.effect]['predicted_worst_rms_over_floor']:.3g}x)"
+                          if best is not None else ""))
         if top is not None and foreign is None:
             claimed = top.effect
             tie = [s.effect for s in significant[1:] if s.effect in top.alike]
             est = ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in
                             zip(top.step.items(), top.units, strict=True))
             advice = (f"Most likely missing: {top.effect} — {top.physics} (p {top.p_adjusted:.2g}"
-                      f" after correction; one-step estimate {est}).")
+                      f" after correction; one-step estimate {est}; predicted worst RMS/floor "
+                      f"{worst:.3g} -> "
+                      f"{judgements[top.effect]['predicted_worst_rms_over_floor']:.3g}).")
             if tie:
                 advice += (f" These data cannot tell it from {', '.join(tie)} (their "
                            "corrections are nearly parallel); validation data or another "
@@ -188,9 +280,10 @@ def diagnose(
                        f"{top.effect}; then diagnose the new fit (one effect at a time).")
         else:
             where = foreign.words() if foreign else (
-                strongest.words() if strongest else "no missing-torque map could be made")
+                strongest.words() if strongest else
+                "; ".join(m.words() for m in maps) or "no missing-torque map could be made")
             advice = ("No catalogue effect explains the residual"
-                      + (f" (the best, {top.effect}, is significant but cannot produce the "
+                      + (f" (the best, {top.effect}, is material but cannot produce the "
                          "dependence below)" if top is not None else "")
                       + f": {where}.\nWrite a user effect for it (docs/effects.md; "
                       "examples/angle_friction.py is a worked example) and add it with "
@@ -208,4 +301,82 @@ def diagnose(
         seconds=time.perf_counter() - t0,
         noise_std=noise_std,
         evidence=evidence,
+        judgements=judgements,
+        immaterial=immaterial,
     )
+
+
+def _rms_speeds(problem: Problem, x: np.ndarray) -> dict[str, float]:
+    """RMS speeds of the fit's simulation over all experiments [rad/s]."""
+    acc = {"omega_u": [], "omega_l": [], "dalpha": []}
+    for i in range(len(problem.experiments)):
+        sim = problem.simulate(x, i)
+        acc["omega_u"].append(np.asarray(sim.omega_u))
+        if sim.omega_l is not None:
+            acc["omega_l"].append(np.asarray(sim.omega_l))
+            acc["dalpha"].append(np.asarray(sim.omega_l) - np.asarray(sim.omega_u))
+    return {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) if v else math.nan
+            for k, v in acc.items()}
+
+
+def _judge(s: EffectScore, problem: Problem, x: np.ndarray, worst: float,
+           context: dict) -> dict:
+    """Significant, material, resolvable? With the numbers (see the module docstring)."""
+    pred = max(s.predicted_rms_ratio.values()) if s.predicted_rms_ratio else worst
+    fall = worst - pred
+    significant = bool(s.p_adjusted < LEVEL and not s.equivalent_to_free)
+    material = is_material(worst, pred)
+    effect = _effects.CATALOGUE.get(s.effect)
+    res = effect.resolution if effect is not None else None
+    sizes = [abs(v) for v in s.size.values() if math.isfinite(v)]
+    size = max(sizes) if sizes else math.nan
+    out = {"significant": significant, "material": material,
+           "p_value": s.p_value, "p_adjusted": s.p_adjusted,
+           "rms_over_floor": worst, "predicted_rms_over_floor": s.predicted_rms_ratio,
+           "predicted_worst_rms_over_floor": pred, "predicted_fall": fall}
+    if res is None or not math.isfinite(size):
+        out.update(size=None, resolution=None, resolvable=True,
+                   resolution_words="no resolution stated")
+    else:
+        unit = problem.model.info[local_name(next(iter(s.size)))[0]].unit
+        if res.kind == "sample":
+            dt = min(ex.dt for ex in problem.experiments)
+            out.update(size={"value": size, "unit": unit},
+                       resolution={"value": res.factor * dt, "unit": unit,
+                                   "samples": res.factor})
+            resolvable = size >= res.factor * dt
+        else:
+            if res.per_unit in ("", None):
+                per = 1.0
+            elif res.per_unit in ("omega_u", "omega_l", "dalpha"):
+                if "speeds" not in context:
+                    context["speeds"] = _rms_speeds(problem, x)
+                per = context["speeds"][res.per_unit]
+            else:
+                per = float(problem.params_for(x, 0).get(res.per_unit, math.nan))
+            se = context.get("robust_se", {}).get(f"Tc_{res.disc}", math.nan)
+            torque = size * per
+            out.update(size={"value": size, "unit": unit, "torque_N_m": torque},
+                       resolution={"torque_N_m": res.factor * se,
+                                   "of": f"robust standard error of Tc_{res.disc}"})
+            # Without a known uncertainty (Tc fixed) only the materiality rule applies.
+            resolvable = not math.isfinite(se) or not math.isfinite(torque) or \
+                torque >= res.factor * se
+        out.update(resolvable=bool(resolvable), resolution_words=res.words)
+    out["claimable"] = bool(significant and material and out["resolvable"])
+    why = []
+    if not material:
+        why.append(f"predicted worst RMS/floor {worst:.4g} -> {pred:.4g}, a fall of "
+                   f"{fall:.2g} ({100 * fall / worst if worst else 0:.2g} %): immaterial")
+    if not out["resolvable"]:
+        if res.kind == "sample":
+            why.append(f"size {size:.2g} s is below the resolution "
+                       f"{out['resolution']['value']:.2g} s ({res.factor:g} sample): "
+                       f"{res.words}")
+        else:
+            why.append(f"size {size:.2g} {out['size']['unit']} ({out['size']['torque_N_m']:.2g}"
+                       f" N m) is below the resolution {out['resolution']['torque_N_m']:.2g}"
+                       f" N m: {res.words}")
+    out["words"] = (f"{s.effect}: p {s.p_adjusted:.2g} after correction; "
+                    + ("; ".join(why) if why else "claimable"))
+    return out

@@ -66,7 +66,8 @@ def plot_torque_map(diagnosis, *, top: int = 3):
             ax.set_xlabel(_LABEL.get(var, var))
             ax.set_ylabel(f"{disc} disc missing torque [N m]")
             ax.set_title(f"{disc}: {var} (adj. R² {r2:.2f})", fontsize=9)
-    fig.suptitle("missing torque (measured angles, slip samples) against candidate variables")
+    fig.suptitle("missing torque (the data's balance minus the fit's own simulation, slip samples) "
+                 "against candidate variables")
     return fig, axes
 
 

@@ -58,6 +58,7 @@ class EffectScore:
     p_adjusted: float = math.nan
     one_sided: bool = False
     step: dict[str, float] = field(default_factory=dict)
+    size: dict[str, float] = field(default_factory=dict)
     predicted_ssr: float = math.nan
     predicted_rms_ratio: dict[str, float] = field(default_factory=dict)
     distinct_ratio: float = math.nan
@@ -170,6 +171,37 @@ def _stat(S_blocks: np.ndarray, one_sided_up: bool | None):
     return F, stats.f.sf(F, q, B - q)
 
 
+def robust_standard_errors(
+    Jf: np.ndarray, r: np.ndarray, blocks: np.ndarray, names: Sequence[str],
+    noise_ssr: float | None = None,
+) -> dict[str, float]:
+    """Autocorrelation-robust standard errors of the free parameters at a fit.
+
+    The sandwich ``A⁻¹ B A⁻¹`` with ``A = JᵀJ`` and ``B`` the covariance of the block
+    scores ``J_bᵀ r_b`` over contiguous time blocks: the encoder's rounding error is not
+    white (constant while a disc sticks), so the i.i.d. formula ``σ² A⁻¹`` is far too
+    small; block sums stay nearly independent.
+
+    ``noise_ssr``: the SSR that noise alone would leave.  Far above the floor the residual
+    is model error, not noise; ``B`` is then scaled down by ``noise_ssr / SSR`` so that the
+    errors say what the *data* can resolve, not how wrong the model is.
+    """
+    k = Jf.shape[1]
+    if k == 0:
+        return {}
+    B = int(blocks.max()) + 1
+    S = np.zeros((B, k))
+    np.add.at(S, blocks, Jf * r[:, None])
+    S -= S.mean(axis=0)
+    meat = S.T @ S * B / max(B - 1, 1)
+    ssr = float(r @ r)
+    if noise_ssr is not None and ssr > noise_ssr > 0:
+        meat *= noise_ssr / ssr
+    Ainv = np.linalg.pinv(Jf.T @ Jf)
+    cov = Ainv @ meat @ Ainv
+    return {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}
+
+
 def score_tests(
     problem: Problem,
     x: np.ndarray,
@@ -179,6 +211,7 @@ def score_tests(
     n_boot: int = 2000,
     seed: int = 0,
     floor: dict[str, float] | None = None,
+    context: dict | None = None,
 ) -> list[EffectScore]:
     """Score tests of every effect that is off (or of ``effects``), best first.
 
@@ -188,6 +221,9 @@ def score_tests(
     n_blocks : number of time blocks for the autocorrelation-robust variance.
     n_boot : bootstrap draws for effects tested over a grid of nuisance values.
     floor : noise RMS per channel (default: the encoder quantisation floor).
+    context : dict, optional
+        Filled with ``robust_se`` (:func:`robust_standard_errors` of the free parameters
+        by name), for judging the candidates' sizes.
     """
     r = problem.residuals(x)
     if not np.all(np.isfinite(r)):
@@ -197,6 +233,12 @@ def score_tests(
     blocks = block_ids(problem, n_blocks)
     B = int(blocks.max()) + 1
     ssr = float(r @ r)
+    if context is not None:
+        n_per = {c: sum(ex.n for ex in problem.experiments) for c in problem.channels}
+        noise_ssr = sum(n_per[c] * (problem.weights[c] * floor[c]) ** 2
+                        for c in problem.channels)
+        context["robust_se"] = robust_standard_errors(Jf, r, blocks, problem.names,
+                                                      noise_ssr)
     floor = floor or {c: quantisation_floor(c) for c in problem.channels}
     rng = np.random.default_rng(seed)
     cands = list(effects) if effects is not None else candidates(problem)
@@ -267,6 +309,7 @@ def score_tests(
             b, idx = local_name(n)
             null = base_vals["Tc_l"] if b == "Ts_l" else problem.model.info[b].null
             step[n] = float(null + d)
+        size = {n: float(d) for n, d in zip(names, delta, strict=True)}
         out.append(
             EffectScore(
                 effect=e.name,
@@ -277,6 +320,7 @@ def score_tests(
                 p_value=float(p),
                 one_sided=one_sided,
                 step=step,
+                size=size,
                 predicted_ssr=pred_ssr,
                 predicted_rms_ratio=problem.rms_over_floor(r_new, floor),
                 distinct_ratio=ratio,
@@ -293,6 +337,7 @@ def score_tests(
         if s.equivalent_to_free:
             # Inside the free parameters' span the step is ill-posed: no estimate to quote.
             s.step = {n: math.nan for n in s.step}
+            s.size = {n: math.nan for n in s.size}
             s.predicted_ssr = ssr
     order = list(_effects.CATALOGUE)
 

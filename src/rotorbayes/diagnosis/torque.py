@@ -12,7 +12,19 @@ clear slip are used: at rest friction is set-valued and balances anything.
 The map ranks how much of ``M`` each candidate variable explains (adjusted R² of a
 binned-mean or harmonic fit): the disc's velocity and its direction, its angle within a
 revolution (once and twice per revolution), the string's torsion, the input and its rate,
-time.  The strongest dependence is said in words, with what physics usually causes it.
+time.
+
+What the map can support.  Smoothed derivatives of quantised angles are not exact: the
+same balance computed on the fit's own simulation, rounded like the encoders, is not zero
+either.  So the map is the data's balance *minus* the simulation's (sample by sample, on
+the same slip samples), which removes what the derivatives and the model share, and its
+**noise level** is what rounding alone does to a balance (the RMS difference of the
+simulation's balance with and without rounding).  The words claim a missing torque
+only when its RMS is at least :data:`NOISE_FACTOR` times that noise, and name a dependence
+only when the explained part (``sqrt(R²) * RMS``) is too, ``R²`` is at least
+:data:`MIN_R2`, and it beats every other variable clearly (by :data:`DISTINCT_R2` in R², or
+leaving at most half of the next best's unexplained part); variables that move together
+in the data — speed, direction, input — are otherwise named together, as such.
 """
 
 from __future__ import annotations
@@ -45,6 +57,25 @@ WORDS = {
     "time": ("drifts with time", "slow changes: temperature, wear, or a drifting sensor"),
 }
 
+#: Short names of the variables, for a list.
+SHORT = {"velocity": "its speed", "direction": "the direction of rotation",
+         "angle_1": "its angle (once per revolution)",
+         "angle_2": "its angle (twice per revolution)", "torsion": "the string's torsion",
+         "input": "the input voltage", "input_rate": "the input's rate", "time": "time"}
+
+#: The missing torque, and the part a dependence explains, must be this many times the
+#: map's own noise before the words claim anything.
+NOISE_FACTOR = 3.0
+#: A dependence on a disc's angle within a revolution is looked for only if the disc
+#: turned through at least this many revolutions (else the angle is just a slow trend).
+MIN_TURNS = 2.0
+#: Smallest adjusted R² of a dependence the words name.
+MIN_R2 = 0.2
+#: A dependence is named alone only if its R² beats every other variable's by this much,
+DISTINCT_R2 = 0.2
+#: ... or leaves at most 1/DISTINCT_RATIO of the unexplained part the next best leaves.
+DISTINCT_RATIO = 2.0
+
 
 @dataclass
 class TorqueMap:
@@ -62,18 +93,53 @@ class TorqueMap:
     def strongest(self) -> tuple[str, float] | None:
         return self.ranking[0] if self.ranking else None
 
-    def words(self, min_r2: float = 0.2) -> str:
-        disc = "upper" if self.disc == "u" else "lower"
+    @property
+    def above_noise(self) -> bool:
+        """The missing torque is clearly larger than the map's own noise."""
+        return self.rms >= NOISE_FACTOR * self.noise_rms
+
+    @property
+    def together(self) -> list[tuple[str, float]]:
+        """The strongest dependence and every variable within :data:`DISTINCT_R2` of it."""
         s = self.strongest
-        if s is None or s[1] < min_r2 or self.rms < 2 * self.noise_rms:
-            return (f"the {disc} disc's missing torque (RMS {self.rms:.2g} N m) shows no "
+        if s is None:
+            return []
+        # Another variable is as good if its R² is within DISTINCT_R2 of the best one's and
+        # it leaves less than DISTINCT_RATIO times the best one's unexplained part.
+        return [(k, v) for k, v in self.ranking if v >= s[1] - DISTINCT_R2
+                and (1 - v) < DISTINCT_RATIO * max(1 - s[1], 1e-12)]
+
+    @property
+    def supports_words(self) -> bool:
+        """The map supports naming one dependence (above noise, clear, distinct)."""
+        s = self.strongest
+        return bool(s is not None and self.above_noise and s[1] >= MIN_R2
+                    and math.sqrt(max(s[1], 0.0)) * self.rms >= NOISE_FACTOR * self.noise_rms
+                    and len(self.together) == 1)
+
+    def words(self) -> str:
+        disc = "upper" if self.disc == "u" else "lower"
+        noise = f"the map's noise {self.noise_rms:.2g} N m"
+        if not self.above_noise:
+            return (f"the {disc} disc's map shows no missing torque above its noise (RMS "
+                    f"{self.rms:.2g} N m against {noise})")
+        s = self.strongest
+        if s is None or s[1] < MIN_R2 or \
+                math.sqrt(max(s[1], 0.0)) * self.rms < NOISE_FACTOR * self.noise_rms:
+            return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) with no "
                     "clear dependence on the candidate variables")
+        if len(self.together) > 1:
+            names = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
+            return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) that "
+                    f"varies with several variables alike: {names}; they move together in "
+                    "these data, so the map cannot tell which")
         what, cause = WORDS[s[0]]
-        return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m) that {what} "
-                f"(explains {100 * s[1]:.0f} % of it): {cause}")
+        return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) that "
+                f"{what} (explains {100 * s[1]:.0f} % of it): {cause}")
 
     def as_dict(self) -> dict:
         return {"disc": self.disc, "rms_N_m": self.rms, "noise_rms_N_m": self.noise_rms,
+                "above_noise": self.above_noise, "supports_words": self.supports_words,
                 "ranking": [{"variable": k, "adjusted_r2": v} for k, v in self.ranking],
                 "words": self.words()}
 
@@ -124,59 +190,45 @@ def _rank(M: np.ndarray, feats: dict[str, np.ndarray]) -> list[tuple[str, float]
     return sorted([o for o in out if math.isfinite(o[1])], key=lambda kv: -kv[1])
 
 
-def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1) -> list[TorqueMap]:
-    """The missing-torque maps of the discs the problem models (lower, then upper)."""
-    m = problem.model
+def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
+                   seed: int = 0, floors: dict | None = None) -> list[TorqueMap]:
+    """The missing-torque maps of the discs the problem models (lower, then upper).
+
+    The map of each disc is the data's balance minus that of the fit's own simulation
+    rounded like the encoders (and with the data's extra noise, if the floor says they
+    have some); its noise level is what rounding alone does to a balance.  ``floors``:
+    the noise floor per channel (default :meth:`Problem.noise_floors`).
+    """
+    from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, quantisation_floor, quantize
+
+    rng = np.random.default_rng(seed)
+    if floors is None:
+        floors, _ = problem.noise_floors()
     maps = {"l": [], "u": []}
-    use, hook_t, hook_s = m.hooks()
     for i, ex in enumerate(problem.experiments):
         p = problem.params_for(x, i)
-        dt = ex.dt
-        thu, wu, au, n = derivatives(ex.theta_u, dt, window)
-        t = ex.t
-        u = ex.u
-        v = _voltage(u, t, p)
-        if ex.theta_l is not None:
-            thl, wl, al, _ = derivatives(ex.theta_l, dt, window)
-            alpha = thl - thu + p.get("alpha0", 0.0)
-            dalpha = wl - wu
-        else:
-            thl = wl = al = alpha = dalpha = np.zeros_like(thu)
-        c_alpha = p.get("c_alpha", 0.0) if "c_alpha" in m.active else 0.0
-        string = p.get("k_alpha", 0.0) * alpha + c_alpha * dalpha if ex.theta_l is not None \
-            else 0.0
-        extra_u = np.zeros_like(t)
-        extra_l = np.zeros_like(t)
-        shift_u = np.zeros_like(t)
-        shift_l = np.zeros_like(t)
-        if use:
-            pv, qv = m.kernel_vectors(p)
-            for k in range(t.size):
-                a_u, a_l = hook_t(t[k], thu[k], wu[k], thl[k], wl[k], v[k], pv, qv)
-                s_u, s_l = hook_s(t[k], thu[k], wu[k], thl[k], wl[k], v[k], pv, qv)
-                extra_u[k], extra_l[k] = a_u, a_l
-                shift_u[k], shift_l[k] = s_u, s_l
-        du = np.gradient(u, dt)
-        common = {"input": v, "input_rate": du, "time": t}
-        if ex.theta_l is not None and m.configuration.has_lower:
-            fl = np.nan_to_num(friction_curve(wl, _complete(p), "l", shape=problem.shape))
-            Ml = p["J_l"] * al + fl + np.sign(wl) * shift_l + string - extra_l
-            sel = _slip_mask(wl, n, 0.02)
-            maps["l"].append((t[sel], Ml[sel], {
-                "velocity": wl[sel], "direction": np.sign(wl[sel]),
-                "angle_1": np.mod(thl[sel], 2 * np.pi), "angle_2": np.mod(thl[sel], 2 * np.pi),
-                "torsion": alpha[sel], **{k: c[sel] for k, c in common.items()}}))
-        if not problem.prescribed_upper:
-            fu = np.nan_to_num(friction_curve(wu, _complete(p), "u"))
-            Mu = p["J_u"] * au + fu + np.sign(wu) * shift_u - string - p["k_m"] * v - extra_u
-            sel = _slip_mask(wu, n, 0.02)
-            feats = {"velocity": wu[sel], "direction": np.sign(wu[sel]),
-                     "angle_1": np.mod(thu[sel], 2 * np.pi),
-                     "angle_2": np.mod(thu[sel], 2 * np.pi),
-                     **{k: c[sel] for k, c in common.items()}}
-            if ex.theta_l is not None:
-                feats["torsion"] = alpha[sel]
-            maps["u"].append((t[sel], Mu[sel], feats))
+        sim = problem.simulate(x, i)
+        sim_thl = sim.theta_l if ex.theta_l is not None else None
+
+        def rounded(theta, channel, counts):
+            extra = math.sqrt(max(floors.get(channel, 0.0) ** 2
+                                  - quantisation_floor(channel) ** 2, 0.0))
+            th = theta + extra * rng.standard_normal(theta.size) if extra > 0 else theta
+            return quantize(th, counts)
+
+        data = _balance(problem, ex, p, ex.theta_u, ex.theta_l, window)
+        model_q = _balance(problem, ex, p, rounded(sim.theta_u, "theta_u", UPPER_COUNTS_PER_REV),
+                           None if sim_thl is None else
+                           rounded(sim_thl, "theta_l", LOWER_COUNTS_PER_REV), window)
+        model_x = _balance(problem, ex, p, sim.theta_u, sim_thl, window)
+        for disc in ("l", "u"):
+            if disc not in data:
+                continue
+            t, M, feats, sel = data[disc]
+            Mq = model_q[disc][1]
+            Mx = model_x[disc][1]
+            maps[disc].append((t[sel], (M - Mq)[sel], {k: v[sel] for k, v in feats.items()},
+                               (Mq - Mx)[sel]))
     out = []
     for disc in ("l", "u"):
         parts = maps[disc]
@@ -184,11 +236,66 @@ def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1) -> l
             continue
         T = np.concatenate([pt[0] for pt in parts])
         M = np.concatenate([pt[1] for pt in parts])
-        F = {k: np.concatenate([pt[2][k] for pt in parts]) for k in parts[0][2]}
-        # Noise of M: the sample-to-sample jitter of a smooth signal is mostly noise.
-        noise = float(np.std(np.diff(M)) / math.sqrt(2)) if M.size > 2 else 0.0
+        keys = [k for k in parts[0][2] if all(k in pt[2] for pt in parts)]
+        F = {k: np.concatenate([pt[2][k] for pt in parts]) for k in keys}
+        R = np.concatenate([pt[3] for pt in parts])
+        # What rounding alone does to a balance: the map cannot resolve less.
+        noise = float(np.sqrt(np.mean(R**2)))
         out.append(TorqueMap(disc, T, M, F, _rank(M, F), float(np.sqrt(np.mean(M**2))),
                              noise))
+    return out
+
+
+def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> dict:
+    """Each disc's torque balance from the angles ``theta_u``/``theta_l`` (smoothed
+    derivatives) at parameters ``p``: ``{disc: (t, M, features, slip mask)}``, the mask
+    and features taken from these angles' own velocities."""
+    m = problem.model
+    use, hook_t, hook_s = m.hooks()
+    dt = ex.dt
+    thu, wu, au, n = derivatives(theta_u, dt, window)
+    t = ex.t
+    u = ex.u
+    v = _voltage(u, t, p)
+    has_l = theta_l is not None
+    if has_l:
+        thl, wl, al, _ = derivatives(theta_l, dt, window)
+        alpha = thl - thu + p.get("alpha0", 0.0)
+        dalpha = wl - wu
+    else:
+        thl = wl = al = alpha = dalpha = np.zeros_like(thu)
+    c_alpha = p.get("c_alpha", 0.0) if "c_alpha" in m.active else 0.0
+    string = p.get("k_alpha", 0.0) * alpha + c_alpha * dalpha if has_l else 0.0
+    extra_u = np.zeros_like(t)
+    extra_l = np.zeros_like(t)
+    shift_u = np.zeros_like(t)
+    shift_l = np.zeros_like(t)
+    if use:
+        pv, qv = m.kernel_vectors(p)
+        for k in range(t.size):
+            a_u, a_l = hook_t(t[k], thu[k], wu[k], thl[k], wl[k], v[k], pv, qv)
+            s_u, s_l = hook_s(t[k], thu[k], wu[k], thl[k], wl[k], v[k], pv, qv)
+            extra_u[k], extra_l[k] = a_u, a_l
+            shift_u[k], shift_l[k] = s_u, s_l
+    du = np.gradient(u, dt)
+    common = {"input": v, "input_rate": du, "time": t}
+    out = {}
+    if has_l and m.configuration.has_lower:
+        fl = np.nan_to_num(friction_curve(wl, _complete(p), "l", shape=problem.shape))
+        Ml = p["J_l"] * al + fl + np.sign(wl) * shift_l + string - extra_l
+        feats = {"velocity": wl, "direction": np.sign(wl), "torsion": alpha, **common}
+        if np.ptp(thl) >= MIN_TURNS * 2 * np.pi:
+            feats.update(angle_1=np.mod(thl, 2 * np.pi), angle_2=np.mod(thl, 2 * np.pi))
+        out["l"] = (t, Ml, feats, _slip_mask(wl, n, 0.02))
+    if not problem.prescribed_upper:
+        fu = np.nan_to_num(friction_curve(wu, _complete(p), "u"))
+        Mu = p["J_u"] * au + fu + np.sign(wu) * shift_u - string - p["k_m"] * v - extra_u
+        feats = {"velocity": wu, "direction": np.sign(wu), **common}
+        if np.ptp(thu) >= MIN_TURNS * 2 * np.pi:
+            feats.update(angle_1=np.mod(thu, 2 * np.pi), angle_2=np.mod(thu, 2 * np.pi))
+        if has_l:
+            feats["torsion"] = alpha
+        out["u"] = (t, Mu, feats, _slip_mask(wu, n, 0.02))
     return out
 
 

@@ -582,6 +582,21 @@ class Problem:
                 if "lower_stribeck" in off_effects:
                     sets[0][i] = {**sets[0][i], "Ts_l": sets[0][i]["Tc_l"]}
         R, S = prob._residuals_of_sets(sets, model=prob.model if prob is not self else None)
+        # A point on a constraint between parameters (viscous friction b >= |db|, static
+        # >= Coulomb) has an outward step that is invalid: step inwards instead.
+        flip = [j for j in range(1, len(sets)) if np.all(S[0] == _layout.OK)
+                and np.any(S[j] == _layout.BAD_PARAMETERS)]
+        if flip:
+            for j in flip:
+                b, idx = local_name(names[j - 1])
+                steps[j - 1] = -steps[j - 1]
+                for i in range(n_exp):
+                    if idx is None or idx == i:
+                        sets[j][i] = {**sets[j][i], b: sets[j][i][b] + 2 * steps[j - 1]}
+            R2, S2 = prob._residuals_of_sets([sets[0]] + [sets[j] for j in flip],
+                                             model=prob.model if prob is not self else None)
+            for k, j in enumerate(flip, start=1):
+                R[j], S[j] = R2[k], S2[k]
         if np.any(S != _layout.OK):
             j, i = np.argwhere(S != _layout.OK)[0]
             what = "the point" if j == 0 else f"{names[j - 1]} perturbed by {steps[j - 1]:.3g}"

@@ -41,6 +41,37 @@ ALL = ("upper", "coupled", "brake")
 
 
 @dataclass(frozen=True)
+class Resolution:
+    """The smallest size of an effect that the data can tell from the model's other errors.
+
+    A score test on thousands of samples detects effects far too small to mean anything
+    (a delay of a thousandth of a sample is how the input's unknown shape between samples
+    reads).  An effect is claimed only when its one-step size reaches its resolution:
+
+    * ``kind="sample"``: the parameter [s] against ``factor`` sample intervals (below a
+      tenth of a sample a delay cannot be told from how the input behaves between samples);
+    * ``kind="torque"``: the torque the effect makes, ``|size| * per_unit``, against
+      ``factor`` times the uncertainty of the friction level of ``disc`` ('u' or 'l'): the
+      autocorrelation-robust (block) standard error of ``Tc_u`` / ``Tc_l`` at the fit.
+      ``per_unit`` converts one unit of the parameter to N m: empty (already N m), a model
+      parameter (``k_m``, ``k_alpha``), or an RMS speed of the fit's simulation
+      (``omega_u``, ``omega_l``, ``dalpha`` = ``omega_l - omega_u``).
+    """
+
+    kind: str
+    factor: float = 1.0
+    disc: str = ""
+    per_unit: str = ""
+    words: str = ""
+
+    def __post_init__(self):
+        if self.kind not in ("sample", "torque"):
+            raise ValueError(f"resolution kind {self.kind!r}: choose 'sample' or 'torque'")
+        if self.kind == "torque" and self.disc not in ("u", "l"):
+            raise ValueError("a torque resolution names its disc, 'u' or 'l'")
+
+
+@dataclass(frozen=True)
 class Effect:
     """One physical effect.
 
@@ -65,6 +96,9 @@ class Effect:
         Where a catalogue effect's physics lives in the kernel.
     equivalences : tuple of str
         Exact equivalences with other parameters, in words.
+    resolution : Resolution, optional
+        What the data can resolve of it (the smallest size worth a claim); ``None``: only
+        the size of its predicted fall of the error counts (user effects).
     torque, friction_shift : callable, optional
         A user effect's physics (see the module docstring).
     source : str
@@ -80,6 +114,7 @@ class Effect:
     per_experiment: bool = False
     kernel_term: str = ""
     equivalences: tuple[str, ...] = ()
+    resolution: Resolution | None = None
     torque: Callable | None = field(default=None, compare=False, repr=False)
     friction_shift: Callable | None = field(default=None, compare=False, repr=False)
     source: str = "catalogue"
@@ -123,6 +158,11 @@ class Effect:
         rows.append(f"    missing when: {self.signature}")
         for eq in self.equivalences:
             rows.append(f"    equivalence: {eq}")
+        if self.resolution is not None:
+            r = self.resolution
+            what = (f"{r.factor:g} sample interval(s)" if r.kind == "sample" else
+                    f"{r.factor:g}x the robust standard error of Tc_{r.disc}")
+            rows.append(f"    claimed only from {what}: {r.words}")
         return "\n".join(rows)
 
 
@@ -143,6 +183,10 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a change of dTc_u by -k_m*u_offset (a constant torque shifts the static band and "
             "both slip levels alike)",
         ),
+        resolution=Resolution(
+            "torque", 1.0, "u", "",
+            "an asymmetry below the upper friction level's uncertainty",
+        ),
     ),
     Effect(
         "upper_asymmetric_viscous",
@@ -151,6 +195,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         "theta_u residual grows with |omega_u|, with opposite sign per direction",
         motor=True,
         kernel_term="friction.slip_torque (db)",
+        resolution=Resolution(
+            "torque", 1.0, "u", "omega_u",
+            "an asymmetry whose torque at the RMS speed is below the upper friction"
+            " level's uncertainty",
+        ),
     ),
     Effect(
         "lower_asymmetric_coulomb",
@@ -165,6 +214,10 @@ _CATALOGUE: tuple[Effect, ...] = (
             "data (a constant string torque acts like a friction asymmetry); validation "
             "data expose it",
         ),
+        resolution=Resolution(
+            "torque", 1.0, "l", "",
+            "an asymmetry below the lower friction level's uncertainty",
+        ),
     ),
     Effect(
         "lower_asymmetric_viscous",
@@ -173,6 +226,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         "residual correlates with |omega_l| differently per direction of rotation",
         configs=LOWER,
         kernel_term="friction.slip_torque (db)",
+        resolution=Resolution(
+            "torque", 1.0, "l", "omega_l",
+            "an asymmetry whose torque at the RMS speed is below the lower friction"
+            " level's uncertainty",
+        ),
     ),
     Effect(
         "lower_stribeck",
@@ -186,6 +244,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         "stick phases last longer than simulated; large errors right after break-away",
         configs=LOWER,
         kernel_term="friction.stribeck, terms.bands (static band from Ts_l)",
+        resolution=Resolution(
+            "torque", 1.0, "l", "",
+            "a static level above the Coulomb level by less than that level's "
+            "uncertainty",
+        ),
     ),
     Effect(
         "initial_torsion",
@@ -200,6 +263,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         equivalences=(
             "a common shift of every alpha0 is absorbed by dTc_l and dTc_u on estimation data",
         ),
+        resolution=Resolution(
+            "torque", 1.0, "l", "k_alpha",
+            "a pre-wound torque k_alpha*alpha0 below the lower friction level's "
+            "uncertainty",
+        ),
     ),
     Effect(
         "string_damping",
@@ -209,6 +277,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         "frequency",
         configs=LOWER,
         kernel_term="terms.torques (c_alpha * (omega_l - omega_u))",
+        resolution=Resolution(
+            "torque", 1.0, "l", "dalpha",
+            "a damping torque at the RMS twist rate below the lower friction "
+            "level's uncertainty",
+        ),
     ),
     Effect(
         "voltage_offset",
@@ -221,6 +294,11 @@ _CATALOGUE: tuple[Effect, ...] = (
             "with Coulomb + viscous upper friction, u_offset is exactly a change of dTc_u by "
             "-k_m*u_offset (without a dead zone)",
         ),
+        resolution=Resolution(
+            "torque", 1.0, "u", "k_m",
+            "a motor torque k_m*u_offset below the upper friction level's "
+            "uncertainty",
+        ),
     ),
     Effect(
         "input_delay",
@@ -230,6 +308,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         "peaks at a positive lag",
         motor=True,
         kernel_term="terms.voltage, terms.grid_phase (the step grid follows the delay)",
+        resolution=Resolution(
+            "sample", 0.1, "", "",
+            "a delay below a tenth of a sample cannot be told from how the input "
+            "behaves between samples",
+        ),
     ),
     Effect(
         "motor_deadzone",
@@ -238,6 +321,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         "simulated upper disc moves where the measured one stays still at small |u|",
         motor=True,
         kernel_term="terms.voltage, terms.next_kink (dead-zone edges)",
+        resolution=Resolution(
+            "torque", 1.0, "u", "k_m",
+            "a dead zone whose motor torque k_m*u_deadzone is below the upper "
+            "friction level's uncertainty",
+        ),
     ),
 )
 
