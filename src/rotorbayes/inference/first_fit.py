@@ -38,6 +38,36 @@ class FirstFit:
     chose: str = "the start from the data"
 
 
+#: Friction levels and the asymmetries they bound (a friction may not push along the motion).
+_LEVELS = (("Tc_u", "dTc_u"), ("b_u", "db_u"), ("Tc_l", "dTc_l"), ("b_l", "db_l"),
+           ("Ts_l", "dTc_l"))
+
+
+def _within_constraints(problem: Problem, x0: np.ndarray) -> np.ndarray:
+    """The data start with every asymmetry inside its level (``|dTc| <= Tc`` ...).
+
+    The regression fits each direction's friction apart; when an effect it cannot
+    represent is in the data (a hidden viscous asymmetry, say) an asymmetry can come out
+    larger than its level, a start the model refuses.  The asymmetry is shrunk to 0.9 of
+    the level (or, if only the level is free, the level raised to 1.1 of it).
+    """
+    x = np.array(x0, float)
+    vals = problem.params_for(x, 0)
+    for level, asym in _LEVELS:
+        lv, a = vals.get(level), vals.get(asym)
+        if lv is None or a is None or not (math.isfinite(lv) and math.isfinite(a)):
+            continue
+        if abs(a) <= lv:
+            continue
+        if asym in problem.names:
+            x[problem.names.index(asym)] = math.copysign(0.9 * lv, a)
+        elif level in problem.names:
+            j = problem.names.index(level)
+            x[j] = min(1.1 * abs(a), problem.upper[j])
+        vals = problem.params_for(x, 0)
+    return x
+
+
 def floor_ratio(problem: Problem, x: np.ndarray) -> float:
     """Worst fitted channel's residual RMS over its noise floor at ``x``."""
     ev = problem.evaluate(x)
@@ -67,7 +97,7 @@ def fit_from_data(
     """
     ds = data_start(problem)
     x0 = problem.x_from(ds.values)
-    x0 = np.clip(x0, problem.lower, problem.upper)
+    x0 = _within_constraints(problem, np.clip(x0, problem.lower, problem.upper))
     if verbose:
         print("start from the data:\n" + ds.describe(problem.names), flush=True)
     res = fit(problem, x0, verbose=verbose, **fit_kw)
