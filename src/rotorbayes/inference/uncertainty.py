@@ -323,27 +323,32 @@ def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, fl
             meas = ex.theta_u if c == "theta_u" else ex.theta_l
             wt = problem.weights[c]
             # The fitted trajectory: r = w (meas − sim).
-            segs.append((c, off, ex.n, wt, meas - r[off : off + ex.n] / wt))
-            off += ex.n
-    D = np.empty((n_boot, J.shape[1]))
-    e = np.empty_like(r)
-    for b in range(n_boot):
-        for c, o, n, wt, sim in segs:
-            cpr = counts[c]
-            q = 2 * math.pi / cpr
-            phi = rng.uniform(-q / 2, q / 2)
-            # The phase moves the rounding pattern; the constant it would add is left out
-            # (simulated data have none; a real rig's is at most half a count).
-            err = quantize(sim + phi, cpr) - sim - phi
+            sim = meas - r[off : off + ex.n] / wt
+            q = 2 * math.pi / counts[c]
             # Until a disc first leaves the count it started in, its encoder reads 0.
             moved = np.abs(sim) >= q / 2
-            first = int(np.argmax(moved)) if moved.any() else n
-            err[:first] = -sim[:first]
-            extra = floors[c] ** 2 - q * q / 12
-            if extra > 0:
-                err = err + math.sqrt(extra) * rng.standard_normal(n)
-            e[o : o + n] = wt * err
-        D[b] = Apinv @ (Js.T @ e)
+            first = int(np.argmax(moved)) if moved.any() else ex.n
+            segs.append((c, off, ex.n, wt, sim, first))
+            off += ex.n
+    D = np.empty((n_boot, J.shape[1]))
+    chunk = 50  # errors of 50 draws at a time: one matrix product instead of 50 (memory-bound)
+    for b0 in range(0, n_boot, chunk):
+        m = min(chunk, n_boot - b0)
+        E = np.empty((m, r.size))
+        for b in range(m):
+            for c, o, n, wt, sim, first in segs:
+                cpr = counts[c]
+                q = 2 * math.pi / cpr
+                phi = rng.uniform(-q / 2, q / 2)
+                # The phase moves the rounding pattern; the constant it would add is left
+                # out (simulated data have none; a real rig's is at most half a count).
+                err = quantize(sim + phi, cpr) - sim - phi
+                err[:first] = -sim[:first]
+                extra = floors[c] ** 2 - q * q / 12
+                if extra > 0:
+                    err = err + math.sqrt(extra) * rng.standard_normal(n)
+                E[b, o : o + n] = wt * err
+        D[b0 : b0 + m] = (E @ Js) @ Apinv
     return np.cov(D.T).reshape(J.shape[1], J.shape[1]) / np.outer(d, d)
 
 
@@ -394,13 +399,17 @@ def hold_shift(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
     d = np.where(d > 0, d, 1.0)
     Js = J / d
     # The estimate moves so that the new residual is again orthogonal to J: Δx = −A⁺ Jᵀ Δr.
+    A = Js.T @ Js
+    w, V = np.linalg.eigh(A)
+    small = w <= 1e-10 * max(w.max(), 1e-300)
+    Apinv = (V * np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))) @ V.T
     rs = r + dr
-    step, *_ = np.linalg.lstsq(Js, -rs, rcond=1e-10)
-    ssr_smooth = float(np.sum((rs + Js @ step) ** 2))
-    step_lin, *_ = np.linalg.lstsq(Js, -r, rcond=1e-10)
-    ssr_lin = float(np.sum((r + Js @ step_lin) ** 2))
-    step = step - step_lin
-    return step / d, ssr_lin, ssr_smooth
+    g_s, g_l = Js.T @ rs, Js.T @ r
+    step, step_lin = -Apinv @ g_s, -Apinv @ g_l
+    # SSR after a Gauss-Newton step: |r|² − gᵀ A⁺ g.
+    ssr_smooth = float(rs @ rs + g_s @ step)
+    ssr_lin = float(r @ r + g_l @ step_lin)
+    return (step - step_lin) / d, ssr_lin, ssr_smooth
 
 
 def fit_uncertainty(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray | None = None,
