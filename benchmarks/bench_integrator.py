@@ -159,7 +159,7 @@ def run(quick: bool) -> dict:
     sim = rb.Simulator("brake", u, DT)
     sim_exact = rb.Simulator("brake", u, DT, step=DT)
     kv = sim.kernel_vector(params)
-    res: dict = {"quick": quick, "n_samples": int(u.size), "default_step_s": rb.model.DEFAULT_STEP}
+    res: dict = {"quick": quick, "n_samples": int(u.size), "default_step_s": sim.step}
 
     # 1. One simulation ------------------------------------------------------------------
     t0 = time.perf_counter()
