@@ -28,7 +28,12 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 # 0.2 s after a call, none with passive waiting; benchmarks/bench_threads.py).
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from . import data, signals
+# The kernel compiles on first import (tens of seconds with a cold numba cache): said once.
+from .coldstart import compile_kernel as _compile_kernel
+
+_compile_kernel()
+
+from . import data, signals  # noqa: E402
 from .data import Experiment, load_experiment, save_experiment
 from .examples import example_names, load_example
 from .model import (

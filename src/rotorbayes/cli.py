@@ -623,7 +623,12 @@ def run_fit(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         if a.base:
             start.update(_resolve_values(a.p0, prob.model))
         x0 = prob.start_vector(start)
-        start_source = {n: f"--p0 {a.p0}" for n in prob.names}
+        # A parameter the --p0 fit did not have (its effect was off there, or it is a user
+        # effect's) starts at its effect's default, not at a value of that fit.
+        p0_params = (_fit_json(a.p0) or {}).get("parameters") or {}
+        start_source = {n: f"--p0 {a.p0}" if not p0_params or (
+            (p0_params.get(n) or {"status": "off"}).get("status") != "off")
+            else "the effect's default" for n in prob.names}
         from .results import diagnosis_starts
 
         added_names = [e.name for e in prob.model.added]
@@ -1687,6 +1692,8 @@ def main(argv=None) -> int:
     except SystemExit as exc:  # --help, --version (0) or a usage error (2), already printed
         return exc.code if isinstance(exc.code, int) else 2
     a._argv = list(sys.argv[1:] if argv is None else argv)
+    if isinstance(getattr(a, "out", None), str) and len(a.out) > 1:
+        a.out = a.out.rstrip("/")  # messages add their own "/": "fit0/", never "fit0//"
     try:
         with _logged(a):
             code = a.func(a)

@@ -32,6 +32,51 @@ def corner_bins(n_draws: int) -> int:
 
 #: Fewer draws than this: points only, no density contours (they would be noise).
 MIN_DRAWS_FOR_CONTOURS = 60
+#: corner's density levels (0.5, 1, 1.5 and 2 sigma of a 2-D Gaussian).
+_LEVELS = 1.0 - np.exp(-0.5 * np.arange(0.5, 2.1, 0.5) ** 2)
+
+
+def _levels_coincide(H: np.ndarray) -> bool:
+    """Whether two of corner's contour levels fall on the same histogram value (corner
+    then logs "Too few points to create valid contours" and draws a nudged, ragged line)."""
+    flat = np.sort(H.ravel())[::-1]
+    cum = np.cumsum(flat)
+    if cum[-1] <= 0:
+        return True
+    cum /= cum[-1]
+    V = np.sort([flat[cum <= v][-1] if np.any(cum <= v) else flat[0] for v in _LEVELS])
+    return bool(np.any(np.diff(V) == 0))
+
+
+def contour_settings(X: np.ndarray, ranges) -> tuple[int, float | None, bool]:
+    """(bins, smooth, contours) such that every pair's density levels are distinct.
+
+    Tried in order: the bins of :func:`corner_bins` unsmoothed, then smoothed more and
+    more, then fewer bins; when no setting gives every pair valid levels, no contours
+    (points and the 1-D histograms only).
+    """
+    from scipy.ndimage import gaussian_filter
+
+    n, k = X.shape
+    if n < MIN_DRAWS_FOR_CONTOURS or k < 2:
+        return corner_bins(n), None, False
+    b = corner_bins(n)
+    for bins, smooth in ((b, None), (b, 0.7), (b, 1.2), (max(6, 2 * b // 3), 1.2)):
+        ok = True
+        for i in range(k):
+            for j in range(i):
+                H, _, _ = np.histogram2d(X[:, j], X[:, i], bins=bins,
+                                         range=[ranges[j], ranges[i]])
+                if smooth is not None:
+                    H = gaussian_filter(H, smooth)
+                if _levels_coincide(H):
+                    ok = False
+                    break
+            if not ok:
+                break
+        if ok:
+            return bins, smooth, True
+    return b, None, False
 
 
 def _inner_ticks(lo: float, hi: float):
@@ -72,10 +117,11 @@ def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
             lo, hi, degenerate = lo - pad, hi + pad, True
         ranges.append((lo, hi))
     labels = _labels(prob, names)
-    fig = corner.corner(X, bins=corner_bins(n), range=ranges, labels=labels,
+    bins, smooth, contours = contour_settings(X, ranges)
+    contours = contours and not degenerate
+    fig = corner.corner(X, bins=bins, smooth=smooth, range=ranges, labels=labels,
                         quantiles=[0.03, 0.5, 0.97], show_titles=False,
-                        plot_contours=n >= MIN_DRAWS_FOR_CONTOURS and not degenerate,
-                        plot_density=n >= MIN_DRAWS_FOR_CONTOURS and not degenerate,
+                        plot_contours=contours, plot_density=contours,
                         max_n_ticks=3, label_kwargs={"fontsize": 8}, labelpad=0.12,
                         truths=truth)
     k = len(names)
@@ -127,35 +173,50 @@ def plot_trace(runs, coord_names):
 
 
 def plot_predictive(idata, prob, *, i: int = 0):
-    """Measured angles with the posterior-predictive 94 % band (noise-free simulations),
-    and the error of the median."""
+    """Measured angles with the posterior's noise-free simulations, per channel in three
+    panels: the angle with the median simulation; the error of the median; and the 94 %
+    predictive band around the median on its own scale.
+
+    The band holds the parameters' uncertainty only (noise-free simulations). It is often
+    a thousand times narrower than the angle and much narrower than the encoder noise, so
+    drawn over the angle or the error it would be invisible; its own panel shows its width.
+    """
     plt = _plt()
     chans = list(prob.channels)
     ex = prob.experiments[i]
-    fig, axes = plt.subplots(2 * len(chans), 1, figsize=(10, 2.4 * 2 * len(chans) + 0.6),
+    pp, obs = AZ.group(idata, "posterior_predictive"), AZ.group(idata, "observed_data")
+    fig, axes = plt.subplots(3 * len(chans), 1, figsize=(10, 1.9 * 3 * len(chans) + 0.8),
                              sharex=True, squeeze=False, constrained_layout=True)
     for k, c in enumerate(chans):
         key = f"{c}_exp{i}"
-        da = AZ.group(idata, "posterior_predictive")[key]
+        da = pp[key]
         tp = da[da.dims[-1]].values  # the predictive group's own (decimated) time axis
         sims = da.values.reshape(-1, tp.size)
         lo, med, hi = np.percentile(sims, [3, 50, 97], axis=0)
-        full = AZ.group(idata, "observed_data")[key].values
+        full = obs[key].values
         meas = np.interp(tp, ex.t, full)
-        ax = axes[2 * k, 0]
-        ax.plot(ex.t, full, color="k", lw=1, label="measured")
-        ax.fill_between(tp, lo, hi, color="tab:orange", alpha=0.4, label="94 % band")
+        width = float(np.max(hi - lo))
+        ax = axes[3 * k, 0]
+        ax.plot(ex.t, full, color="k", lw=1.2, label="measured")
+        ax.plot(tp, med, color="tab:orange", lw=1.2, ls="--", label="posterior median")
+        ax.fill_between(tp, lo, hi, color="tab:orange", alpha=0.5,
+                        label=f"94 % band (≤ {width:.2g} rad wide: see the third panel)")
         ax.set_ylabel(f"{c} [rad]")
         ax.legend(loc="upper left", fontsize=8)
-        ax2 = axes[2 * k + 1, 0]
-        ax2.fill_between(tp, meas - hi, meas - lo, color="tab:orange", alpha=0.4,
-                         label="measured − band")
-        ax2.plot(tp, meas - med, color="tab:blue", lw=0.8, label="measured − median")
+        ax2 = axes[3 * k + 1, 0]
+        ax2.plot(tp, meas - med, color="0.35", lw=0.7, label="measured − median")
         ax2.axhline(0, color="k", lw=0.5)
         ax2.set_ylabel(f"{c} error [rad]")
         ax2.legend(loc="upper left", fontsize=8)
+        ax3 = axes[3 * k + 2, 0]
+        ax3.fill_between(tp, lo - med, hi - med, color="tab:orange", alpha=0.6,
+                         label="94 % predictive band − median (parameter uncertainty)")
+        ax3.axhline(0, color="k", lw=0.5)
+        ax3.set_ylabel(f"{c} band [rad]")
+        ax3.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle(f"posterior predictive, experiment {ex.name or i}")
+    fig.suptitle(f"posterior predictive (noise-free simulations of the draws), experiment "
+                 f"{ex.name or i}")
     return fig, axes
 
 

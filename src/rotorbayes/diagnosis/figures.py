@@ -15,6 +15,10 @@ _LABEL = {
 }
 
 
+#: Colours of the top candidates' corrections (the residual is grey).
+_CAND_COLORS = ("tab:blue", "tab:orange", "tab:green")
+
+
 def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     """Residual of every fitted channel of the first experiment, and the part of it each
     of the ``top`` ranked effects would remove (its one-step correction)."""
@@ -29,13 +33,24 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     for k, c in enumerate(chans):
         ax = axes[k, 0]
         seg = slice(k * ex.n, (k + 1) * ex.n)
-        ax.plot(ex.t, r[seg], color="0.3", lw=1, label="residual (measured − simulated)")
-        for s in shown:
-            ax.plot(ex.t, -s.correction[seg], lw=1,
-                    label=f"{s.effect} would remove this (p adj. {s.p_adjusted:.2g})")
+        ax.plot(ex.t, r[seg], color="0.75", lw=0.8, label="residual (measured − simulated)")
+        # Candidates' corrections can coincide (an exact tie such as initial_torsion and
+        # lower_asymmetric_coulomb): wide to narrow lines, own dashes and markers at shifted
+        # samples, and a word in the legend when one lies on another.
+        every = max(1, ex.n // 10)
+        for i, s in enumerate(shown):
+            y = -s.correction[seg]
+            same = [o.effect for o in shown[:i] if np.allclose(
+                -o.correction[seg], y, rtol=0.02, atol=0.02 * float(np.max(np.abs(y))) + 1e-300)]
+            ax.plot(ex.t, y, color=_CAND_COLORS[i % 3], lw=(3.2, 2.0, 1.0)[i % 3],
+                    ls=("-", "--", ":")[i % 3], marker=("o", "s", "^")[i % 3], ms=5,
+                    markevery=(i * every // 3, every),
+                    label=f"{s.effect} would remove this (p adj. {s.p_adjusted:.2g})"
+                    + (f" — the same curve as {', '.join(same)}" if same else ""))
         ax.set_ylabel(f"{c} error [rad]")
-        ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
+    # One legend for all panels, below them: inside, it would cover the curves.
+    axes[-1, 0].legend(loc="upper left", bbox_to_anchor=(0.0, -0.22), ncol=1, fontsize=8)
     fig.suptitle("residual and the predicted corrections of the top-ranked effects "
                  f"(experiment {ex.name or 0})")
     return fig, axes

@@ -41,7 +41,15 @@ class Assessment:
 
     @property
     def worst_ratio(self) -> float:
-        r = [c["ratio"] for c in self.channels if c["fitted"]]
+        """The headline number: the worst fitted channel's RMS / floor on the *estimation*
+        data -- the same number `diagnose`, the restarts and `compare` use."""
+        r = [c["ratio"] for c in self.channels if c["fitted"] and c["data"] == "estimation"]
+        return max(r) if r else math.nan
+
+    @property
+    def worst_ratio_validation(self) -> float:
+        """The same on the validation data (NaN without validation data)."""
+        r = [c["ratio"] for c in self.channels if c["fitted"] and c["data"] == "validation"]
         return max(r) if r else math.nan
 
     @property
@@ -57,14 +65,22 @@ class Assessment:
         w = self.worst_ratio
         if not math.isfinite(w):
             return "no fitted channel could be simulated"
+        v = self.worst_ratio_validation
+        val = (f"; validation data: {_times(v)} the floor" if math.isfinite(v) else "")
         if w <= AT_FLOOR:
-            return f"at the encoder floor (worst fitted channel {w:.2f}x the quantisation RMS)"
-        if w <= NEAR_FLOOR:
-            return f"near the encoder floor (worst fitted channel {w:.2f}x the quantisation RMS)"
-        return (
-            f"{w:.3g}x the encoder floor: the model does not explain the data to the "
-            "encoders' resolution (a missing effect, a wrong fixed value or a wrong basin)"
-        )
+            text = (f"at the encoder floor on the estimation data (worst fitted channel "
+                    f"{_times(w)} the quantisation RMS{val})")
+        elif w <= NEAR_FLOOR:
+            text = (f"near the encoder floor on the estimation data (worst fitted channel "
+                    f"{_times(w)} the quantisation RMS{val})")
+        else:
+            text = (f"{_times(w)} the encoder floor on the estimation data (worst fitted "
+                    f"channel{val}): the model does not explain the data to the encoders' "
+                    "resolution (a missing effect, a wrong fixed value or a wrong basin)")
+        if math.isfinite(v) and v > NEAR_FLOOR >= w:
+            text += ("; above the floor on the validation data: the model fits these data "
+                     "but does not predict others")
+        return text
 
     def table(self) -> str:
         rows = [
@@ -83,11 +99,19 @@ class Assessment:
         return {
             "verdict": self.verdict,
             "worst_ratio_to_floor": self.worst_ratio,
+            "worst_ratio_to_floor_validation": (None if math.isnan(self.worst_ratio_validation)
+                                                else self.worst_ratio_validation),
+            "headline": "worst fitted channel's RMS / floor on the estimation data",
             "channels": self.channels,
             "warnings": self.warnings,
             "at_bound": self.at_bound,
             "fixed_suspects": self.fixed_suspects,
         }
+
+
+def _times(r: float) -> str:
+    """A ratio to the floor as printed everywhere: 1.01x, 12.3x, 710x, 2712x."""
+    return f"{r:.3g}x" if r < 1000 else f"{r:.0f}x"
 
 
 def channel_rows(problem, quality_rows, data: str, floors: dict | None = None) -> list[dict]:

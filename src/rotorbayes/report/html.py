@@ -156,6 +156,14 @@ def _warnings(items, title: str = "Warnings") -> Raw:
                f"{ul(items)}</div>")
 
 
+def _immaterial(entries) -> Raw:
+    """diagnosis.json's `immaterial` list as notes: detectable, but no reason for a verdict."""
+    words = [e.get("words") or e.get("effect") or str(e) if isinstance(e, dict) else str(e)
+             for e in entries]
+    return Raw('<span class="note">Detectable but immaterial (a note, not a failure): '
+               + esc("; ".join(str(w) for w in words)) + "</span>")
+
+
 def _worst(doc: dict) -> float | None:
     return (doc.get("assessment") or {}).get("worst_ratio_to_floor")
 
@@ -210,6 +218,9 @@ def _verdict(f: Found) -> Raw:
         w = _worst(fit.doc)
         at, near = _floors()
         good = w is not None and w <= near
+        if fit.diagnosis is not None:
+            # The box and the badge below say the same thing: diagnosis.json's `adequate`.
+            good = bool(fit.diagnosis.get("adequate"))
         cls = "good" if good else "bad"
         which = (f"The final model ({fit.label}, " if f.kind == "study" else
                  f"The model of {fit.label} (")
@@ -226,6 +237,8 @@ def _verdict(f: Found) -> Raw:
             items.append(Raw(f"Diagnosis of {esc(fit.label)}: {tag} {esc(d.get('verdict', ''))}"
                              + (f"; most likely missing: <strong>{esc(d['claimed_effect'])}"
                                 "</strong>" if d.get("claimed_effect") else "")))
+            if d.get("immaterial"):
+                items.append(_immaterial(d["immaterial"]))
         if len(f.chain) > 1:
             steps = []
             for a, b in zip(f.chain, f.chain[1:], strict=False):
@@ -386,7 +399,8 @@ def _fit(f: Found) -> Raw | None:
     d = fit.doc
     a = d.get("assessment") or {}
     cls = _ratio_cls(a.get("worst_ratio_to_floor"))
-    out = [Raw(f"<p>Fit {_code(fit.label)} {_path(fit.folder)}: "
+    where = "" if str(fit.folder).rstrip("/") == fit.label else f" ({_path(fit.folder)})"
+    out = [Raw(f"<p>Fit {_code(fit.label)}{where}: "
                f'<strong class="{cls}">{esc(a.get("verdict", "not assessed"))}</strong></p>')]
     out.append(kv([
         ("converged", Raw(("yes" if d.get("success") else '<span class="tag bad">no</span>')
@@ -500,12 +514,12 @@ def _fits_table(fits: list[dict]) -> Raw:
             mx = m.get("max_error_rad") or {}
             group.append(gi)
             rows.append([Raw(f"<code>{esc(x.get('label'))}</code>") if first else "",
-                         ("+" + ", ".join(added) if added else "") if first else "",
-                         data[:3] + ".", x.get("k"), m.get("ssr"),
+                         _effects_added(added) if first else "",
+                         data[:3] + ".", x.get("k"), num(m.get("ssr"), 4),
                          Raw(" / ".join(str(num(v, 3)) for v in rms.values())),
                          Raw(" / ".join(str(_fixed(v, 4)) for v in fitp.values())),
-                         max(mx.values()) if mx else None, _int(m.get("aicc")),
-                         _int(m.get("bic")), num(m.get("lag1_autocorrelation"), 6)])
+                         num(max(mx.values()), 3) if mx else None, _int(m.get("aicc")),
+                         _int(m.get("bic")), _fixed(m.get("lag1_autocorrelation"), 4)])
             first = False
     chans = next((list((x.get("estimation") or {}).get("rms_over_floor", {})) for x in fits),
                  [])
@@ -516,17 +530,33 @@ def _fits_table(fits: list[dict]) -> Raw:
                  numeric=(3, 4, 5, 6, 7, 8, 9, 10), cls="grouped", row_cls=lambda k: shade[k])
 
 
+def _effects_added(added: list[str]) -> Raw:
+    """Effect names that may wrap after their underscores (a narrow column)."""
+    if not added:
+        return Raw("")
+    return Raw("+" + ", ".join(esc(e).replace("_", "_<wbr>") for e in added))
+
+
 def _diagnosis(f: Found) -> Raw | None:
     diag = [x for x in f.chain if x.diagnosis is not None]
     if not diag:
         return None
     out = []
     last = diag[-1]
+    failing = next((x for x in diag[:-1] if not x.diagnosis.get("adequate")), None)
+    if failing is not None:
+        # Where the model fails is seen on the first inadequate fit, not on the final one.
+        out.append(Raw(f"<h3>Where the first model fails: {esc(failing.label)}</h3>"))
+        out.append(_one_diagnosis(failing, open_=False))
+        out.append(_figs(*((failing.folder / n, c) for n, c in (
+            ("fit_est_0.png", f"{failing.label}: measured and simulated angles, and the error"),
+            ("friction.png", f"{failing.label}: fitted friction"))
+            if (failing.folder / n).exists())))
     out.append(_one_diagnosis(last, open_=True))
-    earlier = diag[:-1]
+    earlier = [x for x in diag[:-1] if x is not failing]
     if earlier:
-        out.append(Raw(f"<h3>Earlier diagnoses ({len(earlier)})</h3>"))
-        for x in earlier[::-1]:
+        out.append(Raw(f"<h3>Other diagnoses along the chain ({len(earlier)})</h3>"))
+        for x in earlier:
             d = x.diagnosis
             what = (f"claimed {d['claimed_effect']}" if d.get("claimed_effect") else
                     "adequate" if d.get("adequate") else "no effect claimed")
@@ -545,6 +575,8 @@ def _one_diagnosis(x: FitInfo, open_: bool) -> Raw:
            Raw(f"<p>{tag} {esc(d.get('verdict', ''))}</p>")]
     if d.get("evidence"):
         out.append(ul(d["evidence"]))
+    if d.get("immaterial"):
+        out += [Raw("<p>"), _immaterial(d["immaterial"]), Raw("</p>")]
     if d.get("advice"):
         out.append(Raw(f'<div class="advice">{esc(d["advice"])}</div>'))
     rank = d.get("ranking") or []
@@ -676,6 +708,11 @@ def _posterior(f: Found) -> Raw | None:
     if md.exists():
         t = markdown_table(md.read_text())
         out.append(t if t is not None else pre(md.read_text()))
+        if t is not None:
+            # The notes under the table (what the columns mean, what the intervals assume).
+            notes = [ln.strip() for ln in md.read_text().splitlines()
+                     if ln.strip() and not ln.strip().startswith("|")]
+            out += [Raw(f'<p class="note">{esc(n)}</p>') for n in notes]
     else:
         out.append(Raw('<p class="note">No summary.md: the sampling did not finish; continue '
                        f"it with {_code(f'rotorbayes sample {p} --resume')}.</p>"))

@@ -1,0 +1,69 @@
+"""The first run compiles the integrator; say so once, with the real wall time.
+
+The kernel's functions are compiled by numba when :mod:`rotorbayes.kernel.solver` is first
+imported and kept in numba's on-disk cache. A cold cache (a fresh install, a new Python, an
+edited kernel) costs about half a minute of silence on 2 cores; :func:`compile_kernel`
+imports the kernel and, only when no up-to-date cache is found, says what is happening
+before and how long it took after, on stderr.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import time
+from pathlib import Path
+
+#: The message's first part (tests look for it).
+MESSAGE = "rotorbayes: compiling the integrator, once (numba caches it for later runs) ..."
+
+
+def _cache_dirs(kernel_dir: Path) -> list[Path]:
+    """Where numba keeps the kernel's cache, in numba's order of precedence: NUMBA_CACHE_DIR
+    if set; else beside the source if that folder is writable; else the user-wide cache."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return [Path(os.environ["NUMBA_CACHE_DIR"])]
+    if os.access(kernel_dir, os.W_OK):
+        return [kernel_dir / "__pycache__"]
+    return [Path.home() / ".cache" / "numba"]
+
+
+def cache_is_cold() -> bool:
+    """True when no numba cache index of the solver for this Python is newer than the
+    kernel's sources (numba would compile on import)."""
+    spec = importlib.util.find_spec("rotorbayes.kernel")
+    if spec is None or not spec.submodule_search_locations:
+        return False
+    kernel_dir = Path(next(iter(spec.submodule_search_locations)))
+    sources = list(kernel_dir.glob("*.py"))
+    newest_source = max((p.stat().st_mtime for p in sources), default=0.0)
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    for d in _cache_dirs(kernel_dir):
+        if not d.is_dir():
+            continue
+        pattern = f"solver.*.{tag}.nbi"
+        found = d.glob(pattern) if d.name == "__pycache__" else d.rglob(pattern)
+        if any(p.stat().st_mtime >= newest_source for p in found):
+            return False
+    return True
+
+
+def compile_kernel(stream=None) -> float | None:
+    """Import (and so compile, if needed) the kernel; returns the seconds spent compiling,
+    or None when the cache was warm (nothing printed then)."""
+    if "rotorbayes.kernel.solver" in sys.modules:
+        return None
+    cold = cache_is_cold()
+    stream = sys.stderr if stream is None else stream
+    if cold:
+        print(MESSAGE, end="", file=stream, flush=True)
+    t0 = time.perf_counter()
+    # The model first: it imports the kernel in the order the package's modules expect.
+    importlib.import_module("rotorbayes.model")
+    importlib.import_module("rotorbayes.kernel.solver")
+    dt = time.perf_counter() - t0
+    if not cold:
+        return None
+    print(f" took {dt:.0f} s", file=stream, flush=True)
+    return dt

@@ -1,0 +1,56 @@
+"""What a new user meets in the first hour: one headline number with its data named, the
+compile notice, intervals printed with the digits they need."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import pytest
+
+from rotorbayes import coldstart
+from rotorbayes.inference.assess import Assessment
+from rotorbayes.numformat import fmt_interval, fmt_value, significant_digits
+
+
+def _row(data, ratio, fitted=True):
+    return {"data": data, "experiment": "e", "channel": "theta_l", "rms": ratio,
+            "floor": 1.0, "ratio": ratio, "fitted": fitted}
+
+
+def test_headline_is_the_estimation_data_and_validation_is_named():
+    a = Assessment([_row("estimation", 710.37), _row("validation", 2711.9),
+                    _row("estimation", 900.0, fitted=False)])
+    assert a.worst_ratio == pytest.approx(710.37)  # fitted channels, estimation data only
+    assert a.worst_ratio_validation == pytest.approx(2711.9)
+    assert a.verdict.startswith("710x the encoder floor on the estimation data")
+    assert "validation data: 2712x" in a.verdict and "e+03" not in a.verdict
+    d = a.as_dict()
+    assert d["worst_ratio_to_floor"] == pytest.approx(710.37)
+    assert d["worst_ratio_to_floor_validation"] == pytest.approx(2711.9)
+    # At the floor on the estimation data but not on the validation data: said.
+    b = Assessment([_row("estimation", 1.01), _row("validation", 40.0)])
+    assert b.verdict.startswith("at the encoder floor on the estimation data")
+    assert "does not predict others" in b.verdict
+    c = Assessment([_row("estimation", 1.2)])
+    assert "validation" not in c.verdict and math.isnan(c.worst_ratio_validation)
+
+
+def test_interval_digits_follow_the_width():
+    assert fmt_interval(4.368697, 4.368712) == "[4.368697, 4.368712]"
+    assert fmt_interval(-0.00525013, -0.00524978) == "[-0.00525013, -0.00524978]"
+    assert fmt_interval(-1.2, 3.4) == "[-1.2, 3.4]"
+    assert fmt_value(4.3687012, 2.7e-6) == "4.3687012"
+    assert significant_digits(1.0, 0.0) == 6  # no spread: the default
+
+
+def test_compile_notice_only_with_a_cold_cache(tmp_path, monkeypatch):
+    # An empty NUMBA_CACHE_DIR is where numba would look first: a cold cache.
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "empty"))
+    assert coldstart.cache_is_cold()
+    (tmp_path / "empty" / "x").mkdir(parents=True)
+    (tmp_path / "empty" / "x" / "solver.simulate_into-1.py399.nbi").write_text("")
+    assert coldstart.cache_is_cold()  # another Python's index does not count
+    # The kernel is imported already in this process: nothing to compile, nothing said.
+    buf = io.StringIO()
+    assert coldstart.compile_kernel(buf) is None and buf.getvalue() == ""
