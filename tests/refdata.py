@@ -22,20 +22,23 @@ Results are cached on disk (``tests/.refcache``, or the folder in the environmen
 ``reference.py`` and of this file, so tests in several files share one simulation and a
 change of the simulator invalidates the cache.
 
-Measured cost of the reference (one process on the shared 2-core test machine, other jobs
-running, so +-50 %; 30 s at 1 kHz, rtol 1e-10 / atol 1e-12, ``SETS[config][0]``, seed 1):
+Measured cost of the reference (one process on the shared 2-core test machine while other
+jobs ran, two runs, so +-50 %; 30 s at 1 kHz, rtol 1e-10 / atol 1e-12, seed 1, sets
+``SETS[config][0]`` -- brake: the set before the current one, with less stick-slip):
 
 =========  ==========================  ==========================
 config     steps: continuous / linear  multisine: cont. / linear
 =========  ==========================  ==========================
 upper      15-24 s / 17-42 s           14-19 s / 8-13 s
-coupled    12 s / 21 s                 49 s / 32 s
-brake      40 s / 40 s                 72 s / (not measured)
+coupled    12-23 s / 21-22 s           49-61 s / 32-52 s
+brake      40-44 s / 40-59 s           63-72 s / 71 s
 =========  ==========================  ==========================
 
-(the continuous path steps with at most one sample interval and reads the samples from the
-solver's dense output; the linear path restarts the solver at every sample.)
-Tests therefore use 10-20 s experiments (the cost is about linear in the duration).
+The cost is about linear in the duration: the current brake set 0 took 4-6 s for 8 s of
+steps.  The continuous path steps with at most one sample interval and reads the samples
+from the solver's dense output; the linear path restarts the solver at every sample.
+Tests therefore use 8-10 s records (``tests/test_diagnosis_reference.py``: 20 tests, 8 min
+on the loaded machine with an empty cache, most of it fits and restarts, not simulation).
 """
 
 from __future__ import annotations
