@@ -235,9 +235,9 @@ def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
 
     bad = np.flatnonzero(np.abs(u) > MAX_ABS_INPUT)
     if bad.size:
-        raise CLIError(f"{p}, line {rows[bad[0]]}: u is {float(u[bad[0]])!r} V: no amplifier of the "
-                       f"rig gives more than {MAX_ABS_INPUT:g} V; the value is corrupt or not "
-                       "in volts -- repair the file")
+        raise CLIError(f"{p}, line {rows[bad[0]]}: u is {float(u[bad[0]])!r} V: no amplifier "
+                       f"of the rig gives more than {MAX_ABS_INPUT:g} V; the value is corrupt "
+                       "or not in volts -- repair the file")
     d = np.diff(t)
     bad = np.flatnonzero(d <= 0)
     if bad.size:
@@ -1130,10 +1130,14 @@ def _sample_locked(a, src: Path, out: Path) -> int:
                            f"{fit.folder}/ (a value outside a prior's lower..upper); widen "
                            "that prior or fit again (nothing was written)")
     n_res = int(fit.doc.get("n_residuals") or 0)
+    # Room for posterior.nc (pointwise log-likelihood of the kept draws) and the figures.
+    outputs = 8 * a.max_draws * settings["ensembles"] * settings["walkers"] \
+        * max(n_res, 1) // 4 + 2_000_000
     need = S.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
-                         settings["ensembles"]) + 8 * a.max_draws * settings["ensembles"] \
-        * settings["walkers"] * max(n_res, 1) // 4 + 2_000_000
+                         settings["ensembles"]) + outputs
     chain = out / "chain.h5"
+    # A reserve file left by a killed run is free space, not a result.
+    (out / ".chain.h5.reserve").unlink(missing_ok=True)
     if a.resume:
         held = S.check_checkpoint(chain, n_walkers=settings["walkers"], ndim=lp.ndim,
                                   n_ensembles=settings["ensembles"])
@@ -1170,7 +1174,7 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
                             n_steps=settings["steps"], n_ensembles=settings["ensembles"],
                             seed=settings["seed"], progress=not a.quiet and sys.stderr.isatty(),
-                            should_stop=lambda: guard.hit > 0)
+                            should_stop=lambda: guard.hit > 0, keep_free=outputs)
         except RuntimeError as exc:
             if "cannot place the walkers" not in str(exc):
                 raise
@@ -1189,7 +1193,15 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             if EXIT.is_disk_full(exc) and not isinstance(exc, EXIT.EnvironmentFailure):
                 _die_disk_full(out, exc)
             raise
-        written = _write_sample_outputs(a, out, lp, fit, runs, guard)
+        try:
+            written = _write_sample_outputs(a, out, lp, fit, runs, guard)
+        except OSError as exc:
+            if not EXIT.is_disk_full(exc):
+                raise
+            raise EXIT.EnvironmentFailure(
+                f"{out}/: the disk filled up while the summary files were written; the chains "
+                f"are complete in {out}/chain.h5. Free some space and run `rotorbayes sample "
+                f"{out} --resume` to write them (no new steps)") from None
     finally:
         guard.stop()
     return written

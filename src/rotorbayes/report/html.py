@@ -931,9 +931,10 @@ def write_report(folder: str | Path, out: str | Path | None = None, *,
     path = Path(out) if out is not None else Path(folder) / "report.html"
     if path.is_dir():
         path = path / "report.html"
-    _check_report_path(path, force)
+    if Path(folder).is_dir():  # (a missing folder is render_report's message)
+        _check_report_path(path, force)  # before the work
     rep = render_report(folder, compact=compact)
-    _check_report_path(path, force)  # again: it may have appeared meanwhile
+    _check_report_path(path, force)
     write_text_atomic(path, rep.html)
     rep.path = path
     return rep
