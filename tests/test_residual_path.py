@@ -3,6 +3,8 @@ gives the numbers of the full simulation followed by ``w * (measured - simulated
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -32,6 +34,10 @@ def _data(config, params, seconds=6.0, seed=2, alpha0=None, rate=1000.0):
     return sim.to_experiment(f"{config}_{seed}")
 
 
+ROOT = Path(__file__).resolve().parents[1]
+USER = str(ROOT / "examples" / "angle_friction.py") + ":angle_friction"
+
+
 def _problems():
     brake = thesis_set("4.3", "P_ref")
     coupled = thesis_set("4.2", "P_ref")
@@ -51,6 +57,12 @@ def _problems():
             "coupled", [ex_c], base=coupled, effects=["input_delay", "motor_deadzone"],
         ),
         "upper": E.Problem("upper", [_data("upper", upper)], base=upper),
+        # A user effect: the kernel entry point with function arguments (the others use
+        # the one without).
+        "brake-user-effect": E.Problem(
+            "brake", [ex_b2], base=dict(brake, a_fric=0.2, phi_fric=0.5), effects=[USER],
+            free=["J_l", "Tc_l", "a_fric"],
+        ),
         "prescribed-upper": E.Problem(
             "brake", [ex_b1], base=dict(brake, alpha0=0.4), prescribed_upper=True,
             effects=["initial_torsion"],

@@ -450,6 +450,34 @@ def simulate_batch_into(
         status[i] = s
 
 
+_PLAIN_SIGNATURE = types.int64(
+    _F1, _F1, _F1, types.float64, types.int64, types.int64, types.int64, types.int64, _F1,
+    _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
+    types.int64,
+)  # fmt: skip
+
+
+@njit(_PLAIN_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+def residuals_into_plain(
+    p, q, u, dt, cfg, shape, stride, substeps, thp, meas_u, meas_l, w_u, w_l, r, row, col_u,
+    col_l,
+):  # fmt: skip
+    """:func:`residuals_into` for a model without user-defined effects.
+
+    The same solver with no hooks at all (``None``, see :func:`terms.call_hook`) instead of
+    function values: a call from Python then costs a few microseconds instead of about
+    0.1 ms (numba types and unboxes a function argument on every call).
+    """
+    no_f = np.empty(0)
+    no_i = np.empty(0, dtype=np.int8)
+    status, _ = _integrate(
+        p, q, u, dt, cfg, shape, stride, substeps, thp, False, None, None,
+        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
+    )  # fmt: skip
+    return status
+
+
 _RESIDUALS_BATCH_SIGNATURE = types.void(
     types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
     types.int64, types.int64, types.int64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
@@ -471,4 +499,26 @@ def residuals_batch_into(
         status[i] = residuals_into(
             P[i], Q[i], u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque,
             hook_shift, meas_u, meas_l, w_u, w_l, R, i, col_u, col_l,
+        )  # fmt: skip
+
+
+_PLAIN_BATCH_SIGNATURE = types.void(
+    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
+    types.int64, types.int64, types.int64, _F1, _F1, _F1, types.float64, types.float64,
+    types.float64[:, ::1], types.int64, types.int64, types.int64[::1],
+)  # fmt: skip
+
+
+@njit(_PLAIN_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+def residuals_batch_into_plain(
+    P, Q, u, dt, cfg, shape, stride, substeps, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
+    status,
+):  # fmt: skip
+    """:func:`residuals_batch_into` for a model without user-defined effects (see
+    :func:`residuals_into_plain`)."""
+    m = P.shape[0]
+    for i in prange(m):
+        status[i] = residuals_into_plain(
+            P[i], Q[i], u, dt, cfg, shape, stride, substeps, thp, meas_u, meas_l, w_u, w_l, R,
+            i, col_u, col_l,
         )  # fmt: skip

@@ -286,11 +286,13 @@ class Simulator:
         the status (0 on success).
         """
         p, q = kv
+        p = np.ascontiguousarray(p, dtype=float)
+        q = np.ascontiguousarray(q, dtype=float)
         (mu, wu, cu), (ml, wl, cl) = _channel_args(channels)
-        return int(_solver.residuals_into(
-            np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(q, dtype=float),
-            *self._kernel_args(), mu, ml, wu, wl, r, row, cu, cl,
-        ))  # fmt: skip
+        a = self._kernel_args()
+        if not a[7]:  # no user effects: the entry point without function arguments
+            return int(_solver.residuals_into_plain(p, q, *a[:7], mu, ml, wu, wl, r, row, cu, cl))
+        return int(_solver.residuals_into(p, q, *a, mu, ml, wu, wl, r, row, cu, cl))
 
     def residuals_batch_into(self, P, Q, R, channels) -> np.ndarray:
         """:meth:`residuals_into` for every row of ``P`` (``Q``) in parallel: row ``j`` of
@@ -302,7 +304,11 @@ class Simulator:
         Q = np.ascontiguousarray(np.reshape(Q, (m, -1)), dtype=float)
         (mu, wu, cu), (ml, wl, cl) = _channel_args(channels)
         st = np.empty(m, dtype=np.int64)
-        _solver.residuals_batch_into(P, Q, *self._kernel_args(), mu, ml, wu, wl, R, cu, cl, st)
+        a = self._kernel_args()
+        if not a[7]:
+            _solver.residuals_batch_into_plain(P, Q, *a[:7], mu, ml, wu, wl, R, cu, cl, st)
+        else:
+            _solver.residuals_batch_into(P, Q, *a, mu, ml, wu, wl, R, cu, cl, st)
         return st
 
     def simulate(
