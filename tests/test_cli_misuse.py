@@ -398,7 +398,7 @@ def test_help_shows_the_defaults_of_every_subcommand():
     for needle in ("(default: 1000)", "(default: 30)", "(default: brake)", "(default: 0)"):
         assert needle in sim
     ms = " ".join(subs["multistart"].format_help().split())
-    for needle in ("(default: 32)", "(default: 2)", "(default: 0.3)", "(default: 200)"):
+    for needle in ("(default: 32)", "(default: 0.3)", "(default: 200)"):
         assert needle in ms
 
 

@@ -861,9 +861,10 @@ def cmd_multistart(a) -> int:
         how = (f"log-normal spread {a.spread:.2f} around {a.around}" if around
                else "Latin hypercube over the bounds")
         print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
-        ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
-                          workers=a.workers, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
-                          gtol=a.gtol)
+        with _executor(a) as ex:
+            ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
+                              executor=ex, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
+                              gtol=a.gtol)
         guard.start()  # the starts are done: from here on Ctrl-C must not throw them away
         n_done = int(ms.ssr.size) + len(ms.failed)
         if ms.interrupted and n_done == 0:
@@ -939,10 +940,11 @@ def cmd_demo(a) -> int:
 
 def cmd_run(a) -> int:
     """A whole study from an analysis file."""
-    from .study import run
+    from .study import load_analysis, run
 
     t0 = time.perf_counter()
-    rec = run(a.analysis, quiet=a.quiet, force=a.force)
+    with _executor(a, load_analysis(a.analysis).table("parallel")):
+        rec = run(a.analysis, quiet=a.quiet, force=a.force)
     print(f"\nstudy done in {time.perf_counter() - t0:.0f} s; outputs and run.json in "
           f"{Path(rec['final_fit']).parent}/")
     if rec.get("report"):
@@ -1340,10 +1342,11 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
     if profiles:
         se = dict(zip(prob.names, fit.doc and [fit.doc["estimates"][n]["stderr"] or 0.0
                                                for n in prob.names], strict=True))
+        ex_ctx = contextlib.ExitStack()
+        ex = ex_ctx.enter_context(_executor(a))
         for n in profiles:
             t0 = time.perf_counter()
-            pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n),
-                           workers=a.workers)
+            pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex)
             doc["profiles"].append(pr)
             inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
                       if d is not None and math.isfinite(d) and d < 3.84]
@@ -1352,6 +1355,7 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
                      f"{pr['unit']}" if inside else "no grid point within Δχ² < 3.84")
                   + ("; the interval reaches the grid's edge: widen it" if inside and (
                       min(inside) == pr["grid"][0] or max(inside) == pr["grid"][-1]) else ""))
+        ex_ctx.close()
         save_figure_atomic(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
         written.append("profiles.png")
     if a.posterior:
@@ -1451,6 +1455,46 @@ def _add_fit_args(p, *, multi=False):
     _add_trust(p)
 
 
+def _add_parallel(p, what: str) -> None:
+    """Where the independent tasks run (rotorbayes.inference.parallel)."""
+    from .inference.parallel import BACKENDS, DEFAULT_BACKEND, SCHEDULER_ENV
+
+    p.add_argument("--backend", choices=BACKENDS, default=None,
+                   help=f"where the {what} run: serial, local threads (default "
+                   f"{DEFAULT_BACKEND!r}), local processes, or dask (a local Dask cluster of "
+                   "--workers processes, or the scheduler given by --scheduler or "
+                   f"{SCHEDULER_ENV})")
+    p.add_argument("--workers", type=_ranged(int, ge=1, le=256, why=" (parallel workers)"),
+                   default=None, metavar="N",
+                   help=f"parallel {what} (threads, processes or local Dask workers; default "
+                   "the number of cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help=f"run the {what} on this Dask scheduler (e.g. tcp://host:8786; "
+                   f"default ${SCHEDULER_ENV} if set); see the README on starting one")
+
+
+@contextlib.contextmanager
+def _executor(a, file: dict | None = None):
+    """Open the executor the options, DASK_SCHEDULER_ADDRESS or the analysis file's
+    [parallel] table choose, for the length of a command.  A command run inside `run`
+    (a study stage) without options of its own uses the study's executor."""
+    from .inference import parallel as P
+
+    opts = (getattr(a, "backend", None), getattr(a, "workers", None),
+            getattr(a, "scheduler", None))
+    if P.current_executor() is not None and opts == (None, None, None):
+        yield P.current_executor()
+        return
+    try:
+        spec = P.choose(*opts, file=file)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+    if spec.backend != P.DEFAULT_BACKEND or spec.source != "default":
+        print(f"parallel tasks run {spec.describe()}", flush=True)
+    with P.use_executor(spec) as ex:
+        yield ex
+
+
 def _add_trust(p) -> None:
     p.add_argument("--trust-effects", action="store_true",
                    help="import user effect files a result names even when they changed "
@@ -1521,8 +1565,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "factors; 0.3 spreads by about ±30 %)"), default=0.3,
                    help="log-sd of the spread around --around")
     m.add_argument("--seed", type=_ranged(int, ge=0), default=0, help="seed of the starts")
-    m.add_argument("--workers", type=_ranged(int, ge=1, le=256, why=" (parallel fits)"),
-                   default=2, metavar="N", help="parallel fits")
+    _add_parallel(m, "fits")
     m.set_defaults(func=cmd_multistart)
 
     d = sub.add_parser("demo", help="the whole story on the bundled hidden-effect data: "
@@ -1538,6 +1581,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("analysis", help="the analysis file")
     r.add_argument("--force", action="store_true", help="rerun every stage")
     r.add_argument("--quiet", action="store_true", help="print only the summary")
+    _add_parallel(r, "independent fits (restarts, profile points)")
     r.set_defaults(func=cmd_run)
 
     g = sub.add_parser("diagnose", help="is the remaining error noise? which effect is "
@@ -1601,8 +1645,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--profiles", help="comma-separated free parameters to profile")
     i.add_argument("--points", type=_ranged(int, ge=3, le=1001, why=" (grid points)"),
                    default=11, help="grid points per profile")
-    i.add_argument("--workers", type=_ranged(int, ge=1, le=256, why=" (parallel fits)"),
-                   default=2, help="parallel profile fits")
+    _add_parallel(i, "profile fits")
     i.add_argument("--posterior", help="a sample folder: corner plot of its posterior")
     i.add_argument("--multistart", help="a multistart folder: its end points on the corner")
     i.add_argument("--force", action="store_true", help="overwrite results in --out")

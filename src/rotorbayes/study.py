@@ -43,6 +43,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "priors": {},
     "identify": {"profiles": (list,), "points": (int,)},
     "report": {"html": (bool,)},
+    "parallel": {"backend": (str,), "workers": (int,), "scheduler": (str,)},
 }
 
 
@@ -54,6 +55,7 @@ LIMITS: dict[str, dict[str, tuple[float, float]]] = {
     "diagnose": {"max_steps": (0, 20), "noise_std": (0.0, 1.0)},
     "sample": {"walkers": (4, 10_000), "steps": (10, 10_000_000), "ensembles": (1, 64)},
     "identify": {"points": (3, 1001)},
+    "parallel": {"workers": (1, 256)},
 }
 
 #: Keys that must not be empty, and what to write instead.
@@ -218,6 +220,11 @@ def load_analysis(path: str | Path) -> Analysis:
     for n in a.table("identify").get("profiles", []):
         if n not in INFO:
             raise _err(p, "identify", f"profiles: unknown parameter {n!r}")
+    from .inference.parallel import BACKENDS
+
+    backend = a.table("parallel").get("backend")
+    if backend is not None and backend not in BACKENDS:
+        raise _err(p, "parallel", f"backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     return a
 
 

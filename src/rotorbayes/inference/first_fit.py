@@ -7,7 +7,7 @@ automatic multistart when the result is not at the encoder floor.
    regression on smoothed derivatives of the measured angles;
 2. :func:`~rotorbayes.inference.least_squares.fit` from there;
 3. if a fitted channel stays above ``NEAR_FLOOR`` times its quantisation floor, a few more
-   fits from log-normal spreads around the data start (through the parallel map layer),
+   fits from log-normal spreads around the data start (through the executor layer),
    keeping the best.
 
 The result carries where its start came from and how many restarts it took.
@@ -22,8 +22,8 @@ import numpy as np
 
 from .assess import NEAR_FLOOR
 from .least_squares import FitResult, attach_uncertainty, fit
-from .multistart import fit_or_reason, latin_hypercube
-from .parallel import get_mapper, progress
+from .multistart import _fit_start, latin_hypercube
+from .parallel import progress, run_tasks
 from .problem import Problem
 from .starts import DataStart, data_start
 
@@ -83,6 +83,7 @@ def fit_from_data(
     spread: float = 0.4,
     seed: int = 0,
     workers: int = 2,
+    executor=None,
     verbose: bool = False,
     **fit_kw,
 ) -> FirstFit:
@@ -94,6 +95,8 @@ def fit_from_data(
         Extra fits tried when the first one ends above ``NEAR_FLOOR`` x the floor.
     spread : float
         Log-sd of the restarts' spread around the data start.
+    workers, executor
+        Where the restarts run (:func:`rotorbayes.inference.parallel.run_tasks`).
     """
     ds = data_start(problem)
     x0 = problem.x_from(ds.values)
@@ -113,12 +116,12 @@ def fit_from_data(
     rng = np.random.default_rng(seed)
     starts = latin_hypercube(problem, restarts, rng, around=x0, spread=spread)
 
-    def one(xs):
-        return fit_or_reason(problem, xs, **fit_kw)
-
     best = res
-    for i, (r, why) in progress(get_mapper("threads", workers).map(one, list(starts)),
-                                restarts, "restarts", enabled=verbose):
+    tasks = run_tasks(_fit_start, list(starts), shared=(problem, fit_kw), executor=executor,
+                      workers=workers)
+    for i, (r, why) in progress(tasks, restarts, "restarts", enabled=verbose):
+        if r is not None:
+            r.problem = problem  # a process or Dask worker sent back its own copy
         row = {"start": starts[i].tolist(), "ssr": r.ssr if r else None,
                "success": bool(r and r.success), "failed": why}
         out.restarts.append(row)

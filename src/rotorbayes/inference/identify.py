@@ -9,7 +9,8 @@
   together by 1.2 costs less than one standard deviation of noise: only their ratios are
   determined").
 * :func:`profile` — profile likelihoods: one parameter held at each value of a grid, all
-  others refitted, ``Δχ² = ΔSSR / σ²``; points run in parallel through the map layer.
+  others refitted, ``Δχ² = ΔSSR / σ²``; points run in parallel through the executor layer
+  (local threads or processes, or Dask: :mod:`rotorbayes.inference.parallel`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .least_squares import fit
-from .parallel import get_mapper, progress
+from .parallel import progress, run_tasks
 from .problem import Problem, local_name
 
 
@@ -97,6 +98,25 @@ def describe(F: Fisher, *, n: int = 2) -> list[str]:
     return out
 
 
+def _profile_point(shared: tuple, v: float) -> float:
+    """One grid point of a profile, as a task: ``name`` held at ``v``, the others refitted
+    from ``x`` (only the SSR is used: no honest-uncertainty pass); the weighted SSR (χ²),
+    NaN where the point cannot be simulated."""
+    problem, x, name, max_nfev, w = shared
+    others = [n for n in problem.names_base() if n != local_name(name)[0]]
+    base = dict(problem.params_for(x, 0))
+    base[local_name(name)[0]] = float(v)
+    sub = Problem(problem.model, problem.experiments, free=others, base=base,
+                  channels=problem.channels, weights=problem.weights)
+    start = sub.x_from({**base, **problem.values(x)})
+    try:
+        r = fit(sub, start, parallel=False, max_nfev=max_nfev, uncertainty=False)
+    except Exception:  # noqa: BLE001 - an unsimulable grid point: no value
+        return math.nan
+    res = sub.residuals(r.x)
+    return float(np.sum((res * w) ** 2))
+
+
 def profile(
     problem: Problem,
     x: np.ndarray,
@@ -107,8 +127,13 @@ def profile(
     stderr: float | None = None,
     workers: int = 2,
     max_nfev: int = 100,
+    executor=None,
 ) -> dict:
-    """Profile likelihood of ``name``: Δχ² over a grid, the others refitted."""
+    """Profile likelihood of ``name``: Δχ² over a grid, the others refitted.
+
+    The grid points are independent fits; they run on ``executor`` (default: the current
+    one, else ``workers`` local threads) and give the same values on every back-end.
+    """
     j = problem.names.index(name)
     x = np.asarray(x, float)
     v0 = x[j]
@@ -122,24 +147,10 @@ def profile(
         s = max(abs(v0), 1e-3 * (info.upper - info.lower))
         grid = v0 + s * np.linspace(-span, span, n_points)
     grid = np.clip(grid, problem.lower[j], problem.upper[j])
-    others = [n for n in problem.names_base() if n != local_name(name)[0]]
     w = _weights(problem)
-
-    def one(v):
-        base = dict(problem.params_for(x, 0))
-        base[local_name(name)[0]] = float(v)
-        sub = Problem(problem.model, problem.experiments, free=others, base=base,
-                      channels=problem.channels, weights=problem.weights)
-        start = sub.x_from({**base, **problem.values(x)})
-        try:
-            r = fit(sub, start, parallel=False, max_nfev=max_nfev, uncertainty=False)
-        except Exception:  # noqa: BLE001 - an unsimulable grid point: no value
-            return math.nan
-        res = sub.residuals(r.x)
-        return float(np.sum((res * w) ** 2))
-
-    values = dict(progress(get_mapper("threads", workers).map(one, list(grid)), len(grid),
-                           f"profile {name}"))
+    tasks = run_tasks(_profile_point, list(grid), shared=(problem, x, name, max_nfev, w),
+                      executor=executor, workers=workers)
+    values = dict(progress(tasks, len(grid), f"profile {name}"))
     chi2 = np.array([values[i] for i in range(len(grid))])
     r0 = problem.residuals(x)
     chi2_min = float(np.sum((r0 * w) ** 2))

@@ -1,7 +1,7 @@
 """Multistart: many least-squares fits from spread starts, end points clustered and
 explained in words (which parameters the data do not identify, which starts stop in other
-minima or on plateaus).  Fits run through the parallel map layer
-(:mod:`rotorbayes.inference.parallel`)."""
+minima or on plateaus).  Fits run through the executor layer
+(:mod:`rotorbayes.inference.parallel`): serially, in local threads or processes, or on Dask."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from scipy.stats import qmc
 
 from ..model.parameters import ParameterError
 from .least_squares import FitResult, fit
-from .parallel import get_mapper
+from .parallel import run_tasks
 from .problem import Problem
 
 
@@ -213,6 +213,12 @@ def fit_or_reason(problem: Problem, x0, **fit_kw) -> tuple[FitResult | None, str
         return None, str(exc)
 
 
+def _fit_start(shared: tuple, x0: np.ndarray) -> tuple[FitResult | None, str]:
+    """One start of a multistart, as a task: ``shared`` is ``(problem, fit_kw)``."""
+    problem, fit_kw = shared
+    return fit_or_reason(problem, x0, **fit_kw)
+
+
 def multistart(
     problem: Problem,
     n_starts: int = 32,
@@ -221,10 +227,11 @@ def multistart(
     around=None,
     spread: float = 0.3,
     workers: int = 2,
+    executor=None,
     progress: bool = True,
     **fit_kw,
 ) -> MultistartResult:
-    """Fit from ``n_starts`` start points in parallel threads and cluster the end points.
+    """Fit from ``n_starts`` start points in parallel and cluster the end points.
 
     Parameters
     ----------
@@ -232,7 +239,10 @@ def multistart(
         Centre of a log-normal spread of starts (``spread`` is its log-sd); default a
         Latin hypercube over the parameter bounds.
     workers : int
-        Parallel fits (the integrator releases the GIL).
+        Parallel fits in local threads when no ``executor`` is given and none is current.
+    executor : concurrent.futures.Executor, optional
+        Where the fits run (:mod:`rotorbayes.inference.parallel`); the starts and so the
+        results depend on ``seed`` alone, not on the executor.
     """
     rng = np.random.default_rng(seed)
     if isinstance(around, Mapping):
@@ -240,14 +250,13 @@ def multistart(
     starts = latin_hypercube(problem, n_starts, rng, around=around, spread=spread)
     t0 = time.perf_counter()
 
-    def one(x0):
-        return fit_or_reason(problem, x0, **fit_kw)
-
     results: dict[int, tuple] = {}
     interrupted = False
-    mapper = get_mapper("threads", workers)
     try:
-        for i, (r, why) in mapper.map(one, list(starts)):
+        for i, (r, why) in run_tasks(_fit_start, list(starts), shared=(problem, fit_kw),
+                                     executor=executor, workers=workers):
+            if r is not None:
+                r.problem = problem  # a process or Dask worker sent back its own copy
             results[i] = (r, why)
             if progress:
                 el = time.perf_counter() - t0

@@ -1,71 +1,465 @@
-"""The one parallel-map layer: every batch of independent tasks goes through here.
+"""The one executor layer: every batch of independent tasks goes through here.
 
 Two kinds of parallel work exist in rotorbayes:
 
 * **kernel batches** — many parameter sets of one experiment, run by the compiled kernel in
-  numba threads (:meth:`rotorbayes.Simulator.run_batch`); used by Jacobians and, later,
-  by the vectorised log-posterior;
-* **independent tasks** — whole fits (multistart), profiles, ensembles; they go through a
-  :class:`Mapper` from :func:`get_mapper`.
+  numba threads (:meth:`rotorbayes.Simulator.run_batch`); used by Jacobians and by the
+  vectorised log-posterior;
+* **independent tasks** — whole fits (multistart starts, restarts), profile-likelihood
+  points; they go through an executor with the :class:`concurrent.futures.Executor`
+  contract (``submit`` returning a future), via :func:`run_tasks`.
 
-A mapper is anything with ``map(fn, items)`` yielding ``(index, result)`` pairs as tasks
-finish, plus ``workers``.  Threads suit the compiled kernel (it releases the GIL);
-processes suit Python-heavy tasks; a cluster backend (Dask) plugs in here later.
+Back-ends (:data:`BACKENDS`):
+
+``serial``     one task after the other, in this process (the reference for bit identity);
+``threads``    a local thread pool (the kernel releases the GIL; scipy's Python does not);
+``processes``  a local process pool (no GIL between tasks);
+``dask``       Dask distributed: an existing scheduler (``--scheduler ADDRESS``, the
+               ``DASK_SCHEDULER_ADDRESS`` variable, or ``[parallel] scheduler`` in the analysis
+               file) or a ``LocalCluster`` of ``--workers N`` processes started by the command.
+
+:func:`choose` is the one place that picks the back-end from the option, the environment
+and the analysis file; :func:`open_executor` builds it (and tears it down);
+:func:`use_executor` makes it the default of every algorithm for the length of a command.
+Algorithms take ``executor=None`` (meaning: the current one) and never know where they run.
+
+Every worker runs one task at a time with one numba and one BLAS thread (no
+oversubscription), and warms the compiled kernel once before its first task.  Data shared by
+all tasks (the problem: experiments, model) are sent once per worker (``shared=``): Dask
+scatters them, the local pools pass them by reference (threads) or with each task
+(processes).
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    CancelledError,
+    Executor,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+)
 from concurrent.futures import wait as _wait
+from dataclasses import dataclass
 from typing import Any
+
+from ..exitcodes import EnvironmentFailure
+
+#: The back-ends :func:`choose` knows.
+BACKENDS = ("serial", "threads", "processes", "dask")
+
+#: The default back-end of a command (no option, no variable, no analysis-file entry).
+DEFAULT_BACKEND = "threads"
+
+#: The environment variable Dask itself reads for the scheduler's address.
+SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
+
+#: Seconds to wait for a scheduler to answer before giving up.
+CONNECT_TIMEOUT = 15.0
+
+#: Thread counts every worker runs with: one task per worker, each single-threaded.
+WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+              "MKL_NUM_THREADS": "1"}
+
+
+class ClusterError(EnvironmentFailure):
+    """The Dask scheduler could not be reached, or was lost during the job (exit code 3:
+    the environment failed, not the input).
+
+    ``done`` is the number of tasks that had finished (their results were yielded)."""
+
+    def __init__(self, message: str, done: int = 0):
+        super().__init__(message)
+        self.done = done
+
+
+# --------------------------------------------------------------------------- back-ends
+
+
+class SerialExecutor(Executor):
+    """``submit`` runs the task at once in this process and returns a finished future."""
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        f: Future = Future()
+        try:
+            f.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the future like a pool would
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            f.set_exception(exc)
+        return f
+
+
+def prepare_worker() -> None:
+    """Make this process a good worker: one numba thread, the kernel loaded (compiled or
+    read from numba's cache) once, before the first task, not inside a timed one."""
+    for k, v in WORKER_ENV.items():
+        os.environ.setdefault(k, v)
+    import numba
+
+    try:
+        numba.set_num_threads(1)
+    except ValueError:  # pragma: no cover - numba already limited below 1 cannot happen
+        pass
+    warm_kernel()
+
+
+def warm_kernel() -> None:
+    """Run the kernel once per configuration on a tiny input (loads numba's cache)."""
+    import numpy as np
+
+    from ..model.simulate import simulate
+
+    u = np.linspace(0.0, 1.0, 21)
+    for config, pset in (("upper", "thesis:4.1:P_ref"), ("coupled", "thesis:4.2:P_ref"),
+                         ("brake", "thesis:4.3:P_ref")):
+        with contextlib.suppress(Exception):  # a missing table entry must not stop a worker
+            simulate(pset, u, dt=0.005, config=config)
+
+
+def _process_initializer() -> None:
+    prepare_worker()
+
+
+@dataclass(frozen=True)
+class ExecutorSpec:
+    """Which back-end, how many workers, which scheduler (see :func:`choose`)."""
+
+    backend: str = DEFAULT_BACKEND
+    workers: int | None = None
+    scheduler: str | None = None
+    source: str = "default"
+
+    def n_workers(self) -> int:
+        if self.backend == "serial":
+            return 1
+        return max(1, int(self.workers or os.cpu_count() or 1))
+
+    def describe(self) -> str:
+        """In words, for the command's output."""
+        if self.backend == "serial":
+            return "serially in this process"
+        if self.backend == "threads":
+            return f"in {self.n_workers()} local threads"
+        if self.backend == "processes":
+            return f"in {self.n_workers()} local processes"
+        if self.scheduler:
+            return f"on the Dask scheduler at {self.scheduler} ({self.source})"
+        return f"on a local Dask cluster of {self.n_workers()} worker processes"
+
+
+def choose(
+    backend: str | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    *,
+    file: dict | None = None,
+    environ: dict | None = None,
+) -> ExecutorSpec:
+    """Pick the back-end: the command's options first, then ``DASK_SCHEDULER_ADDRESS``, then
+    the analysis file's ``[parallel]`` table (``backend``, ``workers``, ``scheduler``), then
+    :data:`DEFAULT_BACKEND`.
+
+    A scheduler address (from any of them) means Dask; ``backend='dask'`` without one starts
+    a ``LocalCluster`` of ``workers`` processes.
+    """
+    env = os.environ if environ is None else environ
+    file = file or {}
+    if backend is not None and backend not in BACKENDS:
+        raise ValueError(f"unknown parallel back-end {backend!r}; choose one of "
+                         f"{', '.join(BACKENDS)}")
+    if scheduler:
+        return ExecutorSpec("dask", workers, scheduler, "--scheduler")
+    if backend not in (None, "dask"):
+        return ExecutorSpec(backend, workers, None, "--backend")
+    if env.get(SCHEDULER_ENV):
+        return ExecutorSpec("dask", workers, env[SCHEDULER_ENV], SCHEDULER_ENV)
+    if backend == "dask":
+        return ExecutorSpec("dask", workers, None, "--backend")
+    if file.get("scheduler"):
+        return ExecutorSpec("dask", workers or file.get("workers"), file["scheduler"],
+                            "the analysis file")
+    if file.get("backend"):
+        return ExecutorSpec(file["backend"], workers or file.get("workers"), None,
+                            "the analysis file")
+    return ExecutorSpec(DEFAULT_BACKEND, workers or file.get("workers"), None, "default")
+
+
+class _WarmUp:
+    """Dask worker plugin: :func:`prepare_worker` once when a worker joins (also a
+    replacement for a worker that died)."""
+
+    name = "rotorbayes-warm-up"
+
+    def setup(self, worker=None):
+        prepare_worker()
+
+    def teardown(self, worker=None):
+        pass
+
+    def transition(self, *args, **kwargs):
+        pass
+
+    def release_key(self, *args, **kwargs):
+        pass
+
+
+@contextlib.contextmanager
+def open_executor(spec: ExecutorSpec) -> Iterator[Executor]:
+    """The executor for ``spec``, shut down (and a cluster it started, stopped) on exit."""
+    if spec.backend == "serial":
+        yield SerialExecutor()
+        return
+    if spec.backend in ("threads", "processes"):
+        pool: Executor
+        if spec.backend == "threads":
+            pool = ThreadPoolExecutor(max_workers=spec.n_workers())
+        else:
+            import multiprocessing as mp
+
+            # Workers start with one numba/BLAS thread each: set before they import numpy.
+            saved = {k: os.environ.get(k) for k in WORKER_ENV}
+            os.environ.update(WORKER_ENV)
+            try:
+                pool = ProcessPoolExecutor(max_workers=spec.n_workers(),
+                                           mp_context=mp.get_context("spawn"),
+                                           initializer=_process_initializer)
+            finally:
+                for k, v in saved.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
+        try:
+            yield pool
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+        return
+    with _dask_client(spec) as client:
+        yield client.get_executor(pure=False)
+
+
+@contextlib.contextmanager
+def _dask_client(spec: ExecutorSpec):
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - a declared dependency
+        raise ClusterError("the Dask back-end needs dask[distributed]: pip install "
+                           "'dask[distributed]'") from exc
+    cluster = None
+    quiet = _quiet_dask_logs()
+    try:
+        if spec.scheduler:
+            try:
+                client = Client(spec.scheduler, timeout=CONNECT_TIMEOUT,
+                                set_as_default=False)
+            except (OSError, TimeoutError) as exc:
+                raise ClusterError(
+                    f"no Dask scheduler answered at {spec.scheduler} (from {spec.source}) "
+                    f"within {CONNECT_TIMEOUT:.0f} s: {exc}. Start one with `dask scheduler` "
+                    f"and workers with `dask worker {spec.scheduler}`, or drop the address "
+                    "to run locally") from None
+        else:
+            cluster = LocalCluster(n_workers=spec.n_workers(), threads_per_worker=1,
+                                   processes=True, dashboard_address=None, env=WORKER_ENV)
+            client = Client(cluster, set_as_default=False)
+        try:
+            client.register_plugin(_worker_plugin(), name=_WarmUp.name)
+            yield client
+        finally:
+            with contextlib.suppress(Exception):
+                client.close(timeout=5)
+    finally:
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
+        quiet()
+
+
+def _quiet_dask_logs() -> Callable[[], None]:
+    """Dask's own log lines (ports, nannies, reconnect attempts with tracebacks) are not the
+    user's business: our messages say what happened.  Returns the undo."""
+    import logging
+
+    names = ["distributed", "tornado", "asyncio"] + [
+        n for n in logging.root.manager.loggerDict
+        if n.startswith(("distributed.", "tornado."))]
+    saved = {n: logging.getLogger(n).level for n in names}
+    for n in names:
+        logging.getLogger(n).setLevel(logging.CRITICAL + 1)
+
+    def undo() -> None:
+        for n, level in saved.items():
+            logging.getLogger(n).setLevel(level)
+
+    return undo
+
+
+def _worker_plugin():
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class WarmUp(_WarmUp, WorkerPlugin):
+        pass
+
+    return WarmUp()
+
+
+# --------------------------------------------------------------------------- the current one
+
+_CURRENT: contextvars.ContextVar[Executor | None] = contextvars.ContextVar(
+    "rotorbayes_executor", default=None)
+
+
+def current_executor() -> Executor | None:
+    """The executor a command opened with :func:`use_executor`, else ``None``."""
+    return _CURRENT.get()
+
+
+@contextlib.contextmanager
+def use_executor(spec: ExecutorSpec | Executor) -> Iterator[Executor]:
+    """Open ``spec`` (or take an executor as it is) and make it every algorithm's default
+    until the block ends."""
+    if isinstance(spec, Executor):
+        token = _CURRENT.set(spec)
+        try:
+            yield spec
+        finally:
+            _CURRENT.reset(token)
+        return
+    with open_executor(spec) as ex:
+        token = _CURRENT.set(ex)
+        try:
+            yield ex
+        finally:
+            _CURRENT.reset(token)
+
+
+# --------------------------------------------------------------------------- running tasks
+
+_NOTHING = object()
+
+
+def _is_dask(executor: Executor) -> bool:
+    return hasattr(executor, "_client") and type(executor).__module__.startswith("distributed")
+
+
+def run_tasks(
+    fn: Callable,
+    items: Sequence,
+    *,
+    shared: Any = _NOTHING,
+    executor: Executor | None = None,
+    workers: int | None = None,
+) -> Iterator[tuple[int, Any]]:
+    """Yield ``(index, result)`` as tasks finish, ``result = fn(shared, item)`` (or
+    ``fn(item)`` without ``shared``).
+
+    ``executor`` defaults to the current one (:func:`use_executor`), else a local thread
+    pool of ``workers`` threads (serial for one).  ``fn`` must be a module-level function
+    (process and Dask workers import it).  ``shared`` is sent once per worker where the
+    back-end allows it.  Stopping the iteration (Ctrl-C in the consumer) cancels the tasks
+    not yet started; results already yielded are the caller's.  A lost Dask scheduler raises
+    :class:`ClusterError`.
+    """
+    items = list(items)
+    ex = executor if executor is not None else current_executor()
+    if ex is None:
+        spec = ExecutorSpec("serial" if (workers or 2) <= 1 else "threads", workers)
+        with open_executor(spec) as own:
+            yield from run_tasks(fn, items, shared=shared, executor=own)
+        return
+    args: tuple = () if shared is _NOTHING else (shared,)
+    if isinstance(ex, SerialExecutor):  # one at a time, each result as soon as it is there
+        for i, it in enumerate(items):
+            yield i, fn(*args, it)
+        return
+    if shared is not _NOTHING:
+        if _is_dask(ex):
+            args = (_scatter(ex, shared),)
+    futures: dict[Future, int] = {}
+    done_count = 0
+    try:
+        for i, it in enumerate(items):
+            futures[ex.submit(fn, *args, it)] = i
+        pending = set(futures)
+        while pending:
+            done, pending = _wait(pending, return_when=FIRST_COMPLETED)
+            for f in sorted(done, key=futures.__getitem__):
+                if f.cancelled():
+                    raise _lost(ex, done_count, len(items))
+                try:
+                    r = f.result()
+                except CancelledError:
+                    raise _lost(ex, done_count, len(items)) from None
+                except OSError as exc:
+                    if _is_dask(ex) and _client_gone(ex):
+                        raise _lost(ex, done_count, len(items)) from exc
+                    raise
+                done_count += 1
+                yield futures[f], r
+    finally:
+        for f in futures:
+            f.cancel()
+
+
+def _scatter(ex: Executor, obj: Any):
+    client = ex._client  # type: ignore[attr-defined]
+    try:
+        # In a list of one: scatter would split a tuple or dict into one future per part.
+        return client.scatter([obj], broadcast=True, hash=False)[0]
+    except (OSError, TimeoutError) as exc:
+        raise ClusterError(f"the Dask scheduler did not accept the data: {exc}") from None
+
+
+def _client_gone(ex: Executor) -> bool:
+    client = getattr(ex, "_client", None)
+    return client is not None and client.status not in ("running", "connecting")
+
+
+def _lost(ex: Executor, done: int, total: int) -> ClusterError:
+    where = ""
+    client = getattr(ex, "_client", None)
+    if client is not None:
+        with contextlib.suppress(Exception):
+            where = f" at {client.scheduler.address}"
+    return ClusterError(
+        f"lost the Dask scheduler{where} after {done} of {total} tasks had finished (it "
+        "stopped, or the network to it failed); restart the scheduler and its workers and "
+        "run the command again", done)
+
+
+def map_ordered(fn: Callable, items: Iterable, *, shared: Any = _NOTHING,
+                executor: Executor | None = None, workers: int | None = None) -> list:
+    """``[fn(shared, x) for x in items]`` through :func:`run_tasks`, results in input order."""
+    items = list(items)
+    out: list = [None] * len(items)
+    for i, r in run_tasks(fn, items, shared=shared, executor=executor, workers=workers):
+        out[i] = r
+    return out
 
 
 class Mapper:
-    """Run independent tasks on a pool; results come back as they finish.
+    """The older interface: ``map(fn, items)`` yields ``(index, fn(item))`` as tasks finish.
 
-    Parameters
-    ----------
-    kind : {'serial', 'threads', 'processes'}
-    workers : int
-        Parallel tasks (default: the number of cores).
+    Kept for callers outside the package; new code calls :func:`run_tasks`.
     """
 
     def __init__(self, kind: str = "threads", workers: int | None = None):
         if kind not in ("serial", "threads", "processes"):
             raise ValueError(f"unknown parallel backend {kind!r}; choose serial, threads or "
                              "processes")  # fmt: skip
+        self.spec = ExecutorSpec(kind, workers)
         self.kind = kind
-        self.workers = max(1, int(workers or os.cpu_count() or 1))
-        if kind == "serial":
-            self.workers = 1
-
-    def _pool(self) -> Executor:
-        if self.kind == "processes":
-            return ProcessPoolExecutor(max_workers=self.workers)
-        return ThreadPoolExecutor(max_workers=self.workers)
+        self.workers = self.spec.n_workers()
 
     def map(self, fn: Callable[[Any], Any], items: Sequence) -> Iterator[tuple[int, Any]]:
-        """Yield ``(index, fn(items[index]))`` in order of completion.
-
-        Stopping the iteration (e.g. Ctrl-C in the consumer) cancels the tasks that have
-        not started; finished results already yielded are the caller's to keep.
-        """
-        if self.kind == "serial" or self.workers == 1:
-            for i, it in enumerate(items):
-                yield i, fn(it)
-            return
-        pool = self._pool()
-        try:
-            futures = {pool.submit(fn, it): i for i, it in enumerate(items)}
-            pending = set(futures)
-            while pending:
-                done, pending = _wait(pending, return_when=FIRST_COMPLETED)
-                for f in done:
-                    yield futures[f], f.result()
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+        with open_executor(self.spec) as ex:
+            yield from run_tasks(fn, items, executor=ex)
 
 
 def get_mapper(kind: str = "threads", workers: int | None = None) -> Mapper:
@@ -73,17 +467,8 @@ def get_mapper(kind: str = "threads", workers: int | None = None) -> Mapper:
     return Mapper(kind, workers)
 
 
-def map_ordered(fn: Callable, items: Iterable, mapper: Mapper | None = None) -> list:
-    """``[fn(x) for x in items]`` on ``mapper`` (default threads), results in input order."""
-    items = list(items)
-    out: list = [None] * len(items)
-    for i, r in (mapper or get_mapper()).map(fn, items):
-        out[i] = r
-    return out
-
-
 def progress(results: Iterator, total: int, desc: str, *, enabled: bool = True) -> Iterator:
-    """Wrap a mapper's ``(index, result)`` stream with a progress bar (tqdm, on stderr) when
+    """Wrap a ``(index, result)`` stream with a progress bar (tqdm, on stderr) when
     ``enabled`` and stderr is a terminal; otherwise pass it through unchanged."""
     import sys
 

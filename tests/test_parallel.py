@@ -1,0 +1,272 @@
+"""The executor layer: one contract (concurrent.futures.Executor), four back-ends, the same
+results on each, bit for bit; a worker killed mid-job changes nothing; a lost or absent
+scheduler ends the command with exit code 3 and a plain message.
+
+The Dask tests run a real ``LocalCluster`` of two worker processes (and, for the lost
+scheduler, real ``dask scheduler`` / ``dask worker`` processes) on a small problem: the upper
+configuration, 5 s at 200 Hz.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import rotorbayes as rb
+from rotorbayes import exitcodes as EXIT
+from rotorbayes import inference as E
+from rotorbayes.inference import identify as I
+from rotorbayes.inference import parallel as P
+from rotorbayes.inference.multistart import _fit_start
+
+distributed = pytest.importorskip("distributed")
+
+
+def small_problem() -> E.Problem:
+    ex = rb.load_example("upper_est")
+    n = int(round(5.0 / ex.dt)) + 1
+    assert abs(ex.dt - 0.005) < 1e-12  # 200 Hz
+    short = rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None,
+                          name="upper 5 s", path=ex.path)
+    return E.Problem("upper", [short])
+
+
+def same_fits(a: list, b: list) -> None:
+    """Every fit identical to the last bit: end point, SSR, Jacobian, evaluations."""
+    assert len(a) == len(b)
+    for fa, fb in zip(a, b, strict=True):
+        assert (fa is None) == (fb is None)
+        if fa is None:
+            continue
+        assert fa.x.tobytes() == fb.x.tobytes()
+        assert np.float64(fa.ssr).tobytes() == np.float64(fb.ssr).tobytes()
+        assert fa.jac.tobytes() == fb.jac.tobytes()
+        assert (fa.nfev, fa.njev, fa.success) == (fb.nfev, fb.njev, fb.success)
+
+
+# --------------------------------------------------------------------------- choosing
+
+
+def test_choose_option_then_environment_then_file_then_default():
+    env = {P.SCHEDULER_ENV: "tcp://env:8786"}
+    f = {"scheduler": "tcp://file:8786"}
+    assert P.choose(scheduler="tcp://opt:1", environ=env, file=f).scheduler == "tcp://opt:1"
+    s = P.choose(environ=env, file=f)
+    assert (s.backend, s.scheduler, s.source) == ("dask", "tcp://env:8786", P.SCHEDULER_ENV)
+    s = P.choose(environ={}, file=f)
+    assert (s.backend, s.scheduler) == ("dask", "tcp://file:8786")
+    # An explicit local back-end wins over the variable (the user said so on this command).
+    assert P.choose("serial", environ=env).backend == "serial"
+    # dask without an address: a LocalCluster of --workers processes.
+    s = P.choose("dask", 3, environ={})
+    assert (s.backend, s.scheduler, s.n_workers()) == ("dask", None, 3)
+    assert "local Dask cluster of 3" in s.describe()
+    s = P.choose(environ={}, file={"backend": "processes", "workers": 2})
+    assert (s.backend, s.n_workers()) == ("processes", 2)
+    assert P.choose(environ={}).backend == P.DEFAULT_BACKEND
+    with pytest.raises(ValueError, match="unknown parallel back-end 'gpu'"):
+        P.choose("gpu", environ={})
+
+
+def test_analysis_file_refuses_an_unknown_backend(tmp_path):
+    from rotorbayes.study import AnalysisError, load_analysis
+
+    f = tmp_path / "a.toml"
+    f.write_text('[analysis]\nout = "o"\nconfig = "upper"\ndata = ["example:upper_est"]\n'
+                 '[parallel]\nbackend = "gpu"\n')
+    with pytest.raises(AnalysisError, match=r"\[parallel\] backend 'gpu'; choose one of"):
+        load_analysis(f)
+
+
+def test_serial_threads_and_processes_agree_bit_for_bit():
+    prob = small_problem()
+    runs = {}
+    for backend in ("serial", "threads", "processes"):
+        with P.open_executor(P.ExecutorSpec(backend, 2)) as ex:
+            runs[backend] = E.multistart(prob, 4, seed=3, progress=False, executor=ex)
+    for backend in ("threads", "processes"):
+        same_fits(runs["serial"].fits, runs[backend].fits)
+        assert np.array_equal(runs["serial"].clusters, runs[backend].clusters)
+    # The fits are the problem's own again (not a worker's copy).
+    assert all(f.problem is prob for f in runs["processes"].fits)
+
+
+# --------------------------------------------------------------------------- Dask
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A real LocalCluster: two worker processes, one thread each, kernel warmed."""
+    spec = P.ExecutorSpec("dask", 2)
+    with P.open_executor(spec) as ex:
+        yield ex
+
+
+def test_dask_cluster_gives_the_serial_results_bit_for_bit(cluster):
+    prob = small_problem()
+    client = cluster._client
+    info = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"),
+                               os.environ.get("OPENBLAS_NUM_THREADS"),
+                               __import__("numba").get_num_threads()))
+    assert len(info) == 2 and all(v == ("1", "1", 1) for v in info.values())
+    plugins = client.run(lambda dask_worker: list(dask_worker.plugins))
+    assert all(P._WarmUp.name in v for v in plugins.values())
+
+    t0 = time.perf_counter()
+    ms = E.multistart(prob, 4, seed=1, progress=False, executor=cluster)
+    took = time.perf_counter() - t0
+    ref = E.multistart(prob, 4, seed=1, progress=False, executor=P.SerialExecutor())
+    same_fits(ref.fits, ms.fits)
+    assert np.array_equal(ref.starts, ms.starts) and ms.ssr.size == 4
+    assert took < 60
+
+    # Profile-likelihood points: the same Δχ² on the cluster as serially.
+    best = ref.best
+    pa = I.profile(prob, best.x, "k_m", n_points=5, span=0.02, executor=cluster)
+    pb = I.profile(prob, best.x, "k_m", n_points=5, span=0.02, executor=P.SerialExecutor())
+    assert np.array(pa["delta_chi2"]).tobytes() == np.array(pb["delta_chi2"]).tobytes()
+    assert np.nanmax(pa["delta_chi2"]) > 0
+
+
+def test_shared_data_is_scattered_once_not_sent_with_every_task(cluster):
+    prob = small_problem()
+    client = cluster._client
+    starts = E.latin_hypercube(prob, 6, np.random.default_rng(0))
+
+    def deps(dask_scheduler):
+        return {str(k): ([str(d.key) for d in ts.dependencies],
+                         [str(d.key) for d in ts.dependencies for _ in d.who_has])
+                for k, ts in dask_scheduler.tasks.items() if "_fit_start" in str(k)}
+
+    seen = None
+    for _i, (r, _why) in P.run_tasks(_fit_start, list(starts),
+                                     shared=(prob, {"uncertainty": False}), executor=cluster):
+        assert r is not None
+        if seen is None:
+            seen = client.run_on_scheduler(deps)
+    assert len(seen) >= 1
+    # Every task depends on the one scattered problem, which both workers hold already.
+    shared = {d for ds, _ in seen.values() for d in ds}
+    assert len(shared) == 1 and all(len(ds) == 1 for ds, _ in seen.values())
+    assert all(len(holders) == 2 for _, holders in seen.values())
+
+
+def test_a_worker_killed_mid_job_changes_nothing(cluster):
+    """SIGKILL a worker process while it runs a fit: the scheduler reruns its tasks on the
+    other worker (the nanny brings a new one up) and every result is the serial one."""
+    prob = small_problem()
+    client = cluster._client
+    starts = E.latin_hypercube(prob, 16, np.random.default_rng(7))
+    shared = (prob, {"uncertainty": False, "max_nfev": 200})
+    ref = P.map_ordered(_fit_start, list(starts), shared=shared, executor=P.SerialExecutor())
+
+    pids = client.run(os.getpid)
+    got: dict[int, tuple] = {}
+    killed = {}
+    for i, r in P.run_tasks(_fit_start, list(starts), shared=shared, executor=cluster):
+        got[i] = r
+        if not killed:
+            busy = {w: ks for w, ks in client.processing().items() if ks and w in pids}
+            assert busy, "no task was running when the kill was due: the test proves nothing"
+            w = next(iter(busy))
+            killed = {"worker": w, "pid": pids[w], "tasks": len(busy[w])}
+            os.kill(pids[w], signal.SIGKILL)
+    assert killed and len(got) == 16
+    same_fits([r for r, _ in ref], [got[i][0] for i in range(16)])
+    # The killed process is gone; the nanny started another in its place.
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        now = client.run(os.getpid)
+        if len(now) == 2 and killed["pid"] not in now.values():
+            break
+        time.sleep(0.5)
+    assert killed["pid"] not in client.run(os.getpid).values()
+
+
+# --------------------------------------------------------------------------- the command
+
+
+def _cli(args, env=None, **kw):
+    return subprocess.Popen([sys.executable, "-m", "rotorbayes.cli", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "NUMBA_NUM_THREADS": "1", **(env or {})}, **kw)
+
+
+def test_no_scheduler_at_the_address_is_a_plain_error(tmp_path):
+    p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
+              "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "ms")])
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == EXIT.ENVIRONMENT, (out, err)
+    assert "no Dask scheduler answered at tcp://127.0.0.1:9 (from --scheduler)" in err
+    assert "dask scheduler" in err and "Traceback" not in err
+    assert not (tmp_path / "ms").exists()
+
+
+def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
+    """A real `dask scheduler` and `dask worker`; the scheduler is killed mid-job."""
+    sched_file = tmp_path / "scheduler.json"
+    env = {**os.environ, **P.WORKER_ENV}
+    dask_cli = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
+    sched = subprocess.Popen([*dask_cli, "--scheduler-file", str(sched_file), "--port", "0",
+                              "--no-dashboard"], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL, env=env)
+    procs = [sched]
+    try:
+        deadline = time.time() + 60
+        while not sched_file.exists() and time.time() < deadline:
+            time.sleep(0.2)
+        import json
+
+        address = json.loads(sched_file.read_text())["address"]
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "1",
+             "--nthreads", "1", "--no-dashboard"], stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL, env=env))
+        # Through the variable, as a user on a cluster would set it.
+        p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "400",
+                  "--max-nfev", "30", "--out", str(tmp_path / "ms")],
+                 env={P.SCHEDULER_ENV: address})
+        procs.append(p)
+        lines = []
+
+        def read():
+            for line in p.stdout:
+                lines.append(line)
+
+        reader = threading.Thread(target=read, daemon=True)
+        reader.start()
+        deadline = time.time() + 120
+        while not any("done" in s for s in lines) and time.time() < deadline:
+            time.sleep(0.2)
+        assert any("on the Dask scheduler at" in s and P.SCHEDULER_ENV in s for s in lines)
+        assert any("start   1/400 done" in s for s in lines), "".join(lines)
+        sched.kill()
+        err = p.stderr.read()
+        p.wait(timeout=120)
+        assert p.returncode == EXIT.ENVIRONMENT, err
+        assert "lost the Dask scheduler" in err and "Traceback" not in err, err
+        assert not (tmp_path / "ms").exists()
+    finally:
+        for q in procs:
+            if q.poll() is None:
+                q.kill()
+                q.wait(timeout=30)
+
+
+def test_multistart_command_on_a_local_dask_cluster(tmp_path):
+    out = tmp_path / "ms"
+    p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "3",
+              "--max-nfev", "20", "--backend", "dask", "--workers", "2", "--out", str(out)])
+    o, e = p.communicate(timeout=300)
+    assert p.returncode == 0, e
+    assert "parallel tasks run on a local Dask cluster of 2 worker processes" in o
+    assert (out / "multistart.json").exists()
+    assert Path(out / "summary.txt").read_text()
