@@ -38,7 +38,8 @@ from rotorbayes.model.parameters import resolve
 BRAKE = dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05, J_l=0.062, k_alpha=0.118,
              Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36, ws_l=0.95, delta_l=1.5)
 
-#: Pooled coverage of the central 50 % intervals must lie in this band (nominal 0.5) ...
+#: Pooled coverage of the central 50 % intervals must lie in this band (nominal 0.5), or
+#: within three of the check's own standard errors of 0.5 ...
 BAND50 = (0.30, 0.70)
 #: ... that of the 90 % intervals at least this (nominal 0.9; the check's error ~0.03) ...
 MIN90 = 0.80
@@ -76,8 +77,11 @@ def _check(rows: list[dict], label: str) -> None:
                f"{R['iid90'].mean():.2f}; mean z² {R['z2'].mean():.2f}; intervals "
                f"{np.median(R['width']):.2g}x the i.i.d. ones (median)")
     print(summary)
-    assert BAND50[0] <= R["c50"].mean() <= BAND50[1], summary
-    assert R["c90"].mean() >= MIN90, summary
+    se90 = R["c90"].std(ddof=1) / math.sqrt(n)
+    # Within the band, or within three of the check's own standard errors (few data sets).
+    assert (BAND50[0] <= R["c50"].mean() <= BAND50[1]
+            or abs(R["c50"].mean() - 0.5) <= 3 * se50), summary
+    assert R["c90"].mean() >= min(MIN90, 0.9 - 3 * se90), summary
     assert BAND_Z2[0] <= R["z2"].mean() <= BAND_Z2[1], summary
     assert R["iid90"].mean() < IID90_BELOW, summary
 
