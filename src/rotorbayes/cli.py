@@ -1324,6 +1324,21 @@ def cmd_identify(a) -> int:
     return 0
 
 
+def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
+    """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
+    for n in profiles:
+        t0 = time.perf_counter()
+        pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex)
+        doc["profiles"].append(pr)
+        inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
+                  if d is not None and math.isfinite(d) and d < 3.84]
+        print(f"profile of {n}: {a.points} points in {time.perf_counter() - t0:.1f} s; "
+              + (f"95 % interval (Δχ² < 3.84) within [{min(inside):.7g}, {max(inside):.7g}] "
+                 f"{pr['unit']}" if inside else "no grid point within Δχ² < 3.84")
+              + ("; the interval reaches the grid's edge: widen it" if inside and (
+                  min(inside) == pr["grid"][0] or max(inside) == pr["grid"][-1]) else ""))
+
+
 def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
     from .inference import identify as I
 
@@ -1342,20 +1357,8 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> list[str]:
     if profiles:
         se = dict(zip(prob.names, fit.doc and [fit.doc["estimates"][n]["stderr"] or 0.0
                                                for n in prob.names], strict=True))
-        ex_ctx = contextlib.ExitStack()
-        ex = ex_ctx.enter_context(_executor(a))
-        for n in profiles:
-            t0 = time.perf_counter()
-            pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex)
-            doc["profiles"].append(pr)
-            inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
-                      if d is not None and math.isfinite(d) and d < 3.84]
-            print(f"profile of {n}: {a.points} points in {time.perf_counter() - t0:.1f} s; "
-                  + (f"95 % interval (Δχ² < 3.84) within [{min(inside):.7g}, {max(inside):.7g}] "
-                     f"{pr['unit']}" if inside else "no grid point within Δχ² < 3.84")
-                  + ("; the interval reaches the grid's edge: widen it" if inside and (
-                      min(inside) == pr["grid"][0] or max(inside) == pr["grid"][-1]) else ""))
-        ex_ctx.close()
+        with _executor(a) as ex:  # one executor (one cluster, if any) for every profile
+            _profiles_into(a, I, prob, fit, profiles, se, ex, doc)
         save_figure_atomic(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
         written.append("profiles.png")
     if a.posterior:
