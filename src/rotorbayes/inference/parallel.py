@@ -98,7 +98,15 @@ class SerialExecutor(Executor):
 def prepare_worker() -> None:
     """Make this process a good worker: one numba thread, the kernel loaded (compiled or
     read from numba's cache) once, before the first task, not inside a timed one."""
+    import sys
+
     for k, v in WORKER_ENV.items():
+        # numba re-reads NUMBA_NUM_THREADS at every compilation and refuses a value that
+        # differs from the one its threads were launched with: once numba is loaded (a
+        # process-pool worker imports it while unpickling this function), leave the
+        # variable alone and limit the threads with set_num_threads below.
+        if k == "NUMBA_NUM_THREADS" and "numba" in sys.modules:
+            continue
         os.environ.setdefault(k, v)
     import numba
 
@@ -222,19 +230,12 @@ def open_executor(spec: ExecutorSpec) -> Iterator[Executor]:
         else:
             import multiprocessing as mp
 
-            # Workers start with one numba/BLAS thread each: set before they import numpy.
-            saved = {k: os.environ.get(k) for k in WORKER_ENV}
-            os.environ.update(WORKER_ENV)
-            try:
-                pool = ProcessPoolExecutor(max_workers=spec.n_workers(),
-                                           mp_context=mp.get_context("spawn"),
-                                           initializer=_process_initializer)
-            finally:
-                for k, v in saved.items():
-                    if v is None:
-                        os.environ.pop(k, None)
-                    else:
-                        os.environ[k] = v
+            # The pool starts its processes lazily, at a submit, with this process's
+            # environment (BLAS limited to one thread by rotorbayes's import); each
+            # worker limits numba to one thread in its initializer.
+            pool = ProcessPoolExecutor(max_workers=spec.n_workers(),
+                                       mp_context=mp.get_context("spawn"),
+                                       initializer=_process_initializer)
         try:
             yield pool
         finally:
