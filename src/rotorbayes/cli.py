@@ -177,7 +177,7 @@ def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
     or more, or a record longer than ``MAX_DURATION``, is refused), and a last line without
     its line break (a truncated file) is refused; messages name the file and the line.
     """
-    from .data import _check_time_unit, _RowProblem
+    from .data import RowProblem, check_time_unit
 
     p = Path(path)
     try:
@@ -244,8 +244,8 @@ def _read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
         raise CLIError(f"{p}, line {rows[bad[0] + 1]}: time {t[bad[0] + 1]!r} is not after "
                        f"{t[bad[0]]!r}; time must increase from row to row")
     try:
-        _check_time_unit(t, d)
-    except _RowProblem as exc:
+        check_time_unit(t, d)
+    except RowProblem as exc:
         raise CLIError(f"{p}, line {rows[exc.row]}: {exc.problem}") from None
     step = float(np.median(d))
     dev = np.abs(d - step) / step
@@ -314,7 +314,7 @@ def _plot_format(path: Path) -> None:
 
 def cmd_simulate(a) -> int:
     from .model import Model, simulate
-    from .outputs import _tmp_name
+    from .outputs import tmp_name
     from .signals import make_signal
 
     # Everything the user can get wrong is checked before the simulation.
@@ -376,7 +376,7 @@ def cmd_simulate(a) -> int:
             from .plots import plot_simulation
 
             fig, _ = plot_simulation(sim)
-            fig_tmp = _tmp_name(plot)
+            fig_tmp = tmp_name(plot)
             fig.savefig(fig_tmp, dpi=110, format=plot.suffix[1:] or None)
             plt.close(fig)
         save_experiment(sim.to_experiment(), out, overwrite=a.force, meta=meta)

@@ -276,7 +276,7 @@ class Experiment:
 # Checks shared by load and save
 
 
-class _RowProblem(Exception):
+class RowProblem(Exception):
     """A problem at data row ``row`` (0-based); converted to a file/line error by the caller."""
 
     def __init__(self, row: int, problem: str) -> None:
@@ -297,8 +297,8 @@ def _time_unit_guess(step: float) -> tuple[str, float] | None:
     return None
 
 
-def _check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
-    """Refuse a strictly increasing time column that is not in seconds (:class:`_RowProblem`).
+def check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
+    """Refuse a strictly increasing time column that is not in seconds (:class:`RowProblem`).
 
     Two rules, both far from any real measurement on the rig: a (median) sample interval of
     :data:`MAX_SAMPLE_INTERVAL` or more, and a record longer than :data:`MAX_DURATION`. The
@@ -317,13 +317,13 @@ def _check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
         )
         guess = _time_unit_guess(step)
         if guess is None:
-            raise _RowProblem(
+            raise RowProblem(
                 k + 1,
                 f"time step {dt[k]:.6g} (from t = {float(t[k])!r} to {float(t[k + 1])!r}) is "
                 f"far too long: {as_seconds}; the t column must be in seconds -- convert it",
             )
         unit, factor = guess
-        raise _RowProblem(
+        raise RowProblem(
             k + 1,
             f"time step {dt[k]:.6g} (from t = {float(t[k])!r} to {float(t[k + 1])!r}) looks "
             f"like {unit}: {as_seconds}; in {unit} it is a {duration / factor:.6g} s "
@@ -346,7 +346,7 @@ def _check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
                 f"(if the record really is this long, split it into files of at most "
                 f"{MAX_DURATION:g} s)"
             )
-        raise _RowProblem(
+        raise RowProblem(
             k,
             f"time t = {float(t[k])!r} is more than {MAX_DURATION:g} s ({MAX_DURATION / 3600:g} "
             f"h) after the first sample (t = {float(t[0])!r}); the record lasts "
@@ -356,12 +356,12 @@ def _check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
 
 
 def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
-    """Check finite values, uniform time in s, zeroed angles in rad; raise :class:`_RowProblem`."""
+    """Check finite values, uniform time in s, zeroed angles in rad; raise :class:`RowProblem`."""
     for key, values in cols.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
             row = int(bad[0])
-            raise _RowProblem(
+            raise RowProblem(
                 row,
                 f"{key} is {float(values[row])!r}; every value must be a finite number -- "
                 "repair or remove this sample (and keep the sampling uniform)",
@@ -380,7 +380,7 @@ def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
         if over.size:
             row = int(over[0])
             unit = "V" if key == "u" else "rad"
-            raise _RowProblem(
+            raise RowProblem(
                 row,
                 f"{key} is {float(cols[key][row])!r} {unit}: {why}; the value is corrupt or in "
                 "another unit -- repair or remove this sample",
@@ -390,18 +390,18 @@ def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
         k = int(bad[0])
-        raise _RowProblem(
+        raise RowProblem(
             k + 1,
             f"time t = {float(t[k + 1])!r} s is not after the previous time {float(t[k])!r} s; "
             "time must be strictly increasing -- sort the rows or remove the duplicated sample",
         )
-    _check_time_unit(t, dt)
+    check_time_unit(t, dt)
     step = float(np.median(dt))
     deviation = np.abs(dt - step) / step
     bad = np.flatnonzero(deviation > _UNIFORM_TOL)
     if bad.size:
         k = int(bad[0])
-        raise _RowProblem(
+        raise RowProblem(
             k + 1,
             f"time step {dt[k]:.9g} s (from t = {float(t[k])!r} to {float(t[k + 1])!r} s) "
             f"differs from the expected step {step:.9g} s (the median) by a relative "
@@ -431,9 +431,9 @@ def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
                 )
             else:
                 fix = f"it looks like degrees; multiply by π/180 (= {math.pi / 180:.9f}) to get rad"
-            raise _RowProblem(k + lag, f"{where}; {fix}")
+            raise RowProblem(k + lag, f"{where}; {fix}")
         if abs(theta[0]) > _ZERO_START_TOL:
-            raise _RowProblem(
+            raise RowProblem(
                 0,
                 f"{key} starts at {float(theta[0])!r} rad, but the encoders are zeroed at the "
                 f"start of an experiment (|first value| must be <= {_ZERO_START_TOL:g} rad); "
@@ -693,7 +693,7 @@ def load_experiment(
     cols = {name: np.ascontiguousarray(table[:, j]) for j, name in enumerate(names)}
     try:
         _check_columns(cols)
-    except _RowProblem as exc:
+    except RowProblem as exc:
         raise DataFileError(path, linenos[exc.row], exc.problem) from None
 
     over = np.flatnonzero(np.abs(cols["u"]) > max_abs_u)
@@ -792,7 +792,7 @@ def save_experiment(
     first_data_line = len(merged) + 2
     try:
         _check_columns(cols)
-    except _RowProblem as exc:
+    except RowProblem as exc:
         raise ValueError(
             f"cannot save experiment {exp.name!r} to {path}: sample {exc.row} (line "
             f"{first_data_line + exc.row} of the file) would be rejected when loading: "

@@ -358,14 +358,15 @@ def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False
     return p
 
 
-def _tmp_name(path: Path) -> Path:
+def tmp_name(path: Path) -> Path:
+    """A hidden temporary name beside ``path`` (same folder, so a rename puts it in place)."""
     return path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}")
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file beside it and a rename."""
     path = Path(path)
-    tmp = _tmp_name(path)
+    tmp = tmp_name(path)
     try:
         with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(text)
@@ -385,7 +386,7 @@ def save_figure_atomic(fig, path: str | os.PathLike, *, dpi: int = 100,
     The format comes from ``path``'s suffix (the temporary file keeps it).
     """
     path = Path(path)
-    tmp = _tmp_name(path)
+    tmp = tmp_name(path)
     try:
         fig.savefig(tmp, dpi=dpi, format=path.suffix[1:] or None)
         os.replace(tmp, path)

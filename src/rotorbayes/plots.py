@@ -12,7 +12,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (unless the user chose another)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -57,10 +58,14 @@ def _with_unit(label: str, unit: str) -> str:
     return f"{label} [{unit}]" if unit else label
 
 
-def _legend_outside(ax, **kw):
+def legend_outside(ax, **kw):
     """Legend to the right of the axes, so it never covers data."""
     return ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
                      fontsize=8, **kw)
+
+
+#: The former private names (rotorbayes.design imported them); use the public ones.
+_plt, _legend_outside = pyplot, legend_outside
 
 
 def _shade_stick(ax, t, mode, color=STICK_COLOR, label="lower disc sticks"):
@@ -95,7 +100,7 @@ def plot_simulation(sim, *, title: str | None = None):
     Intervals in which the lower disc sticks (upper disc, in the upper configuration) are
     shaded, and each shaded panel's legend says so.
     """
-    plt = _plt()
+    plt = pyplot()
     lower = sim.theta_l is not None
     n = 4 if lower else 3
     fig, axes = plt.subplots(n, 1, figsize=(10, 2.0 * n + 0.6), sharex=True,
@@ -119,7 +124,7 @@ def plot_simulation(sim, *, title: str | None = None):
     disc = "lower disc" if lower else "upper disc"
     for ax in axes[1:]:
         _shade_stick(ax, t, sim.mode_l if lower else sim.mode_u, label=f"{disc} sticks")
-        _legend_outside(ax)
+        legend_outside(ax)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title or f"simulation, {sim.config} configuration")
     return fig, axes
@@ -150,7 +155,7 @@ def plot_fit(
 
     Legends sit to the right of the panels so they never cover the data.
     """
-    plt = _plt()
+    plt = pyplot()
     chans = [c for c in measured if c in simulated and measured[c] is not None
              and simulated[c] is not None]
     if not chans:
@@ -180,7 +185,7 @@ def plot_fit(
         b.set_ylabel(f"{sym} error [rad]", fontsize=9)
         for ax in (a, b):
             _shade_stick(ax, t, mode)
-            _legend_outside(ax)
+            legend_outside(ax)
     axes[-1].set_xlabel("t [s]")
     if title:
         fig.suptitle(title)
@@ -235,7 +240,7 @@ def plot_friction(
 
     from .model.friction import friction_curve
 
-    plt = _plt()
+    plt = pyplot()
     sets = [(label, _friction_params(params), "-", "tab:blue")]
     if reference is not None:
         sets.append((reference_label, _friction_params(reference), "--", "tab:orange"))
@@ -324,7 +329,7 @@ def plot_waterfall(
     """
     from matplotlib.transforms import blended_transform_factory
 
-    plt = _plt()
+    plt = pyplot()
     c = np.asarray(costs, float).ravel()
     bad = ~np.isfinite(c)
     lab = None if labels is None else np.asarray(labels).ravel()[~bad]
@@ -365,7 +370,7 @@ def plot_waterfall(
     ax.set_xlabel("start, sorted by final SSR")
     ax.set_ylabel("final SSR [rad²]")
     ax.set_title(title, fontsize=10)
-    _legend_outside(ax)
+    legend_outside(ax)
     return fig, ax
 
 
@@ -405,7 +410,7 @@ def plot_parameter_spread(
     from matplotlib.lines import Line2D
     from matplotlib.ticker import MaxNLocator
 
-    plt = _plt()
+    plt = pyplot()
     names = list(names)
     values = np.asarray(values, float).reshape(-1, len(names))
     costs = np.asarray(costs, float).ravel()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .inference import arviz_compat as AZ
-from .plots import _plt
+from .plots import pyplot
 
 
 def _labels(prob, names):
@@ -156,7 +156,7 @@ def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
 
 def plot_trace(runs, coord_names):
     """Walker traces per coordinate and ensemble (sampling coordinates)."""
-    plt = _plt()
+    plt = pyplot()
     k = len(coord_names)
     fig, axes = plt.subplots(k, 1, figsize=(10, 1.5 * k + 0.8), sharex=True, squeeze=False,
                              constrained_layout=True)
@@ -181,7 +181,7 @@ def plot_predictive(idata, prob, *, i: int = 0):
     a thousand times narrower than the angle and much narrower than the encoder noise, so
     drawn over the angle or the error it would be invisible; its own panel shows its width.
     """
-    plt = _plt()
+    plt = pyplot()
     chans = list(prob.channels)
     ex = prob.experiments[i]
     pp, obs = AZ.group(idata, "posterior_predictive"), AZ.group(idata, "observed_data")
@@ -222,7 +222,7 @@ def plot_predictive(idata, prob, *, i: int = 0):
 
 def plot_correlation(idata, prob):
     """Posterior correlation matrix of the free parameters."""
-    plt = _plt()
+    plt = pyplot()
     names = list(prob.names)
     post = AZ.group(idata, "posterior")
     X = np.column_stack([post[n].values.reshape(-1) for n in names])
@@ -242,7 +242,7 @@ def plot_correlation(idata, prob):
 
 def plot_fisher(F):
     """Eigenvalues of the Fisher information and the eigenvectors' components."""
-    plt = _plt()
+    plt = pyplot()
     k = len(F.names)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(5 + 0.5 * k, 0.6 * k + 2.2),
                                  constrained_layout=True,
@@ -263,7 +263,7 @@ def plot_fisher(F):
 
 def plot_profiles(profiles):
     """Profile likelihoods: Δχ² against each profiled parameter, the 95 % line."""
-    plt = _plt()
+    plt = pyplot()
     n = len(profiles)
     fig, axes = plt.subplots(1, n, figsize=(4 * n, 3.2), squeeze=False,
                              constrained_layout=True)

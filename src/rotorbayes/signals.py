@@ -54,7 +54,7 @@ _SMALL_BAND = (0.2, 1.5)
 _VALIDATION_FADE = 1.0
 
 
-def _smooth_step(x: np.ndarray) -> np.ndarray:
+def smooth_step(x: np.ndarray) -> np.ndarray:
     """Step from 0 to 1 over ``0 <= x <= 1``: the running integral of a Hann window.
 
     Convolving a staircase with a Hann window of width ``W`` replaces each jump by this curve
@@ -65,6 +65,10 @@ def _smooth_step(x: np.ndarray) -> np.ndarray:
     """
     x = np.clip(x, 0.0, 1.0)
     return x - np.sin(2.0 * np.pi * x) / (2.0 * np.pi)
+
+
+#: The former private name (rotorbayes.design imported it); use smooth_step.
+_smooth_step = smooth_step
 
 
 def _as_float(name: str, value: object) -> float:
@@ -242,7 +246,7 @@ def estimation_signal(
         start = np.searchsorted(t, t_jump - 0.5 * width, side="left")
         stop = np.searchsorted(t, t_jump + 0.5 * width, side="right")
         step = levels[k + 1] - levels[k]
-        u[start:stop] += step * _smooth_step((t[start:stop] - t_jump) / width + 0.5)
+        u[start:stop] += step * smooth_step((t[start:stop] - t_jump) / width + 0.5)
         u[stop:] += step
     # The sum of steps is exactly 0 in exact arithmetic at both ends; pin the end points so
     # rounding of the accumulated steps cannot leave a 1e-16 V residue there.
@@ -325,8 +329,8 @@ def validation_signal(
         # would otherwise allocate k times the signal's memory.
         for f, phi in zip(freqs, phases, strict=True):
             u += np.sin(2.0 * np.pi * f * times + phi)
-        fade_in = _smooth_step(times / _VALIDATION_FADE)
-        fade_out = _smooth_step((duration - times) / _VALIDATION_FADE)
+        fade_in = smooth_step(times / _VALIDATION_FADE)
+        fade_out = smooth_step((duration - times) / _VALIDATION_FADE)
         return u * fade_in * fade_out
 
     # Scale by the peak of the continuous signal, not of the samples, so that the same seed

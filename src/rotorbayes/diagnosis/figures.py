@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..plots import _plt
+from ..plots import pyplot
 
 _LABEL = {
     "velocity": "velocity [rad/s]", "direction": "direction of rotation",
@@ -22,7 +22,7 @@ _CAND_COLORS = ("tab:blue", "tab:orange", "tab:green")
 def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     """Residual of every fitted channel of the first experiment, and the part of it each
     of the ``top`` ranked effects would remove (its one-step correction)."""
-    plt = _plt()
+    plt = pyplot()
     ex = problem.experiments[0]
     r = problem.residuals(x)
     chans = list(problem.channels)
@@ -58,7 +58,7 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
 
 def plot_torque_map(diagnosis, *, top: int = 3):
     """Missing torque of each disc against its ``top`` strongest variables."""
-    plt = _plt()
+    plt = pyplot()
     maps = diagnosis.maps
     if not maps:
         fig, ax = plt.subplots(figsize=(6, 2))
@@ -103,7 +103,7 @@ def _binned_mean(x, y, n_bins=24):
 def plot_error_vs_state(views):
     """Error of every fitted channel against the lower disc's velocity (binned, stick
     samples apart), the direction of rotation, the string torsion and the angles."""
-    plt = _plt()
+    plt = pyplot()
     chans = list(views["channels"])
     lower = "omega_l" in views
     cols = ["velocity", "direction", "torsion", "angle"] if lower else ["angle"]
@@ -152,7 +152,7 @@ def plot_error_vs_state(views):
 def plot_residual_correlation(views):
     """Residual autocorrelation and cross-correlation with the input, 99 % bands of a
     white residual (MATLAB's ``resid``)."""
-    plt = _plt()
+    plt = pyplot()
     chans = list(views["channels"])
     fig, axes = plt.subplots(len(chans), 2, figsize=(10, 2.8 * len(chans) + 0.6),
                              squeeze=False, constrained_layout=True)
@@ -175,7 +175,7 @@ def plot_residual_correlation(views):
 
 def plot_chain(doc):
     """RMS over the noise floor of each fit of a comparison, estimation and validation."""
-    plt = _plt()
+    plt = pyplot()
     fits = doc["fits"]
     labels = [f["label"] for f in fits]
     fig, ax = plt.subplots(figsize=(max(5, 1.6 * len(fits) + 2), 3.6), constrained_layout=True)

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..inference.problem import Problem
-from ..inference.starts import _slip_mask, derivatives
+from ..inference.starts import derivatives, slip_mask
 from ..model.friction import friction_curve
 
 #: Words for a dependence: (what varies, what usually causes it).
@@ -286,7 +286,7 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
         feats = {"velocity": wl, "direction": np.sign(wl), "torsion": alpha, **common}
         if np.ptp(thl) >= MIN_TURNS * 2 * np.pi:
             feats.update(angle_1=np.mod(thl, 2 * np.pi), angle_2=np.mod(thl, 2 * np.pi))
-        out["l"] = (t, Ml, feats, _slip_mask(wl, n, 0.02))
+        out["l"] = (t, Ml, feats, slip_mask(wl, n, 0.02))
     if not problem.prescribed_upper:
         fu = np.nan_to_num(friction_curve(wu, _complete(p), "u"))
         Mu = p["J_u"] * au + fu + np.sign(wu) * shift_u - string - p["k_m"] * v - extra_u
@@ -295,7 +295,7 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             feats.update(angle_1=np.mod(thu, 2 * np.pi), angle_2=np.mod(thu, 2 * np.pi))
         if has_l:
             feats["torsion"] = alpha
-        out["u"] = (t, Mu, feats, _slip_mask(wu, n, 0.02))
+        out["u"] = (t, Mu, feats, slip_mask(wu, n, 0.02))
     return out
 
 

@@ -109,6 +109,15 @@ class Assessment:
         }
 
 
+def floor_ratio(problem, x: np.ndarray) -> float:
+    """Worst fitted channel's residual RMS over its noise floor at ``x`` (``inf`` when the
+    model cannot be simulated there): the headline number of a fit."""
+    ev = problem.evaluate(x)
+    if not ev.ok:
+        return math.inf
+    return max(problem.rms_over_floor(ev.residuals).values())
+
+
 def _times(r: float) -> str:
     """A ratio to the floor as printed everywhere: 1.01x, 12.3x, 710x, 2712x."""
     return f"{r:.3g}x" if r < 1000 else f"{r:.0f}x"

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .assess import NEAR_FLOOR
+from .assess import NEAR_FLOOR, floor_ratio
 from .least_squares import FitResult, attach_uncertainty, fit
 from .multistart import _fit_start, latin_hypercube
 from .parallel import progress, run_tasks
@@ -66,14 +66,6 @@ def _within_constraints(problem: Problem, x0: np.ndarray) -> np.ndarray:
             x[j] = min(1.1 * abs(a), problem.upper[j])
         vals = problem.params_for(x, 0)
     return x
-
-
-def floor_ratio(problem: Problem, x: np.ndarray) -> float:
-    """Worst fitted channel's residual RMS over its noise floor at ``x``."""
-    ev = problem.evaluate(x)
-    if not ev.ok:
-        return math.inf
-    return max(problem.rms_over_floor(ev.residuals).values())
 
 
 def fit_from_data(

@@ -13,6 +13,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from ..model.parameters import ParameterError
+from .assess import NEAR_FLOOR, floor_ratio
 from .least_squares import FitResult, fit
 from .parallel import run_tasks
 from .problem import Problem
@@ -49,9 +50,6 @@ class MultistartResult:
             return (f"all {len(self.failed)} finished starts failed; the first reason: "
                     f"{next(iter(self.failed.values()), '')}")
         text = describe_spread(self.names, self.ends, self.ssr, flat=flat)
-        from .assess import NEAR_FLOOR
-        from .first_fit import floor_ratio
-
         ratio = floor_ratio(self.best.problem, self.best.x)
         if ratio > NEAR_FLOOR:
             text = text.replace("Well determined:", "Alike across starts:")

@@ -69,8 +69,8 @@ def derivatives(theta: np.ndarray, dt: float, window: float = 0.15):
     return th, w, a, n
 
 
-def _slip_mask(w: np.ndarray, n: int, w_min: float) -> np.ndarray:
-    """Samples clearly in slip: |ω| above ``w_min`` and at least a window from any
+def slip_mask(w: np.ndarray, n: int, w_min: float) -> np.ndarray:
+    """Samples clearly in slip: ``|w|`` above ``w_min`` and at least a window from any
     sign change or rest, and from the record's ends (where the filter is one-sided)."""
     moving = np.abs(w) > w_min
     s = np.sign(w)
@@ -151,7 +151,7 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
             thl, wl, al, _ = derivatives(ex.theta_l, ex.dt)
             alpha = thl - thu + a0
         if use_upper and (upper_free or "k_alpha" in unknown):
-            m = _slip_mask(wu, n, 0.02)
+            m = slip_mask(wu, n, 0.02)
             su = np.sign(wu[m])
             cols = {
                 "k_m": ex.u[m],
@@ -175,7 +175,7 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
             Au.append(ucols)
             yu.append(y)
         if has_lower:
-            m = _slip_mask(wl, n, 0.02)
+            m = slip_mask(wl, n, 0.02)
             sl = np.sign(wl[m])
             cols = {
                 "J_l": al[m],

@@ -33,6 +33,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..kernel.layout import NAMES as BUILTIN_NAMES
 from .info import Parameter
 
 #: Configurations with the lower disc.
@@ -446,9 +447,9 @@ def load_user_effect(spec: str) -> Effect:
         )
     if eff.name in CATALOGUE:
         raise EffectError(f"{path_s}:{name}: the name {eff.name!r} is taken by the catalogue")
-    from .parameters import INFO
-
-    clash = [p.name for p in eff.parameters if p.name in INFO]
+    # The built-in parameters are the kernel's (the table in .parameters is built from
+    # them and this catalogue).
+    clash = [p.name for p in eff.parameters if p.name in BUILTIN_NAMES]
     if clash:
         raise EffectError(
             f"{path_s}:{name}: parameter name(s) {', '.join(clash)} are built-in parameters; "

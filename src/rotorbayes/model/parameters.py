@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from ..kernel.layout import NAMES
+from .effects import CATALOGUE
 from .info import Parameter
 
 #: Parameters of the base model (thesis eqs. 2.1-2.6 with symmetric friction).  The
@@ -36,8 +37,6 @@ BASE: tuple[Parameter, ...] = (
 
 
 def _all_parameters() -> dict[str, Parameter]:
-    from .effects import CATALOGUE
-
     out = {p.name: p for p in BASE}
     for e in CATALOGUE.values():
         for p in e.parameters:
