@@ -849,6 +849,7 @@ def cmd_fit(a) -> int:
 
 def cmd_multistart(a) -> int:
     from . import inference as E
+    from .inference.taskstore import remove_store, store_path
     from .plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
     guard = InterruptGuard()
@@ -862,9 +863,10 @@ def cmd_multistart(a) -> int:
                else "Latin hypercube over the bounds")
         print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
         with _executor(a) as ex:
+            # Each finished start is kept beside --out: a re-run after a kill skips it.
             ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
                               executor=ex, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
-                              gtol=a.gtol)
+                              gtol=a.gtol, resume=store_path(a.out))
         guard.start()  # the starts are done: from here on Ctrl-C must not throw them away
         n_done = int(ms.ssr.size) + len(ms.failed)
         if ms.interrupted and n_done == 0:
@@ -901,6 +903,8 @@ def cmd_multistart(a) -> int:
         (out / "summary.txt").write_text(summary + "\n")
         written.append("summary.txt")
     print(f"\nwrote {a.out}/: {', '.join(written)}")
+    if not ms.interrupted:
+        remove_store(a.out)  # the result is complete: nothing left to resume
     if ms.interrupted:
         rest = a.starts - n_done
         raise Interrupted(
@@ -1133,8 +1137,10 @@ def _sample_locked(a, src: Path, out: Path) -> int:
                            "that prior or fit again (nothing was written)")
     n_res = int(fit.doc.get("n_residuals") or 0)
     # Room for posterior.nc (pointwise log-likelihood of the kept draws) and the figures.
-    outputs = 8 * a.max_draws * settings["ensembles"] * settings["walkers"] \
-        * max(n_res, 1) // 4 + 2_000_000
+    from .inference.posterior import LOGLIK_BYTES
+
+    outputs = min(8 * a.max_draws * settings["ensembles"] * settings["walkers"]
+                  * max(n_res, 1) // 4, 2 * LOGLIK_BYTES) + 2_000_000  # the group's cap
     need = S.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
                          settings["ensembles"]) + outputs
     chain = out / "chain.h5"
@@ -1320,15 +1326,21 @@ def cmd_identify(a) -> int:
                        "written by `rotorbayes multistart`")
     with output_folder(a.out, a.force) as out:
         written = _identify_into(a, fit, prob, profiles, out)
+    from .inference.taskstore import remove_store
+
+    remove_store(a.out)  # complete: no profile point left to resume
     print(f"\nwrote {', '.join(written)} in {a.out}/")
     return 0
 
 
 def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
     """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
+    from .inference.taskstore import store_path
+
     for n in profiles:
         t0 = time.perf_counter()
-        pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex)
+        pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex,
+                       resume=store_path(a.out))  # finished points kept: a re-run skips them
         doc["profiles"].append(pr)
         inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
                   if d is not None and math.isfinite(d) and d < 3.84]

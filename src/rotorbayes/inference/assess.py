@@ -240,16 +240,21 @@ def fixed_influence(result, sources: dict, *, min_drop: float = 0.1) -> list[dic
         return []
     if not np.all(np.isfinite(r)):
         return []
-    Q, _ = np.linalg.qr(result.jac) if result.jac.size else (np.zeros((r.size, 0)), None)
+    from .least_squares import tsqr
+
+    # [J | Jf_k | r] = Q T, factorised over row blocks (no copy of J, no Q: long data): the
+    # part of Jf_k and of r that J cannot explain is T's rows below J's.
     ssr = float(r @ r)
     out = []
+    kj = result.jac.shape[1]
     for k, n in enumerate(cands):
-        g = Jf[:, k] - Q @ (Q.T @ Jf[:, k])
-        gg = float(g @ g)
+        T = tsqr(result.jac, Jf[:, k], r)[kj:, kj:]
+        gg = float(T[:, 0] @ T[:, 0])
         if gg <= 0:
             continue
-        drop = float(g @ r) ** 2 / gg
-        step_to = float(prob.base[n] - (g @ r) / gg)
+        gr = float(T[:, 0] @ T[:, 1])
+        drop = gr**2 / gg
+        step_to = float(prob.base[n] - gr / gg)
         info = prob.model.info[n]
         # A step far outside the physical range is not a prediction to quote.
         if drop > min_drop * ssr and info.lower <= step_to <= info.upper:

@@ -117,6 +117,11 @@ def _profile_point(shared: tuple, v: float) -> float:
     return float(np.sum((res * w) ** 2))
 
 
+def _point_index(key: str) -> int:
+    """A profile point's file number in the task store, from its hash."""
+    return int(key[:12], 16)
+
+
 def profile(
     problem: Problem,
     x: np.ndarray,
@@ -128,11 +133,14 @@ def profile(
     workers: int = 2,
     max_nfev: int = 100,
     executor=None,
+    resume=None,
 ) -> dict:
     """Profile likelihood of ``name``: Δχ² over a grid, the others refitted.
 
     The grid points are independent fits; they run on ``executor`` (default: the current
     one, else ``workers`` local threads) and give the same values on every back-end.
+    ``resume``: a task store folder (:mod:`.taskstore`) that keeps every finished point and
+    gives back those an earlier run of the same problem and point finished.
     """
     j = problem.names.index(name)
     x = np.asarray(x, float)
@@ -148,9 +156,29 @@ def profile(
         grid = v0 + s * np.linspace(-span, span, n_points)
     grid = np.clip(grid, problem.lower[j], problem.upper[j])
     w = _weights(problem)
-    tasks = run_tasks(_profile_point, list(grid), shared=(problem, x, name, max_nfev, w),
-                      executor=executor, workers=workers)
-    values = dict(progress(tasks, len(grid), f"profile {name}"))
+    values: dict[int, float] = {}
+    store = None
+    keys = [""] * len(grid)
+    if resume is not None:
+        from .taskstore import TaskStore, fingerprint, problem_fingerprint
+
+        # One store for every profile of a command: a point is known by its own hash.
+        store = TaskStore(resume, fingerprint("profiles", problem_fingerprint(problem), x),
+                          "profile point")
+        for i, v in enumerate(grid):
+            keys[i] = fingerprint(name, float(v), max_nfev)
+            hit, rec = store.get(_point_index(keys[i]), keys[i])
+            if hit:
+                values[i] = float(rec["chi2"])
+    todo = [i for i in range(len(grid)) if i not in values]
+    tasks = run_tasks(_profile_point, [grid[i] for i in todo],
+                      shared=(problem, x, name, max_nfev, w), executor=executor,
+                      workers=workers)
+    for j, v in progress(tasks, len(todo), f"profile {name}"):
+        i = todo[j]
+        if store is not None:
+            store.put(_point_index(keys[i]), keys[i], {"chi2": float(v)})
+        values[i] = v
     chi2 = np.array([values[i] for i in range(len(grid))])
     r0 = problem.residuals(x)
     chi2_min = float(np.sum((r0 * w) ** 2))

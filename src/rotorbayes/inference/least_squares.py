@@ -122,8 +122,8 @@ class FitResult:
         s2 = self.ssr / max(self.n_residuals - k, 1)
         d = np.linalg.norm(self.jac, axis=0)
         d = np.where(d > 0, d, 1.0)
-        Js = self.jac / d
-        w, V = np.linalg.eigh(Js.T @ Js)
+        # (J/d)ᵀ(J/d) without a scaled copy of J (long data: J is the largest array).
+        w, V = np.linalg.eigh((self.jac.T @ self.jac) / np.outer(d, d))
         small = w <= 1e-12 * max(w.max(), 1e-300)
         inv = np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))
         cov = (V * inv) @ V.T / np.outer(d, d) * s2
@@ -143,9 +143,65 @@ class FitResult:
         """Eigenvalues (ascending) and eigenvectors of the Fisher information in
         relative (log-parameter) coordinates: small eigenvalues are directions along
         which the fit barely changes."""
-        Jr = self.jac * np.where(self.x != 0, self.x, 1.0)
-        w, V = np.linalg.eigh(Jr.T @ Jr)
+        xs = np.where(self.x != 0, self.x, 1.0)
+        w, V = np.linalg.eigh((self.jac.T @ self.jac) * np.outer(xs, xs))
         return w, V
+
+
+#: Jacobians larger than this [bytes] are not handed to the optimiser: it gets the problem
+#: compressed to k + 1 rows (:func:`compress`), the same quadratic model in far less memory
+#: (scipy's trust-region solver keeps four copies of the Jacobian it is given; a 4 x 600 s
+#: coupled fit at 1 kHz has a 576 MB Jacobian).
+COMPRESS_BYTES = 64 * 2**20
+#: Rows of ``[J | r]`` factorised at a time by :func:`compress` [bytes].
+_QR_CHUNK_BYTES = 16 * 2**20
+
+
+def tsqr(*parts: np.ndarray) -> np.ndarray:
+    """The triangle ``T`` of a QR factorisation of the columns ``[parts...]`` side by side
+    (each a vector or an ``(n, m)`` array), taken over row blocks: the blocks' triangles are
+    stacked and factorised again, so no copy of the whole matrix is made (long data).
+    ``Tᵀ T`` is the Gram matrix of the columns; ``T`` has as many rows as columns."""
+    cols = [p[:, None] if p.ndim == 1 else p for p in parts]
+    n = cols[0].shape[0]
+    k = sum(c.shape[1] for c in cols)
+    step = max(k, _QR_CHUNK_BYTES // (8 * k))
+    T = np.zeros((0, k))
+    for a in range(0, n, step):
+        b = min(n, a + step)
+        blk = np.empty((T.shape[0] + b - a, k))
+        blk[: T.shape[0]] = T
+        j = 0
+        for c in cols:
+            blk[T.shape[0]:, j : j + c.shape[1]] = c[a:b]
+            j += c.shape[1]
+        T = np.linalg.qr(blk, mode="r")
+    if T.shape[0] < k:
+        T = np.vstack([T, np.zeros((k - T.shape[0], k))])
+    return T
+
+
+def compress(J: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """A ``(k + 1) x k`` matrix ``C`` with ``Cᵀ C = Jᵀ J`` and ``Cᵀ f = Jᵀ r`` for
+    ``f = (|r|, 0, ..., 0)``: least squares on ``(f, C)`` has the same cost and the same
+    Gauss-Newton model ``|J p + r|²`` as on ``(r, J)``.
+
+    ``[J | r] = Q [[R, q], [0, ρ]]`` (:func:`tsqr`: no copy of ``J``); with
+    ``u = q / |r|``, ``C = [uᵀ R; (I − α u uᵀ) R]``, ``α = 1 / (1 + √(1 − |u|²))``, the
+    square root of ``I − u uᵀ`` (stable, no ``JᵀJ`` formed).
+    """
+    k = J.shape[1]
+    T = tsqr(J, r)
+    R, q = T[:k, :k], T[:k, k]
+    rho = math.sqrt(float(r @ r))
+    u = q / rho if rho > 0 else np.zeros(k)
+    uu = min(float(u @ u), 1.0)
+    alpha = 1.0 / (1.0 + math.sqrt(1.0 - uu))
+    uR = u @ R
+    C = np.empty((k + 1, k))
+    C[0] = uR
+    C[1:] = R - alpha * np.outer(u, uR)
+    return C
 
 
 def _scale(problem: Problem, x0: np.ndarray) -> np.ndarray:
@@ -167,6 +223,7 @@ def fit(
     parallel: bool = True,
     callback: Callable[[int, float], None] | None = None,
     uncertainty: bool = True,
+    compressed: bool | None = None,
 ) -> FitResult:
     """Least squares from a start (thesis: MATLAB ``lsqnonlin``; here scipy's
     trust-region-reflective ``least_squares`` with bounds).
@@ -191,6 +248,10 @@ def fit(
         Compute honest standard errors (:func:`.uncertainty.fit_uncertainty`, about 200
         extra simulations); ``False`` keeps the i.i.d. Gauss-Newton ones (multistart's
         many starts; :func:`attach_uncertainty` adds them later).
+    compressed : bool, optional
+        Hand the optimiser the problem compressed to k + 1 rows (:func:`compress`; the
+        same steps up to rounding, far less memory).  Default: when the Jacobian exceeds
+        :data:`COMPRESS_BYTES` (long data).
 
     Returns
     -------
@@ -214,10 +275,20 @@ def fit(
     lo, hi = problem.lower / scale, problem.upper / scale
     counter = {"n": 0, "best": math.inf}
     best_x: dict = {}  # the best point so far, reported if the fit is interrupted
+    if compressed is None:
+        compressed = 8 * problem.n_residuals * x0.size > COMPRESS_BYTES
 
     last: dict = {}
 
     def fun(z):
+        r = full_fun(z)
+        if compressed:
+            f = np.zeros(z.size + 1)
+            f[0] = math.sqrt(float(r @ r))
+            return f
+        return r
+
+    def full_fun(z):
         r = problem.residuals(z * scale, penalty=FAIL_RESIDUAL)
         # The optimiser asks for the Jacobian at the point it just evaluated.
         last["z"], last["r"] = z.copy(), r
@@ -235,6 +306,13 @@ def fit(
         return r
 
     def jac(z):
+        J = full_jac(z)
+        if not compressed:
+            return J
+        r = last["r"] if "z" in last and np.array_equal(z, last["z"]) else full_fun(z)
+        return compress(J, r)
+
+    def full_jac(z):
         r0 = last["r"] if "z" in last and np.array_equal(z, last["z"]) else None
         try:
             J, _ = problem.jacobian(z * scale, rel_step=fd_step, r0=r0)
@@ -248,7 +326,8 @@ def fit(
             Z[np.arange(k), np.arange(k)] += steps
             R = problem.residuals_batch(Z * scale, penalty=FAIL_RESIDUAL)
             return ((R - r0[None, :]) / steps[:, None]).T
-        return J * scale[None, :]
+        J *= scale[None, :]  # in place: J is ours (long data: no second copy)
+        return J
 
     t0 = time.perf_counter()
     try:
@@ -271,7 +350,8 @@ def fit(
                              counter["n"]) from None
     seconds = time.perf_counter() - t0
     x = res.x * scale
-    J = jac(res.x) / scale[None, :]
+    J = full_jac(res.x)
+    J /= scale[None, :]
     ev = problem.evaluate(x)
     r = np.where(np.isnan(ev.residuals), FAIL_RESIDUAL, ev.residuals)
     ssr_val = float(r @ r)

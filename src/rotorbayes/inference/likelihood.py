@@ -43,6 +43,17 @@ from .problem import Problem, local_name
 LOG_2PI = math.log(2 * math.pi)
 #: The likelihoods :class:`LogPosterior` offers (module docstring).
 NOISE_MODELS = ("robust", "floor", "sampled")
+#: Residual memory of one kernel batch of walkers [bytes]: long data are simulated a few
+#: walkers at a time, short data all at once.
+BATCH_BYTES = 64 * 2**20
+
+
+def batch_rows(n_residuals: int, budget: int = BATCH_BYTES) -> int:
+    """Parameter sets per kernel batch whose residual rows fit in ``budget`` bytes, never
+    fewer than the kernel's threads (each thread simulates one row)."""
+    import numba
+
+    return max(1, int(numba.get_num_threads()), budget // max(8 * int(n_residuals), 1))
 
 
 @dataclass(frozen=True)
@@ -310,10 +321,14 @@ class LogPosterior:
                 lp[i] = -np.inf
         return lp
 
-    def pointwise(self, X: np.ndarray, S: np.ndarray, P: np.ndarray):
-        """Pointwise log-likelihood rows (n, n_residuals) and a failed mask."""
-        R = self.problem.residuals_batch(X)
-        failed = ~np.all(np.isfinite(R), axis=1)
+    def row_chunk(self) -> int:
+        """Rows (walkers, draws) simulated in one kernel batch: as many as keep their
+        residuals within :data:`BATCH_BYTES`, never fewer than the kernel's threads."""
+        return batch_rows(self.problem.n_residuals)
+
+    def pointwise_of(self, R: np.ndarray, S: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Pointwise log-likelihood rows of the residual rows ``R`` (``nan`` where the
+        simulation failed)."""
         L = np.empty_like(R)
         for (c, a, b) in self.segments:
             j = self.channels.index(c)
@@ -330,7 +345,50 @@ class LogPosterior:
                 L[:, a : a + 1] += 0.5 * np.log(1 - phi**2)
             else:
                 L[:, a:b] = -0.5 * LOG_2PI - np.log(s) - 0.5 * (e / s) ** 2
-        return L, failed
+        return L
+
+    def pointwise(self, X: np.ndarray, S: np.ndarray, P: np.ndarray):
+        """Pointwise log-likelihood rows (n, n_residuals) and a failed mask (all rows at
+        once: for few rows; :meth:`loglik` sums without keeping them)."""
+        R = self.problem.residuals_batch(X)
+        failed = ~np.all(np.isfinite(R), axis=1)
+        return self.pointwise_of(R, S, P), failed
+
+    def _loglik_of(self, R: np.ndarray, S: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """The log-likelihood of each residual row, from sums of squares per segment (no
+        pointwise array)."""
+        ll = np.zeros(R.shape[0])
+        for (c, a, b) in self.segments:
+            j = self.channels.index(c)
+            e = R[:, a:b] / self.problem.weights[c]
+            s = S[:, j]
+            n = b - a
+            if self.ar1:
+                phi = P[:, j]
+                d = e[:, 1:] - phi[:, None] * e[:, :-1]
+                q = 1.0 - phi**2
+                ssr = np.einsum("ij,ij->i", d, d) + e[:, 0] ** 2 * q
+                ll += 0.5 * np.log(q)
+            else:
+                ssr = np.einsum("ij,ij->i", e, e)
+            ll += n * (-0.5 * LOG_2PI - np.log(s)) - 0.5 * ssr / s**2
+        return ll
+
+    def loglik(self, X: np.ndarray, S: np.ndarray, P: np.ndarray):
+        """Log-likelihood per row and a failed mask; the rows are simulated a few at a time
+        (:meth:`row_chunk`) and only their sums of squares are kept, so the memory does not
+        grow with the number of walkers."""
+        n = X.shape[0]
+        ll = np.empty(n)
+        failed = np.zeros(n, bool)
+        step = self.row_chunk()
+        for a in range(0, n, step):
+            b = min(n, a + step)
+            R = self.problem.residuals_batch(X[a:b])
+            failed[a:b] = ~np.all(np.isfinite(R), axis=1)
+            ll[a:b] = self._loglik_of(R, S[a:b], P[a:b])
+            del R
+        return ll, failed
 
     def __call__(self, Z: np.ndarray) -> np.ndarray:
         Z = np.atleast_2d(Z)
@@ -340,8 +398,8 @@ class LogPosterior:
         self.n_calls += int(ok.sum())
         if ok.any():
             X, S, P = self.split(self.evaluation_points(Z[ok]))
-            L, failed = self.pointwise(X, S, P)
-            ll = np.where(failed, -np.inf, np.nansum(L, axis=1))
+            ll, failed = self.loglik(X, S, P)
+            ll = np.where(failed, -np.inf, ll)
             self.n_failed += int(failed.sum())
             out[ok] = lp[ok] + ll
         return out

@@ -227,6 +227,7 @@ def multistart(
     workers: int = 2,
     executor=None,
     progress: bool = True,
+    resume=None,
     **fit_kw,
 ) -> MultistartResult:
     """Fit from ``n_starts`` start points in parallel and cluster the end points.
@@ -241,6 +242,11 @@ def multistart(
     executor : concurrent.futures.Executor, optional
         Where the fits run (:mod:`rotorbayes.inference.parallel`); the starts and so the
         results depend on ``seed`` alone, not on the executor.
+    resume : path, optional
+        A task store (:mod:`.taskstore`): every finished start is kept there as it
+        finishes, and starts it already holds for the same problem, settings and start
+        vector are read instead of fitted again (a re-run after a kill gives the result of
+        an uninterrupted run).
     """
     rng = np.random.default_rng(seed)
     if isinstance(around, Mapping):
@@ -249,19 +255,39 @@ def multistart(
     t0 = time.perf_counter()
 
     results: dict[int, tuple] = {}
+    store = None
+    if resume is not None:
+        from .taskstore import TaskStore, fingerprint, problem_fingerprint
+
+        store = TaskStore(resume, fingerprint(
+            "multistart", problem_fingerprint(problem), seed, n_starts, around, spread,
+            {k: v for k, v in sorted(fit_kw.items())}), "start")
+        for i in range(n_starts):
+            hit, rec = store.get(i, fingerprint(starts[i]))
+            if hit:
+                results[i] = _fit_from_record(rec, problem)
+        if results and progress:
+            print(f"  {len(results)} of {n_starts} starts had finished in an earlier run: "
+                  f"read from {store.folder}", flush=True)
+    todo = [i for i in range(n_starts) if i not in results]
     interrupted = False
     try:
-        for i, (r, why) in run_tasks(_fit_start, list(starts), shared=(problem, fit_kw),
-                                     executor=executor, workers=workers):
+        for j, (r, why) in run_tasks(_fit_start, [starts[i] for i in todo],
+                                     shared=(problem, fit_kw), executor=executor,
+                                     workers=workers):
+            i = todo[j]
             if r is not None:
                 r.problem = problem  # a process or Dask worker sent back its own copy
+            if store is not None:
+                store.put(i, fingerprint(starts[i]), _fit_record(r, why))
             results[i] = (r, why)
             if progress:
                 el = time.perf_counter() - t0
                 k = len(results)
+                new = k - (n_starts - len(todo))  # fitted in this run
                 print(
                     f"  start {k:3d}/{n_starts} done "
-                    f"({el:.0f} s elapsed, ~{el / k * (n_starts - k):.0f} s left)",
+                    f"({el:.0f} s elapsed, ~{el / new * (n_starts - k):.0f} s left)",
                     flush=True,
                 )
     except KeyboardInterrupt:
@@ -288,6 +314,34 @@ def multistart(
         failed=failed,
         interrupted=interrupted,
     )
+
+
+#: The fields of a FitResult a task store keeps (all but the problem and uncertainty).
+_RECORD_FIELDS = ("names", "x", "x0", "stderr", "jac", "ssr", "n_residuals", "success",
+                  "message", "nfev", "njev", "seconds")
+
+
+def _fit_record(r: FitResult | None, why: str) -> dict:
+    """One finished start as a task-store record."""
+    rec: dict = {"ok": r is not None, "why": why}
+    if r is not None:
+        for k in _RECORD_FIELDS:
+            v = getattr(r, k)
+            rec[k] = v if isinstance(v, np.ndarray | list | str | bool) else (
+                float(v) if isinstance(v, float | np.floating) else int(v))
+    return rec
+
+
+def _fit_from_record(rec: dict, problem: Problem) -> tuple[FitResult | None, str]:
+    if not rec["ok"]:
+        return None, str(rec["why"])
+    kw = {k: rec[k] for k in _RECORD_FIELDS}
+    for k in ("success",):
+        kw[k] = bool(kw[k])
+    for k in ("n_residuals", "nfev", "njev"):
+        kw[k] = int(kw[k])
+    kw["names"] = list(kw["names"])
+    return FitResult(problem=problem, **kw), str(rec["why"])
 
 
 def _usable(f: FitResult) -> bool:

@@ -20,6 +20,15 @@ from .sampling import EnsembleRun, burn_thin
 
 #: Time points per experiment kept in the posterior-predictive group.
 PREDICTIVE_POINTS = 1500
+#: Largest pointwise log-likelihood group kept in memory and in posterior.nc [bytes, as
+#: float32]: beyond it, consecutive samples are summed in blocks (long data).
+LOGLIK_BYTES = 256 * 2**20
+
+
+def loglik_block(n_draws: int, n_residuals: int, budget: int | None = None) -> int:
+    """Samples per stored log-likelihood value: 1 (pointwise) unless the draws' pointwise
+    values would exceed ``budget`` bytes as float32 (default :data:`LOGLIK_BYTES`)."""
+    return max(1, math.ceil(4 * n_draws * n_residuals / (budget or LOGLIK_BYTES)))
 
 
 def draws(logpost: LogPosterior, runs: list[EnsembleRun], max_draws: int = 100):
@@ -60,28 +69,54 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
             posterior[f"sigma_{c}"] = S[:, j].reshape(C, D)
         if logpost.ar1:
             posterior[f"phi_{c}"] = P[:, j].reshape(C, D)
-    L, failed = logpost.pointwise(X, S, P)
+    n_rows = X.shape[0]
+    block = loglik_block(n_rows, prob.n_residuals)
     loglik, observed, constant, pp, dims, coords, dims_pp = {}, {}, {}, {}, {}, {}, {}
-    R = prob.residuals_batch(X) if predictive else None
+    cuts = {}  # per segment: the first sample of every stored block
     for (c, a, b), ex_i in zip(logpost.segments, _exp_index(prob), strict=True):
         ex = prob.experiments[ex_i]
         key = f"{c}_exp{ex_i}"
-        loglik[key] = L[:, a:b].reshape(C, D, -1).astype(np.float32)
         meas = ex.theta_u if c == "theta_u" else ex.theta_l
         observed[key] = meas
         dims[key] = [f"time_exp{ex_i}"]
         coords[f"time_exp{ex_i}"] = ex.t
         constant[f"u_exp{ex_i}"] = ex.u
         dims[f"u_exp{ex_i}"] = [f"time_exp{ex_i}"]
-        if R is not None:
+        cuts[key] = np.arange(0, b - a, block)
+        loglik[key] = np.empty((n_rows, cuts[key].size), np.float32)
+        if block > 1:
+            dims_ll = f"block_exp{ex_i}"
+            coords[dims_ll] = ex.t[cuts[key]]
+        if predictive:
             # The predictive bands need far fewer time points than the fit: at most
             # PREDICTIVE_POINTS per experiment, on their own time axis.
-            w = prob.weights[c]
             step = max(1, int(np.ceil(ex.n / PREDICTIVE_POINTS)))
-            sims = (meas[None, :] - R[:, a:b] / w)[:, ::step]
-            pp[key] = sims.reshape(C, D, -1).astype(np.float32)
+            pp[key] = np.empty((n_rows, len(range(0, ex.n, step))), np.float32)
             dims_pp[key] = [f"time_pred_exp{ex_i}"]
             coords[f"time_pred_exp{ex_i}"] = ex.t[::step]
+    # The draws are simulated a few at a time (long data: the residuals of every draw at
+    # once would not fit in memory); only what is stored is kept.
+    chunk = logpost.row_chunk()
+    for r0 in range(0, n_rows, chunk):
+        r1 = min(n_rows, r0 + chunk)
+        R = prob.residuals_batch(X[r0:r1])
+        L = logpost.pointwise_of(R, S[r0:r1], P[r0:r1])
+        for (c, a, b), ex_i in zip(logpost.segments, _exp_index(prob), strict=True):
+            key = f"{c}_exp{ex_i}"
+            seg = L[:, a:b]
+            loglik[key][r0:r1] = seg if block == 1 else np.add.reduceat(seg, cuts[key], axis=1)
+            if predictive:
+                ex = prob.experiments[ex_i]
+                meas = ex.theta_u if c == "theta_u" else ex.theta_l
+                step = max(1, int(np.ceil(ex.n / PREDICTIVE_POINTS)))
+                pp[key][r0:r1] = meas[None, ::step] - R[:, a:b][:, ::step] / prob.weights[c]
+        del R, L
+    for key in list(loglik):
+        loglik[key] = loglik[key].reshape(C, D, -1)
+        if key in pp:
+            pp[key] = pp[key].reshape(C, D, -1)
+    dims_loglik = {k: ([f"block_exp{k.rsplit('_exp', 1)[1]}"] if block > 1 else v)
+                   for k, v in dims.items() if k in loglik}
     acc = np.stack([np.full(D, float(np.mean(r.acceptance))) for r in runs])
     stats = {"lp": LP, "acceptance_rate": acc,
              "failed_simulations": np.full((C, D), logpost.n_failed)}
@@ -89,11 +124,16 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
               "observed_data": observed, "constant_data": constant}
     if pp:
         groups["posterior_predictive"] = pp
-    group_dims = {"log_likelihood": dims, "observed_data": dims, "constant_data": dims,
-                  "posterior_predictive": dims_pp}
+    group_dims = {"log_likelihood": dims_loglik, "observed_data": dims,
+                  "constant_data": dims, "posterior_predictive": dims_pp}
     attrs = {"posterior": {"burn_in_steps": burn, "thin": thin, "ensembles": C,
                            "walkers_steps_note":
-                           "chain = independent ensemble; draw = steps x walkers"}}
+                           "chain = independent ensemble; draw = steps x walkers"},
+             "log_likelihood": {"samples_per_point": block, "note": (
+                 "pointwise: one value per sample" if block == 1 else
+                 f"one value per block of {block} consecutive samples (their sum): the "
+                 f"pointwise values of every sample would exceed {LOGLIK_BYTES // 2**20} MiB; "
+                 "the block_exp coordinates are each block's first time")}}
     return AZ.from_groups(groups, dims=group_dims, coords=coords, attrs=attrs)
 
 

@@ -605,5 +605,9 @@ class Problem:
                 f"{_layout.STATUS_MESSAGES[int(S[j, i])]}"
             )
         base_r = R[0] if r0 is None or prob is not self or values else r0
-        J = ((R[1:] - base_r[None, :]) / steps[:, None]).T
-        return J, steps
+        # In place: long data make R the largest array of a fit (k + 1 residual vectors);
+        # no second and third copy for the difference and the quotient.
+        D = R[1:]
+        D -= base_r[None, :]
+        D /= steps[:, None]
+        return D.T, steps

@@ -69,6 +69,9 @@ HOLD_UPSAMPLE = 8
 NOISE_MS = 1.05**2
 #: Draws of the rounding simulation (:func:`rounding_covariance`).
 N_BOOT = 200
+#: Memory for the rounding draws' errors held at once [bytes] (50 draws of 30 s at 1 kHz,
+#: a few of a long experiment).
+ROUNDING_BYTES = 64 * 2**20
 
 @dataclass
 class Uncertainty:
@@ -203,16 +206,19 @@ def _segments(problem):
 
 
 def block_scores(problem, J: np.ndarray, r: np.ndarray, block_seconds: float | None = None,
-                 *, with_information: bool = False):
+                 *, with_information: bool = False, col_scale: np.ndarray | None = None):
     """Scores ``J_bᵀ r_b`` of contiguous time blocks (rows) and the block length used [s].
 
     Both channels of one experiment's time window go into one block.  The block length is
     :data:`BLOCK_SECONDS`, shortened (not below :data:`MIN_BLOCK_SECONDS`) when the data
-    are too short for :data:`MIN_BLOCKS` blocks.
+    are too short for :data:`MIN_BLOCKS` blocks.  ``col_scale`` ``d``: the scores of
+    ``J / d`` (without a scaled copy of ``J``).
     """
     total = sum(ex.n * ex.dt for ex in problem.experiments)
     if block_seconds is None:
         block_seconds = min(BLOCK_SECONDS, max(MIN_BLOCK_SECONDS, total / MIN_BLOCKS))
+    d = np.ones(J.shape[1]) if col_scale is None else np.asarray(col_scale, float)
+    dd = np.outer(d, d)
     rows, info = [], []
     segs = _segments(problem)
     for i, ex in enumerate(problem.experiments):
@@ -229,11 +235,16 @@ def block_scores(problem, J: np.ndarray, r: np.ndarray, block_seconds: float | N
                 g += Jb.T @ r[off + a : off + e]
                 if with_information:
                     ab += Jb.T @ Jb
-            rows.append(g)
-            info.append(ab)
+            rows.append(g / d)
+            info.append(ab / dd)
     if with_information:
         return np.array(rows), block_seconds, np.array(info)
     return np.array(rows), block_seconds
+
+
+def _gram(J: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``(J/d)ᵀ (J/d)`` without a scaled copy of ``J`` (long data: ``J`` is large)."""
+    return (J.T @ J) / np.outer(d, d)
 
 
 def _sym_sqrt(S: np.ndarray, inverse: bool = False) -> np.ndarray:
@@ -254,20 +265,26 @@ def robust_covariances(problem, J: np.ndarray, r: np.ndarray, floors: dict,
     """
     k = J.shape[1]
     # Residual weights to noise units: every residual divided by its channel's floor
-    # (times the channel weight already in r and J).
-    sig = np.empty(J.shape[0])
+    # (times the channel weight already in r and J), one number per segment. Products
+    # segment by segment: no scaled copies of J.
+    d2 = np.zeros(k)
+    M_white = np.zeros((k, k))
     for (_, c, off, n, _) in _segments(problem):
-        sig[off : off + n] = floors[c] * problem.weights[c]
-    d = np.linalg.norm(J / sig[:, None], axis=0)
+        sig = floors[c] * problem.weights[c]
+        Jseg = J[off : off + n]
+        Gs = Jseg.T @ Jseg
+        d2 += np.diag(Gs) / sig**2
+        # White noise at the floor: Var(Jᵀe) = Jᵀ diag(σ²) J.
+        M_white += sig**2 * Gs
+    d = np.sqrt(d2)
     d = np.where(d > 0, d, 1.0)
-    Js = J / d  # scaled columns
-    A = Js.T @ Js
+    M_white /= np.outer(d, d)
+    A = _gram(J, d)
     w, V = np.linalg.eigh(A)
     small = w <= 1e-12 * max(w.max(), 1e-300)
     Ainv = (V * np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))) @ V.T
-    # White noise at the floor: Var(Jᵀe) = Jᵀ diag(σ²) J.
-    M_white = (Js * sig[:, None] ** 2).T @ Js
-    G, bsec, Ab = block_scores(problem, Js, r, block_seconds, with_information=True)
+    G, bsec, Ab = block_scores(problem, J, r, block_seconds, with_information=True,
+                               col_scale=d)
     nb = G.shape[0]
     cov_white = Ainv @ M_white @ Ainv
     # Delete-one-block jackknife (one Gauss-Newton step per deleted block): unlike the plain
@@ -288,7 +305,7 @@ def robust_covariances(problem, J: np.ndarray, r: np.ndarray, floors: dict,
     hit = np.zeros(k, bool)
     if small.any():
         hit = np.any(np.abs(V[:, small]) > 0.1, axis=1)
-    return cov_white * unscale, cov_robust * unscale, nb, bsec, hit, (Js, d, Ainv)
+    return cov_white * unscale, cov_robust * unscale, nb, bsec, hit, (d, Ainv)
 
 
 def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, floors: dict,
@@ -309,8 +326,7 @@ def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, fl
     rng = np.random.default_rng(seed)
     d = np.linalg.norm(J, axis=0)
     d = np.where(d > 0, d, 1.0)
-    Js = J / d
-    A = Js.T @ Js
+    A = _gram(J, d)
     w, V = np.linalg.eigh(A)
     small = w <= 1e-12 * max(w.max(), 1e-300)
     Apinv = (V * np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))) @ V.T
@@ -331,7 +347,9 @@ def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, fl
             segs.append((c, off, ex.n, wt, sim, first))
             off += ex.n
     D = np.empty((n_boot, J.shape[1]))
-    chunk = 50  # errors of 50 draws at a time: one matrix product instead of 50 (memory-bound)
+    # Errors of up to 50 draws at a time: one matrix product instead of 50 (memory-bound);
+    # fewer for long data, so the draws' errors stay within ROUNDING_BYTES.
+    chunk = int(min(50, max(1, ROUNDING_BYTES // (8 * r.size))))
     for b0 in range(0, n_boot, chunk):
         m = min(chunk, n_boot - b0)
         E = np.empty((m, r.size))
@@ -348,7 +366,8 @@ def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, fl
                 if extra > 0:
                     err = err + math.sqrt(extra) * rng.standard_normal(n)
                 E[b, o : o + n] = wt * err
-        D[b0 : b0 + m] = (E @ Js) @ Apinv
+        D[b0 : b0 + m] = ((E @ J) / d) @ Apinv
+        del E
     return np.cov(D.T).reshape(J.shape[1], J.shape[1]) / np.outer(d, d)
 
 
@@ -397,14 +416,14 @@ def hold_shift(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
             off += n
     d = np.linalg.norm(J, axis=0)
     d = np.where(d > 0, d, 1.0)
-    Js = J / d
     # The estimate moves so that the new residual is again orthogonal to J: Δx = −A⁺ Jᵀ Δr.
-    A = Js.T @ Js
+    A = _gram(J, d)
     w, V = np.linalg.eigh(A)
     small = w <= 1e-10 * max(w.max(), 1e-300)
     Apinv = (V * np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))) @ V.T
     rs = r + dr
-    g_s, g_l = Js.T @ rs, Js.T @ r
+    del dr
+    g_s, g_l = (J.T @ rs) / d, (J.T @ r) / d
     step, step_lin = -Apinv @ g_s, -Apinv @ g_l
     # SSR after a Gauss-Newton step: |r|² − gᵀ A⁺ g.
     ssr_smooth = float(rs @ rs + g_s @ step)
