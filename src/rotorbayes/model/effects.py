@@ -167,6 +167,87 @@ class Effect:
         return "\n".join(rows)
 
 
+class Equivalence(str):
+    """An exact equivalence: its words (the string itself) and what a tool can act on.
+
+    It is a ``str``, so every listing, JSON file and message that shows an effect's
+    ``equivalences`` shows its words; :mod:`rotorbayes.design` reads the attributes.
+
+    Attributes
+    ----------
+    effects : tuple of str
+        The effects it ties (each can stand in for the other).
+    also_free : tuple of str
+        Parameters that must be free for the tie to be exact (e.g. ``dTc_u``: the upper
+        disc takes the string's reaction); parameters of the motor and the upper disc do not
+        count when the measured upper angle drives the lower disc.
+    scope : str
+        Where it holds, in words ("any single experiment").
+    max_experiments : int
+        It holds for data of at most this many experiments (0: any number).
+    input_can_break : bool
+        Whether some input (within the scope) can tell the tied effects apart.
+    procedure : str
+        What separates them when no input can.
+    """
+
+    effects: tuple[str, ...]
+    also_free: tuple[str, ...]
+    scope: str
+    max_experiments: int
+    input_can_break: bool
+    procedure: str
+
+    def __new__(cls, words: str, *, effects=(), also_free=(), scope: str = "",
+                max_experiments: int = 0, input_can_break: bool = True,
+                procedure: str = ""):
+        obj = super().__new__(cls, words)
+        obj.effects = tuple(effects)
+        obj.also_free = tuple(also_free)
+        obj.scope = scope
+        obj.max_experiments = int(max_experiments)
+        obj.input_can_break = bool(input_can_break)
+        obj.procedure = procedure
+        return obj
+
+    def holds_for(self, n_experiments: int) -> bool:
+        """Whether it holds for data of ``n_experiments`` experiments."""
+        return self.max_experiments <= 0 or n_experiments <= self.max_experiments
+
+    def __reduce__(self):  # pickled with its attributes (process and Dask workers)
+        return (_equivalence, (str(self), self.effects, self.also_free, self.scope,
+                               self.max_experiments, self.input_can_break, self.procedure))
+
+
+def _equivalence(words, effects, also_free, scope, max_experiments, input_can_break,
+                 procedure):
+    return Equivalence(words, effects=effects, also_free=also_free, scope=scope,
+                       max_experiments=max_experiments, input_can_break=input_can_break,
+                       procedure=procedure)
+
+
+#: A pre-wound string against a lower friction asymmetry (DESIGN.md, "one exact tie").
+_TORSION_TIE = Equivalence(
+    "in any single experiment a pre-wound string is a constant torque k_alpha*alpha0 on "
+    "both discs, i.e. a shift of both discs' friction levels: initial_torsion cannot be "
+    "told from lower_asymmetric_coulomb (with dTc_u free) by any input",
+    effects=("initial_torsion", "lower_asymmetric_coulomb"),
+    also_free=("dTc_u",),
+    scope="any single experiment",
+    max_experiments=1,
+    input_can_break=False,
+    procedure=(
+        "unwind or re-zero the string (so that it starts with a torsion different from the "
+        "first experiment's, ideally none), run a second experiment (the same input will "
+        "do), and fit both experiments together with one alpha0 each (rotorbayes fit "
+        "--model ... first.csv second.csv --add lower_asymmetric_coulomb: several "
+        "experiments get alpha0[0], alpha0[1]). A friction asymmetry is the same in both "
+        "experiments, a pre-wound string's torque is not: alpha0s that differ by the "
+        "unwinding say the string was wound; the part common to both stays tied to dTc_l "
+        "unless one torsion is known (an unwound string's is 0)"),
+)
+
+
 def _p(name, unit, lo, hi, null, desc, start=math.nan, nuisance=False) -> Parameter:
     return Parameter(name, unit, lo, hi, null, desc, start, nuisance)
 
@@ -214,6 +295,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a common shift of every alpha0 is absorbed by dTc_l and dTc_u on estimation "
             "data (a constant string torque acts like a friction asymmetry); validation "
             "data expose it",
+            _TORSION_TIE,
         ),
         resolution=Resolution(
             "torque", 1.0, "l", "",
@@ -263,6 +345,7 @@ _CATALOGUE: tuple[Effect, ...] = (
         kernel_term="terms.torques (k_alpha * (theta_l - theta_u + alpha0))",
         equivalences=(
             "a common shift of every alpha0 is absorbed by dTc_l and dTc_u on estimation data",
+            _TORSION_TIE,
         ),
         resolution=Resolution(
             "torque", 1.0, "l", "k_alpha",

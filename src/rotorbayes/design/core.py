@@ -1,0 +1,665 @@
+"""Design the next experiment: the input that pins what the data leave loose, or that
+separates candidate effects (issue 20).
+
+:func:`design_input` takes a fit (a folder written by ``rotorbayes fit``, a
+:class:`~rotorbayes.results.LoadedFit`, a :class:`~rotorbayes.inference.FitResult` or a
+``(problem, x)`` pair) and a target:
+
+* ``"sloppiest"`` (default) — the fit's sloppiest Fisher direction: minimise the predicted
+  1-σ width along it when the new experiment is fitted together with the existing data;
+* ``params=[...]`` — named free parameters: minimise the sum of their predicted relative
+  variances;
+* ``separate=[A, B]`` — two candidate effects, each fitted to the existing data as the
+  diagnosis would (``fit --add``): maximise the smaller of the two expected SSR gaps
+  (:func:`.information.separation_gap`).
+
+It searches an input family (:mod:`.inputs`) from several starts through the executor layer
+(:func:`rotorbayes.inference.parallel.run_tasks`), compares the best input with the standard
+estimation input of equal length and limits, and checks itself: the designed experiment is
+simulated at the fit (quantised like the data), fitted together with the existing data, and
+the achieved gain is reported beside the predicted one.  When the registry says no input can
+help (:mod:`.ties`), it says so with the procedure that can, and searches nothing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import optimize
+
+from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, Experiment, quantisation_floor
+from ..data import quantize as _quantize
+from ..inference.least_squares import fit as _fit
+from ..inference.parallel import run_tasks
+from ..inference.problem import Problem, local_name
+from ..model import effects as _effects
+from ..model.simulate import SimulationError
+from ..signals import MAX_VOLTAGE, estimation_signal
+from . import ties as _ties
+from .information import Frame, separation_gap
+from .inputs import FAMILIES, MAX_BAND_HZ, DesignInputError, make_family
+
+#: Status words of a design.
+DESIGNED, NO_INPUT, LITTLE_GAIN = "designed", "no input can help", "little to gain"
+#: A design whose predicted width (or gap) improves on the existing data's by less than
+#: this factor is reported as little to gain.
+MIN_GAIN = 1.05
+#: Function evaluations per optimisation start (each one a Jacobian on the new input).
+DEFAULT_EVALS = 400
+#: Local optimiser of each start: 'powell' (derivative-free) or 'lbfgsb' (forward
+#: differences).
+METHOD = "powell"
+
+
+class DesignError(DesignInputError):
+    """A design request that cannot be served; the message names the value and the fix."""
+
+
+@dataclass
+class DesignResult:
+    """A designed input, what it is predicted to gain and what the self-check achieved."""
+
+    status: str
+    target: dict
+    words: str
+    t: np.ndarray
+    u: np.ndarray
+    baseline: np.ndarray | None
+    input_family: dict
+    predicted: dict
+    achieved: dict | None
+    starts: list[dict]
+    settings: dict
+    seconds: dict
+    procedure: str = ""
+    responses: dict = field(default_factory=dict, repr=False)
+
+    def as_dict(self) -> dict:
+        return {"status": self.status, "target": self.target, "words": self.words,
+                "procedure": self.procedure or None, "input": self.input_family,
+                "predicted": self.predicted, "achieved": self.achieved,
+                "starts": self.starts, "settings": self.settings, "seconds": self.seconds}
+
+    def text(self) -> str:
+        lines = [f"status: {self.status}", f"target: {self.target.get('words', '')}", "",
+                 self.words]
+        if self.procedure:
+            lines += ["", f"procedure: {self.procedure}"]
+        if self.input_family:
+            lines += ["", f"input: {self.input_family.get('description', '')}"]
+        return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------ inputs
+def _as_fit(fit, trust_effects: bool = False) -> tuple[Problem, np.ndarray, str]:
+    from ..results import LoadedFit, load_fit
+
+    if isinstance(fit, (str, Path)):
+        lf = load_fit(fit, trust_effects=trust_effects)
+        return lf.problem, lf.x, str(lf.folder)
+    if isinstance(fit, LoadedFit):
+        return fit.problem, fit.x, str(fit.folder)
+    if isinstance(fit, tuple) and len(fit) == 2 and isinstance(fit[0], Problem):
+        return fit[0], np.asarray(fit[1], float), "(problem, x)"
+    if hasattr(fit, "problem") and hasattr(fit, "x"):
+        return fit.problem, np.asarray(fit.x, float), "FitResult"
+    raise DesignError(f"cannot design from {type(fit).__name__}: give a fit folder, a "
+                      "LoadedFit, a FitResult or a (problem, x) pair")
+
+
+def _grid_defaults(problem: Problem, duration, rate) -> tuple[float, float]:
+    ex = problem.experiments[0]
+    rate = float(rate) if rate is not None else round(1.0 / ex.dt, 9)
+    if duration is None:
+        duration = round(float(ex.t[-1] - ex.t[0]) * rate) / rate
+    return float(duration), rate
+
+
+# -------------------------------------------------------------------------- objectives
+class _Objective:
+    """The number a start minimises, as a picklable object (process and Dask workers)."""
+
+    def __init__(self, kind: str, family, frames: list[Frame], v=None, idx=None):
+        self.kind, self.family, self.frames, self.v, self.idx = kind, family, frames, v, idx
+
+    def value(self, u: np.ndarray) -> float:
+        t = self.family.t
+        if self.kind == "sloppiest":
+            f = self.frames[0]
+            Jn = f.new_rows(t, u)
+            return math.log(max(f.sd_along(f.F_old + Jn.T @ Jn, self.v), 1e-300))
+        if self.kind == "params":
+            f = self.frames[0]
+            Jn = f.new_rows(t, u)
+            return math.log(max(float(np.sum(f.variances(f.F_old + Jn.T @ Jn, self.idx))),
+                                1e-300))
+        return -math.log1p(min(self.gaps(u)))
+
+    def gaps(self, u: np.ndarray) -> tuple[float, float]:
+        a, b = self.frames
+        t = self.family.t
+        Ja, ya = a.new_rows(t, u, with_prediction=True)
+        Jb, yb = b.new_rows(t, u, with_prediction=True)
+        return separation_gap(a, b, ya, yb, Jb), separation_gap(b, a, yb, ya, Ja)
+
+    def __call__(self, z: np.ndarray) -> float:
+        try:
+            return self.value(self.family(z))
+        except (SimulationError, np.linalg.LinAlgError, FloatingPointError):
+            return 1e3  # an input the model cannot simulate: the worst possible value
+
+
+def _run_start(objective: _Objective, item) -> dict:
+    """One optimisation start (a task of the executor layer)."""
+    i, z0, max_evals = item
+    t0 = time.perf_counter()
+    fam = objective.family
+    f0 = objective(z0)
+    bounds = list(zip(fam.lower, fam.upper, strict=True))
+    if METHOD == "powell":
+        res = optimize.minimize(objective, z0, method="Powell", bounds=bounds,
+                                options={"maxfev": int(max_evals), "xtol": 1e-3,
+                                         "ftol": 1e-4})
+    else:
+        # Forward differences over a step the input can feel (a hundredth of a volt).
+        res = optimize.minimize(objective, z0, method="L-BFGS-B", bounds=bounds,
+                                options={"maxfun": int(max_evals), "eps": 2e-3,
+                                         "ftol": 1e-6})
+    z = np.clip(res.x, fam.lower, fam.upper)
+    val = float(res.fun)
+    if not val <= f0:  # never worse than the start
+        z, val = np.asarray(z0, float), f0
+    return {"start": int(i), "z": z, "value": val, "start_value": float(f0),
+            "evaluations": int(res.nfev), "seconds": time.perf_counter() - t0}
+
+
+# ------------------------------------------------------------------------------ checks
+def _simulate_data(frame: Frame, t, u, seed: int) -> Experiment:
+    """The new experiment simulated at ``frame``'s fit, quantised like the data (and with
+    Gaussian noise where the data's floor is above the quantisation)."""
+    p = frame.new_problem(t, u)
+    sim = p.simulate(p.x_from(frame.params_new))
+    if sim.meta.get("status", "ok") != "ok":
+        raise SimulationError(f"the designed experiment cannot be simulated at the fit: "
+                              f"{sim.meta['status']}")
+    rng = np.random.default_rng(seed)
+    out = {}
+    for c, counts in (("theta_u", UPPER_COUNTS_PER_REV), ("theta_l", LOWER_COUNTS_PER_REV)):
+        th = getattr(sim, c)
+        if th is None:
+            out[c] = None
+            continue
+        q = quantisation_floor(c)
+        extra = math.sqrt(max(frame.floors.get(c, q) ** 2 - q**2, 0.0))
+        if extra > 0:
+            th = th + extra * rng.standard_normal(th.size)
+        out[c] = _quantize(th, counts)
+    return Experiment(t, u, out["theta_u"], out["theta_l"], name="designed (simulated)")
+
+
+def _combined(frame: Frame, new_ex: Experiment) -> tuple[Problem, np.ndarray, np.ndarray]:
+    """Old data plus ``new_ex``: the problem, its start (the fit) and, per free name, the
+    index in the frame's coordinates."""
+    prob0 = frame.problem
+    prob = Problem(frame.model, list(prob0.experiments) + [new_ex], free=frame.names_base,
+                   base=frame.params_new, channels=prob0.channels, weights=prob0.weights)
+    pos = [frame.names.index(n) for n in prob.names]
+    return prob, frame.x_comb[pos], np.array(pos)
+
+
+def _fisher_at(frame: Frame, prob: Problem, J: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    Js = frame._scaled_rows(prob, J) * frame.scale[pos][None, :]
+    F = np.zeros((len(frame.names),) * 2)
+    F[np.ix_(pos, pos)] = Js.T @ Js
+    return F
+
+
+def _check_information(frame: Frame, t, u, kind: str, v, idx, seed: int,
+                       max_nfev: int) -> dict:
+    """Simulate, refit old + new, and measure the width(s) the target asks for."""
+    t0 = time.perf_counter()
+    new_ex = _simulate_data(frame, t, u, seed)
+    prob, x0, pos = _combined(frame, new_ex)
+    res = _fit(prob, x0, uncertainty=True, max_nfev=max_nfev, parallel=True)
+    F = _fisher_at(frame, prob, res.jac, pos)
+    cov = np.full((len(frame.names),) * 2, np.nan)
+    if res.uncertainty is not None:
+        cov[np.ix_(pos, pos)] = res.uncertainty.cov / np.outer(frame.scale[pos],
+                                                               frame.scale[pos])
+    out = {"converged": bool(res.success), "fit_seconds": time.perf_counter() - t0,
+           "rms_over_floor": prob.rms_over_floor(prob.residuals(res.x))}
+    if kind == "sloppiest":
+        out["sd_white"] = frame.sd_along(F, v)
+        vp = v[pos]
+        out["sd_honest"] = math.sqrt(max(float(vp @ cov[np.ix_(pos, pos)] @ vp), 0.0))
+        out["error_along_direction"] = float(v[pos] @ _relative_step(frame, res.x, x0, pos))
+    else:
+        out["sd_white"] = {frame.names[j]: math.sqrt(x) for j, x in
+                           zip(idx, frame.variances(F, idx), strict=True)}
+        out["sd_honest"] = {frame.names[j]: math.sqrt(max(cov[j, j], 0.0)) for j in idx}
+    return out
+
+
+def _relative_step(frame: Frame, x: np.ndarray, x0: np.ndarray, pos: np.ndarray):
+    """``x - x0`` in the frame's relative coordinates (log where the scale is the value)."""
+    out = np.empty(len(pos))
+    for k, j in enumerate(pos):
+        if x0[k] > 0 and x[k] > 0 and frame.scale[j] == x0[k]:
+            out[k] = math.log(x[k] / x0[k])
+        else:
+            out[k] = (x[k] - x0[k]) / frame.scale[j]
+    return out
+
+
+def _check_separation(frames: list[Frame], labels, t, u, seed: int, max_nfev: int) -> dict:
+    """For each candidate as the truth: simulate, refit both to old + new, SSR gap."""
+    out = {}
+    for k, truth in enumerate(frames):
+        new_ex = _simulate_data(truth, t, u, seed + k)
+        ssr = []
+        for f in frames:
+            prob, x0, _ = _combined(f, new_ex)
+            res = _fit(prob, x0, uncertainty=False, max_nfev=max_nfev, parallel=True)
+            r = f._scaled_rows(prob, prob.residuals(res.x)[:, None])[:, 0]
+            ssr.append(float(r @ r))
+        other = 1 - k
+        out[f"{labels[k]} true"] = {
+            "ssr_gap": ssr[other] - ssr[k],
+            "ssr_true_model": ssr[k], "ssr_other_model": ssr[other],
+            "n_residuals": int(new_ex.n * len(frames[0].problem.channels))}
+    return out
+
+
+# ---------------------------------------------------------------------------- separate
+def _candidate(problem: Problem, x: np.ndarray, name: str, max_nfev: int):
+    """A candidate model: the fit's model with effect ``name`` on and its parameters
+    freed, fitted to the existing data from the diagnosis's one-step estimate."""
+    from ..diagnosis.score import score_tests
+
+    eff = _effects.resolve([name])[0]
+    m = problem.model
+    if m.config not in eff.configs:
+        raise DesignError(f"effect {eff.name!r} does not apply to the {m.config} configuration "
+                          f"(it applies to {', '.join(eff.configs)})")
+    names = problem.names_base()
+    base = dict(problem.params_for(x, 0))
+    if eff.name in m.effect_names:
+        cand = problem
+        return cand, x, eff, "already on in the fit"
+    free = names + [p for p in eff.names if p not in names]
+    cand = Problem(m.with_effects([eff]), problem.experiments, free=free, base=base,
+                   channels=problem.channels, weights=problem.weights)
+    vals = dict(base)
+    vals.update({n: v for n, v in problem.values(x).items()})
+    x0 = cand.start_vector(vals)
+    try:
+        s = score_tests(problem, x, effects=[eff])
+        if s:
+            for n, val in {**s[0].step, **s[0].nuisance}.items():
+                if n in cand.names and math.isfinite(val):
+                    j = cand.names.index(n)
+                    if cand.lower[j] < val < cand.upper[j]:
+                        x0[j] = val
+    except Exception:  # noqa: BLE001 - no one-step estimate: the effect's typical start
+        pass
+    res = _fit(cand, x0, uncertainty=False, max_nfev=max_nfev)
+    return cand, res.x, eff, f"fitted to the existing data ({res.nfev} evaluations)"
+
+
+# ------------------------------------------------------------------------------- design
+def design_input(
+    fit,
+    *,
+    params: Sequence[str] | None = None,
+    separate: Sequence[str] | None = None,
+    duration: float | None = None,
+    rate: float | None = None,
+    max_volts: float = MAX_VOLTAGE,
+    band_hz: float = MAX_BAND_HZ,
+    family: str = "steps",
+    starts: int = 4,
+    seed: int = 0,
+    max_evals: int = DEFAULT_EVALS,
+    check: bool = True,
+    check_nfev: int = 60,
+    executor=None,
+    workers: int = 2,
+    trust_effects: bool = False,
+) -> DesignResult:
+    """Design the next experiment's input for a fit (see the module docstring).
+
+    Parameters
+    ----------
+    fit : str, Path, LoadedFit, FitResult or (Problem, x)
+        The fit on the existing data.
+    params : sequence of str, optional
+        Target these free parameters instead of the sloppiest direction.
+    separate : sequence of two str, optional
+        Target the discrimination between these two catalogue effects.
+    duration, rate : float, optional
+        Length [s] and sampling rate [Hz] of the new experiment (default: the first
+        experiment's).
+    max_volts : float
+        Largest ``|u|`` [V], at most 5 (the amplifier).
+    band_hz : float
+        Band limit [Hz], at most 5 (thesis §3.2).
+    family : {'steps', 'multisine'}
+        The input family searched.
+    starts, seed : number of optimisation starts, and the seed of their random levels.
+    max_evals : evaluations per start (each one Jacobian on the new input).
+    check : simulate the designed experiment, refit and measure the achieved gain.
+    executor, workers : where the starts run (default: the current executor, else
+        ``workers`` local threads; serial for one).
+
+    Returns
+    -------
+    DesignResult
+
+    Raises
+    ------
+    DesignError
+        For a request that cannot be served (unknown effect or parameter, limits outside
+        the rig's, both ``params`` and ``separate``).
+    """
+    t_all = time.perf_counter()
+    if params and separate:
+        raise DesignError("give either --params or --separate, not both")
+    if family not in FAMILIES:
+        raise DesignError(f"unknown input family {family!r}; choose from {', '.join(FAMILIES)}")
+    if int(starts) < 1:
+        raise DesignError(f"--starts {starts}: give at least 1 start")
+    if separate is not None:
+        separate = [s.strip() for s in separate if s.strip()]
+        if len(separate) != 2 or separate[0] == separate[1]:
+            raise DesignError(f"--separate {','.join(separate)}: give two different effects, "
+                              "e.g. --separate lower_asymmetric_coulomb,initial_torsion")
+        for s in separate:  # unknown names: the registry's own message, before any work
+            try:
+                _effects.resolve([s])
+            except _effects.EffectError as exc:
+                raise DesignError(f"--separate: {exc}") from None
+    problem, x, source = _as_fit(fit, trust_effects)
+    duration, rate = _grid_defaults(problem, duration, rate)
+    fam = make_family(family, duration, rate, max_volts, band_hz)
+    t = fam.t
+    settings = {"fit": source, "duration_s": duration, "rate_hz": rate,
+                "max_volts": max_volts, "band_hz": band_hz, "family": family,
+                "starts": int(starts), "seed": int(seed), "max_evals": int(max_evals),
+                "noise": "encoder floor per channel (quantisation q/sqrt(12), or the data's "
+                         "jitter where larger), i.i.d. in the prediction",
+                "new_experiment_alpha0": "0 (the string unwound before the new run)"}
+    seconds: dict[str, float] = {}
+    # ------------------------------------------------------------------ the target
+    t0 = time.perf_counter()
+    if separate:
+        labels = list(separate)
+        effs = [_effects.resolve([s])[0] for s in labels]
+        for eff in effs:
+            if problem.model.config not in eff.configs:
+                raise DesignError(
+                    f"--separate: effect {eff.name!r} does not apply to the "
+                    f"{problem.model.config} configuration (it applies to "
+                    f"{', '.join(eff.configs)})")
+        effects = [e.name for e in effs]
+        # The tie is read before any fit: the candidates' free sets are the fit's plus
+        # each effect's parameters.
+        free_all = set(problem.names_base()).union(*[set(e.names) for e in effs])
+        tie = _ties.tie_between(effects, free_all, n_experiments=len(problem.experiments),
+                                prescribed_upper=problem.prescribed_upper)
+        target = {"kind": "separate", "effects": effects,
+                  "words": f"tell {effects[0]} from {effects[1]}"}
+        if tie is not None:
+            return _no_input(problem, tie, target, settings, t_all)
+        cands = [_candidate(problem, x, s, max_nfev=100) for s in labels]
+        frames = [Frame(c[0], c[1]) for c in cands]
+        target["candidates"] = {lab: {"how": c[3], "rms_over_floor": c[0].rms_over_floor(
+            c[0].residuals(c[1])), "estimates": c[0].values(c[1])}
+            for lab, c in zip(labels, cands, strict=True)}
+        objective = _Objective("separate", fam, frames)
+        v = idx = None
+    else:
+        frame = Frame(problem, x)
+        frames = [frame]
+        if params:
+            idx = []
+            for n in params:
+                want = [j for j, m in enumerate(frame.names)
+                        if m == n or (local_name(m)[0] == n and local_name(m)[1] is not None
+                                      and local_name(m)[1] < frame.k_old)]
+                if not want:
+                    raise DesignError(
+                        f"--params: {n!r} is not a free parameter of this fit; its free "
+                        f"parameters are {', '.join(problem.names)}")
+                idx += [j for j in want if j not in idx]
+            v = None
+            target = {"kind": "params", "parameters": [frame.names[j] for j in idx],
+                      "words": "pin " + ", ".join(frame.names[j] for j in idx)
+                               + " (sum of relative variances)"}
+            objective = _Objective("params", fam, frames, idx=idx)
+        else:
+            v, width = frame.sloppiest()
+            idx = None
+            movers = [(frame.names[j], float(v[j])) for j in np.argsort(-np.abs(v))
+                      if abs(v[j]) > 0.25]
+            target = {"kind": "sloppiest",
+                      "direction": {n: float(c) for n, c in zip(frame.names, v, strict=True)
+                                    if c != 0.0},
+                      "coordinates": "log of each positive parameter, value/scale of signed "
+                                     "ones (as rotorbayes identify)",
+                      "words": "the fit's sloppiest direction ("
+                               + ", ".join(f"{n} {c:+.2f}" for n, c in movers) + ")"}
+            tie = _ties.tie_in_direction(frame.names[: len(problem.names)],
+                                         v[: len(problem.names)], problem.model.effect_names,
+                                         n_experiments=len(problem.experiments),
+                                         prescribed_upper=problem.prescribed_upper)
+            if tie is not None:
+                return _no_input(problem, tie, target, settings, t_all)
+            objective = _Objective("sloppiest", fam, frames, v=v)
+    seconds["target"] = time.perf_counter() - t0
+    # ------------------------------------------------------------------ the search
+    t0 = time.perf_counter()
+    _, u_base = estimation_signal(duration, rate=rate, seed=seed, amplitude=max_volts,
+                                  bandwidth=band_hz)
+    rng = np.random.default_rng(seed)
+    z_starts = [fam.random(rng) for _ in range(int(starts))]
+    if family == "steps":
+        # One start is the estimation input seen through the family (its levels sampled
+        # in the middle of each hold): the search begins where the standard input is.
+        mids = np.searchsorted(t, 0.5 * (2.0 / band_hz) + fam.hold * (np.arange(fam.size)
+                                                                     + 0.5))
+        z_starts[0] = np.clip(u_base[np.minimum(mids, t.size - 1)] / max_volts, -1, 1)
+    items = [(i, z, max_evals) for i, z in enumerate(z_starts)]
+    runs = dict(run_tasks(_run_start, items, shared=objective, executor=executor,
+                          workers=workers))
+    runs = [runs[i] for i in range(len(items))]
+    best = min(runs, key=lambda r: r["value"])
+    u = fam(best["z"])
+    seconds["search"] = time.perf_counter() - t0
+    # ------------------------------------------------------------------ predictions
+    predicted, status, words = _predict(objective, frames, u, u_base, target)
+    responses = _responses(objective, frames, t, u, target, v)
+    achieved = None
+    if check and status != NO_INPUT:
+        t0 = time.perf_counter()
+        achieved = _achieve(objective, frames, t, u, u_base, target, v, idx, seed,
+                            check_nfev, predicted)
+        seconds["check"] = time.perf_counter() - t0
+        words += "\n" + achieved.pop("words")
+    seconds["total"] = time.perf_counter() - t_all
+    return DesignResult(
+        status=status, target=target, words=words, t=t, u=u, baseline=u_base,
+        input_family={"description": fam.describe(), **fam.settings(best["z"])},
+        predicted=predicted, achieved=achieved,
+        starts=[{k: (v_.tolist() if isinstance(v_, np.ndarray) else v_)
+                 for k, v_ in r.items() if k != "z"} for r in runs],
+        settings=settings, seconds=seconds, responses=responses)
+
+
+def _no_input(problem: Problem, tie, target: dict, settings: dict, t_all) -> DesignResult:
+    """The registry says no input can help: the words, the procedure, and the existing
+    input to repeat after re-zeroing (u.csv)."""
+    ex = problem.experiments[0]
+    target = {**target, "tie": str(tie), "tie_effects": list(tie.effects)}
+    words = _ties.no_input_words(tie)
+    label = ex.name or ex.path or "the first experiment"
+    words += (f" u.csv holds the existing experiment's input ({label}, "
+              f"{ex.t[-1] - ex.t[0]:g} s) to run again: with the same input, what differs "
+              "between the two runs is what the procedure changed.")
+    return DesignResult(
+        status=NO_INPUT, target=target, words=words, t=np.asarray(ex.t - ex.t[0]),
+        u=np.asarray(ex.u), baseline=None,
+        input_family={"description": "the existing experiment's input, to run again "
+                                     "after the procedure", "family": "repeat"},
+        predicted={}, achieved=None, starts=[], settings=settings,
+        seconds={"total": time.perf_counter() - t_all}, procedure=tie.procedure)
+
+
+def _predict(objective: _Objective, frames, u, u_base, target):
+    f = frames[0]
+    t = objective.family.t
+    kind = target["kind"]
+    if kind == "sloppiest":
+        v = objective.v
+        _, sd_old = f.sloppiest()
+        Jn, Jb = f.new_rows(t, u), f.new_rows(t, u_base)
+        sd_new = f.sd_along(f.F_old + Jn.T @ Jn, v)
+        sd_base = f.sd_along(f.F_old + Jb.T @ Jb, v)
+        pred = {"sd_existing_data": sd_old, "sd_with_design": sd_new,
+                "sd_with_estimation_input": sd_base,
+                "gain_vs_existing": sd_old / sd_new,
+                "gain_vs_estimation_input": sd_base / sd_new,
+                "units": "1-sigma width along the direction, relative units (white noise "
+                         "at the floor)"}
+        gain = sd_old / sd_new
+        words = (f"Target: {target['words']}. Its predicted 1-sigma width falls from "
+                 f"{sd_old:.3g} (existing data) to {sd_new:.3g} with the designed input, "
+                 f"against {sd_base:.3g} with the standard estimation input of the same "
+                 f"length and limits: {sd_base / sd_new:.2f}x narrower than that input, "
+                 f"{gain:.2f}x narrower than now.")
+    elif kind == "params":
+        idx = objective.idx
+        old = {f.names[j]: math.sqrt(max(float(s), 0.0)) for j, s in zip(
+            idx, f.variances(f.F_old + 1e-300 * np.eye(len(f.names)), idx), strict=True)}
+        Jn, Jb = f.new_rows(t, u), f.new_rows(t, u_base)
+        new = {f.names[j]: math.sqrt(s) for j, s in
+               zip(idx, f.variances(f.F_old + Jn.T @ Jn, idx), strict=True)}
+        base = {f.names[j]: math.sqrt(s) for j, s in
+                zip(idx, f.variances(f.F_old + Jb.T @ Jb, idx), strict=True)}
+        pred = {"sd_existing_data": old, "sd_with_design": new,
+                "sd_with_estimation_input": base,
+                "gain_vs_existing": {n: old[n] / new[n] for n in new},
+                "gain_vs_estimation_input": {n: base[n] / new[n] for n in new},
+                "units": "relative 1-sigma widths (white noise at the floor)"}
+        gain = min(old[n] / new[n] for n in new)
+        words = "Target: " + target["words"] + ". Predicted relative 1-sigma widths: " + \
+            "; ".join(f"{n} {old[n]:.3g} -> {new[n]:.3g} (estimation input: {base[n]:.3g})"
+                      for n in new) + "."
+    else:
+        gd = objective.gaps(u)
+        gb = objective.gaps(u_base)
+        a, b = target["effects"]
+        pred = {"ssr_gap_with_design": {f"{a} true": gd[0], f"{b} true": gd[1]},
+                "ssr_gap_with_estimation_input": {f"{a} true": gb[0], f"{b} true": gb[1]},
+                "gain_vs_estimation_input": min(gd) / max(min(gb), 1e-12),
+                "units": "expected SSR gap in noise variances (floor^2): the part of the "
+                         "prediction difference the other model cannot absorb by refitting"}
+        gain = min(gd)
+        words = (f"Target: {target['words']}. Expected SSR gap between the two models' best "
+                 f"fits to old and new data (noise variances): {min(gd):.3g} with the "
+                 f"designed input ({a} true {gd[0]:.3g}, {b} true {gd[1]:.3g}), "
+                 f"{min(gb):.3g} with the standard estimation input.")
+        status = DESIGNED if min(gd) >= 9.0 else LITTLE_GAIN
+        if status == LITTLE_GAIN:
+            words += (" Even the best input found leaves a gap below 9 noise variances "
+                      "(3 sd): these effects cannot be told apart reliably by one more "
+                      "experiment of this length and these limits.")
+        return pred, status, words
+    status = DESIGNED if gain >= MIN_GAIN else LITTLE_GAIN
+    if status == LITTLE_GAIN:
+        words += (" The best input found narrows the target by less than "
+                  f"{100 * (MIN_GAIN - 1):.0f} %: one more experiment of this length and "
+                  "these limits adds little; the existing data already hold what such an "
+                  "input can tell.")
+    return pred, status, words
+
+
+def _responses(objective, frames, t, u, target, v) -> dict:
+    """Predicted angles on the designed input (for the figure) and what tells the target."""
+    out = {}
+    for k, f in enumerate(frames):
+        p = f.new_problem(t, u)
+        sim = p.simulate(p.x_from(f.params_new))
+        label = target["effects"][k] if target["kind"] == "separate" else "fit"
+        out[label] = {"theta_u": sim.theta_u, "theta_l": sim.theta_l}
+    if target["kind"] == "separate":
+        Ja, ya = frames[0].new_rows(t, u, with_prediction=True)
+        Jb, yb = frames[1].new_rows(t, u, with_prediction=True)
+        out["difference"] = ("prediction difference / floor", ya - yb)
+    elif target["kind"] == "sloppiest":
+        f = frames[0]
+        Jn = f.new_rows(t, u)
+        sd_old = 1.0 / math.sqrt(max(np.linalg.eigvalsh(f.F_fit)[0], 1e-300))
+        out["difference"] = ("change / floor for one existing-data sd along the direction",
+                             Jn @ (sd_old * v))
+    out["channels"] = frames[0].problem.channels
+    return out
+
+
+def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predicted) -> dict:
+    kind = target["kind"]
+    if kind == "separate":
+        labels = target["effects"]
+        d = _check_separation(frames, labels, t, u, seed, nfev)
+        b = _check_separation(frames, labels, t, u_base, seed, nfev)
+        gd = min(x["ssr_gap"] for x in d.values())
+        gb = min(x["ssr_gap"] for x in b.values())
+        words = (f"Check (each model's simulated data fitted by both, old and new data "
+                 f"together): achieved SSR gap {gd:.3g} noise variances with the design "
+                 f"(predicted {min(predicted['ssr_gap_with_design'].values()):.3g}), "
+                 f"{gb:.3g} with the estimation input.")
+        return {"design": d, "estimation_input": b, "ssr_gap_with_design": gd,
+                "ssr_gap_with_estimation_input": gb, "words": words}
+    f = frames[0]
+    d = _check_information(f, t, u, kind, v, idx, seed, nfev)
+    b = _check_information(f, t, u_base, kind, v, idx, seed, nfev)
+    if kind == "sloppiest":
+        from ..inference.uncertainty import fit_uncertainty
+
+        unc = fit_uncertainty(f.problem, f.x, f.J_old)
+        vv = v[: len(f.problem.names)]
+        C = unc.cov / np.outer(f.scale_old, f.scale_old)
+        sd_old_honest = math.sqrt(max(float(vv @ C @ vv), 0.0))
+        out = {"design": d, "estimation_input": b,
+               "sd_existing_data_honest": sd_old_honest,
+               "gain_vs_existing": predicted["sd_existing_data"] / d["sd_white"],
+               "gain_vs_existing_honest": sd_old_honest / d["sd_honest"],
+               "gain_vs_estimation_input": b["sd_white"] / d["sd_white"],
+               "gain_vs_estimation_input_honest": b["sd_honest"] / d["sd_honest"]}
+        words = (f"Check (the designed experiment simulated at the fit, quantised, fitted "
+                 f"together with the existing data): width {d['sd_white']:.3g} (white noise)"
+                 f" / {d['sd_honest']:.3g} (honest errors) with the design against "
+                 f"{b['sd_white']:.3g} / {b['sd_honest']:.3g} with the estimation input: "
+                 f"achieved {out['gain_vs_estimation_input']:.2f}x / "
+                 f"{out['gain_vs_estimation_input_honest']:.2f}x narrower (predicted "
+                 f"{predicted['gain_vs_estimation_input']:.2f}x); against the existing data "
+                 f"alone {out['gain_vs_existing']:.2f}x / {out['gain_vs_existing_honest']:.2f}x"
+                 f" (predicted {predicted['gain_vs_existing']:.2f}x).")
+    else:
+        out = {"design": d, "estimation_input": b,
+               "gain_vs_estimation_input": {n: b["sd_white"][n] / d["sd_white"][n]
+                                            for n in d["sd_white"]},
+               "gain_vs_estimation_input_honest": {
+                   n: b["sd_honest"][n] / max(d["sd_honest"][n], 1e-300)
+                   for n in d["sd_honest"]}}
+        words = ("Check (simulated, quantised, refitted with the existing data): relative "
+                 "widths with the design / the estimation input: " + "; ".join(
+                     f"{n} {d['sd_white'][n]:.3g} / {b['sd_white'][n]:.3g} (honest "
+                     f"{d['sd_honest'][n]:.3g} / {b['sd_honest'][n]:.3g})"
+                     for n in d["sd_white"]) + ".")
+    out["words"] = words
+    return out
