@@ -442,12 +442,12 @@ def test_os_errors_on_user_paths_are_messages(here, capsys, monkeypatch):
     refused(capsys, ["fit", "--model", "upper", "example:upper_est", "--validate", "d",
                      "--out", "o"], "d: is a directory")
     refused(capsys, ["simulate", "--input-file", "d", "--out", "s.csv"], "is a folder")
-    import rotorbayes.cli as cli
+    import rotorbayes.commands.params as command
 
-    def denied(a):
+    def denied(name=None):
         raise PermissionError(13, "Permission denied", "/data/locked.csv")
 
-    monkeypatch.setattr(cli, "cmd_params", denied)
+    monkeypatch.setattr(command, "params", denied)
     # A file or folder the user may not touch is the environment's fault: exit code 3.
     assert main(["params"]) == 3
     err = capsys.readouterr().err
@@ -456,12 +456,12 @@ def test_os_errors_on_user_paths_are_messages(here, capsys, monkeypatch):
 
 
 def test_a_bug_is_still_a_traceback(monkeypatch):
-    import rotorbayes.cli as cli
+    import rotorbayes.commands.params as command
 
-    def bug(a):
+    def bug(name=None):
         raise KeyError("internal")
 
-    monkeypatch.setattr(cli, "cmd_params", bug)
+    monkeypatch.setattr(command, "params", bug)
     with pytest.raises(KeyError):
         main(["params"])
 

@@ -176,7 +176,7 @@ def _sigint_on_call(monkeypatch, module, name, call=1):
 
 def test_ctrl_c_while_a_finished_fit_writes_its_figures_keeps_the_fit(proj, tmp_path,
                                                                        monkeypatch, capsys):
-    import rotorbayes.cli as C
+    import rotorbayes.commands.fit as C
 
     _sigint_on_call(monkeypatch, C, "save_figure_atomic")
     out = tmp_path / "f"
@@ -207,7 +207,7 @@ def test_ctrl_c_in_sample_stops_between_steps_and_resume_finishes(proj, tmp_path
     assert listing(out) == ["chain.h5", "settings.json"]
     # Ctrl-C again, now while the finished chains' figures are written.
     monkeypatch.undo()
-    import rotorbayes.cli as C
+    import rotorbayes.commands.sample as C
 
     _sigint_on_call(monkeypatch, C, "save_figure_atomic")
     assert main(["sample", str(out), "--resume", "--quiet"]) == 130

@@ -275,19 +275,15 @@ def test_multistart_command_on_a_local_dask_cluster(tmp_path):
 def test_a_study_stage_without_options_uses_the_study_executor(capsys):
     """`run` opens one executor; each stage's command (parsed without --backend/--workers/
     --scheduler) takes it instead of opening its own; a stage's own option wins."""
-    import argparse
+    from rotorbayes.commands.common import executor
 
-    from rotorbayes.cli import _executor
-
-    bare = argparse.Namespace(backend=None, workers=None, scheduler=None)
     with P.use_executor(P.ExecutorSpec("serial")) as study_ex:
-        with _executor(bare) as ex:
+        with executor() as ex:
             assert ex is study_ex
-        with _executor(argparse.Namespace(backend="threads", workers=2, scheduler=None)) as ex:
+        with executor("threads", 2, None) as ex:
             assert ex is not study_ex and P.current_executor() is ex
         assert P.current_executor() is study_ex
     assert P.current_executor() is None
-    with _executor(argparse.Namespace(backend=None, workers=None, scheduler=None),
-                   file={"backend": "serial"}) as ex:
+    with executor(file={"backend": "serial"}) as ex:
         assert isinstance(ex, P.SerialExecutor)
     assert "parallel tasks run serially in this process" in capsys.readouterr().out

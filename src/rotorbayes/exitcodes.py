@@ -42,6 +42,17 @@ TABLE = (
 )
 
 
+class Refused(Exception):
+    """The user's input is refused (an option, a file, a folder): exit code 2.
+
+    The message names the value and says what to give instead; nothing was written.
+    """
+
+
+class Interrupted(Exception):
+    """Ctrl-C, reported in one message (what was kept, how to continue): exit code 130."""
+
+
 class EnvironmentFailure(Exception):
     """The machine, not the input, failed (disk full, no permission...): exit code 3.
 

@@ -6,8 +6,9 @@ report.  :func:`load_analysis` validates all of it before any work starts: unkno
 or keys, unknown parameter names, inconsistent prior bounds and missing files are errors
 that name the file and the key.
 
-:func:`run` executes the stages through the same code as the commands (each stage's
-arguments are parsed by the CLI's own parser), writes every stage into its folder under
+:func:`run` executes the stages through the same functions as the commands
+(:mod:`rotorbayes.commands`; the log shows each stage as its command line), writes every
+stage into its folder under
 ``out``, a log of everything printed to ``out/log.txt``, and ``out/run.json`` with package
 versions, seeds, the analysis text, the data's SHA-256 and each stage's input hash and time.
 Re-running skips a stage whose input hash (its part of the analysis file, the data, and
@@ -277,7 +278,6 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
     ``out`` overrides the file's output folder (the demo writes into the current folder);
     ``force`` reruns every stage even if its inputs are unchanged.
     """
-    from .cli import build_parser
     from .outputs import clean_stale, folder_lock
 
     a = load_analysis(path)
@@ -293,8 +293,7 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
     with folder_lock(out, flag=f"{a.path}: [analysis] out ="):
         _check_out(a, out, force)  # again, under the lock
         clean_stale(out)
-        return _run_locked(a, path, out, quiet=quiet, force=force,
-                           build_parser=build_parser)
+        return _run_locked(a, path, out, quiet=quiet, force=force)
 
 
 def _owner_matches(a: Analysis, out: Path) -> tuple[bool, str]:
@@ -331,8 +330,7 @@ def _check_out(a: Analysis, out: Path, force: bool) -> None:
             f"({who}); choose another out, or pass --force to replace them")
 
 
-def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool,
-                build_parser) -> dict:
+def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool) -> dict:
     out.mkdir(exist_ok=True)
     record_path = out / "run.json"
     old = {}
@@ -352,36 +350,64 @@ def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool,
         "data": data_hashes, "stages": [],
         "started": datetime.datetime.now().isoformat(timespec="seconds"),
     }
-    parser = build_parser()
     log = (out / "log.txt").open("a", encoding="utf-8")
     try:
-        return _stages(a, path, out, record, record_path, old, parser, log, quiet, data, val,
+        return _stages(a, path, out, record, record_path, old, log, quiet, data, val,
                        data_hashes, seed, an)
     finally:
         log.close()
 
 
-def _stages(a, path, out, record, record_path, old, parser, log, quiet, data, val,  # noqa: C901
+#: Options of the stage commands given without their flag (positional arguments).
+_POSITIONAL = ("data", "fit", "fits", "source")
+
+
+def _command_line(command: str, options: dict) -> str:
+    """The ``rotorbayes`` command line that does what ``command(**options)`` does."""
+    words = [command]
+    for k, v in options.items():
+        flag = "--" + k.replace("_", "-")
+        if k in _POSITIONAL:
+            words += [str(x) for x in v] if isinstance(v, list) else [str(v)]
+        elif v is True:
+            words.append(flag)
+        elif isinstance(v, list):
+            for x in v:
+                words += [flag, str(x)]
+        elif v is not None and v is not False:
+            words += [flag, str(v)]
+    return " ".join(words)
+
+
+def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # noqa: C901
             data_hashes, seed, an) -> dict:
-    from .cli import Interrupted
+    from .commands.compare import compare as compare_command
+    from .commands.diagnose import diagnose as diagnose_command
+    from .commands.fit import fit as fit_command
+    from .commands.identify import identify as identify_command
+    from .commands.sample import sample as sample_command
+    from .exitcodes import Interrupted
+
+    functions = {"fit": fit_command, "diagnose": diagnose_command, "compare": compare_command,
+                 "sample": sample_command, "identify": identify_command}
 
     tee = _Tee(log, None if quiet else sys.stdout)
     print(f"\n==== rotorbayes run {path} ({record['started']})", file=tee)
 
-    def stage(name: str, folder: Path, inputs: str, argv: list[str], done_file: str):
+    def stage(name: str, folder: Path, inputs: str, command: str, options: dict,
+              done_file: str):
         h = _sha(inputs.encode())
         prev = old.get(name)
         if prev and prev.get("input_hash") == h and (folder / done_file).exists():
             print(f"\n---- {name}: inputs unchanged, kept {folder}/", file=tee)
             record["stages"].append({**prev, "skipped": True})
             return True
-        print(f"\n---- {name}: rotorbayes {' '.join(argv)}", file=tee, flush=True)
+        print(f"\n---- {name}: rotorbayes {_command_line(command, options)}", file=tee,
+              flush=True)
         t0 = time.perf_counter()
-        args = parser.parse_args(argv)
-        args._argv = argv
         try:
             with contextlib.redirect_stdout(tee):
-                code = args.func(args)
+                code = functions[command](**options).exit_code
         except (KeyboardInterrupt, Interrupted) as exc:
             kept = [s["name"] for s in record["stages"]]
             said = f" ({exc})" if isinstance(exc, Interrupted) else ""
@@ -409,29 +435,29 @@ def _stages(a, path, out, record, record_path, old, parser, log, quiet, data, va
     record["effect_files"] = {f: _file_sha(f) for f in effect_files}
     base += json.dumps(record["effect_files"], sort_keys=True)
     fit_t = a.table("fit")
-    fit_args = ["--model", an["config"], *data]
-    for v in val:
-        fit_args += ["--validate", v]
+    fit_args: dict = {"model": an["config"], "data": list(data)}
+    if val:
+        fit_args["validate"] = list(val)
     for k in ("free", "fixed", "channels"):
         if fit_t.get(k):
-            fit_args += [f"--{k}", ",".join(fit_t[k])]
+            fit_args[k] = ",".join(fit_t[k])
     if fit_t.get("max_nfev"):
-        fit_args += ["--max-nfev", str(fit_t["max_nfev"])]
-    for e in fit_t.get("effects", []):
-        fit_args += ["--add", a.resolve(e) if ".py:" in e else e]
+        fit_args["max_nfev"] = fit_t["max_nfev"]
+    if fit_t.get("effects"):
+        fit_args["add"] = [a.resolve(e) if ".py:" in e else e for e in fit_t["effects"]]
     first = out / "fit0"
-    p0 = ["--p0", a.resolve(fit_t["p0"]) if not fit_t["p0"].startswith("thesis:") else
-          fit_t["p0"]] if fit_t.get("p0") else []
-    stage("fit0", first, base, ["fit", *fit_args, *p0, "--out", str(first), "--force"],
+    p0 = {"p0": a.resolve(fit_t["p0"]) if not fit_t["p0"].startswith("thesis:") else
+          fit_t["p0"]} if fit_t.get("p0") else {}
+    stage("fit0", first, base, "fit", {**fit_args, **p0, "out": str(first), "force": True},
           "fit.json")
     fit = first
     dg = a.table("diagnose")
     added: list[str] = []
     if "diagnose" in a.doc:
-        noise = ["--noise", str(dg["noise_std"])] if dg.get("noise_std") else []
+        noise = {"noise": float(dg["noise_std"])} if dg.get("noise_std") else {}
         for k in range(1, dg.get("max_steps", 3) + 2):
             stage(f"diagnose{k - 1}", fit, digest(fit, "fit.json") + json.dumps(dg),
-                  ["diagnose", str(fit), *noise], "diagnosis.json")
+                  "diagnose", {"fit": str(fit), **noise}, "diagnosis.json")
             d = json.loads((fit / "diagnosis.json").read_text())
             if d["adequate"] or not d.get("claimed_effect") or not dg.get("add_effects", True):
                 break
@@ -442,42 +468,42 @@ def _stages(a, path, out, record, record_path, old, parser, log, quiet, data, va
             eff = d["claimed_effect"]
             added.append(eff)
             nxt = out / f"fit{k}"
-            stage(f"fit{k}", nxt, digest(fit, "fit.json", "diagnosis.json") + base,
-                  ["fit", *fit_args, "--p0", str(fit), "--add", eff, "--out", str(nxt),
-                   "--force"], "fit.json")
+            stage(f"fit{k}", nxt, digest(fit, "fit.json", "diagnosis.json") + base, "fit",
+                  {**fit_args, "p0": str(fit), "add": [*fit_args.get("add", []), eff],
+                   "out": str(nxt), "force": True}, "fit.json")
             fit = nxt
-        stage("compare", out / "compare", digest(fit, "fit.json"),
-              ["compare", str(fit), "--out", str(out / "compare"), "--force"], "compare.json")
+        stage("compare", out / "compare", digest(fit, "fit.json"), "compare",
+              {"fits": [str(fit)], "out": str(out / "compare"), "force": True}, "compare.json")
     if "sample" in a.doc:
         s = a.table("sample")
-        argv = ["sample", str(fit), "--out", str(out / "posterior"), "--force",
-                "--walkers", str(s.get("walkers", 32)), "--steps", str(s.get("steps", 2000)),
-                "--ensembles", str(s.get("ensembles", 2)), "--seed", str(seed),
-                "--noise", s.get("noise", "robust")]
+        opts = {"source": str(fit), "out": str(out / "posterior"), "force": True,
+                "walkers": s.get("walkers", 32), "steps": s.get("steps", 2000),
+                "ensembles": s.get("ensembles", 2), "seed": seed,
+                "noise": s.get("noise", "robust")}
         if s.get("ar1"):
-            argv.append("--ar1")
+            opts["ar1"] = True
         if a.table("priors"):
             pri = out / "priors.toml"
             write_text_atomic(pri, "[priors]\n" + "".join(
                 f"{n} = {{ {', '.join(f'{k} = {json.dumps(v)}' for k, v in spec.items())} }}\n"
                 for n, spec in a.table("priors").items()))
-            argv += ["--priors", str(pri)]
+            opts["priors"] = str(pri)
         if quiet:
-            argv.append("--quiet")
+            opts["quiet"] = True
         stage("sample", out / "posterior", digest(fit, "fit.json") + json.dumps(s)
-              + json.dumps(a.table("priors"), sort_keys=True), argv, "posterior.nc")
+              + json.dumps(a.table("priors"), sort_keys=True), "sample", opts, "posterior.nc")
     if "identify" in a.doc:
         i = a.table("identify")
-        argv = ["identify", str(fit), "--out", str(out / "identify"), "--force",
-                "--points", str(i.get("points", 11))]
+        opts = {"fit": str(fit), "out": str(out / "identify"), "force": True,
+                "points": i.get("points", 11)}
         if i.get("profiles"):
-            argv += ["--profiles", ",".join(i["profiles"])]
+            opts["profiles"] = ",".join(i["profiles"])
         post = ""
         if "sample" in a.doc and (out / "posterior" / "posterior.nc").exists():
-            argv += ["--posterior", str(out / "posterior")]
+            opts["posterior"] = str(out / "posterior")
             post = digest(out / "posterior", "summary.csv")
         stage("identify", out / "identify", digest(fit, "fit.json") + json.dumps(i) + post,
-              argv, "identify.json")
+              "identify", opts, "identify.json")
     record["added_effects"] = added
     record["final_fit"] = str(fit)
     record["finished"] = datetime.datetime.now().isoformat(timespec="seconds")

@@ -1,0 +1,30 @@
+"""What each ``rotorbayes`` command does, as functions a Python user can call too.
+
+One module per command, named after it, each with
+
+* ``HELP`` — the command's one-line description;
+* ``add_arguments(parser)`` — its command-line options (argparse); the option
+  ``--max-nfev`` arrives as the keyword ``max_nfev``;
+* a public function of the command's name (``fit.fit``, ``sample.sample``, ...) that takes
+  plain arguments, prints what the command prints, writes what it writes and returns an
+  :class:`~rotorbayes.commands.common.Outcome` (exit code, the folder written, its main
+  document).  Bad input raises :class:`~rotorbayes.exitcodes.Refused`, Ctrl-C
+  :class:`~rotorbayes.exitcodes.Interrupted`.
+
+For example::
+
+    from rotorbayes.commands.fit import fit
+    from rotorbayes.commands.diagnose import diagnose
+
+    outcome = fit(["example:upper_est"], model="upper", out="f0")
+    diagnose("f0")
+
+Shared pieces: :mod:`.common` (loading data and parameter sets, the executor, strict JSON)
+and :mod:`.options` (the option types and option groups of several commands).
+:mod:`rotorbayes.cli` is only the table of these commands and the exit codes.
+
+The package imports none of its modules here: :mod:`rotorbayes.study` calls the fit,
+diagnose, compare, sample and identify functions, and the ``run`` and ``demo`` commands
+call the study.
+"""
+

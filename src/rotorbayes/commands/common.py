@@ -1,0 +1,176 @@
+"""What several commands share: their result, data and parameter sets given by name, the
+executor of their parallel tasks, and strict JSON."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import exitcodes as EXIT
+from ..data import Experiment, load_experiment
+from ..examples import example_path
+from ..exitcodes import Refused
+from ..model import parameters as _params
+
+
+@dataclass
+class Outcome:
+    """What a command did.
+
+    Attributes
+    ----------
+    exit_code : int
+        The command's exit code (:mod:`rotorbayes.exitcodes`): 0 done, 1 ran but the fit
+        did not converge.
+    folder : Path or None
+        The result folder the command wrote (the command line appends what it printed to
+        its ``log.txt``); None when it wrote none or only single files.
+    doc : dict or None
+        The command's main document (e.g. the fit.json of ``fit``).
+    """
+
+    exit_code: int = EXIT.DONE
+    folder: Path | None = None
+    doc: dict | None = None
+
+
+def data_path(name: str) -> str:
+    """Resolve ``example:NAME`` to a bundled data file; other names are paths."""
+    if name.startswith("example:"):
+        return str(example_path(name))
+    return name
+
+
+def load_experiments(paths: Sequence[str], config: str) -> list[Experiment]:
+    """The measurement files (or ``example:NAME``), checked; a file whose header names
+    another configuration gets a warning."""
+    exps = []
+    for p in paths:
+        ex = load_experiment(data_path(p), expect_lower=config != "upper")
+        said = str((ex.meta or {}).get("config", "")).strip()
+        if said in ("upper", "coupled", "brake") and said != config:
+            print(f"warning: {p} says it holds {said}-configuration data (its header), but "
+                  f"--model is {config}; check --model", file=sys.stderr)
+        exps.append(ex)
+    return exps
+
+
+def fit_json(spec: str | None) -> dict | None:
+    """The fit.json an argument points to (a file or a fit folder), else None."""
+    if spec is None:
+        return None
+    p = Path(spec)
+    if p.is_dir() and (p / "fit.json").exists():
+        p = p / "fit.json"
+    if p.suffix != ".json":
+        return None
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise Refused(f"{p}: cannot read it ({exc}); give a fit.json written by "
+                      "`rotorbayes fit`, a TOML file or a named set") from None
+
+
+def param_spec(spec: str | None):
+    """A ``--params``/``--p0`` value: named set, TOML file or a fit.json from an earlier fit
+    (then its values, as a dict)."""
+    if spec is None:
+        return None
+    if spec.endswith(".json"):
+        p = Path(spec)
+        if p.is_dir():
+            p = p / "fit.json"
+        try:
+            data = json.loads(p.read_text())
+            if isinstance(data, dict) and "params" not in data:
+                data = {"params": data}  # a flat {name: value} mapping
+            return {k: float(v) for k, v in data["params"].items() if v is not None and not (
+                isinstance(v, float) and math.isnan(v))}
+        except (OSError, KeyError, ValueError) as exc:
+            raise Refused(f"{p}: cannot read parameters from it ({exc}); give a fit.json "
+                          "written by `rotorbayes fit`, a TOML file or a named set") from None
+    if Path(spec).is_dir() and (Path(spec) / "fit.json").exists():
+        return param_spec(str(Path(spec) / "fit.json"))
+    return spec
+
+
+def resolve_values(spec, model) -> dict[str, float]:
+    """A complete value set for ``model`` from a named set, TOML file or fit.json."""
+    raw = param_spec(spec)
+    if isinstance(raw, dict):
+        builtin = {k: v for k, v in raw.items() if k in _params.INFO}
+        user = {k: v for k, v in raw.items() if k not in _params.INFO and k in model.info}
+        out = _params.resolve(builtin, config=model.config)
+        out.update(user)
+        return out
+    return _params.resolve(raw, config=model.config)
+
+
+def csv_list(text: str | Sequence[str] | None, flag: str) -> list[str] | None:
+    """Names given as ``"a,b"`` (the command line's form) or as a list; None stays None."""
+    if text is None:
+        return None
+    if not isinstance(text, str):
+        text = ",".join(text)
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    if not items:
+        raise Refused(f"{flag} needs a comma-separated list of names, got {text!r}")
+    return items
+
+
+def finite_or_none(o):
+    """JSON cannot hold NaN or infinity: they become null."""
+    if isinstance(o, dict):
+        return {k: finite_or_none(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [finite_or_none(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return finite_or_none(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def strict_json(doc) -> str:
+    """``doc`` as strict JSON (no NaN/Infinity tokens)."""
+    return json.dumps(finite_or_none(doc), indent=2, allow_nan=False)
+
+
+def json_default(o):
+    """``json.dumps``'s ``default`` for numpy scalars and arrays."""
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+@contextlib.contextmanager
+def executor(backend: str | None = None, workers: int | None = None,
+             scheduler: str | None = None, *, file: dict | None = None):
+    """Open the executor the options, DASK_SCHEDULER_ADDRESS or an analysis file's
+    [parallel] table (``file``) choose, for the length of a command.  A command run inside
+    ``run`` (a study stage) without options of its own uses the study's executor."""
+    from ..inference import parallel as P
+
+    opts = (backend, workers, scheduler)
+    if P.current_executor() is not None and opts == (None, None, None):
+        yield P.current_executor()
+        return
+    try:
+        spec = P.choose(*opts, file=file)
+    except ValueError as exc:
+        raise Refused(str(exc)) from None
+    if spec.backend != P.DEFAULT_BACKEND or spec.source != "default":
+        print(f"parallel tasks run {spec.describe()}", flush=True)
+    with P.use_executor(spec) as ex:
+        yield ex

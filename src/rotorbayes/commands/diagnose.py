@@ -1,0 +1,59 @@
+"""``rotorbayes diagnose``: is the remaining error noise? which effect is missing?"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from ..exitcodes import Interrupted, Refused
+from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
+from .common import Outcome, strict_json
+from .options import add_trust_option, ranged
+
+HELP = ("is the remaining error noise? which effect is missing? (writes diagnosis.json and "
+        "figures into the fit folder)")
+
+
+def add_arguments(g) -> None:
+    g.add_argument("fit", help="a folder written by `rotorbayes fit`")
+    g.add_argument("--noise", type=ranged(ge=0, le=1, why=" rad (a standard deviation)"),
+                   default=None,
+                   help="Gaussian measurement noise std [rad] besides encoder quantisation "
+                   "(default 0)")
+    add_trust_option(g)
+
+
+def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False) -> Outcome:
+    """Verdict, ranking of missing effects and missing-torque map of the fit folder ``fit``
+    (written into it: diagnosis.json, diagnosis_candidates.png, missing_torque.png).
+    ``noise`` is Gaussian measurement noise [rad] besides the encoders' rounding.
+    ``Outcome.doc`` is diagnosis.json's document."""
+    from ..diagnosis import diagnose as run_diagnosis
+    from ..diagnosis.figures import plot_candidates, plot_torque_map
+    from ..outputs import folder_lock
+    from ..results import load_fit
+
+    result = load_fit(fit, trust_effects=trust_effects)
+    if noise is not None and not (noise >= 0 and math.isfinite(noise)):
+        raise Refused(f"--noise {noise}: give the Gaussian noise std in rad (>= 0)")
+    print(f"diagnosing {result.folder}/ ({result.doc['config']} configuration, "
+          f"{len(result.problem.names)} free parameters, effects: "
+          f"{', '.join(result.problem.model.effect_names) or 'none'})")
+    d = run_diagnosis(result.problem, result.x, noise_std=noise or 0.0)
+    print()
+    print(d.text())
+    doc = d.as_dict()
+    doc["fit"] = str(result.folder)
+    # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
+    with folder_lock(result.folder, flag="diagnose"), InterruptGuard().start() as guard:
+        figs = [(plot_candidates(result.problem, result.x, d)[0], "diagnosis_candidates.png"),
+                (plot_torque_map(d)[0], "missing_torque.png")]
+        for fig, name in figs:
+            save_figure_atomic(fig, result.folder / name)
+        write_text_atomic(result.folder / "diagnosis.json", strict_json(doc))
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) after the diagnosis had finished; it was "
+                          f"kept, complete, in {result.folder}/ (diagnosis.json and figures)")
+    print(f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
+          f"missing_torque.png ({d.seconds:.1f} s)")
+    return Outcome(folder=Path(fit), doc=doc)

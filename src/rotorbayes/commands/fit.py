@@ -1,0 +1,446 @@
+"""``rotorbayes fit``: least squares from a start, judged against the encoder floor.
+
+:func:`fit` writes fit.json and figures into a result folder; :func:`build_problem` (also
+used by ``multistart``) turns the fit options into an estimation problem.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from .. import exitcodes as EXIT
+from ..exitcodes import Interrupted, Refused
+from ..model import SimulationError
+from ..model import effects as _effects
+from ..model import parameters as _params
+from ..outputs import InterruptGuard, output_folder, save_figure_atomic
+from .common import Outcome, csv_list, fit_json, load_experiments, resolve_values, strict_json
+from .options import add_fit_options, ranged
+
+HELP = "least squares from a start P0"
+
+
+def add_arguments(f) -> None:
+    add_fit_options(f)
+    f.add_argument("--validate", action="append", metavar="FILE",
+                   help="a validation CSV file or example:NAME; repeat the option for several "
+                   "(--validate a.csv --validate b.csv)")
+    f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json "
+                   "(default: a start computed from the data); a fit.json of an upper-"
+                   "configuration fit also fixes the upper-disc parameters it estimated")
+    f.add_argument("--restarts", type=ranged(int, ge=0), default=6,
+                   help="without --p0: extra fits around the data start when the first one "
+                   "ends above 3x the encoder floor")
+
+
+def fit(data, *, model: str, out: str, validate=None, p0: str | None = None,
+        restarts: int = 6, free=None, fixed=None, base: str | None = None, add=None,
+        without=None, channels=None, weights: str | None = None,
+        prescribed_upper: bool = False, max_nfev: int = 200, ftol: float = 1e-10,
+        xtol: float = 1e-10, gtol: float = 1e-10, force: bool = False,
+        trust_effects: bool = False) -> Outcome:
+    """Fit the ``model`` configuration ("upper", "coupled" or "brake") to the measurement
+    files ``data`` and write fit.json and figures into the folder ``out``.
+
+    The start is ``p0`` (a named set, TOML file or fit.json; a fit folder chains the fits)
+    or, without it, one computed from the data (with up to ``restarts`` restarts).  ``add``
+    and ``without`` switch effects on and off; ``free``/``fixed``/``channels`` (lists or
+    comma-separated names) and ``weights`` ("theta_l=1,theta_u=0.1") choose what is fitted;
+    ``validate`` names validation files.  The folder appears only when the fit has finished
+    (``force`` replaces an earlier one).  ``Outcome.doc`` is the fit.json document;
+    ``exit_code`` is 1 when the fit did not converge.
+    """
+    a = SimpleNamespace(**locals())  # the steps below read the options by name
+    a.data = [data] if isinstance(data, str) else list(data)
+    guard = InterruptGuard()
+    try:
+        with output_folder(a.out, a.force) as folder:
+            doc = _run(a, folder, guard)
+    except KeyboardInterrupt as exc:
+        raise _fit_interrupted(exc, a.out) from None
+    except SimulationError as exc:
+        from ..inference import StartError
+
+        if isinstance(exc, StartError) and a.p0 and a.p0 not in str(exc):
+            raise Refused(f"--p0 {a.p0}: {exc}") from None
+        raise
+    finally:
+        guard.stop()
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) after the fit had finished; its results were "
+                          f"kept, complete, in {a.out}/ (fit.json and the figures)")
+    return Outcome(EXIT.DONE if doc["success"] else EXIT.NOT_CONVERGED, Path(a.out), doc)
+
+
+def build_model(a, n_experiments: int):
+    """The model: configuration, base effects minus --without, effects inherited from a
+    --p0 fit.json, plus --add."""
+    from ..model import Model
+
+    added = list(a.add or [])
+    inherited: list[str] = []
+    doc = fit_json(getattr(a, "p0", None))
+    if doc is not None and doc.get("config") == a.model:
+        from ..results import check_effect_files
+
+        where = Path(a.p0) / "fit.json" if Path(a.p0).is_dir() else Path(a.p0)
+        specs = check_effect_files(doc, where, getattr(a, "trust_effects", False))
+        inherited = [e for e in specs if e not in added]
+    if (n_experiments > 1 and a.model != "upper" and "initial_torsion" not in added
+            and "initial_torsion" not in inherited):
+        added.append("initial_torsion")
+    model = Model(a.model, [*inherited, *added], without=a.without or (),
+                  prescribed_upper=a.prescribed_upper)
+    if inherited:
+        print(f"effects carried over from {a.p0}: {', '.join(inherited)}")
+    return model, added
+
+
+def build_problem(a, exps, start_spec=None):
+    """The estimation problem of the fit/multistart arguments.
+
+    ``--add`` frees the effect's parameters, also when ``--free`` is given.
+    """
+    from ..inference import Problem
+
+    model, added = build_model(a, len(exps))
+    free = csv_list(a.free, "--free")
+    fixed = csv_list(a.fixed, "--fixed") or []
+    # Chaining the thesis's steps: a start from an upper-configuration fit fixes the motor
+    # and upper-disc parameters it estimated (unless --free says otherwise).
+    from_upper: dict[str, float] = {}
+    doc = fit_json(getattr(a, "p0", None))
+    if doc is not None and doc.get("config") == "upper" and a.model != "upper" and free is None:
+        est = doc.get("estimates", {})
+        from_upper = {n: v["value"] for n, v in est.items() if n in model.active}
+        fixed += [n for n in from_upper if n not in fixed]
+    if free is not None:
+        clash = [n for n in fixed if n in free]
+        if clash:
+            raise Refused(f"{', '.join(clash)} is both --fixed and --free; remove it from one")
+        for e in _effects.resolve(added):
+            free += [p for p in e.names if p not in free and p not in fixed]
+    for n in fixed:
+        if n.split("[")[0] not in model.info:
+            raise Refused("--fixed: " + _params.unknown_name_message(n))
+    base_spec = a.base or start_spec
+    base = resolve_values(base_spec, model) if base_spec else None
+    channels = tuple(csv_list(a.channels, "--channels")) if a.channels else None
+    weights = _parse_weights(a.weights, a.model, channels, a.prescribed_upper) \
+        if a.weights is not None else None
+    prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
+                   fixed=fixed)
+    return prob, from_upper
+
+
+def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> dict:
+    """``--weights theta_l=1,theta_u=0.1``: channel names and positive finite weights."""
+    if config == "upper":
+        valid = ("theta_u",)
+    elif prescribed_upper:
+        valid = ("theta_l",)
+    else:
+        valid = ("theta_u", "theta_l")
+    if channels:
+        valid = tuple(c for c in valid if c in channels) or valid
+    example = ",".join(f"{c}={w}" for c, w in zip(valid, ("1", "0.1"), strict=False))
+    form = (f"write CHANNEL=WEIGHT pairs separated by commas, e.g. --weights {example} "
+            f"(channels of this fit: {', '.join(valid)})")
+    weights: dict[str, float] = {}
+    items = [x.strip() for x in text.split(",")]
+    if not any(items):
+        raise Refused(f"--weights {text!r} is empty; {form}")
+    for item in items:
+        if not item:
+            raise Refused(f"--weights {text!r}: an empty entry (two commas?); {form}")
+        name, eq, value = item.partition("=")
+        name, value = name.strip(), value.strip()
+        if not eq:
+            sep = next((c for c in ":; " if c in item), None)
+            hint = f"use '=' instead of {sep!r}; " if sep else ""
+            raise Refused(f"--weights: {item!r} has no '='; {hint}{form}")
+        if name not in valid:
+            what = ("not a channel of this fit" if name in ("theta_u", "theta_l", "alpha")
+                    else "an unknown channel")
+            raise Refused(f"--weights: {name!r} is {what}; {form}")
+        if name in weights:
+            raise Refused(f"--weights: {name} is given twice; give each channel once")
+        try:
+            w = float(value)
+        except ValueError:
+            raise Refused(f"--weights: the weight {value!r} of {name} is not a number; "
+                          f"{form}") from None
+        if not (math.isfinite(w) and w > 0):
+            raise Refused(f"--weights: the weight of {name} is {value}; it must be a finite "
+                          "number > 0 (a channel you do not want to fit is left out with "
+                          "--channels instead)")
+        weights[name] = w
+    return weights
+
+
+def _fmt_params(prob, names, x, se=None, x0=None, at_bound=()) -> str:
+    rows = [f"{'parameter':<12} {'estimate':>12} {'std. error':>12} {'start':>12}  unit"]
+    for i, n in enumerate(names):
+        if n in at_bound:
+            s = f"{'AT BOUND':>12}"
+        else:
+            s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
+        st = f"{x0[i]:12.5g}" if x0 is not None else ""
+        rows.append(f"{n:<12} {x[i]:12.5g} {s} {st}  {prob.info(n).unit}")
+    return "\n".join(rows)
+
+
+def _uncertainty_words(res) -> str:
+    """What the standard errors mean, in a few lines (inference.uncertainty)."""
+    u = res.uncertainty
+    infl = u.inflation()
+    ok = np.isfinite(infl)
+    lines = ["std. errors: honest — rounding to encoder counts simulated as it is, model "
+             "error from the residuals' time blocks, an allowance for the input between "
+             "samples"]
+    if ok.any():
+        j = int(np.nanargmax(np.where(ok, infl, -np.inf)))
+        lines.append(
+            f"  they are {np.median(infl[ok]):.2g}x (median; {u.names[j]} {infl[j]:.2g}x) the "
+            f"ones independent noise at the floor would give; the rounding alone leaves "
+            f"the information of about {u.n_eff:.3g} independent samples of {u.n_samples}")
+    sh = u.shares()
+    tot = {k: np.nanmean([v[k] for v in sh.values()]) for k in ("noise", "model_error",
+                                                                   "input_hold")}
+    lines.append(f"  variance, mean over parameters: noise {100 * tot['noise']:.0f} %, model "
+                 f"error {100 * tot['model_error']:.0f} %, input between samples "
+                 f"{100 * tot['input_hold']:.0f} %")
+    if u.warning():
+        lines.append("  warning: " + u.warning())
+    return "\n".join(lines)
+
+
+def _quality_table(rows, label: str) -> str:
+    from ..metrics import ChannelFit, fit_table
+
+    out = []
+    for r in rows:
+        fits = [ChannelFit(**{k: v for k, v in c.items() if k in ChannelFit.__dataclass_fields__})
+                for c in r["channels"].values()]
+        out.append(fit_table(fits, title=f"{label}: {r['experiment']}"))
+    return "\n\n".join(out)
+
+
+def _sources(a, prob, fixed_from_upper: dict) -> dict[str, str]:
+    """Where the value of every parameter that is not estimated came from."""
+    default = _params.DEFAULT_SET[a.model]
+    src = {}
+    for n in prob.model.active:
+        if n == "J_u":
+            src[n] = "eq. 5.4 (disc geometry)" if not (a.base or a.p0) else None
+        src[n] = src.get(n) or (
+            f"upper-disc fit {a.p0}" if n in fixed_from_upper
+            else f"--base {a.base}" if a.base
+            else f"--p0 {a.p0}" if a.p0
+            else f"default set {default}"
+        )
+    return src
+
+
+def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
+    """Fit, print and write fit.json + figures; returns the JSON document.
+
+    ``guard`` (an :class:`~rotorbayes.outputs.InterruptGuard`) is started once the fit has
+    finished: a Ctrl-C after that keeps the result.
+    """
+    from .. import inference as E
+    from ..plots import plot_fit, plot_friction
+    from ..results import data_record
+
+    exps = load_experiments(a.data, a.model)
+    val = load_experiments(a.validate, a.model) if a.validate else []
+    # The start set also fixes the values of the parameters that are not estimated.
+    prob, fixed_from_upper = build_problem(a, exps, start_spec=a.p0)
+    sources = _sources(a, prob, fixed_from_upper)
+    print(f"model: {a.model} configuration with "
+          f"{', '.join(prob.model.effect_names) or 'no effects'}")
+    print(f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {a.model} "
+          f"configuration to {len(exps)} experiment(s), channels {', '.join(prob.channels)}")
+    if fixed_from_upper:
+        print(f"fixed from the upper-disc fit {a.p0}: {', '.join(fixed_from_upper)}")
+    fit_kw = dict(max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol, gtol=a.gtol)
+    start_source: dict[str, str] = {}
+    if a.p0 and not fixed_from_upper:
+        start = dict(prob.base)
+        if a.base:
+            start.update(resolve_values(a.p0, prob.model))
+        x0 = prob.start_vector(start)
+        # A parameter the --p0 fit did not have (its effect was off there, or it is a user
+        # effect's) starts at its effect's default, not at a value of that fit.
+        p0_params = (fit_json(a.p0) or {}).get("parameters") or {}
+        start_source = {n: f"--p0 {a.p0}" if not p0_params or (
+            (p0_params.get(n) or {"status": "off"}).get("status") != "off")
+            else "the effect's default" for n in prob.names}
+        from ..results import diagnosis_starts
+
+        added_names = [e.name for e in prob.model.added]
+        for n, v in diagnosis_starts(a.p0, added_names).items():
+            if n in prob.names:
+                j = prob.names.index(n)
+                if prob.lower[j] < v < prob.upper[j]:
+                    x0[j] = v
+                    start_source[n] = "the diagnosis of the --p0 fit (one-step estimate)"
+        if prob.model.added:
+            print("start of the added effects' parameters: " + ", ".join(
+                f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
+                for e in prob.model.added for n in e.names if n in prob.names))
+        print(f"start: --p0 {a.p0}")
+        res = E.fit(prob, x0, verbose=True, **fit_kw)
+        chose = f"--p0 {a.p0}"
+    else:
+        print("start: computed from the data (the equations of motion as a regression on "
+              "smoothed derivatives of the measured angles; give --p0 to choose one)")
+        ff = E.fit_from_data(prob, restarts=a.restarts, verbose=True, **fit_kw)
+        res, chose = ff.result, ff.chose
+        start_source = {n: ff.start.source.get(n, ff.start.source.get(
+            E.local_name(n)[0], "")) for n in prob.names}
+        if ff.restarts:
+            print(f"{len(ff.restarts)} restarts tried; kept {ff.chose}")
+    if guard is not None:
+        guard.start()  # the work is done: from here on Ctrl-C must not throw it away
+    status = "" if res.success else "DID NOT CONVERGE: "
+    print(f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
+          f"{res.seconds:.1f} s)\n")
+    q_est = E.quality(prob, res.x)
+    q_val = E.quality(prob, res.x, val) if val else []
+    assessment = E.assess(res, q_est, q_val, sources=sources)
+    print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound))
+    if res.uncertainty is not None:
+        print(_uncertainty_words(res))
+    print()
+    print(_quality_table(q_est, "estimation data"))
+    if q_val:
+        print()
+        print(_quality_table(q_val, "validation data"))
+    print("\nresidual RMS against the encoder quantisation floor (resolution/sqrt(12)):")
+    print(assessment.table())
+    print(f"verdict: {assessment.verdict}")
+    w, V = res.sloppy_directions()
+    sloppy = {n: float(c) for n, c in zip(res.names, V[:, 0], strict=True)}
+    ratio = float(w[-1] / max(w[0], 1e-300))
+    # Only positive parameters: a common scaling "in log scale" means nothing for signed ones.
+    positive = {n for n, v, lo in zip(res.names, res.x, prob.lower, strict=True)
+                if v > 0 and lo >= 0}
+    movers = [n for n, c in sloppy.items() if abs(c) > 0.3 and n in positive]
+    if len(movers) >= 2 and ratio > 1e4:
+        print(f"\nIdentifiability: the least-determined direction (Fisher eigenvalue ratio "
+              f"{ratio:.1e}) moves {', '.join(movers)} together "
+              f"({', '.join(f'{n} {sloppy[n]:+.2f}' for n in movers)} in log scale); the data "
+              "fix their ratios far better than their values.")
+    free_base = {E.local_name(n)[0] for n in res.names}
+    parameters = {}
+    for n in prob.model.info:
+        if n in free_base:
+            continue
+        on = n in prob.model.active
+        parameters[n] = {
+            "value": prob.base.get(n) if on else prob.model.info[n].null,
+            "unit": prob.model.info[n].unit,
+            "status": "fixed" if on else "off",
+            "source": sources.get(n) if on else
+            f"effect {getattr(_effects.effect_of(n), 'name', '?')} is off",
+        }
+    for i, n in enumerate(res.names):
+        parameters[n] = {
+            "value": float(res.x[i]), "unit": prob.info(n).unit, "status": "free",
+            "stderr": float(res.stderr[i]), "start": float(res.x0[i]),
+            "source": "estimated", "start_source": start_source.get(n, ""),
+            "at_bound": n in assessment.at_bound,
+        }
+    doc = {
+        "config": a.model, "effects": list(prob.effects),
+        "added_effects": [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
+                          for e in prob.model.added],
+        "channels": list(prob.channels),
+        # Absolute paths (a fit folder works from any working folder), paths relative to the
+        # fit folder (a project moved whole) and hashes; effect files' hashes (they are code).
+        "data": [str(Path(e.path).absolute()) for e in exps],
+        "validation": [str(Path(e.path).absolute()) for e in val],
+        "data_files": data_record([e.path for e in exps], Path(a.out)),
+        "validation_files": data_record([e.path for e in val], Path(a.out)),
+        "effect_files": {e.source: _effects.file_sha256(e.source) for e in prob.model.added
+                         if e.source != "catalogue"},
+        "success": res.success, "message": res.message, "nfev": res.nfev,
+        "seconds": res.seconds, "ssr": res.ssr, "n_residuals": res.n_residuals,
+        "start": chose,
+        "free": list(res.names),
+        "prescribed_upper": bool(prob.prescribed_upper),
+        "weights": dict(prob.weights),
+        "parent": _parent_of(a.p0),
+        "assessment": assessment.as_dict(),
+        "parameters": parameters,
+        "estimates": {n: {"value": float(v), "stderr": float(s), "stderr_iid": float(si),
+                          "start": float(s0), "unit": prob.info(n).unit}
+                      for n, v, s, si, s0 in zip(res.names, res.x, res.stderr, res.stderr_iid,
+                                                 res.x0, strict=True)},
+        "uncertainty": res.uncertainty.as_dict() if res.uncertainty is not None else None,
+        "params": res.params,
+        "quality": {"estimation": [{k: v for k, v in r.items() if k != "simulation"}
+                                   for r in q_est],
+                    "validation": [{k: v for k, v in r.items() if k != "simulation"}
+                                   for r in q_val]},
+        "fisher": {"eigenvalues_log": [float(v) for v in w], "sloppiest_direction": sloppy},
+        "correlation": res.correlation().tolist(),
+    }
+    (out / "fit.json").write_text(strict_json(doc))
+    for label, rows, exs in (("est", q_est, exps), ("val", q_val, val)):
+        for i, (r, ex) in enumerate(zip(rows, exs, strict=True)):
+            s = r["simulation"]
+            meas, simd, txt = {}, {}, {}
+            for c, st in r["channels"].items():
+                simc = {"theta_u": s.theta_u, "theta_l": s.theta_l, "alpha": s.alpha}[c]
+                measc = {"theta_u": ex.theta_u, "theta_l": ex.theta_l,
+                         "alpha": None if ex.theta_l is None else
+                         ex.theta_l - ex.theta_u + s.params["alpha0"]}[c]
+                meas[c], simd[c] = measc, simc
+                txt[c] = (f"R² {st['r2']:.4f}, fit {st['nrmse_fit']:.2f} %, "
+                          f"max |e| {st['max_abs_error']:.3g} rad")
+            fig, _ = plot_fit(ex.t, meas, simd, mode=s.mode_l, metrics=txt,
+                              title=f"{a.model}: {label} data {Path(str(ex.path)).name}")
+            save_figure_atomic(fig, out / f"fit_{label}_{i}.png")
+    shape_discs = ("u",) if a.model == "upper" else ("u", "l")
+    fig, _ = plot_friction(res.params, discs=shape_discs, shape=prob.shape,
+                           title=f"fitted friction, {a.model} configuration")
+    save_figure_atomic(fig, out / "friction.png")
+    print(f"\nwrote {Path(a.out) / 'fit.json'} and figures in {a.out}/")
+    for wtxt in assessment.warnings:
+        print(f"warning: {wtxt}", file=sys.stderr)
+    return doc
+
+
+def _parent_of(p0: str | None) -> str | None:
+    """The fit folder a --p0 fit.json belongs to (the chain of fits), else None."""
+    if not p0:
+        return None
+    p = Path(p0)
+    if p.is_dir() and (p / "fit.json").exists():
+        return str(p.resolve())
+    if p.name == "fit.json" and p.exists():
+        return str(p.parent.resolve())
+    return None
+
+
+def _fit_interrupted(exc: KeyboardInterrupt, out: str) -> Interrupted:
+    """The message for Ctrl-C during a fit: nothing written, the best point so far."""
+    from ..inference.least_squares import FitInterrupted
+
+    text = f"interrupted (Ctrl-C); nothing was written to {out}/"
+    if isinstance(exc, FitInterrupted):
+        vals = "\n".join(f"{n} = {float(v)!r}" for n, v in zip(exc.names, exc.x, strict=True)
+                         if "[" not in n)
+        text += (f". The best point after {exc.nfev} evaluations (SSR {exc.ssr:.6g} rad²) "
+                 f"was:\n{vals}\nTo continue from it, save these lines in a file such as "
+                 "best.toml and run the fit again with --p0 best.toml")
+    else:
+        text += " (no fit evaluation had finished yet)"
+    return Interrupted(text)

@@ -1,0 +1,121 @@
+"""``rotorbayes identify``: which parameter combinations the data fix."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from ..exitcodes import Refused
+from ..outputs import output_folder, save_figure_atomic, write_text_atomic
+from .common import Outcome, csv_list, executor, strict_json
+from .options import add_parallel_options, add_trust_option, ranged
+
+HELP = "which parameter combinations the data fix: Fisher directions in words, profile likelihoods"
+
+
+def add_arguments(i) -> None:
+    i.add_argument("fit", help="a folder written by `rotorbayes fit`")
+    i.add_argument("--out", required=True, help="output folder")
+    i.add_argument("--profiles", help="comma-separated free parameters to profile")
+    i.add_argument("--points", type=ranged(int, ge=3, le=1001, why=" (grid points)"),
+                   default=11, help="grid points per profile")
+    add_parallel_options(i, "profile fits")
+    i.add_argument("--posterior", help="a sample folder: corner plot of its posterior")
+    i.add_argument("--multistart", help="a multistart folder: its end points on the corner")
+    i.add_argument("--force", action="store_true", help="overwrite results in --out")
+    add_trust_option(i)
+
+
+def identify(fit: str, *, out: str, profiles=None, points: int = 11,
+             posterior: str | None = None, multistart: str | None = None,
+             backend: str | None = None, workers: int | None = None,
+             scheduler: str | None = None, force: bool = False,
+             trust_effects: bool = False) -> Outcome:
+    """Fisher eigen-analysis of the fit folder ``fit`` in words, profile likelihoods of the
+    free parameters ``profiles`` (a list or comma-separated names; ``points`` grid points
+    each, run where ``backend``/``workers``/``scheduler`` say), and with ``posterior`` (a
+    sample folder) a corner plot, ``multistart``'s end points on it; written into ``out``.
+    ``Outcome.doc`` is identify.json's document."""
+    from ..results import load_fit
+
+    a = SimpleNamespace(**locals())  # the steps below read the options by name
+    result = load_fit(fit, trust_effects=trust_effects)
+    prob = result.problem
+    names = csv_list(profiles, "--profiles") or []
+    for n in names:
+        if n not in prob.names:
+            raise Refused(f"--profiles: {n} is not a free parameter of {result.folder}/; the "
+                          f"free ones are {', '.join(prob.names)}")
+    if points < 3:
+        raise Refused(f"--points {points}: give at least 3 grid points")
+    if posterior and not (Path(posterior) / "posterior.nc").exists():
+        raise Refused(f"--posterior {posterior}: no posterior.nc there; give a folder "
+                      "written by `rotorbayes sample`")
+    if multistart and not (Path(multistart) / "multistart.json").exists():
+        raise Refused(f"--multistart {multistart}: no multistart.json there; give a folder "
+                      "written by `rotorbayes multistart`")
+    with output_folder(out, force) as folder:
+        written, doc = _identify_into(a, result, prob, names, folder)
+    print(f"\nwrote {', '.join(written)} in {out}/")
+    return Outcome(folder=Path(out), doc=doc)
+
+
+def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
+    """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
+    for n in profiles:
+        t0 = time.perf_counter()
+        pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex)
+        doc["profiles"].append(pr)
+        inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
+                  if d is not None and math.isfinite(d) and d < 3.84]
+        print(f"profile of {n}: {a.points} points in {time.perf_counter() - t0:.1f} s; "
+              + (f"95 % interval (Δχ² < 3.84) within [{min(inside):.7g}, {max(inside):.7g}] "
+                 f"{pr['unit']}" if inside else "no grid point within Δχ² < 3.84")
+              + ("; the interval reaches the grid's edge: widen it" if inside and (
+                  min(inside) == pr["grid"][0] or max(inside) == pr["grid"][-1]) else ""))
+
+
+def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:
+    from ..inference import identify as I
+
+    F = I.fisher(prob, fit.x)
+    words = I.describe(F)
+    print(f"Fisher information of {fit.folder}/ at the fit (noise at each channel's floor; "
+          "log coordinates for positive parameters):")
+    print("  eigenvalues " + ", ".join(f"{v:.3g}" for v in F.eigenvalues))
+    for w in words:
+        print("  " + w)
+    doc = {"fit": str(fit.folder), "fisher": F.as_dict(), "words": words, "profiles": []}
+    from .. import posterior_figures as PF
+
+    save_figure_atomic(PF.plot_fisher(F)[0], out / "fisher.png")
+    written = ["identify.json", "fisher.png"]
+    if profiles:
+        se = dict(zip(prob.names, fit.doc and [fit.doc["estimates"][n]["stderr"] or 0.0
+                                               for n in prob.names], strict=True))
+        # One executor (one cluster, if any) for every profile.
+        with executor(a.backend, a.workers, a.scheduler) as ex:
+            _profiles_into(a, I, prob, fit, profiles, se, ex, doc)
+        save_figure_atomic(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
+        written.append("profiles.png")
+    if a.posterior:
+        from ..inference import arviz_compat as AZ
+
+        idata = AZ.load(Path(a.posterior) / "posterior.nc")
+        overlay = None
+        if a.multistart:
+            ms = json.loads((Path(a.multistart) / "multistart.json").read_text())
+            if ms.get("names") != list(prob.names):
+                raise Refused(f"{a.multistart}: its free parameters {ms.get('names')} "
+                              f"differ from the fit's {list(prob.names)}")
+            overlay = np.array(ms["ends"])
+        save_figure_atomic(PF.plot_corner(idata, prob, overlay=overlay), out / "corner.png")
+        written.append("corner.png")
+    write_text_atomic(out / "identify.json", strict_json(doc))
+    write_text_atomic(out / "summary.txt", "\n".join(words) + "\n")
+    return [*written, "summary.txt"], doc

@@ -1,0 +1,116 @@
+"""``rotorbayes multistart``: many fits from spread starts; waterfall and spread."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from .. import exitcodes as EXIT
+from ..exitcodes import Interrupted
+from ..model import parameters as _params
+from ..outputs import InterruptGuard, output_folder, save_figure_atomic
+from .common import Outcome, executor, json_default, load_experiments, param_spec
+from .fit import build_problem
+from .options import add_fit_options, add_parallel_options, ranged
+
+HELP = "many fits from spread starts; waterfall and spread"
+
+
+def add_arguments(m) -> None:
+    add_fit_options(m)
+    m.add_argument("--starts", type=ranged(int, ge=1, why=" (one fit per start)"),
+                   default=32, metavar="N", help="number of fits from different starts")
+    m.add_argument("--around", help="spread starts around this set (named set, TOML or "
+                   "fit.json) instead of over the bounds")
+    m.add_argument("--spread", type=ranged(gt=0, le=5, why=" (the log-sd of the start "
+                   "factors; 0.3 spreads by about ±30 %)"), default=0.3,
+                   help="log-sd of the spread around --around")
+    m.add_argument("--seed", type=ranged(int, ge=0), default=0, help="seed of the starts")
+    add_parallel_options(m, "fits")
+
+
+def multistart(data, *, model: str, out: str, starts: int = 32, around: str | None = None,
+               spread: float = 0.3, seed: int = 0, free=None, fixed=None,
+               base: str | None = None, add=None, without=None, channels=None,
+               weights: str | None = None, prescribed_upper: bool = False,
+               max_nfev: int = 200, ftol: float = 1e-10, xtol: float = 1e-10,
+               gtol: float = 1e-10, backend: str | None = None, workers: int | None = None,
+               scheduler: str | None = None, force: bool = False,
+               trust_effects: bool = False) -> Outcome:
+    """``starts`` fits of the ``model`` configuration to ``data`` from spread starts (a
+    Latin hypercube over the bounds, or a log-normal ``spread`` around the set ``around``);
+    writes multistart.json, summary.txt and the waterfall and spread figures into ``out``.
+
+    The fit options are those of :func:`rotorbayes.commands.fit.fit`; ``backend``,
+    ``workers`` and ``scheduler`` choose where the fits run.  ``Outcome.doc`` is
+    multistart.json's document.
+    """
+    a = SimpleNamespace(**locals())  # the steps below read the options by name
+    a.data = [data] if isinstance(data, str) else list(data)
+    from .. import inference as E
+    from ..plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
+
+    guard = InterruptGuard()
+    with guard, output_folder(a.out, a.force) as out:
+        exps = load_experiments(a.data, a.model)
+        prob, _ = build_problem(a, exps)
+        around = None
+        if a.around:
+            around = _params.resolve(param_spec(a.around), config=a.model)
+        how = (f"log-normal spread {a.spread:.2f} around {a.around}" if around
+               else "Latin hypercube over the bounds")
+        print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
+        with executor(a.backend, a.workers, a.scheduler) as ex:
+            ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
+                              executor=ex, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
+                              gtol=a.gtol)
+        guard.start()  # the starts are done: from here on Ctrl-C must not throw them away
+        n_done = int(ms.ssr.size) + len(ms.failed)
+        if ms.interrupted and n_done == 0:
+            raise Interrupted(f"interrupted (Ctrl-C) before any start had finished; nothing "
+                              f"was written to {a.out}/")
+        order = np.argsort(ms.ssr)
+        print("\nbest end points:")
+        print(" rank  cluster        SSR   " + " ".join(f"{n:>10}" for n in ms.names))
+        for r, i in enumerate(order[: min(10, len(order))]):
+            print(f" {r + 1:4d}  {ms.clusters[i]:7d}  {ms.ssr[i]:9.4g}   "
+                  + " ".join(f"{v:10.4g}" for v in ms.ends[i]))
+        summary = ms.summary()
+        print("\n" + summary)
+        doc = {"config": a.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
+               "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters,
+               "summary": summary, "data": [str(e.path) for e in exps],
+               "n_requested": a.starts, "n_finished": n_done, "interrupted": ms.interrupted,
+               "start_index": ms.start_index, "failed": {str(k): v for k, v in
+                                                         ms.failed.items()}}
+        (out / "multistart.json").write_text(json.dumps(doc, indent=2, default=json_default))
+        written = ["multistart.json"]
+        if ms.ssr.size:
+            floor = quantisation_floor_ssr(prob)
+            fig, _ = plot_waterfall(ms.ssr, labels=ms.clusters, n_failed=len(ms.failed),
+                                    noise_floor_ssr=floor,
+                                    title=f"multistart, {a.model}: sorted final SSR")
+            save_figure_atomic(fig, out / "waterfall.png")
+            fig, _ = plot_parameter_spread(
+                ms.names, ms.ends, ms.ssr, clusters=ms.clusters, noise_floor_ssr=floor,
+                units={n: prob.info(n).unit for n in ms.names},
+                title=f"multistart, {a.model}: end points")
+            save_figure_atomic(fig, out / "parameter_spread.png")
+            written += ["waterfall.png", "parameter_spread.png"]
+        (out / "summary.txt").write_text(summary + "\n")
+        written.append("summary.txt")
+    print(f"\nwrote {a.out}/: {', '.join(written)}")
+    if ms.interrupted:
+        rest = a.starts - n_done
+        raise Interrupted(
+            f"interrupted (Ctrl-C) after {n_done} of {a.starts} starts; the finished ones are in "
+            f"{a.out}/ (multistart.json, summary.txt). For the other {rest}, run again with "
+            f"--starts {rest} --seed {a.seed + 1} and another --out (a new seed gives new "
+            "starts), or repeat the whole command with --force")
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) after all {n_done} starts had finished; the "
+                          f"results were kept, complete, in {a.out}/")
+    return Outcome(EXIT.DONE, Path(a.out), doc)

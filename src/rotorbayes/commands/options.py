@@ -1,0 +1,123 @@
+"""Command-line options shared by several commands: checked number types and option
+groups (the fit options, where parallel tasks run, trusting effect files)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+#: Sampling rates a simulated measurement may have (Hz). Below 100 Hz the samples cannot
+#: follow the rig: the inputs have content up to 5 Hz, the stick-slip switches of the lower
+#: disc last milliseconds and the encoders' steps (1e-4 rad) are crossed many times per
+#: sample; the thesis's rig is sampled at 1 kHz. Above 100 kHz no encoder of the rig is read.
+MIN_RATE, MAX_RATE = 100.0, 1e5
+#: Upper limits of sample's sizes: beyond them a run would not end or fit on a disk.
+MAX_WALKERS, MAX_STEPS = 10_000, 10_000_000
+#: The rig's configurations (``--model``).
+CONFIGS = ["upper", "coupled", "brake"]
+
+
+def number(text: str, kind=float) -> float:
+    """``text`` as a finite number (or a whole number when ``kind`` is int)."""
+    try:
+        v = kind(text)
+    except ValueError:
+        what = "a whole number" if kind is int else "a number"
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+    if kind is float and not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a finite number")
+    return v
+
+
+def ranged(kind=float, *, gt: float | None = None, ge: float | None = None,
+           le: float | None = None, why: str = ""):
+    """An argparse ``type``: a finite number with ``> gt``, ``>= ge`` and ``<= le``; the
+    message names the value given, the allowed range and ``why`` it is needed."""
+
+    def parse(text: str):
+        v = number(text, kind)
+        if (gt is not None and v <= gt) or (ge is not None and v < ge) or (
+                le is not None and v > le):
+            cond = " and ".join(c for c in (
+                f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
+                f"<= {le:g}" if le is not None else "") if c)
+            what = "a whole number" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"got {text}; give {what} {cond}{why}")
+        return v
+
+    parse.__name__ = "number"  # argparse names the type in its own messages
+    return parse
+
+
+def rate(text: str) -> float:
+    """An argparse ``type``: a sampling rate the rig's encoders can have (Hz)."""
+    v = number(text)
+    if v < MIN_RATE:
+        raise argparse.ArgumentTypeError(
+            f"got {text} Hz, too slow for the rig: the stick-slip switches of the lower disc "
+            f"last milliseconds and the inputs have content up to 5 Hz, so the encoders must be "
+            f"sampled at {MIN_RATE:g} Hz or more (the rig uses 1000 Hz, the default; the "
+            "bundled examples 200 Hz); give --rate 100 or more")
+    if v > MAX_RATE:
+        raise argparse.ArgumentTypeError(
+            f"got {text} Hz, faster than the rig's encoders are ever read ({MAX_RATE:g} Hz at "
+            "most; it also makes huge files); give --rate between 100 and 100000")
+    return v
+
+
+def add_fit_options(p) -> None:
+    """The options of ``fit`` and ``multistart``: model, data, what is free, the budget."""
+    p.add_argument("--model", required=True, choices=CONFIGS, help="rig configuration")
+    p.add_argument("data", nargs="+", help="measurement CSV file(s), or example:NAME")
+    p.add_argument("--out", required=True,
+                   help="output folder (created, with missing parent folders; it appears only "
+                   "when the run succeeds)")
+    p.add_argument("--free", help="comma-separated parameters to estimate (default: the "
+                   "configuration's, plus alpha0 per experiment with several experiments)")
+    p.add_argument("--fixed", help="comma-separated parameters to keep fixed")
+    p.add_argument("--base", help="values of all parameters not estimated (named set, TOML "
+                   "or fit.json); default: --p0, else the configuration's P_ref")
+    p.add_argument("--add", action="append", metavar="EFFECT",
+                   help="switch an effect on and free its parameters (repeatable): a catalogue "
+                   "name (see `rotorbayes effects`) or FILE.py:NAME for your own effect")
+    p.add_argument("--without", action="append", metavar="EFFECT",
+                   help="switch off an effect of the configuration's base model (repeatable)")
+    p.add_argument("--channels", help="theta_l, theta_u or theta_l,theta_u")
+    p.add_argument("--weights", metavar="CHANNEL=W,...",
+                   help="channel weights (> 0), e.g. theta_l=1,theta_u=0.1 (default: 1 each)")
+    p.add_argument("--prescribed-upper", action="store_true",
+                   help="drive the lower disc with the measured theta_u")
+    p.add_argument("--max-nfev", type=ranged(int, ge=1, why=" (residual evaluations)"),
+                   default=200, metavar="N", help="evaluation budget per fit")
+    for tol in ("ftol", "xtol", "gtol"):
+        p.add_argument(f"--{tol}", type=ranged(gt=0, why=" (a convergence tolerance)"),
+                       default=1e-10, help=f"{tol} of scipy.optimize.least_squares")
+    p.add_argument("--force", action="store_true",
+                   help="replace the results in --out (only once the new run has succeeded)")
+    add_trust_option(p)
+
+
+def add_parallel_options(p, what: str) -> None:
+    """Where the independent tasks run (rotorbayes.inference.parallel)."""
+    from ..inference.parallel import BACKENDS, DEFAULT_BACKEND, SCHEDULER_ENV
+
+    p.add_argument("--backend", choices=BACKENDS, default=None,
+                   help=f"where the {what} run: serial, local threads (default "
+                   f"{DEFAULT_BACKEND!r}), local processes, or dask (a local Dask cluster of "
+                   "--workers processes, or the scheduler given by --scheduler or "
+                   f"{SCHEDULER_ENV})")
+    p.add_argument("--workers", type=ranged(int, ge=1, le=256, why=" (parallel workers)"),
+                   default=None, metavar="N",
+                   help=f"parallel {what} (threads, processes or local Dask workers; default "
+                   "the number of cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help=f"run the {what} on this Dask scheduler (e.g. tcp://host:8786; "
+                   f"default ${SCHEDULER_ENV} if set); see the README on starting one")
+
+
+def add_trust_option(p) -> None:
+    """``--trust-effects``: for commands that read results naming user effect files."""
+    p.add_argument("--trust-effects", action="store_true",
+                   help="import user effect files a result names even when they changed "
+                   "since the result was made, or it recorded no hash of them (effect files "
+                   "are Python code: read them first)")

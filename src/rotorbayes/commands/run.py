@@ -1,0 +1,37 @@
+"""``rotorbayes run``: a whole study from an analysis file."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from .common import Outcome, executor
+from .options import add_parallel_options
+
+HELP = "a whole study from an analysis file (TOML; see docs/analysis_file.md)"
+
+
+def add_arguments(r) -> None:
+    r.add_argument("analysis", help="the analysis file")
+    r.add_argument("--force", action="store_true", help="rerun every stage")
+    r.add_argument("--quiet", action="store_true", help="print only the summary")
+    add_parallel_options(r, "independent fits (restarts, profile points)")
+
+
+def run(analysis: str, *, force: bool = False, quiet: bool = False,
+        backend: str | None = None, workers: int | None = None,
+        scheduler: str | None = None) -> Outcome:
+    """Run the study the analysis file ``analysis`` describes (:func:`rotorbayes.study.run`)
+    with one executor for its parallel tasks (the options, else the file's [parallel]
+    table).  ``Outcome.doc`` is the run record (run.json)."""
+    from ..study import load_analysis
+    from ..study import run as run_study
+
+    t0 = time.perf_counter()
+    with executor(backend, workers, scheduler, file=load_analysis(analysis).table("parallel")):
+        rec = run_study(analysis, quiet=quiet, force=force)
+    print(f"\nstudy done in {time.perf_counter() - t0:.0f} s; outputs and run.json in "
+          f"{Path(rec['final_fit']).parent}/")
+    if rec.get("report"):
+        print(f"report: {rec['report']}")
+    return Outcome(doc=rec)

@@ -1,0 +1,332 @@
+"""``rotorbayes sample``: posterior sampling with emcee from a fit, checkpointed."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from .. import exitcodes as EXIT
+from ..exitcodes import Interrupted, Refused
+from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
+from .common import Outcome
+from .options import MAX_STEPS, MAX_WALKERS, add_trust_option, ranged
+
+HELP = "posterior sampling with emcee from a fit (checkpointed; --resume continues)"
+
+
+def add_arguments(sp) -> None:
+    sp.add_argument("source", help="a fit folder, or with --resume a sample folder")
+    sp.add_argument("--out", help="output folder (new runs)")
+    sp.add_argument("--resume", action="store_true",
+                    help="continue the chains in SOURCE (a folder written by sample)")
+    sp.add_argument("--walkers", type=ranged(int, ge=4, le=MAX_WALKERS,
+                                              why=" (walkers per ensemble)"),
+                    default=32, help="walkers per ensemble")
+    sp.add_argument("--steps", type=ranged(int, ge=10, le=MAX_STEPS, why=" (steps per "
+                                            "ensemble)"), default=None,
+                    help="total steps per ensemble (default 2000; with --resume the new "
+                    "total)")
+    sp.add_argument("--ensembles", type=ranged(int, ge=1, le=64, why=" (independent "
+                                                "ensembles)"), default=2,
+                    help="independent ensembles (>= 2 for R-hat)")
+    sp.add_argument("--seed", type=ranged(int, ge=0, le=2**31 - 1), default=0)
+    sp.add_argument("--noise", choices=["robust", "floor", "sampled"], default="robust",
+                    help="robust: floor noise widened to the fit's honest covariance "
+                    "(correlated rounding while a disc sticks, model error, the input "
+                    "between samples); floor: i.i.d. at the encoder floor (too narrow on "
+                    "stick-slip data; to compare); sampled: σ sampled (prior 1/σ)")
+    sp.add_argument("--ar1", action="store_true", help="AR(1) errors per channel")
+    sp.add_argument("--priors", help="TOML with a [priors] table (default: uniform within "
+                    "the physical bounds)")
+    sp.add_argument("--max-draws", type=ranged(int, ge=1, le=100_000, why=" (draws kept "
+                                                "per ensemble)"), default=100,
+                    help="draws per ensemble kept in posterior.nc (with the pointwise "
+                    "log-likelihood of every sample: about 2 x draws x samples x channels x "
+                    "4 bytes)")
+    sp.add_argument("--quiet", action="store_true", help="no progress bar")
+    sp.add_argument("--force", action="store_true", help="overwrite results in --out")
+    add_trust_option(sp)
+
+
+#: Files ``sample`` derives from chain.h5 (rewritten by every run, --resume included).
+SAMPLE_OUTPUTS = ("posterior.nc", "summary.md", "summary.csv", "corner.png", "trace.png",
+                  "predictive.png", "correlation.png", "warnings.txt")
+
+
+def _read_settings(src: Path) -> dict:
+    """settings.json of a sample folder, checked; refused (Refused) when absent or damaged."""
+    path = src / "settings.json"
+    if not src.is_dir():
+        raise Refused(f"{src}: no such folder; --resume needs a folder written by "
+                      "`rotorbayes sample`")
+    if not path.exists():
+        raise Refused(f"{src}: no settings.json; --resume needs a folder written by "
+                      "`rotorbayes sample`")
+    try:
+        settings = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise Refused(f"{path}: cannot be read ({exc}): damaged; --resume cannot continue "
+                      "this run. Start again with `rotorbayes sample FIT --out "
+                      f"{src} --force`") from None
+    need = {"fit": str, "walkers": int, "steps": int, "ensembles": int, "seed": int,
+            "noise": str, "ar1": bool}
+    bad = [k for k, t in need.items() if not isinstance(settings.get(k) if isinstance(
+        settings, dict) else None, t)]
+    if bad:
+        raise Refused(f"{path}: {', '.join(bad)} missing or of the wrong type: damaged or "
+                      "not written by `rotorbayes sample`; start again with `rotorbayes "
+                      f"sample FIT --out {src} --force`")
+    return settings
+
+
+def sample(source: str, *, out: str | None = None, resume: bool = False, walkers: int = 32,
+           steps: int | None = None, ensembles: int = 2, seed: int = 0, noise: str = "robust",
+           ar1: bool = False, priors: str | None = None, max_draws: int = 100,
+           quiet: bool = False, force: bool = False, trust_effects: bool = False) -> Outcome:
+    """emcee from the fit folder ``source`` into the folder ``out``, checkpointed at every
+    step (chain.h5); with ``resume`` (``source`` then a sample folder) the same chains go on
+    to ``steps`` in total.
+
+    ``walkers`` per ensemble, ``steps`` (default 2000), ``ensembles`` independent
+    ensembles, ``seed``; ``noise`` "robust", "floor" or "sampled", ``ar1`` errors, ``priors``
+    a TOML file; ``max_draws`` per ensemble kept in posterior.nc.  Writes the summary
+    tables and figures from the chains.
+    """
+    a = SimpleNamespace(**locals())  # the steps below read the options by name
+    from ..outputs import clean_stale, folder_lock
+
+    src = Path(a.source)
+    if a.resume:
+        if a.out and Path(a.out).absolute() != src.absolute():
+            raise Refused(f"--resume continues {src}/ in place; leave out --out {a.out}")
+        out = src
+    else:
+        if a.steps is None:
+            a.steps = 2000
+        if not a.out:
+            raise Refused("give --out FOLDER for the posterior (or --resume FOLDER)")
+        out = Path(a.out)
+        if out.exists() and not out.is_dir():
+            raise Refused(f"--out {out}: is a file, not a folder; give a new folder name")
+        if not out.parent.is_dir():
+            raise Refused(f"--out {out}: the folder {out.parent}/ does not exist; create it "
+                          "first or choose another --out")
+    _check_sample_target(a, out)
+    with folder_lock(out):
+        _check_sample_target(a, out)  # again, under the lock
+        clean_stale(out)
+        code = _sample_locked(a, src, out)
+    return Outcome(code, out)
+
+
+def _check_sample_target(a, out: Path) -> None:
+    if not a.resume and out.is_dir() and any(out.iterdir()) and not a.force:
+        raise Refused(f"{out}/ already holds results; continue them with "
+                      f"`rotorbayes sample {out} --resume --steps N`, choose another "
+                      "--out or pass --force")
+
+
+def _sample_locked(a, src: Path, out: Path) -> int:
+    import shutil
+
+    from ..inference import sampling as S
+    from ..inference.likelihood import LogPosterior, load_priors
+    from ..outputs import check_free_space
+    from ..results import load_fit
+
+    if a.resume:
+        settings = _read_settings(src)
+        if a.steps is not None:
+            settings["steps"] = a.steps  # checked against the steps held, below
+    else:
+        settings = {"fit": str(Path(a.source).resolve()), "walkers": a.walkers,
+                    "steps": a.steps, "ensembles": a.ensembles, "seed": a.seed,
+                    "noise": a.noise, "ar1": a.ar1,
+                    "priors": str(Path(a.priors).resolve()) if a.priors else None}
+    fit = load_fit(settings["fit"], trust_effects=a.trust_effects)
+    priors = load_priors(settings["priors"], fit.problem) if settings.get("priors") else None
+    lp = LogPosterior(fit.problem, fit.x, priors=priors, noise=settings["noise"],
+                      ar1=settings["ar1"])
+    if settings["walkers"] < 2 * lp.ndim:
+        raise Refused(f"--walkers {settings['walkers']}: emcee needs at least twice the "
+                      f"{lp.ndim} sampled coordinates; give --walkers {2 * lp.ndim} or more")
+    if not a.resume:
+        # The walkers start around the fit: a prior that excludes it cannot be sampled.
+        z0 = np.asarray(lp.to_z(fit.x), float)[None, :]
+        if not np.isfinite(lp.log_prior(z0)[0]):
+            where = f"--priors {a.priors}" if a.priors else "the priors"
+            raise Refused(f"{where} give zero probability to the fit's point in "
+                          f"{fit.folder}/ (a value outside a prior's lower..upper); widen "
+                          "that prior or fit again (nothing was written)")
+    n_res = int(fit.doc.get("n_residuals") or 0)
+    # Room for posterior.nc (pointwise log-likelihood of the kept draws) and the figures.
+    outputs = 8 * a.max_draws * settings["ensembles"] * settings["walkers"] \
+        * max(n_res, 1) // 4 + 2_000_000
+    need = S.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
+                         settings["ensembles"]) + outputs
+    chain = out / "chain.h5"
+    # A reserve file left by a killed run is free space, not a result.
+    (out / ".chain.h5.reserve").unlink(missing_ok=True)
+    if a.resume:
+        held = S.check_checkpoint(chain, n_walkers=settings["walkers"], ndim=lp.ndim,
+                                  n_ensembles=settings["ensembles"])
+        most = max(held.values(), default=0)
+        if settings["steps"] < most:
+            raise Refused(f"--steps {settings['steps']} is below the {most} steps {chain} "
+                          "already holds; give the new total (at least that many)")
+        have = chain.stat().st_size if chain.exists() else 0
+        check_free_space(out, max(need - have, 2_000_000), what=f"sample {out}")
+        if not held and not chain.exists():
+            print(f"{out}/ holds no finished step yet (the run was stopped before its first "
+                  "step): sampling starts at step 0")
+    else:
+        check_free_space(out.parent, need, what=f"--out {out}")
+    created = not out.exists()
+    if not a.resume and not created:
+        # --force: the new run's checkpoint must live in OUT to be resumable, so the old
+        # results go now (after every check has passed).
+        for p in out.iterdir():
+            if p.name == "log.txt":
+                continue
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+    out.mkdir(exist_ok=True)
+    S.save_settings(out, settings)
+    print(f"sampling {lp.ndim} coordinates ({', '.join(lp.coord_names)}) of {fit.folder}/ "
+          f"with {settings['walkers']} walkers x {settings['steps']} steps x "
+          f"{settings['ensembles']} independent ensembles; noise: "
+          f"{'AR(1), sampled' if lp.ar1 else settings['noise']}; checkpoint {out}/chain.h5 "
+          "(every step: a kill loses nothing, --resume continues)", flush=True)
+    stale = [n for n in SAMPLE_OUTPUTS if (out / n).exists()]
+    guard = InterruptGuard().start()  # Ctrl-C: stop between two steps, never inside one
+    try:
+        try:
+            runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
+                            n_steps=settings["steps"], n_ensembles=settings["ensembles"],
+                            seed=settings["seed"], progress=not a.quiet and sys.stderr.isatty(),
+                            should_stop=lambda: guard.hit > 0, keep_free=outputs)
+        except RuntimeError as exc:
+            if "cannot place the walkers" not in str(exc):
+                raise
+            raise Refused(f"{fit.folder}/: {exc}") from None
+        except S.SamplingStopped as exc:
+            earlier = (f" ({', '.join(stale)} still describe the earlier, shorter run "
+                       "until then)") if stale else ""
+            raise Interrupted(
+                f"interrupted (Ctrl-C): {exc.ensemble} stopped after step {exc.step} of "
+                f"{exc.total}; every finished step is kept in {out}/chain.h5 (settings in "
+                f"settings.json). Continue with `rotorbayes sample {out} --resume`{earlier}"
+            ) from None
+        except BaseException as exc:
+            if created and not S.steps_held(chain):
+                shutil.rmtree(out, ignore_errors=True)  # nothing done: leave no folder
+            if EXIT.is_disk_full(exc) and not isinstance(exc, EXIT.EnvironmentFailure):
+                _die_disk_full(out, exc)
+            raise
+        try:
+            written = _write_sample_outputs(a, out, lp, fit, runs, guard)
+        except OSError as exc:
+            if not EXIT.is_disk_full(exc):
+                raise
+            raise EXIT.EnvironmentFailure(
+                f"{out}/: the disk filled up while the summary files were written; the chains "
+                f"are complete in {out}/chain.h5. Free some space and run `rotorbayes sample "
+                f"{out} --resume` to write them (no new steps)") from None
+    finally:
+        guard.stop()
+    return written
+
+
+def _die_disk_full(out: Path, exc: BaseException) -> None:
+    """The disk filled up in the middle of an HDF5 write. h5py's objects are then in a state
+    in which tearing them down can crash the interpreter, so say what happened and leave at
+    once (the lock goes with the process)."""
+    print(f"rotorbayes sample: error: {out}/chain.h5: the disk is full (no space left on the "
+          "device) while a step was being written; the steps finished before it are in the "
+          f"checkpoint. Free some space and continue with `rotorbayes sample {out} "
+          "--resume` (if the checkpoint is refused as damaged, start again with --force)",
+          file=sys.__stderr__, flush=True)
+    with contextlib.suppress(Exception):
+        sys.__stdout__.flush()
+    os._exit(EXIT.ENVIRONMENT)
+
+
+def _write_sample_outputs(a, out: Path, lp, fit, runs, guard) -> int:
+    """The summary, InferenceData and figures from finished chains; Ctrl-C between two
+    files stops with a true account of what is on disk."""
+    from .. import posterior_figures as PF
+    from ..inference import arviz_compat as AZ
+    from ..inference import posterior as PO
+    from ..inference import sampling as S
+
+    names = lp.coord_names
+    done: list[str] = []
+
+    def checkpoint() -> None:
+        if guard.hit:
+            left = [n for n in SAMPLE_OUTPUTS if n not in done]
+            raise Interrupted(
+                f"interrupted (Ctrl-C) after the sampling had finished; the chains are "
+                f"complete in {out}/chain.h5"
+                + (f"; written: {', '.join(done)}" if done else "")
+                + f"; not yet rewritten: {', '.join(left)}. `rotorbayes sample {out} "
+                "--resume` writes them from the chains (no new steps)")
+
+    warnings = S.convergence(runs, names)
+    if lp.n_failed:
+        warnings.append(f"{lp.n_failed} proposals could not be simulated (counted in "
+                        "sample_stats.failed_simulations; they got -inf)")
+    idata = PO.inference_data(lp, runs, max_draws=a.max_draws)
+    rows = PO.summary_table(idata, lp, runs)
+    if len(runs) >= 2:
+        bad = [r["parameter"] for r in rows if not r["r_hat"] < 1.01]
+        if bad:
+            warnings.append(f"R-hat across the {len(runs)} ensembles is >= 1.01 for "
+                            f"{', '.join(bad)}: they have not converged to one distribution")
+    else:
+        warnings.append("one ensemble: no R-hat (the walkers of an ensemble are not "
+                        "independent chains); use --ensembles 2 or more")
+    unc = lp.uncertainty
+    if unc is not None and unc.warning():
+        warnings.append(unc.warning())
+    if lp.noise == "floor":
+        warnings.append("--noise floor counts every sample as independent: on data where a "
+                        "disc sticks or turns slowly the intervals are too narrow (the "
+                        "default, --noise robust, widens them to what the errors support)")
+    md = PO.table_markdown(rows, assumptions=unc.assumptions() if unc is not None else None)
+    print("\n" + md)
+    checkpoint()
+    tmp = out / ".posterior.nc.tmp"
+    try:
+        AZ.save(idata, tmp)
+        tmp.replace(out / "posterior.nc")
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+    done.append("posterior.nc")
+    for name, write in (
+            ("summary.md", lambda p: write_text_atomic(p, md + "\n")),
+            ("summary.csv", lambda p: write_text_atomic(p, PO.table_csv(rows))),
+            ("corner.png", lambda p: save_figure_atomic(PF.plot_corner(idata, fit.problem), p)),
+            ("trace.png", lambda p: save_figure_atomic(PF.plot_trace(runs, names)[0], p)),
+            ("predictive.png",
+             lambda p: save_figure_atomic(PF.plot_predictive(idata, fit.problem)[0], p)),
+            ("correlation.png",
+             lambda p: save_figure_atomic(PF.plot_correlation(idata, fit.problem)[0], p)),
+            ("warnings.txt", lambda p: write_text_atomic(p, "\n".join(warnings) + "\n"))):
+        checkpoint()
+        write(out / name)
+        done.append(name)
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"\nwrote posterior.nc, summary.md/.csv, corner.png, trace.png, predictive.png, "
+          f"correlation.png in {out}/ ({lp.n_calls} log-posterior evaluations)")
+    if guard.hit:
+        raise Interrupted(f"interrupted (Ctrl-C) as the last file was written; the results "
+                          f"were kept, complete, in {out}/")
+    return EXIT.DONE
