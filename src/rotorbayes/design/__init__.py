@@ -8,7 +8,8 @@ or that separates candidate effects — and, when no input can, the procedure th
 * :mod:`.ties` — the registry's exact equivalences that no input breaks;
 * :mod:`.core` — :func:`design_input`: target, search over several starts through the
   executor layer, prediction, and the self-check by simulation and refit;
-* :mod:`.output` — the ``next/`` folder (``u.csv``, ``design.json``, ``design.txt``, a figure).
+* :mod:`.output` — the ``next/`` folder (``u.csv``, ``design.json``, ``design.txt``, a figure);
+  the command itself is :mod:`rotorbayes.commands.design`.
 
 Example::
 
@@ -20,10 +21,10 @@ Example::
 
 from .core import DESIGNED, LITTLE_GAIN, NO_INPUT, DesignError, DesignResult, design_input
 from .inputs import FAMILIES, MAX_BAND_HZ, DesignInputError, Multisine, Steps, make_family
-from .output import input_csv, plot_design, write_design, write_into
+from .output import design_document, input_csv, plot_design, write_design, write_into
 
 __all__ = [
-    "DESIGNED", "LITTLE_GAIN", "NO_INPUT", "DesignError", "DesignInputError",
+    "DESIGNED", "LITTLE_GAIN", "design_document", "NO_INPUT", "DesignError", "DesignInputError",
     "DesignResult", "FAMILIES", "MAX_BAND_HZ", "Multisine", "Steps", "design_input",
     "input_csv", "make_family", "plot_design", "write_design", "write_into",
 ]  # fmt: skip

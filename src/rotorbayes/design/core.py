@@ -88,7 +88,7 @@ class DesignResult:
     def text(self) -> str:
         lines = [f"status: {self.status}", f"target: {self.target.get('words', '')}", "",
                  self.words]
-        if self.procedure:
+        if self.procedure and self.procedure not in self.words:
             lines += ["", f"procedure: {self.procedure}"]
         if self.input_family:
             lines += ["", f"input: {self.input_family.get('description', '')}"]

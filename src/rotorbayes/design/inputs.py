@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..signals import MAX_VOLTAGE, _smooth_step
+from ..signals import MAX_VOLTAGE
+from ..signals import smooth_step as _smooth_step
 
 #: Highest band limit a design may use [Hz]: the thesis's signals stay below 5 Hz, faster
 #: inputs risk damaging the set-up (thesis §3.2).

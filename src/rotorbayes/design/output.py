@@ -43,9 +43,10 @@ def input_csv(t: np.ndarray, u: np.ndarray) -> str:
 def plot_design(res: DesignResult):
     """Input (designed and the estimation input), predicted angles, and what the new
     experiment would see of the target, in floor units.  Returns ``(fig, axes)``."""
-    from ..plots import _legend_outside, _plt
+    from ..plots import legend_outside as _legend_outside
+    from ..plots import pyplot
 
-    plt = _plt()
+    plt = pyplot()
     resp = {k: v for k, v in res.responses.items() if k not in ("difference", "channels")}
     diff = res.responses.get("difference")
     n = 1 + (1 if resp else 0) + (1 if diff is not None else 0)
@@ -89,13 +90,19 @@ def plot_design(res: DesignResult):
     return fig, axes
 
 
+def design_document(res: DesignResult, command: str = "") -> dict:
+    """design.json's content: JSON-safe (no arrays, no NaN)."""
+    return _clean({**res.as_dict(), "command": command or None,
+                   "files": {"u.csv": "the input, columns t [s], u [V]",
+                             "design.txt": "the account in words",
+                             "design.png": "input, predicted responses, what tells the "
+                                           "target"}})
+
+
 def write_into(res: DesignResult, folder: Path, *, command: str = "") -> None:
     """Write the files of a design into ``folder`` (each one atomically)."""
     folder = Path(folder)
-    doc = _clean({**res.as_dict(), "command": command or None,
-                  "files": {"u.csv": "the input, columns t [s], u [V]",
-                            "design.txt": "the account in words",
-                            "design.png": "input, predicted responses, what tells the target"}})
+    doc = design_document(res, command)
     write_text_atomic(folder / "u.csv", input_csv(res.t, res.u))
     write_text_atomic(folder / "design.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
     write_text_atomic(folder / "design.txt", res.text())
