@@ -64,9 +64,6 @@ def legend_outside(ax, **kw):
                      fontsize=8, **kw)
 
 
-#: The former private names (rotorbayes.design imported them); use the public ones.
-_plt, _legend_outside = pyplot, legend_outside
-
 
 def _shade_stick(ax, t, mode, color=STICK_COLOR, label="lower disc sticks"):
     """Shade the time intervals in which a disc sticks (``mode == 0``).

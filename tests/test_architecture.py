@@ -1,0 +1,259 @@
+"""The house rules, checked on the source (fast: the AST, no numerical work).
+
+* No import cycle among ``rotorbayes`` modules at module level (an import at the top of a
+  module, run when it is imported).  Imports inside functions run later and cannot
+  deadlock an import, but a circle through them still means two modules each need the
+  other's idea: those are listed by :func:`function_level_cycles` and must stay within
+  :data:`KNOWN_FUNCTION_LEVEL_CYCLES` (empty today).
+* No module imports a private name (``_x``) from a module of another package: an idea used
+  by two rooms gets a public name in the room that owns it.
+* ``cli.py`` is a thin table of commands: fewer than :data:`CLI_MAX_LINES` lines; no
+  numerical library imported; from rotorbayes only exit codes and exception classes (the
+  commands are reached through the table); every command's options are exactly its
+  function's keyword arguments, with the same defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import importlib
+import inspect
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PKG = "rotorbayes"
+#: cli.py has at most this many lines (a table, a parser, a log and the exit codes).
+CLI_MAX_LINES = 500
+#: Libraries that do numerical work: cli.py imports none of them.
+NUMERICAL = ("numpy", "scipy", "numba", "matplotlib", "emcee", "arviz", "corner", "h5py",
+             "dask", "distributed", "xarray")
+#: Circles through function-level imports accepted for now (pairs of module names).
+KNOWN_FUNCTION_LEVEL_CYCLES: set[frozenset[str]] = set()
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for p in sorted((SRC / PKG).rglob("*.py")):
+        parts = list(p.relative_to(SRC).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = p
+    return out
+
+
+MODULES = _modules()
+
+
+def _package(module: str) -> str:
+    """The package a module belongs to (a package's ``__init__`` belongs to itself)."""
+    return module if MODULES[module].name == "__init__.py" else module.rpartition(".")[0]
+
+
+def _targets(module: str, node) -> list[tuple[str, str, str | None]]:
+    """(local name, imported rotorbayes module, imported name or None) for each name one
+    import statement brings in from rotorbayes."""
+    if isinstance(node, ast.Import):
+        return [(a.asname or a.name.split(".")[0], a.name, None) for a in node.names
+                if a.name.split(".")[0] == PKG]
+    if node.level:
+        base = _package(module)
+        for _ in range(node.level - 1):
+            base = base.rpartition(".")[0]
+        target = f"{base}.{node.module}" if node.module else base
+    else:
+        target = node.module or ""
+    if target.split(".")[0] != PKG:
+        return []
+    return [(a.asname or a.name, f"{target}.{a.name}", None)
+            if f"{target}.{a.name}" in MODULES else (a.asname or a.name, target, a.name)
+            for a in node.names]
+
+
+def _is_type_checking(node) -> bool:
+    return isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+
+
+def _imports() -> list[tuple[str, str, str | None, str, int]]:
+    """Every import among rotorbayes modules: (importer, imported module, name, level,
+    line); level is "module" (runs on import) or "function"."""
+    found = []
+
+    def visit(module, node, level):
+        for child in ast.iter_child_nodes(node):
+            if _is_type_checking(child):
+                continue
+            inner = level
+            if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda):
+                inner = "function"
+            if isinstance(child, ast.Import | ast.ImportFrom):
+                for _, target, name in _targets(module, child):
+                    found.append((module, target, name, level, child.lineno))
+            visit(module, child, inner)
+
+    for module, path in MODULES.items():
+        visit(module, ast.parse(path.read_text(encoding="utf-8")), "module")
+    return found
+
+
+def _cycles(edges: set[tuple[str, str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    graph: dict[str, set[str]] = {}
+    for a, b in edges:
+        if a != b:
+            graph.setdefault(a, set()).add(b)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def connect(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            connect(v)
+    return out
+
+
+def module_level_cycles() -> list[list[str]]:
+    return _cycles({(a, b) for a, b, _, level, _ in _imports() if level == "module"})
+
+
+def function_level_cycles() -> list[list[str]]:
+    """Circles that need at least one import inside a function."""
+    every = _cycles({(a, b) for a, b, *_ in _imports()})
+    at_top = {frozenset(c) for c in module_level_cycles()}
+    return [c for c in every if frozenset(c) not in at_top]
+
+
+def test_the_scan_sees_the_package():
+    # A scan that found nothing would pass everything: check it sees known imports.
+    found = {(a, b, level) for a, b, _, level, _ in _imports()}
+    assert len(MODULES) > 40
+    assert ("rotorbayes.model.parameters", "rotorbayes.model.effects", "module") in found
+    assert ("rotorbayes.commands.demo", "rotorbayes.study", "function") in found
+    assert _cycles({("a", "b"), ("b", "c"), ("c", "a"), ("c", "d")}) == [["a", "b", "c"]]
+
+
+def test_no_import_cycle_at_module_level():
+    cycles = module_level_cycles()
+    assert not cycles, "import cycles at module level: " + "; ".join(
+        " <-> ".join(c) for c in cycles)
+
+
+def test_no_new_import_circle_through_function_level_imports():
+    cycles = [c for c in function_level_cycles()
+              if frozenset(c) not in KNOWN_FUNCTION_LEVEL_CYCLES]
+    assert not cycles, (
+        "modules that import each other (at least one import inside a function): "
+        + "; ".join(" <-> ".join(c) for c in cycles)
+        + ". Move the shared idea into the module that owns it.")
+
+
+def test_no_private_name_imported_across_packages():
+    bad = []
+    for module, target, name, _, line in _imports():
+        if name and name.startswith("_") and not name.startswith("__") \
+                and _package(module) != _package(target):
+            bad.append(f"{MODULES[module].relative_to(SRC)}:{line} imports {name} from "
+                       f"{target}")
+    # Private attributes of an imported module (``import x as m; m._y``).
+    for module, path in MODULES.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        aliases = {}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                for local, target, name in _targets(module, node):
+                    if name is None and target in MODULES:
+                        aliases[local] = target
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                    and node.value.id in aliases and node.attr.startswith("_")
+                    and not node.attr.startswith("__")
+                    and _package(aliases[node.value.id]) != _package(module)):
+                bad.append(f"{path.relative_to(SRC)}:{node.lineno} uses "
+                           f"{aliases[node.value.id]}.{node.attr}")
+    assert not bad, "private names used across packages:\n" + "\n".join(bad)
+
+
+# ----------------------------------------------------------------------- a thin cli.py
+CLI = SRC / PKG / "cli.py"
+
+
+def test_cli_is_short_and_does_no_numerical_work():
+    text = CLI.read_text(encoding="utf-8")
+    n = len(text.splitlines())
+    assert n < CLI_MAX_LINES, f"cli.py has {n} lines; move work into rotorbayes.commands"
+    tree = ast.parse(text)
+    from rotorbayes import cli
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [
+                node.module or ""]
+            for name in names:
+                assert name.split(".")[0] not in NUMERICAL, f"cli.py imports {name}"
+        if isinstance(node, ast.ImportFrom) and node.level and node.module:
+            # From rotorbayes: exception classes only (and the exit codes' module).
+            source = importlib.import_module(f"{PKG}.{node.module}")
+            for a in node.names:
+                obj = getattr(source, a.name)
+                assert isinstance(obj, type) and issubclass(obj, BaseException), (
+                    f"cli.py imports {a.name} from rotorbayes.{node.module}: only exception "
+                    "classes belong here; the work is in rotorbayes.commands")
+    assert set(cli.COMMANDS) == {a.dest for a in _subparsers(cli.build_parser())[0]}
+
+
+def _subparsers(parser) -> tuple[list, dict]:
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return action._choices_actions, action.choices
+
+
+@pytest.mark.parametrize("name", __import__("rotorbayes.cli").cli.COMMANDS)
+def test_each_command_is_a_function_with_the_options_as_keywords(name):
+    """What the command line passes is what the function takes, with the same defaults
+    (so a Python user and the study get what `rotorbayes NAME` would do)."""
+    from rotorbayes import cli
+    from rotorbayes.commands.common import Outcome
+
+    module = cli.command_module(name)
+    assert isinstance(module.HELP, str) and module.HELP
+    function = getattr(module, name)
+    assert function.__doc__, f"rotorbayes.commands.{name}.{name} needs a docstring"
+    assert inspect.signature(function).return_annotation in (Outcome, "Outcome")
+    params = inspect.signature(function).parameters
+    actions = [a for a in _subparsers(cli.build_parser())[1][name]._actions
+               if a.dest != "help"]
+    assert {a.dest for a in actions} == set(params), (
+        f"{name}: options {sorted(a.dest for a in actions)} vs keywords {sorted(params)}")
+    for a in actions:
+        p = params[a.dest]
+        required = a.required if a.option_strings else a.nargs in (None, "+")
+        if required:
+            assert p.default is inspect.Parameter.empty, f"{name} {a.dest} is required"
+        elif a.option_strings:
+            assert p.default == a.default, (
+                f"{name} {a.option_strings[0]}: default {a.default!r} on the command line, "
+                f"{p.default!r} in Python")
