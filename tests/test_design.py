@@ -156,6 +156,21 @@ def test_design_predicts_and_checks_itself(coupled_fit):
     assert a["sd_honest"] >= 0.99 * a["sd_white"]  # honest errors are never narrower
 
 
+def test_named_parameters_target(coupled_fit):
+    """--params: the predicted relative widths of the named parameters, each no wider than
+    with the existing data alone, and the design at least as good as the estimation
+    input on their summed variance (the search starts from that input's levels)."""
+    res = design_input(coupled_fit, params=["J_l", "k_alpha"], duration=8.0, starts=1,
+                       max_evals=40, check=False, workers=1)
+    assert res.target["kind"] == "params" and res.target["parameters"] == ["J_l", "k_alpha"]
+    p = res.predicted
+    for n in ("J_l", "k_alpha"):
+        assert p["sd_with_design"][n] <= p["sd_existing_data"][n]
+    design = sum(p["sd_with_design"][n] ** 2 for n in ("J_l", "k_alpha"))
+    base = sum(p["sd_with_estimation_input"][n] ** 2 for n in ("J_l", "k_alpha"))
+    assert design <= 1.001 * base
+
+
 def test_write_design_refuses_to_overwrite(coupled_fit, tmp_path):
     res = design_input(coupled_fit, separate=["lower_asymmetric_coulomb", "initial_torsion"])
     out = write_design(res, tmp_path / "next")
