@@ -8,7 +8,9 @@ One module per command, named after it, each with
 * a public function of the command's name (``fit.fit``, ``sample.sample``, ...) that takes
   plain arguments, prints what the command prints, writes what it writes and returns an
   :class:`~rotorbayes.commands.common.Outcome` (exit code, the folder written, its main
-  document).  Bad input raises :class:`~rotorbayes.exitcodes.Refused`, Ctrl-C
+  document).  Bad input raises :class:`~rotorbayes.exitcodes.Refused` or a ``ValueError``
+  naming the file or value (a measurement file, a parameter set, an output folder that
+  holds results: ``rotorbayes.cli.REFUSED`` lists them), Ctrl-C
   :class:`~rotorbayes.exitcodes.Interrupted`.
 
 For example::
