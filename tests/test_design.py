@@ -156,6 +156,29 @@ def test_design_predicts_and_checks_itself(coupled_fit):
     assert a["sd_honest"] >= 0.99 * a["sd_white"]  # honest errors are never narrower
 
 
+def test_separate_two_effects_predicts_and_achieves_a_gap(coupled_fit):
+    """--separate: each candidate fitted to the data (which hold neither effect: the
+    string damping fits to its null, c_alpha = 0, i.e. the fit's own model, which the
+    asymmetry contains -- said, and only the other direction designed for); the gap the
+    other cannot absorb predicted, and the self-check (the candidate's simulated data fitted
+    by both) achieving a gap of the predicted size, larger than the estimation input's."""
+    res = design_input(coupled_fit, separate=["lower_asymmetric_viscous", "string_damping"],
+                       duration=8.0, starts=1, max_evals=40, check=True, check_nfev=30,
+                       workers=1)
+    assert res.status == "designed", res.words
+    assert res.target["at_null"] == {"lower_asymmetric_viscous": False,
+                                     "string_damping": True}
+    assert "whatever the input" in res.words
+    key = "lower_asymmetric_viscous true"
+    assert res.predicted["directions_designed_for"] == [key]
+    gd = res.predicted["ssr_gap_with_design"][key]
+    gb = res.predicted["ssr_gap_with_estimation_input"][key]
+    assert gd >= 9.0 and gd > gb
+    achieved = res.achieved["ssr_gap_with_design"]
+    assert 0.5 * gd <= achieved <= 2.0 * gd
+    assert res.achieved["ssr_gap_with_estimation_input"] < achieved
+
+
 def test_named_parameters_target(coupled_fit):
     """--params: the predicted relative widths of the named parameters, each no wider than
     with the existing data alone, and the design at least as good as the estimation

@@ -138,7 +138,8 @@ class _Objective:
             Jn = f.new_rows(t, u)
             return math.log(max(float(np.sum(f.variances(f.F_old + Jn.T @ Jn, self.idx))),
                                 1e-300))
-        return -math.log1p(min(self.gaps(u)))
+        g = self.gaps(u)
+        return -math.log1p(min(g[k] for k in self.idx))
 
     def gaps(self, u: np.ndarray) -> tuple[float, float]:
         a, b = self.frames
@@ -311,6 +312,18 @@ def _candidate(problem: Problem, x: np.ndarray, name: str, max_nfev: int):
     return cand, res.x, eff, f"fitted to the existing data ({res.nfev} evaluations)"
 
 
+def _at_null(problem: Problem, x: np.ndarray, eff) -> bool:
+    """Whether the fit put every switch parameter of ``eff`` at its null value (within a
+    millionth of its bounds' width)."""
+    vals = problem.values(x)
+    for p in eff.switches:
+        names = [n for n in vals if local_name(n)[0] == p.name]
+        null = vals.get("Tc_l", 0.0) if p.name == "Ts_l" else p.null
+        if not names or any(abs(vals[n] - null) > 1e-6 * (p.upper - p.lower) for n in names):
+            return False
+    return True
+
+
 # ------------------------------------------------------------------------------- design
 def design_input(
     fit,
@@ -420,7 +433,14 @@ def design_input(
         target["candidates"] = {lab: {"how": c[3], "rms_over_floor": c[0].rms_over_floor(
             c[0].residuals(c[1])), "estimates": c[0].values(c[1])}
             for lab, c in zip(labels, cands, strict=True)}
-        objective = _Objective("separate", fam, frames)
+        # A candidate whose effect the existing data put at its null value is the fit's
+        # own model, which the other candidate contains (its effect at null too): data from
+        # it are fitted by the other exactly, whatever the input.  Only the other
+        # direction can be separated.
+        at_null = [_at_null(c[0], c[1], c[2]) for c in cands]
+        target["at_null"] = {lab: z for lab, z in zip(labels, at_null, strict=True)}
+        objective = _Objective("separate", fam, frames,
+                               idx=[k for k in range(2) if not at_null[k]] or [0, 1])
         v = idx = None
     else:
         frame = Frame(problem, x)
@@ -563,17 +583,30 @@ def _predict(objective: _Objective, frames, u, u_base, target):
         gd = objective.gaps(u)
         gb = objective.gaps(u_base)
         a, b = target["effects"]
+        nulls = [lab for lab, z in target.get("at_null", {}).items() if z]
+        use = objective.idx
         pred = {"ssr_gap_with_design": {f"{a} true": gd[0], f"{b} true": gd[1]},
                 "ssr_gap_with_estimation_input": {f"{a} true": gb[0], f"{b} true": gb[1]},
-                "gain_vs_estimation_input": min(gd) / max(min(gb), 1e-12),
+                "gain_vs_estimation_input": min(gd[k] for k in use) / max(
+                    min(gb[k] for k in use), 1e-12),
+                "directions_designed_for": [f"{(a, b)[k]} true" for k in use],
                 "units": "expected SSR gap in noise variances (floor^2): the part of the "
                          "prediction difference the other model cannot absorb by refitting"}
-        gain = min(gd)
+        gain = min(gd[k] for k in use)
         words = (f"Target: {target['words']}. Expected SSR gap between the two models' best "
-                 f"fits to old and new data (noise variances): {min(gd):.3g} with the "
+                 f"fits to old and new data (noise variances, linearised): {gain:.3g} with the "
                  f"designed input ({a} true {gd[0]:.3g}, {b} true {gd[1]:.3g}), "
-                 f"{min(gb):.3g} with the standard estimation input.")
-        status = DESIGNED if min(gd) >= 9.0 else LITTLE_GAIN
+                 f"{min(gb[k] for k in use):.3g} with the standard estimation input.")
+        if len(nulls) == 1:
+            other = b if nulls[0] == a else a
+            words += (f" The existing data put {nulls[0]}'s parameters at their null value: "
+                      f"that candidate is the fit's own model, which {other} contains, so "
+                      f"data from it are fitted by {other} exactly whatever the input; the "
+                      f"design shows whether {other} is needed ({other} true).")
+        elif len(nulls) == 2:
+            words += (" The existing data put both effects at their null values: neither is "
+                      "supported by them, and either candidate fits data from the other.")
+        status = DESIGNED if gain >= 9.0 and len(nulls) < 2 else LITTLE_GAIN
         if status == LITTLE_GAIN:
             words += (" Even the best input found leaves a gap below 9 noise variances "
                       "(3 sd): these effects cannot be told apart reliably by one more "
@@ -616,12 +649,17 @@ def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predic
         labels = target["effects"]
         d = _check_separation(frames, labels, t, u, seed, nfev)
         b = _check_separation(frames, labels, t, u_base, seed, nfev)
-        gd = min(x["ssr_gap"] for x in d.values())
-        gb = min(x["ssr_gap"] for x in b.values())
+        keys = predicted["directions_designed_for"]
+        gd = min(d[k]["ssr_gap"] for k in keys)
+        gb = min(b[k]["ssr_gap"] for k in keys)
+        pred = min(predicted["ssr_gap_with_design"][k] for k in keys)
         words = (f"Check (each model's simulated data fitted by both, old and new data "
                  f"together): achieved SSR gap {gd:.3g} noise variances with the design "
-                 f"(predicted {min(predicted['ssr_gap_with_design'].values()):.3g}), "
-                 f"{gb:.3g} with the estimation input.")
+                 f"(predicted {pred:.3g}), {gb:.3g} with the estimation input.")
+        if gd < 0.5 * pred:
+            words += (" The achieved gap is far below the linearised prediction: the "
+                      "refitted model moved further than one linear step reaches, so the "
+                      "prediction does not hold for this input; trust the achieved number.")
         return {"design": d, "estimation_input": b, "ssr_gap_with_design": gd,
                 "ssr_gap_with_estimation_input": gb, "words": words}
     f = frames[0]
