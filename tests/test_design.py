@@ -179,6 +179,19 @@ def test_separate_two_effects_predicts_and_achieves_a_gap(coupled_fit):
     assert res.achieved["ssr_gap_with_estimation_input"] < achieved
 
 
+def test_starts_run_through_the_executor_layer_with_the_same_result(coupled_fit):
+    """Serial and threads give the same design, bit for bit (like multistart)."""
+    from rotorbayes.inference.parallel import ExecutorSpec, open_executor
+
+    out = []
+    for backend in ("serial", "threads"):
+        with open_executor(ExecutorSpec(backend, 2)) as ex:
+            res = design_input(coupled_fit, duration=8.0, starts=2, max_evals=15,
+                               check=False, executor=ex)
+        out.append(res.u)
+    assert np.array_equal(out[0], out[1])
+
+
 def test_named_parameters_target(coupled_fit):
     """--params: the predicted relative widths of the named parameters, each no wider than
     with the existing data alone, and the design at least as good as the estimation
