@@ -218,7 +218,7 @@ def test_write_design_refuses_to_overwrite(coupled_fit, tmp_path):
     write_design(res, tmp_path / "next", force=True)
 
 
-# ------------------------------------------------------------------ acceptance (slow)
+# ---------------------------------------------- acceptance (13-35 s: not marked slow)
 def _reference_experiment(t, u, name):
     from reference import reference_simulate
 
@@ -242,7 +242,6 @@ def _width_after_refit(prob_old, x_old, f: Frame, v, new_ex):
     return white, math.sqrt(float(vv @ C @ vv)), res
 
 
-@pytest.mark.slow
 def test_acceptance_designed_input_pins_the_coupled_scale_on_reference_data():
     """Issue 20: reference data (tests/reference.py) with the thesis's coupled symmetry --
     the lower disc's J_l, k_alpha, Tc_l, b_l fitted from theta_l with the upper disc known
