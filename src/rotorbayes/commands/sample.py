@@ -42,6 +42,11 @@ def add_arguments(sp) -> None:
                     "between samples); floor: i.i.d. at the encoder floor (too narrow on "
                     "stick-slip data; to compare); sampled: σ sampled (prior 1/σ)")
     sp.add_argument("--ar1", action="store_true", help="AR(1) errors per channel")
+    from ..inference.sampling import DEFAULT_MOVES, MOVES
+
+    sp.add_argument("--moves", choices=list(MOVES), default=None, help="emcee's proposals "
+                    f"(default {DEFAULT_MOVES}; --resume keeps the run's own): "
+                    + "; ".join(f"{k}: {v[1]}" for k, v in MOVES.items()))
     sp.add_argument("--priors", help="TOML with a [priors] table (default: uniform within "
                     "the physical bounds)")
     sp.add_argument("--max-draws", type=ranged(int, ge=1, le=100_000, why=" (draws kept "
@@ -87,16 +92,18 @@ def _read_settings(src: Path) -> dict:
 
 def sample(source: str, *, out: str | None = None, resume: bool = False, walkers: int = 32,
            steps: int | None = None, ensembles: int = 2, seed: int = 0, noise: str = "robust",
-           ar1: bool = False, priors: str | None = None, max_draws: int = 100,
-           quiet: bool = False, force: bool = False, trust_effects: bool = False) -> Outcome:
+           ar1: bool = False, moves: str | None = None, priors: str | None = None,
+           max_draws: int = 100, quiet: bool = False, force: bool = False,
+           trust_effects: bool = False) -> Outcome:
     """emcee from the fit folder ``source`` into the folder ``out``, checkpointed at every
     step (chain.h5); with ``resume`` (``source`` then a sample folder) the same chains go on
     to ``steps`` in total.
 
     ``walkers`` per ensemble, ``steps`` (default 2000), ``ensembles`` independent
-    ensembles, ``seed``; ``noise`` "robust", "floor" or "sampled", ``ar1`` errors, ``priors``
-    a TOML file; ``max_draws`` per ensemble kept in posterior.nc.  Writes the summary
-    tables and figures from the chains.
+    ensembles, ``seed``; ``noise`` "robust", "floor" or "sampled", ``ar1`` errors, ``moves``
+    emcee's proposals (a resumed run keeps its own), ``priors`` a TOML file; ``max_draws``
+    per ensemble kept in posterior.nc.  Writes the summary tables and figures from the
+    chains.
     """
     a = SimpleNamespace(**locals())  # the steps below read the options by name
     from ..outputs import clean_stale, folder_lock
@@ -147,7 +154,7 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     else:
         settings = {"fit": str(Path(a.source).resolve()), "walkers": a.walkers,
                     "steps": a.steps, "ensembles": a.ensembles, "seed": a.seed,
-                    "noise": a.noise, "ar1": a.ar1,
+                    "noise": a.noise, "ar1": a.ar1, "moves": a.moves or S.DEFAULT_MOVES,
                     "priors": str(Path(a.priors).resolve()) if a.priors else None}
     fit = load_fit(settings["fit"], trust_effects=a.trust_effects)
     priors = load_priors(settings["priors"], fit.problem) if settings.get("priors") else None
@@ -209,7 +216,8 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
                             n_steps=settings["steps"], n_ensembles=settings["ensembles"],
                             seed=settings["seed"], progress=not a.quiet and sys.stderr.isatty(),
-                            should_stop=lambda: guard.hit > 0, keep_free=outputs)
+                            should_stop=lambda: guard.hit > 0, keep_free=outputs,
+                            moves=a.moves or settings.get("moves"))
         except RuntimeError as exc:
             if "cannot place the walkers" not in str(exc):
                 raise

@@ -144,10 +144,36 @@ def _exp_index(prob):
     return out
 
 
+def ess_all_draws(logpost: LogPosterior, runs: list[EnsembleRun]):
+    """arviz's bulk ESS and R-hat per sampling coordinate over *every* thinned draw after
+    burn-in (``draws`` without the ``--max-draws`` cap; ranks make them the same for θ and
+    log θ): the bulk ESS that posterior.nc would show if it kept all draws."""
+    Z, _, _, _ = draws(logpost, runs, max_draws=2**62)
+    post = {f"c{j}": Z[:, :, j] for j in range(Z.shape[2])}
+    summ = AZ.summary(AZ.from_groups({"posterior": post}))
+    return (np.array([float(summ.loc[f"c{j}", "ess_bulk"]) for j in range(Z.shape[2])]),
+            np.array([float(summ.loc[f"c{j}", "r_hat"]) for j in range(Z.shape[2])]))
+
+
+def speed(runs: list[EnsembleRun]) -> dict:
+    """Wall and CPU time of the sampling (summed over ensembles and ``--resume`` sessions),
+    log-posterior evaluations (walkers × steps) and the moves; times are nan when the
+    checkpoint does not hold them (written before they were stored)."""
+    wall = float(sum(r.seconds for r in runs))
+    cpu = float(sum(r.cpu_seconds for r in runs))
+    evals = int(sum(r.chain.shape[0] * r.chain.shape[1] for r in runs))
+    return {"seconds": wall, "cpu_seconds": cpu, "evaluations": evals,
+            "moves": runs[0].moves if runs else ""}
+
+
 def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: float = 0.94):
-    """Rows: mean, sd, HDI, bulk ESS (arviz), ESS from τ (emcee), R-hat, τ, unit."""
+    """Rows: mean, sd, HDI, bulk ESS (arviz), ESS from τ (emcee), R-hat, τ, unit, and the
+    speed: the conservative ESS (the lower of arviz's bulk ESS over every thinned draw and
+    the τ-based one) per second and per minute of sampling."""
     prob = logpost.problem
     summ = AZ.summary(idata, hdi_prob=hdi)
+    ess_all, _ = ess_all_draws(logpost, runs)
+    sp = speed(runs)
     rows = []
     for j, n in enumerate(logpost.coord_names):
         pname = n[4:] if n.startswith("log_") and n[4:] in prob.names else n
@@ -171,6 +197,13 @@ def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: fl
                 np.isfinite(taus)) else math.nan,
             "unit": unit,
         })
+        ess = min(float(ess_all[j]), float(ess_tau))
+        rows[-1].update({
+            "ess_bulk_all": float(ess_all[j]), "ess": ess,
+            "ess_per_s": ess / sp["seconds"] if sp["seconds"] > 0 else math.nan,
+            "ess_per_min": 60 * ess / sp["seconds"] if sp["seconds"] > 0 else math.nan,
+            "sampling_s": sp["seconds"], "cpu_s": sp["cpu_seconds"],
+            "evaluations": sp["evaluations"], "moves": sp["moves"]})
     _add_honesty_columns(rows, logpost)
     return rows
 
@@ -220,6 +253,10 @@ def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -
                 line += " — | — |"
         lines.append(line)
     lines.append("")
+    sp = speed_line(rows)
+    if sp:
+        lines.append(sp)
+        lines.append("")
     lines.append(ESS_NOTE)
     if honest:
         lines.append("")
@@ -242,6 +279,25 @@ ESS_NOTE = (
     "emcee's: every post-burn-in step of every walker divided by the integrated "
     "autocorrelation time τ, summed over the ensembles. The second is the one to compare "
     "with the 50 τ rule; the first says how well posterior.nc alone represents the posterior.")
+
+
+def speed_line(rows) -> str:
+    """One line on how fast the run mixed: the slowest parameter's conservative ESS per
+    second and per minute of sampling, the evaluations, the time and the CPU it had."""
+    rows = [r for r in rows if "ess" in r and math.isfinite(r["ess"])]
+    if not rows:
+        return ""
+    slow = min(rows, key=lambda r: r["ess"])
+    secs, cpu, n = slow["sampling_s"], slow["cpu_s"], slow["evaluations"]
+    head = (f"Speed (moves {slow['moves']}): slowest parameter {slow['parameter']}, ESS "
+            f"{slow['ess']:.0f} (the lower of arviz's bulk ESS over every thinned draw, "
+            f"{slow['ess_bulk_all']:.0f}, and walkers × steps / τ, {slow['ess_tau']:.0f})")
+    if not (math.isfinite(secs) and secs > 0):
+        return head + f"; {n} log-posterior evaluations (no sampling time recorded)."
+    busy = f", {cpu / secs:.2f} cores busy" if math.isfinite(cpu) else ""
+    return (head + f": {slow['ess_per_s']:.3g} ESS/s, {slow['ess_per_min']:.0f} ESS/min; "
+            f"{n} log-posterior evaluations in {secs:.1f} s of sampling "
+            f"({n / secs:.0f}/s{busy}).")
 
 
 def _hdi_fmt(lo: float, hi: float) -> str:

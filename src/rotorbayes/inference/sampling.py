@@ -1,8 +1,16 @@
 """Posterior sampling with emcee from the least-squares point, checkpointed to HDF5.
 
-* Walkers start in a small ball shaped by the Gauss-Newton covariance at the fit
-  (:meth:`LogPosterior.start_ball`); the log-posterior is vectorised (emcee
-  ``vectorize=True``: all walkers in one parallel kernel batch).
+* **Moves** (:data:`MOVES`, ``sample --moves``): emcee's stretch move alone, or mixtures
+  with differential-evolution moves; the default :data:`DEFAULT_MOVES` was chosen by the
+  effective samples per second measured side by side (``benchmarks/bench_sampler_moves.py``).
+  The moves of a run are stored with its chains, so ``--resume`` continues with the same ones.
+* Walkers start from the least-squares fit (:func:`start_walkers`): drawn from the fit's
+  covariance in sampling coordinates (the curvature of the likelihood being sampled) at its
+  full width, a sampled noise scale at the residuals' RMS, so the ensemble starts close to
+  the posterior instead of expanding from a small ball; the log-posterior is vectorised
+  (emcee ``vectorize=True``: all walkers in one parallel kernel batch).
+* The wall time and CPU time of each ensemble are kept with its chains (summed over
+  ``--resume`` sessions), for the effective samples per second in the summary.
 * Every step is written to ``chain.h5`` (emcee's HDF5 backend) with the sampler's random
   state, so a run killed at any moment (even SIGKILL) resumes where its last completed step
   ended, and, with the same seed, continues exactly as an uninterrupted run would.
@@ -48,6 +56,189 @@ class EnsembleRun:
     log_prob: np.ndarray  # (steps, walkers)
     acceptance: np.ndarray  # (walkers,)
     tau: np.ndarray  # (ndim,), nan where it could not be estimated
+    moves: str = "stretch"
+    seconds: float = math.nan  # wall time of the sampling, summed over sessions
+    cpu_seconds: float = math.nan  # CPU time of the process meanwhile (all its threads)
+
+
+#: The sampler's moves (``sample --moves``): name -> (emcee moves with weights, words).
+#: Every one is affine-invariant except the snooker move; all keep detailed balance, so
+#: they differ only in how fast the walkers forget where they were.
+MOVES = {
+    "stretch": ((("stretch", 1.0),),
+                "emcee's stretch move alone (a = 2; the default before issue 19)"),
+    "de": ((("de", 1.0),), "differential evolution alone (emcee's DEMove, γ = 2.38/√(2d))"),
+    "de-mix": ((("de", 0.8), ("snooker", 0.2)),
+               "differential evolution 80 % and DE snooker 20 % (emcee's DEMove, "
+               "DESnookerMove)"),
+    "de-stretch": ((("de", 0.6), ("snooker", 0.2), ("stretch", 0.2)),
+                   "differential evolution 60 %, DE snooker 20 %, stretch 20 %"),
+    "fit-de": ((("fit", 0.5), ("de", 0.5)),
+               "independence proposals from the fit's covariance (a Student t, 5 degrees "
+               "of freedom, 1.2 x its width) 50 %, differential evolution 50 %"),
+}
+#: The default, chosen by measured ESS per second (``benchmarks/bench_sampler_moves.py``).
+DEFAULT_MOVES = "fit-de"
+#: Moves of a run whose checkpoint does not name them (written before moves were stored).
+LEGACY_MOVES = "stretch"
+#: How the walkers start: ``fit`` draws them from the fit's covariance at full width (noise
+#: coordinates from the residuals); ``ball`` is the former small ball (0.1 of that width,
+#: noise coordinates at the floor ± 1 %).
+STARTS = ("fit", "ball")
+
+
+class FitProposalMove(emcee.moves.MHMove):
+    """Independence proposals from the least-squares fit: every walker proposes a point drawn
+    from a multivariate Student t (``nu`` degrees of freedom) centred on the fit with
+    ``scale``² times the fit's covariance, accepted by Metropolis-Hastings with the
+    proposal's density ratio. The proposal does not depend on the walkers, so the chain keeps
+    the posterior exactly whatever the fit's quality; where the posterior is close to the
+    fit's Gaussian (much data, as here) most proposals are accepted and a walker's next
+    position is nearly independent of its last. The t's heavy tails keep the tails of a
+    wider posterior reachable. Its random numbers come from the sampler's random state
+    (resumed bit for bit)."""
+
+    def __init__(self, mean, cov, nu: float = 5.0, scale: float = 1.2):
+        self.mean = np.asarray(mean, float)
+        lam, V = np.linalg.eigh(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
+        lam = np.maximum(lam, 1e-300)
+        self.root = V * (scale * np.sqrt(lam))  # cov * scale² = root rootᵀ
+        self.inv_root = (V / (scale * np.sqrt(lam))).T
+        self.nu = float(nu)
+        super().__init__(self._propose, ndim=self.mean.size)
+
+    def _log_q(self, x: np.ndarray) -> np.ndarray:
+        y = (x - self.mean) @ self.inv_root.T
+        m = np.einsum("ij,ij->i", y, y)
+        return -0.5 * (self.nu + self.mean.size) * np.log1p(m / self.nu)
+
+    def _propose(self, x0: np.ndarray, random):
+        n, d = x0.shape
+        g = random.randn(n, d)
+        w = np.sqrt(random.chisquare(self.nu, n) / self.nu)
+        q = self.mean + (g / w[:, None]) @ self.root.T
+        return q, self._log_q(x0) - self._log_q(q)
+
+
+def emcee_moves(name: str, proposal: tuple[np.ndarray, np.ndarray] | None = None) -> list:
+    """The emcee move objects, with weights, of :data:`MOVES` ``name`` (``proposal``: the
+    mean and covariance of :class:`FitProposalMove`, for moves that use it)."""
+    if name not in MOVES:
+        raise ValueError(f"moves {name!r}: choose one of {', '.join(MOVES)}")
+    make = {"stretch": emcee.moves.StretchMove, "de": emcee.moves.DEMove,
+            "snooker": emcee.moves.DESnookerMove,
+            "fit": lambda: FitProposalMove(*proposal)}
+    return [(make[kind](), weight) for kind, weight in MOVES[name][0]]
+
+
+def uses_fit_proposal(name: str) -> bool:
+    return any(kind == "fit" for kind, _ in MOVES[name][0])
+
+
+def fit_proposal(logpost: LogPosterior, x_fit) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of every sampling coordinate at the fit: the parameters'
+    :func:`fit_covariance`, the noise coordinates' :func:`noise_start` (independent)."""
+    nc, ns = noise_start(logpost, x_fit)
+    mean = np.concatenate([logpost.to_z(np.asarray(x_fit, float))[: logpost.k], nc])
+    cov = np.zeros((logpost.ndim, logpost.ndim))
+    cov[: logpost.k, : logpost.k] = fit_covariance(logpost, x_fit)
+    cov[logpost.k:, logpost.k:] = np.diag(ns**2)
+    return mean, cov
+
+
+def noise_start(logpost: LogPosterior, x_fit) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and spread of the noise coordinates (``log σ``, ``φ``) from the residuals at
+    the fit: σ the residual's RMS per channel (with AR(1) errors the innovations' RMS, φ
+    the lag-1 autocorrelation), spreads their large-sample posterior standard deviations."""
+    n_noise = logpost.ndim - logpost.k
+    if n_noise == 0:
+        return np.zeros(0), np.zeros(0)
+    r = np.asarray(logpost.problem.residuals(np.asarray(x_fit, float)), float)
+    parts: dict[str, list[np.ndarray]] = {}
+    for (c, a, b) in logpost.segments:  # several experiments: pooled per channel
+        parts.setdefault(c, []).append(r[a:b] / logpost.problem.weights[c])
+    logs, phis, sd_s, sd_p = {}, {}, {}, {}
+    for c, pieces in parts.items():
+        e = np.concatenate(pieces)
+        n = max(e.size, 2)
+        phi = 0.0
+        if logpost.ar1:
+            den = float(e[:-1] @ e[:-1])
+            phi = float(np.clip((e[1:] @ e[:-1]) / den, -0.99, 0.99)) if den > 0 else 0.0
+            e = e[1:] - phi * e[:-1]
+        rms = math.sqrt(float(e @ e) / max(e.size, 1))
+        s = rms if rms > 0 and math.isfinite(rms) else logpost.floor[c]
+        logs[c] = math.log(min(max(s, 2e-8), 5.0))  # inside the prior's 1e-8..10 rad
+        sd_s[c] = 1.0 / math.sqrt(2 * n)
+        phis[c], sd_p[c] = phi, math.sqrt(max(1 - phi**2, 1e-4) / n)
+    centre = [logs[c] for c in logpost.channels]
+    spread = [sd_s[c] for c in logpost.channels]
+    if logpost.ar1:
+        centre += [phis[c] for c in logpost.channels]
+        spread += [sd_p[c] for c in logpost.channels]
+    return np.array(centre), np.array(spread)
+
+
+def fit_covariance(logpost: LogPosterior, x_fit) -> np.ndarray:
+    """Covariance of the parameter coordinates at the fit: the inverse curvature of the
+    likelihood being sampled (with ``robust`` noise the fit's honest covariance). A
+    direction the data do not determine at all (an exact symmetry) gets a 1 % spread."""
+    x_fit = np.asarray(x_fit, float)
+    if logpost.noise == "sampled":
+        # The residuals' own scale (σ's start), not the floor: σ² scales the covariance.
+        nc, _ = noise_start(logpost, x_fit)
+        sig = {c: math.exp(v) for c, v in zip(logpost.channels, nc, strict=False)}
+        J, _ = logpost.problem.jacobian(x_fit)
+        w = np.empty(J.shape[0])
+        for (c, a, b) in logpost.segments:
+            w[a:b] = 1.0 / (sig[c] * logpost.problem.weights[c])
+        Jz = J * w[:, None] * np.where(logpost.log, x_fit, 1.0)[None, :]
+        Hz = Jz.T @ Jz
+    else:
+        Hz = logpost._precision_iid(x_fit)
+    if logpost.adjust is not None:
+        Hz = logpost.adjust.T @ Hz @ logpost.adjust
+    lam, V = np.linalg.eigh(0.5 * (Hz + Hz.T))
+    var = np.where(lam > 1e-10 * max(lam.max(), 1e-300), 1.0 / np.maximum(lam, 1e-300),
+                   1e-4)
+    cov = (V * var) @ V.T
+    evals = np.linalg.eigvalsh(cov)
+    if not np.all(np.isfinite(evals)) or evals.max() <= 0:
+        cov = np.diag(np.full(logpost.k, 1e-6))
+    return cov
+
+
+def start_walkers(logpost: LogPosterior, x_fit, n_walkers: int, rng, *,
+                  start: str = "fit") -> np.ndarray:
+    """Starting positions of ``n_walkers``, each with a finite log-posterior.
+
+    ``fit``: drawn from :func:`fit_covariance` at full width around the fit, the noise
+    coordinates from :func:`noise_start`, so the ensemble starts where the posterior is
+    (when it is near Gaussian) instead of spending its first hundreds of steps expanding;
+    ``ball``: :meth:`LogPosterior.start_ball` (0.1 of the width, the former start).
+    """
+    if start == "ball":
+        return logpost.start_ball(x_fit, n_walkers, rng)
+    if start != "fit":
+        raise ValueError(f"start {start!r}: choose one of {', '.join(STARTS)}")
+    x_fit = np.asarray(x_fit, float)
+    cov = fit_covariance(logpost, x_fit)
+    z0 = logpost.to_z(x_fit)[: logpost.k]
+    nc, ns = noise_start(logpost, x_fit)
+    out = np.empty((n_walkers, logpost.ndim))
+    i = tries = 0
+    while i < n_walkers:
+        tries += 1
+        if tries > 50 * n_walkers:
+            raise RuntimeError("cannot place the walkers: the posterior is -inf all around "
+                               "the fit (check the priors and bounds)")
+        zz = np.empty(logpost.ndim)
+        zz[: logpost.k] = rng.multivariate_normal(z0, cov, method="eigh")
+        zz[logpost.k:] = nc + ns * rng.standard_normal(nc.size)
+        if np.isfinite(logpost(zz[None, :])[0]):
+            out[i] = zz
+            i += 1
+    return out
 
 
 def _backend(path: Path, name: str) -> emcee.backends.HDFBackend:
@@ -221,51 +412,131 @@ def run_ensemble(
     done: int = 0,
     should_stop: Callable[[], bool] | None = None,
     owned: bool = False,
-) -> int:
+    moves: str = DEFAULT_MOVES,
+    start: str = "fit",
+):
     """Run (or continue) one ensemble until its HDF5 group holds ``n_steps`` steps.
 
     ``done`` is the number of steps the group already holds (see :func:`check_checkpoint`);
     such a group is continued from its last state and random state (``--resume``). Returns
-    the number of steps taken in this call. ``should_stop`` is asked after every saved step;
-    when it says yes, :class:`SamplingStopped` is raised. ``owned``: the file already owns
-    the disk blocks of these steps (:func:`preallocate`); otherwise the run stops, between
-    two steps, when the disk is nearly full.
+    the number of steps taken in this call (the :class:`EnsembleRun` when ``path`` is None).
+    ``should_stop`` is asked after every saved step; when it says yes,
+    :class:`SamplingStopped` is raised. ``owned``: the file already owns the disk blocks of
+    these steps (:func:`preallocate`); otherwise the run stops, between two steps, when the
+    disk is nearly full. ``moves`` (:data:`MOVES`) is stored with the group; ``start``
+    (:data:`STARTS`) places the walkers of a new group (:func:`start_walkers`).
     """
     backend = _backend(path, name) if path is not None else emcee.backends.Backend()
     if done >= n_steps:
-        return 0
+        return 0 if path is not None else _run_of(backend, name, moves)
+    proposal = None
+    if uses_fit_proposal(moves):
+        proposal = _stored_proposal(path, name) if done else None
+        if proposal is None:
+            proposal = fit_proposal(logpost, x_fit)
     if done == 0:
         if path is not None:
             backend.reset(n_walkers, logpost.ndim)
+            extra = {} if proposal is None else {"proposal_mean": proposal[0],
+                                                 "proposal_cov": proposal[1]}
+            _set_attrs(path, name, moves=moves, sampling_seconds=0.0, cpu_seconds=0.0,
+                       **extra)
         rng = np.random.default_rng(seed)
-        p0 = logpost.start_ball(x_fit, n_walkers, rng)
+        p0 = start_walkers(logpost, x_fit, n_walkers, rng, start=start)
         # emcee's own RandomState from the seed: the same seed gives the same run.
         state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
     else:
         state = None  # emcee continues from the backend's last sample and random state
     sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
-                                    backend=backend)
+                                    backend=backend, moves=emcee_moves(moves, proposal))
     if state is None:
         state = sampler._previous_state
     # Room for ten more steps, so HDF5 never meets a full disk in the middle of a write.
     step_bytes = 8 * n_walkers * (logpost.ndim + 1) * 10 + 100_000
     k = done
-    for _ in sampler.sample(state, iterations=n_steps - done, progress=progress, store=True):
-        k += 1  # emcee has saved the step before it yields it
-        if (path is not None and not owned and k < n_steps
-                and _free_bytes(path.parent) < step_bytes):
-            raise EnvironmentFailure(
-                f"{path.parent}: the disk is nearly full; sampling stopped after step {k} of "
-                f"{n_steps} of {name} and every finished step is kept in {path}. Free some "
-                f"space and continue with `rotorbayes sample {path.parent} --resume`")
-        if should_stop is not None and k < n_steps and should_stop():
-            raise SamplingStopped(name, k, n_steps)
+    clock = _Clock(path, name)
+    try:
+        for _ in sampler.sample(state, iterations=n_steps - done, progress=progress,
+                                store=True):
+            k += 1  # emcee has saved the step before it yields it
+            clock.tick()
+            if (path is not None and not owned and k < n_steps
+                    and _free_bytes(path.parent) < step_bytes):
+                raise EnvironmentFailure(
+                    f"{path.parent}: the disk is nearly full; sampling stopped after step {k} "
+                    f"of {n_steps} of {name} and every finished step is kept in {path}. Free "
+                    f"some space and continue with `rotorbayes sample {path.parent} --resume`")
+            if should_stop is not None and k < n_steps and should_stop():
+                raise SamplingStopped(name, k, n_steps)
+    except (OSError, EnvironmentFailure):
+        raise  # a disk in trouble: no further write to the checkpoint
+    except BaseException:
+        clock.save()
+        raise
+    clock.save()
     if path is None:
-        return _run_of(backend, name)
+        run = _run_of(backend, name, moves)
+        run.seconds, run.cpu_seconds = clock.wall, clock.cpu
+        return run
     return n_steps - done
 
 
-def _run_of(backend, name: str) -> EnsembleRun:
+def _stored_proposal(path: Path | None, name: str):
+    """The fit proposal a group was begun with (a resumed run uses it, bit for bit)."""
+    import h5py
+
+    if path is None:
+        return None
+    with h5py.File(path, "r") as f:
+        a = f[name].attrs
+        if "proposal_mean" not in a:
+            return None
+        return np.asarray(a["proposal_mean"], float), np.asarray(a["proposal_cov"], float)
+
+
+def _set_attrs(path: Path, name: str, **attrs) -> None:
+    import h5py
+
+    with h5py.File(path, "a") as f:
+        for k, v in attrs.items():
+            f[name].attrs[k] = v
+
+
+class _Clock:
+    """Wall and CPU time of a sampling session, added to the group's totals now and then
+    (every :attr:`EVERY` s and at the end), so a killed run loses at most a few seconds."""
+
+    EVERY = 10.0
+
+    def __init__(self, path: Path | None, name: str):
+        self.path, self.name = path, name
+        self.t0, self.c0 = time.perf_counter(), time.process_time()
+        self.saved_t, self.saved_c = self.t0, self.c0
+        self.wall = self.cpu = 0.0
+
+    def tick(self) -> None:
+        if self.path is not None and time.perf_counter() - self.saved_t > self.EVERY:
+            self.save()
+
+    def save(self) -> None:
+        t, c = time.perf_counter(), time.process_time()
+        dw, dc = t - self.saved_t, c - self.saved_c
+        self.saved_t, self.saved_c = t, c
+        self.wall, self.cpu = t - self.t0, c - self.c0
+        if self.path is None:
+            return
+        try:
+            import h5py
+
+            with h5py.File(self.path, "a") as f:
+                a = f[self.name].attrs
+                a["sampling_seconds"] = float(a.get("sampling_seconds", 0.0)) + dw
+                a["cpu_seconds"] = float(a.get("cpu_seconds", 0.0)) + dc
+        except Exception:  # noqa: BLE001 - the clock must never cost a step or a checkpoint
+            pass
+
+
+def _run_of(backend, name: str, moves: str | None = None) -> EnsembleRun:
     chain = backend.get_chain()
     tau = np.full(chain.shape[2], np.nan)
     if chain.shape[0] >= 20:
@@ -273,12 +544,36 @@ def _run_of(backend, name: str) -> EnsembleRun:
             tau = emcee.autocorr.integrated_time(chain, tol=0)
         except Exception:  # noqa: BLE001 - too short: τ stays unknown
             pass
-    return EnsembleRun(name, chain, backend.get_log_prob(),
-                       backend.accepted / max(backend.iteration, 1), np.asarray(tau, float))
+    run = EnsembleRun(name, chain, backend.get_log_prob(),
+                      backend.accepted / max(backend.iteration, 1), np.asarray(tau, float))
+    if isinstance(backend, emcee.backends.HDFBackend):
+        with backend.open() as f:
+            a = f[name].attrs
+            run.moves = str(a.get("moves", LEGACY_MOVES))
+            run.seconds = float(a.get("sampling_seconds", math.nan))
+            run.cpu_seconds = float(a.get("cpu_seconds", math.nan))
+    elif moves is not None:
+        run.moves = moves
+    return run
 
 
 def read_ensemble(path: Path, name: str) -> EnsembleRun:
     return _run_of(_backend(path, name), name)
+
+
+def stored_moves(path: Path) -> dict[str, str]:
+    """The moves each ensemble of ``path`` was sampled with (:data:`LEGACY_MOVES` for a
+    group written before they were stored)."""
+    import h5py
+
+    if not Path(path).exists():
+        return {}
+    try:
+        with h5py.File(path, "r") as f:
+            return {k: str(g.attrs.get("moves", LEGACY_MOVES)) for k, g in f.items()
+                    if int(g.attrs.get("iteration", 0)) > 0}
+    except Exception:  # noqa: BLE001 - check_checkpoint says what is wrong with the file
+        return {}
 
 
 def burn_thin(runs: list[EnsembleRun]) -> tuple[int, int]:
@@ -326,22 +621,42 @@ def sample(
     progress: bool = True,
     should_stop: Callable[[], bool] | None = None,
     keep_free: int = 0,
+    moves: str | None = None,
+    start: str = "fit",
 ) -> list[EnsembleRun]:
     """Run (or continue) ``n_ensembles`` ensembles into ``folder/chain.h5`` (in memory,
     without checkpoints, when ``folder`` is None).
 
-    An existing ``chain.h5`` is checked first (:func:`check_checkpoint`; a damaged one
-    raises :class:`CheckpointError`); ``should_stop`` see :func:`run_ensemble`.
+    ``moves`` names the proposals (:data:`MOVES`; None: those the checkpoint holds, else
+    :data:`DEFAULT_MOVES`); a checkpoint made with other moves is refused
+    (:class:`CheckpointError`), so a resumed run continues exactly as it began. ``start``
+    places the walkers of a new run (:func:`start_walkers`). An existing ``chain.h5`` is
+    checked first (:func:`check_checkpoint`; a damaged one raises :class:`CheckpointError`);
+    ``should_stop`` see :func:`run_ensemble`.
     """
+    if moves is not None and moves not in MOVES:
+        raise ValueError(f"moves {moves!r}: choose one of {', '.join(MOVES)}")
     if folder is None:
         return [run_ensemble(logpost, None, f"ensemble{e}", n_walkers=n_walkers,
                              n_steps=n_steps, x_fit=x_fit, seed=seed + 1000 * e,
-                             progress=progress) for e in range(n_ensembles)]
+                             progress=progress, moves=moves or DEFAULT_MOVES, start=start)
+                for e in range(n_ensembles)]
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "chain.h5"
     held = check_checkpoint(path, n_walkers=n_walkers, ndim=logpost.ndim,
                             n_ensembles=n_ensembles)
+    stored = stored_moves(path)
+    kinds = set(stored.values())
+    if len(kinds) > 1:
+        raise CheckpointError(f"{path}: its ensembles were sampled with different moves "
+                              f"({', '.join(sorted(kinds))}); it cannot be continued as one run")
+    if kinds and moves is not None and moves not in kinds:
+        raise CheckpointError(f"{path}: its chains were sampled with --moves "
+                              f"{next(iter(kinds))}, not {moves}; a resumed run continues "
+                              "with the moves it began with (leave --moves out, or start a "
+                              "new run with --out)")
+    moves = next(iter(kinds)) if kinds else (moves or DEFAULT_MOVES)
     left = sum(max(0, n_steps - held.get(f"ensemble{e}", 0)) for e in range(n_ensembles))
     owned = False
     if left:
@@ -356,7 +671,7 @@ def sample(
     try:
         _run_all(logpost, x_fit, path, held, n_walkers=n_walkers, n_steps=n_steps,
                  n_ensembles=n_ensembles, seed=seed, progress=progress,
-                 should_stop=should_stop, owned=owned)
+                 should_stop=should_stop, owned=owned, moves=moves, start=start)
     finally:
         reserve.close()
         if owned:  # give back the blocks past the end that were not needed
@@ -368,14 +683,16 @@ def sample(
 
 
 def _run_all(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensembles, seed,
-             progress, should_stop, owned) -> None:
+             progress, should_stop, owned, moves, start) -> None:
     for e in range(n_ensembles):
         t0 = time.perf_counter()
         name = f"ensemble{e}"
         taken = run_ensemble(logpost, path, name, n_walkers=n_walkers,
                              n_steps=n_steps, x_fit=x_fit, seed=seed + 1000 * e,
                              progress=progress, done=held.get(name, 0),
-                             should_stop=should_stop, owned=owned)
+                             should_stop=should_stop, owned=owned, moves=moves, start=start)
         if progress and taken:
-            print(f"ensemble {e}: {taken} steps in {time.perf_counter() - t0:.1f} s",
+            dt = time.perf_counter() - t0
+            print(f"ensemble {e}: {taken} steps in {dt:.1f} s "
+                  f"({taken * n_walkers / max(dt, 1e-9):.0f} log-posterior evaluations/s)",
                   flush=True)
