@@ -6,7 +6,7 @@ Every step runs as a user runs it, one ``rotorbayes`` command in its own process
 * simulate 600 s (coupled, estimation input, encoder counts), four times (seeds 1-4);
 * fit one 600 s experiment from a start (``--p0``, ``--max-nfev`` small);
 * fit the four together (one ``alpha0`` each), the same way;
-* sample the one-experiment fit briefly (``--steps 10``, 32 walkers, 2 ensembles).
+* sample each fit briefly (``--steps 10``, 32 walkers, 2 ensembles).
 
 The target is 2 GiB peak for each. Run it as
 
@@ -79,9 +79,10 @@ def main() -> None:
             ["fit", files[0], *fit_args, "--out", str(work / "fit1")], rows)
         run(f"fit 4 x {a.duration:g} s (--max-nfev {a.nfev})",
             ["fit", *files, *fit_args, "--out", str(work / "fit4")], rows)
-        run(f"sample 1 x {a.duration:g} s ({a.steps} steps, 32 walkers, 2 ens.)",
-            ["sample", str(work / "fit1"), "--steps", str(a.steps), "--walkers", "32",
-             "--quiet", "--force", "--out", str(work / "post1")], rows)
+        for k in (1, 4):
+            run(f"sample {k} x {a.duration:g} s ({a.steps} steps, 32 walkers, 2 ens.)",
+                ["sample", str(work / f"fit{k}"), "--steps", str(a.steps), "--walkers", "32",
+                 "--quiet", "--force", "--out", str(work / f"post{k}")], rows)
     finally:
         if ctx is not None:
             ctx.cleanup()

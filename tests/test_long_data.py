@@ -115,3 +115,17 @@ def test_inference_data_in_blocks_holds_the_pointwise_sums(monkeypatch):
     pa = AZ.group(plain, "posterior_predictive")["theta_l_exp0"].values
     pb = AZ.group(blocked, "posterior_predictive")["theta_l_exp0"].values
     assert pa.tobytes() == pb.tobytes()
+
+
+def test_long_lines_are_drawn_as_their_envelope():
+    from rotorbayes.plots import MAX_LINE_POINTS, envelope
+
+    t = np.arange(600_001) * 1e-3
+    y = np.sin(t) + np.random.default_rng(0).normal(size=t.size)
+    tt, yy = envelope(t, y)
+    assert tt.size <= MAX_LINE_POINTS
+    assert yy.max() == y.max() and yy.min() == y.min()
+    assert np.all(np.diff(tt) >= 0)
+    np.testing.assert_array_equal(yy, np.interp(tt, t, y))  # points of the line itself
+    ts, ys = envelope(t[:100], y[:100])
+    assert ts.size == 100

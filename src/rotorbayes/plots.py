@@ -65,6 +65,35 @@ def legend_outside(ax, **kw):
 
 
 
+#: Points drawn per line at most: a figure is about 1000 pixels wide, so a long record is
+#: drawn as the minimum and maximum of each of MAX_LINE_POINTS / 2 time buckets (the same
+#: picture; 600 s at 1 kHz drawn whole took hundreds of MB in matplotlib).
+MAX_LINE_POINTS = 20_000
+
+
+def envelope(t, y, max_points: int = MAX_LINE_POINTS):
+    """``(t, y)`` thinned to at most ``max_points`` points that keep each time bucket's
+    minimum and maximum in time order (unchanged when already short)."""
+    t, y = np.asarray(t), np.asarray(y)
+    n = y.size
+    if n <= max_points:
+        return t, y
+    bucket = -(-n // (max_points // 2))  # samples per bucket, rounded up
+    nb = -(-n // bucket)
+    yy = np.empty(nb * bucket, y.dtype)
+    yy[:n] = y
+    yy[n:] = y[-1]  # the last bucket padded with its own last value
+    yy = yy.reshape(nb, bucket)
+    base = np.arange(nb) * bucket
+    i_lo = base + np.argmin(yy, axis=1)
+    i_hi = base + np.argmax(yy, axis=1)
+    idx = np.empty(2 * nb, int)
+    idx[0::2] = np.minimum(i_lo, i_hi)
+    idx[1::2] = np.maximum(i_lo, i_hi)
+    idx = np.minimum(idx, n - 1)
+    return t[idx], y[idx]
+
+
 def _shade_stick(ax, t, mode, color=STICK_COLOR, label="lower disc sticks"):
     """Shade the time intervals in which a disc sticks (``mode == 0``).
 
@@ -169,15 +198,16 @@ def plot_fit(
     for i, c in enumerate(chans):
         a, b = axes[2 * i], axes[2 * i + 1]
         sym = CHANNEL_LABELS.get(c, c)
-        a.plot(t, measured[c], color="k", lw=1.2, label="measured")
-        a.plot(t, simulated[c], color="tab:orange", lw=1, ls="--", label="simulated")
+        a.plot(*envelope(t, measured[c]), color="k", lw=1.2, label="measured")
+        a.plot(*envelope(t, simulated[c]), color="tab:orange", lw=1, ls="--",
+               label="simulated")
         a.set_ylabel(f"{sym} [rad]")
         head = f"{CHANNEL_WORDS[c]} {sym}" if c in CHANNEL_WORDS else c
         if metrics and c in metrics:
             head += f": {metrics[c]}"
         a.set_title(head, fontsize=9, loc="left")
-        b.plot(t, np.asarray(measured[c]) - np.asarray(simulated[c]), color="tab:red", lw=0.8,
-               label="measured − simulated")
+        b.plot(*envelope(t, np.asarray(measured[c]) - np.asarray(simulated[c])),
+               color="tab:red", lw=0.8, label="measured − simulated")
         b.axhline(0, color="0.5", lw=0.5)
         b.set_ylabel(f"{sym} error [rad]", fontsize=9)
         for ax in (a, b):

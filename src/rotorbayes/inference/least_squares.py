@@ -22,7 +22,7 @@ from .. import metrics as _metrics
 from ..data import Experiment
 from ..model.simulate import SimulationError
 from .problem import Problem
-from .uncertainty import Uncertainty, fit_uncertainty
+from .uncertainty import Uncertainty, col_norms, fit_uncertainty
 
 
 class StartError(SimulationError):
@@ -120,7 +120,7 @@ class FitResult:
         """
         k = len(self.names)
         s2 = self.ssr / max(self.n_residuals - k, 1)
-        d = np.linalg.norm(self.jac, axis=0)
+        d = col_norms(self.jac)
         d = np.where(d > 0, d, 1.0)
         # (J/d)ᵀ(J/d) without a scaled copy of J (long data: J is the largest array).
         w, V = np.linalg.eigh((self.jac.T @ self.jac) / np.outer(d, d))

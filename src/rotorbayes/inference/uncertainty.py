@@ -242,6 +242,12 @@ def block_scores(problem, J: np.ndarray, r: np.ndarray, block_seconds: float | N
     return np.array(rows), block_seconds
 
 
+def col_norms(J: np.ndarray) -> np.ndarray:
+    """Euclidean norm of every column of ``J`` without a temporary as large as ``J``
+    (``numpy.linalg.norm`` squares a copy: long data)."""
+    return np.sqrt(np.einsum("ij,ij->j", J, J))
+
+
 def _gram(J: np.ndarray, d: np.ndarray) -> np.ndarray:
     """``(J/d)ᵀ (J/d)`` without a scaled copy of ``J`` (long data: ``J`` is large)."""
     return (J.T @ J) / np.outer(d, d)
@@ -324,7 +330,7 @@ def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, fl
 
     counts = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}
     rng = np.random.default_rng(seed)
-    d = np.linalg.norm(J, axis=0)
+    d = col_norms(J)
     d = np.where(d > 0, d, 1.0)
     A = _gram(J, d)
     w, V = np.linalg.eigh(A)
@@ -414,7 +420,7 @@ def hold_shift(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
             # r = w (meas − sim): a smoother input changes r by −w Δsim.
             dr[off : off + n] = -problem.weights[c] * (a - b)
             off += n
-    d = np.linalg.norm(J, axis=0)
+    d = col_norms(J)
     d = np.where(d > 0, d, 1.0)
     # The estimate moves so that the new residual is again orthogonal to J: Δx = −A⁺ Jᵀ Δr.
     A = _gram(J, d)

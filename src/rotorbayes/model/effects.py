@@ -136,6 +136,14 @@ class Effect:
         """A user-defined effect (brings its own compiled physics)."""
         return self.torque is not None or self.friction_shift is not None
 
+    def __reduce_ex__(self, protocol):
+        # A user effect loaded from a file travels with the file's code and its SHA-256:
+        # process and Dask workers need not have the file, and run exactly what was hashed.
+        code = _FILE_CODE.get(self.source) if self.is_user else None
+        if code is None:
+            return object.__reduce_ex__(self, protocol)
+        return (_shipped_effect, (self.source, self.name, code, _FILE_SHA[self.source]))
+
     @property
     def names(self) -> tuple[str, ...]:
         """Its parameter names."""
@@ -464,6 +472,23 @@ def typical_start(effect: Effect, values: dict[str, float]) -> dict[str, float]:
 _LOADED: dict[tuple[str, str], Effect] = {}
 #: SHA-256 of each effect file as it was imported (results record it; see file_sha256).
 _FILE_SHA: dict[str, str] = {}
+#: The bytes of each effect file as it was imported (sent with the effect to workers).
+_FILE_CODE: dict[str, bytes] = {}
+
+
+def _shipped_effect(path: str, name: str, code: bytes, sha: str) -> Effect:
+    """A user effect unpickled in a worker: its file's code, checked against the SHA-256
+    the sending process recorded, run under the file's path (the file itself need not
+    exist here)."""
+    if hashlib.sha256(code).hexdigest() != sha:
+        raise EffectError(f"{path}: the effect file's code arrived altered (its SHA-256 "
+                          f"differs from the recorded {sha[:12]}...); run the command again")
+    old = _FILE_SHA.get(str(Path(path)))
+    if old is not None and old != sha:
+        raise EffectError(
+            f"{path}: this worker already runs another version of the effect file (SHA-256 "
+            f"{old[:12]}..., the task's is {sha[:12]}...); restart the workers")
+    return load_user_effect(f"{path}:{name}", code=code)
 
 
 def file_sha256(path: str | Path) -> str | None:
@@ -471,7 +496,7 @@ def file_sha256(path: str | Path) -> str | None:
     return _FILE_SHA.get(str(Path(path).expanduser().resolve()))
 
 
-def load_user_effect(spec: str) -> Effect:
+def load_user_effect(spec: str, *, code: bytes | None = None) -> Effect:
     """Import a user effect from ``'path/to/file.py:NAME'``.
 
     The file is the user's own Python code, imported like a configuration file (nothing
@@ -481,6 +506,7 @@ def load_user_effect(spec: str) -> Effect:
     ``name`` it is).  The functions are compiled by numba when a model uses them (see
     :mod:`rotorbayes.model.configurations`).  The effect's ``source`` is the file's
     absolute path; the SHA-256 of the bytes that were run is kept (:func:`file_sha256`).
+    ``code``: the file's bytes, given (a worker gets them with the effect), not read.
     """
     path_s, sep, name = spec.rpartition(":")
     if not sep or not path_s.endswith(".py") or not name:
@@ -489,14 +515,14 @@ def load_user_effect(spec: str) -> Effect:
     key = (str(path), name)
     if key in _LOADED:
         return _LOADED[key]
-    if not path.is_file():
+    if code is None and not path.is_file():
         raise EffectError(f"{path_s}: effect file not found")
     mod_name = "rotorbayes_user_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
     if mod_name in sys.modules:
         module = sys.modules[mod_name]
     else:
         try:
-            code_bytes = path.read_bytes()
+            code_bytes = path.read_bytes() if code is None else bytes(code)
         except OSError as exc:
             raise EffectError(f"{path_s}: cannot read the effect file ({exc.strerror})"
                               ) from None
@@ -512,6 +538,7 @@ def load_user_effect(spec: str) -> Effect:
                 f"{path_s}: importing the effect file failed: {type(exc).__name__}: {exc}"
             ) from None
         _FILE_SHA[str(path)] = hashlib.sha256(code_bytes).hexdigest()
+        _FILE_CODE[str(path)] = code_bytes
     eff = getattr(module, name, None)
     if not isinstance(eff, Effect):
         # A result records the effect's own name, which may differ from its variable's.
