@@ -41,7 +41,7 @@ def _cli(args, **kw):
 def test_multistart_killed_then_rerun_skips_finished_starts(tmp_path):
     data = tmp_path / "upper5.csv"
     rb.save_experiment(short_upper(), data)
-    n = 40
+    n = 20
     args = ["multistart", "--model", "upper", str(data), "--starts", str(n), "--max-nfev",
             "30", "--backend", "serial"]
     # The reference: one uninterrupted run.
