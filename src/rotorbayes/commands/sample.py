@@ -46,7 +46,8 @@ def add_arguments(sp) -> None:
 
     sp.add_argument("--moves", choices=list(MOVES), default=None, help="emcee's proposals "
                     f"(default {DEFAULT_MOVES}; --resume keeps the run's own): "
-                    + "; ".join(f"{k}: {v[1]}" for k, v in MOVES.items()))
+                    # argparse formats help with %: a percentage in the text is written %%
+                    + "; ".join(f"{k}: {v[1]}" for k, v in MOVES.items()).replace("%", "%%"))
     sp.add_argument("--priors", help="TOML with a [priors] table (default: uniform within "
                     "the physical bounds)")
     sp.add_argument("--max-draws", type=ranged(int, ge=1, le=100_000, why=" (draws kept "

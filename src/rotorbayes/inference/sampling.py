@@ -90,7 +90,7 @@ STARTS = ("fit", "ball")
 class FitProposalMove(emcee.moves.MHMove):
     """Independence proposals from the least-squares fit: every walker proposes a point drawn
     from a multivariate Student t (``nu`` degrees of freedom) centred on the fit with
-    ``scale``² times the fit's covariance, accepted by Metropolis-Hastings with the
+    ``scale`` squared times the fit's covariance, accepted by Metropolis-Hastings with the
     proposal's density ratio. The proposal does not depend on the walkers, so the chain keeps
     the posterior exactly whatever the fit's quality; where the posterior is close to the
     fit's Gaussian (much data, as here) most proposals are accepted and a walker's next
