@@ -348,8 +348,8 @@ def design_input(
 
     Parameters
     ----------
-    fit : str, Path, LoadedFit, FitResult or (Problem, x)
-        The fit on the existing data.
+    fit : str, Path, LoadedFit, FitResult or tuple
+        The fit on the existing data (a tuple: a Problem and its parameter vector).
     params : sequence of str, optional
         Target these free parameters instead of the sloppiest direction.
     separate : sequence of two str, optional
