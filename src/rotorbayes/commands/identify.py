@@ -61,15 +61,21 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
                       "written by `rotorbayes multistart`")
     with output_folder(out, force) as folder:
         written, doc = _identify_into(a, result, prob, names, folder)
+    from ..inference.taskstore import remove_store
+
+    remove_store(out)  # complete: no profile point left to resume
     print(f"\nwrote {', '.join(written)} in {out}/")
     return Outcome(folder=Path(out), doc=doc)
 
 
 def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
     """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
+    from ..inference.taskstore import store_path
+
     for n in profiles:
         t0 = time.perf_counter()
-        pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex)
+        pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex,
+                       resume=store_path(a.out))  # finished points kept: a re-run skips them
         doc["profiles"].append(pr)
         inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
                   if d is not None and math.isfinite(d) and d < 3.84]

@@ -51,6 +51,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     a = SimpleNamespace(**locals())  # the steps below read the options by name
     a.data = [data] if isinstance(data, str) else list(data)
     from .. import inference as E
+    from ..inference.taskstore import remove_store, store_path
     from ..plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
     guard = InterruptGuard()
@@ -64,9 +65,10 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
                else "Latin hypercube over the bounds")
         print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
         with executor(a.backend, a.workers, a.scheduler) as ex:
+            # Each finished start is kept beside --out: a re-run after a kill skips it.
             ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
                               executor=ex, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
-                              gtol=a.gtol)
+                              gtol=a.gtol, resume=store_path(a.out))
         guard.start()  # the starts are done: from here on Ctrl-C must not throw them away
         n_done = int(ms.ssr.size) + len(ms.failed)
         if ms.interrupted and n_done == 0:
@@ -103,6 +105,8 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
         (out / "summary.txt").write_text(summary + "\n")
         written.append("summary.txt")
     print(f"\nwrote {a.out}/: {', '.join(written)}")
+    if not ms.interrupted:
+        remove_store(a.out)  # the result is complete: nothing left to resume
     if ms.interrupted:
         rest = a.starts - n_done
         raise Interrupted(

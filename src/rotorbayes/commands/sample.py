@@ -174,8 +174,10 @@ def _sample_locked(a, src: Path, out: Path) -> int:
                           "that prior or fit again (nothing was written)")
     n_res = int(fit.doc.get("n_residuals") or 0)
     # Room for posterior.nc (pointwise log-likelihood of the kept draws) and the figures.
-    outputs = 8 * a.max_draws * settings["ensembles"] * settings["walkers"] \
-        * max(n_res, 1) // 4 + 2_000_000
+    from ..inference.posterior import LOGLIK_BYTES
+
+    outputs = min(8 * a.max_draws * settings["ensembles"] * settings["walkers"]
+                  * max(n_res, 1) // 4, 2 * LOGLIK_BYTES) + 2_000_000  # the group's cap
     need = S.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
                          settings["ensembles"]) + outputs
     chain = out / "chain.h5"
