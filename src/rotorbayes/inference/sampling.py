@@ -75,8 +75,15 @@ MOVES = {
                    "differential evolution 60 %, DE snooker 20 %, stretch 20 %"),
     "fit-de": ((("fit", 0.5), ("de", 0.5)),
                "independence proposals from the fit's covariance (a Student t, 5 degrees "
-               "of freedom, 1.2 x its width) 50 %, differential evolution 50 %"),
+               "of freedom, 1.2 x its width; re-centred once on the ensemble's draws after "
+               "150 steps) 50 %, differential evolution 50 %"),
 }
+#: Step after which the fit proposal (``fit-de``) is re-centred, once, on the mean and
+#: covariance of the ensemble's draws of the steps since ADAPT_AT/2, and then kept fixed: the
+#: least-squares point is not exactly the posterior's centre, nor its curvature the
+#: posterior's covariance, and in 15 dimensions small differences cost most acceptances.
+#: Each step's kernel keeps the posterior (the proposal never depends on the current walkers).
+ADAPT_AT = 150
 #: The default, chosen by measured ESS per second (``benchmarks/bench_sampler_moves.py``).
 DEFAULT_MOVES = "fit-de"
 #: Moves of a run whose checkpoint does not name them (written before moves were stored).
@@ -104,8 +111,12 @@ class FitProposalMove(emcee.moves.MHMove):
         lam = np.maximum(lam, 1e-300)
         self.root = V * (scale * np.sqrt(lam))  # cov * scale² = root rootᵀ
         self.inv_root = (V / (scale * np.sqrt(lam))).T
-        self.nu = float(nu)
+        self.nu, self.scale = float(nu), float(scale)
         super().__init__(self._propose, ndim=self.mean.size)
+
+    def set(self, mean, cov) -> None:
+        """Another centre and covariance (the same ``nu`` and ``scale``)."""
+        self.__init__(mean, cov, self.nu, self.scale)
 
     def _log_q(self, x: np.ndarray) -> np.ndarray:
         y = (x - self.mean) @ self.inv_root.T
@@ -429,11 +440,15 @@ def run_ensemble(
     backend = _backend(path, name) if path is not None else emcee.backends.Backend()
     if done >= n_steps:
         return 0 if path is not None else _run_of(backend, name, moves)
-    proposal = None
+    proposal, adapted = None, False
     if uses_fit_proposal(moves):
-        proposal = _stored_proposal(path, name) if done else None
-        if proposal is None:
-            proposal = fit_proposal(logpost, x_fit)
+        stored = _stored_proposal(path, name) if done else None
+        proposal, adapted = stored if stored is not None else (fit_proposal(logpost, x_fit),
+                                                                 False)
+        if done >= ADAPT_AT and not adapted:  # stopped between the step and its record
+            proposal, adapted = _adapted(backend.get_chain(), proposal), True
+            _set_attrs(path, name, proposal_mean=proposal[0], proposal_cov=proposal[1],
+                       proposal_adapted=ADAPT_AT)
     if done == 0:
         if path is not None:
             backend.reset(n_walkers, logpost.ndim)
@@ -447,8 +462,9 @@ def run_ensemble(
         state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
     else:
         state = None  # emcee continues from the backend's last sample and random state
+    move_list = emcee_moves(moves, proposal)
     sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
-                                    backend=backend, moves=emcee_moves(moves, proposal))
+                                    backend=backend, moves=move_list)
     if state is None:
         state = sampler._previous_state
     # Room for ten more steps, so HDF5 never meets a full disk in the middle of a write.
@@ -460,6 +476,15 @@ def run_ensemble(
                                 store=True):
             k += 1  # emcee has saved the step before it yields it
             clock.tick()
+            if proposal is not None and not adapted and k == ADAPT_AT:
+                # The fit's proposal re-centred once on the ensemble's own draws, then fixed.
+                proposal, adapted = _adapted(backend.get_chain(), proposal), True
+                for mv, _ in move_list:
+                    if isinstance(mv, FitProposalMove):
+                        mv.set(*proposal)
+                if path is not None:
+                    _set_attrs(path, name, proposal_mean=proposal[0],
+                               proposal_cov=proposal[1], proposal_adapted=ADAPT_AT)
             if (path is not None and not owned and k < n_steps
                     and _free_bytes(path.parent) < step_bytes):
                 raise EnvironmentFailure(
@@ -482,7 +507,8 @@ def run_ensemble(
 
 
 def _stored_proposal(path: Path | None, name: str):
-    """The fit proposal a group was begun with (a resumed run uses it, bit for bit)."""
+    """The fit proposal a group holds (the fit's, or the adapted one after
+    :data:`ADAPT_AT` steps) and whether it is adapted; a resumed run uses it, bit for bit."""
     import h5py
 
     if path is None:
@@ -491,7 +517,20 @@ def _stored_proposal(path: Path | None, name: str):
         a = f[name].attrs
         if "proposal_mean" not in a:
             return None
-        return np.asarray(a["proposal_mean"], float), np.asarray(a["proposal_cov"], float)
+        return ((np.asarray(a["proposal_mean"], float), np.asarray(a["proposal_cov"], float)),
+                "proposal_adapted" in a)
+
+
+def _adapted(chain: np.ndarray, proposal):
+    """Mean and covariance of the draws of steps ADAPT_AT/2 .. ADAPT_AT - 1 (every walker);
+    the previous proposal where they cannot give a positive definite covariance."""
+    z = np.asarray(chain[ADAPT_AT // 2 : ADAPT_AT], float).reshape(-1, chain.shape[-1])
+    if z.shape[0] < 10 * z.shape[1]:
+        return proposal
+    cov = np.cov(z.T)
+    if not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov).min() <= 0:
+        return proposal
+    return z.mean(axis=0), cov
 
 
 def _set_attrs(path: Path, name: str, **attrs) -> None:
