@@ -225,14 +225,23 @@ class LogPosterior:
         return fit_uncertainty(self.problem, x_fit, J)
 
     def _precision_iid(self, x_fit):
-        """Fisher information of the i.i.d. floor likelihood in sampling coordinates."""
+        """Fisher information of the i.i.d. floor likelihood in sampling coordinates (one
+        Jacobian per point, kept; segment by segment, no weighted copy of it: long data)."""
+        x_fit = np.asarray(x_fit, float)
+        key = x_fit.tobytes()
+        cached = self.__dict__.get("_precision_cache")
+        if cached is not None and cached[0] == key:
+            return cached[1].copy()
         J, _ = self.problem.jacobian(x_fit)
-        w = np.empty(J.shape[0])
+        H = np.zeros((J.shape[1], J.shape[1]))
         for (c, a, b) in self.segments:
-            w[a:b] = 1.0 / (self.floor[c] * self.problem.weights[c])
+            Js = J[a:b]
+            H += (Js.T @ Js) / (self.floor[c] * self.problem.weights[c]) ** 2
+        del J
         d = np.where(self.log, x_fit, 1.0)  # dθ/dz
-        Jz = J * w[:, None] * d[None, :]
-        return Jz.T @ Jz
+        H *= np.outer(d, d)
+        self._precision_cache = (key, H)
+        return H.copy()
 
     def target_cov_z(self, x_fit) -> np.ndarray:
         """The honest covariance in sampling coordinates (``inf`` where undetermined)."""
