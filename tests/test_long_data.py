@@ -129,3 +129,23 @@ def test_long_lines_are_drawn_as_their_envelope():
     np.testing.assert_array_equal(yy, np.interp(tt, t, y))  # points of the line itself
     ts, ys = envelope(t[:100], y[:100])
     assert ts.size == 100
+
+
+def test_a_long_fit_task_comes_back_without_its_jacobian(monkeypatch, tmp_path):
+    import importlib
+
+    from rotorbayes.inference import parallel as P
+
+    MS = importlib.import_module("rotorbayes.inference.multistart")  # the module, not the function
+
+    prob = E.Problem("coupled", [_short(seconds=2.0)])
+    monkeypatch.setattr(MS, "COMPRESS_BYTES", 1)  # as if the data were long
+    with P.use_executor(P.ExecutorSpec("serial")):
+        ms = E.multistart(prob, 2, seed=0, max_nfev=5, progress=False,
+                          resume=tmp_path / ".ms.tasks")
+        again = E.multistart(prob, 2, seed=0, max_nfev=5, progress=False,
+                             resume=tmp_path / ".ms.tasks")
+    assert all(f.jac is None for f in ms.fits + again.fits)
+    assert again.ends.tobytes() == ms.ends.tobytes()
+    best = MS.ensure_jacobian(ms.best)
+    assert best.jac.shape == (prob.n_residuals, len(prob.names))

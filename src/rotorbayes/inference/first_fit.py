@@ -16,16 +16,21 @@ The result carries where its start came from and how many restarts it took.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .assess import NEAR_FLOOR, floor_ratio
 from .least_squares import FitResult, attach_uncertainty, fit
-from .multistart import _fit_start, latin_hypercube
-from .parallel import progress, run_tasks
+from .multistart import _fit_start, ensure_jacobian, latin_hypercube
+from .parallel import SerialExecutor, current_executor, progress, run_tasks
 from .problem import Problem
 from .starts import DataStart, data_start
+
+#: Jacobians larger than this [bytes] (long data) make the restarts run one at a time on
+#: local threads: each running fit holds its own (and the residual rows it is made from).
+LOCAL_PARALLEL_BYTES = 128 * 2**20
 
 
 @dataclass
@@ -109,6 +114,14 @@ def fit_from_data(
     starts = latin_hypercube(problem, restarts, rng, around=x0, spread=spread)
 
     best = res
+    if 8 * problem.n_residuals * len(problem.names) > LOCAL_PARALLEL_BYTES and isinstance(
+            executor if executor is not None else current_executor(),
+            ThreadPoolExecutor | type(None)):
+        # Long data on this machine: one restart at a time (each holds its own Jacobian).
+        executor, workers = SerialExecutor(), 1
+        if verbose:
+            print("long data: the restarts run one at a time (each fit's Jacobian is "
+                  "large); --backend dask spreads them over other machines", flush=True)
     tasks = run_tasks(_fit_start, list(starts), shared=(problem, fit_kw), executor=executor,
                       workers=workers)
     for i, (r, why) in progress(tasks, restarts, "restarts", enabled=verbose):
@@ -120,6 +133,8 @@ def fit_from_data(
         if r is not None and r.ssr < best.ssr:
             best = r
             out.chose = f"restart {i + 1} of {restarts} (spread {spread} around the data start)"
+    if best is not res:
+        ensure_jacobian(best)
     if best is not res and best.uncertainty is None and fit_kw.get("uncertainty", True):
         attach_uncertainty(best)
     out.result = best

@@ -14,7 +14,7 @@ from scipy.stats import qmc
 
 from ..model.parameters import ParameterError
 from .assess import NEAR_FLOOR, floor_ratio
-from .least_squares import FitResult, fit
+from .least_squares import COMPRESS_BYTES, FitResult, fit
 from .parallel import run_tasks
 from .problem import Problem
 
@@ -29,6 +29,7 @@ class MultistartResult:
     ssr: np.ndarray
     success: np.ndarray
     clusters: np.ndarray
+    #: The fits (of long data without their Jacobian: ``jac`` None, see ensure_jacobian).
     fits: list[FitResult] = field(repr=False)
     start_index: np.ndarray | None = None
     failed: dict[int, str] = field(default_factory=dict)
@@ -212,9 +213,24 @@ def fit_or_reason(problem: Problem, x0, **fit_kw) -> tuple[FitResult | None, str
 
 
 def _fit_start(shared: tuple, x0: np.ndarray) -> tuple[FitResult | None, str]:
-    """One start of a multistart, as a task: ``shared`` is ``(problem, fit_kw)``."""
+    """One start of a multistart, as a task: ``shared`` is ``(problem, fit_kw)``.
+
+    A fit of long data comes back without its Jacobian (``jac`` None: above
+    :data:`~.least_squares.COMPRESS_BYTES`, hundreds of MB per start, sent back and kept
+    for every start); whoever keeps the fit computes it again (:func:`ensure_jacobian`)."""
     problem, fit_kw = shared
-    return fit_or_reason(problem, x0, **fit_kw)
+    r, why = fit_or_reason(problem, x0, **fit_kw)
+    if r is not None and r.jac is not None and r.jac.nbytes > COMPRESS_BYTES:
+        r.jac = None
+    return r, why
+
+
+def ensure_jacobian(r: FitResult) -> FitResult:
+    """Give a fit that came back without its Jacobian (long data) the Jacobian at its end
+    point again."""
+    if r.jac is None:
+        r.jac, _ = r.problem.jacobian(r.x)
+    return r
 
 
 def multistart(
@@ -327,6 +343,8 @@ def _fit_record(r: FitResult | None, why: str) -> dict:
     if r is not None:
         for k in _RECORD_FIELDS:
             v = getattr(r, k)
+            if v is None:  # a long-data fit's Jacobian (see _fit_start)
+                continue
             rec[k] = v if isinstance(v, np.ndarray | list | str | bool) else (
                 float(v) if isinstance(v, float | np.floating) else int(v))
     return rec
@@ -335,7 +353,7 @@ def _fit_record(r: FitResult | None, why: str) -> dict:
 def _fit_from_record(rec: dict, problem: Problem) -> tuple[FitResult | None, str]:
     if not rec["ok"]:
         return None, str(rec["why"])
-    kw = {k: rec[k] for k in _RECORD_FIELDS}
+    kw = {k: rec.get(k) for k in _RECORD_FIELDS}
     for k in ("success",):
         kw[k] = bool(kw[k])
     for k in ("n_residuals", "nfev", "njev"):

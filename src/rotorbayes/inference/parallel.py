@@ -402,7 +402,9 @@ def run_tasks(
                         raise _lost(ex, done_count, len(items)) from exc
                     raise
                 done_count += 1
-                yield futures[f], r
+                # Forget the finished future: it holds its result (a fit of long data holds
+                # a Jacobian of hundreds of MB), which is now the caller's.
+                yield futures.pop(f), r
     finally:
         for f in futures:
             f.cancel()
