@@ -34,7 +34,7 @@ covariance as proposal (emcee ``GaussianMove``, scaled 2.38/√d).
 Usage::
 
     python benchmarks/bench_sampler_moves.py [--steps 1500] [--walkers 32] [--ensembles 2]
-        [--noise sampled|robust] [--only NAME,NAME] [--first N] [--json out.json]
+        [--noise sampled|robust] [--only 'NAME|NAME'] [--first N] [--json out.json]
 """
 
 from __future__ import annotations
@@ -170,14 +170,15 @@ def main() -> None:
     ap.add_argument("--ensembles", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise", choices=["sampled", "robust"], default="sampled")
-    ap.add_argument("--only", help="comma-separated alternative names (prefix match)")
+    ap.add_argument("--only", help="alternative names separated by '|' (prefix match; the "
+                    "names hold commas), e.g. 'stretch, ball|fit-de'")
     ap.add_argument("--first", type=int, default=len(ALTS), help="run only the first N "
                     "alternatives")
     ap.add_argument("--json")
     a = ap.parse_args()
     alts = ALTS[: a.first]
     if a.only:
-        want = [w.strip() for w in a.only.split(",")]
+        want = [w.strip() for w in a.only.split("|") if w.strip()]
         alts = [x for x in ALTS if any(x.name.startswith(w) for w in want)]
     p = rb.parameters.thesis_set("4.3", "P_ref")
     t, u = rb.signals.estimation_signal(30.0, seed=1)
