@@ -57,6 +57,7 @@ COMMANDS = (
     "compare",
     "sample",
     "identify",
+    "design",
     "report",
     "params",
     "effects",
