@@ -90,3 +90,16 @@ def test_a_checkpoint_without_moves_is_continued_with_the_stretch_move(upper_lp,
     assert runs[0].moves == "stretch"
     with h5py.File(old / "chain.h5", "r") as fa, h5py.File(ref / "chain.h5", "r") as fb:
         assert np.array_equal(fa["ensemble0"]["chain"][...], fb["ensemble0"]["chain"][...])
+
+
+def test_the_acceptance_warning_knows_the_moves():
+    """Independence proposals are accepted less often without mixing worse: 0.12 is a
+    warning for the stretch move, not for fit-de; 0.03 is one for both."""
+    def run(acc, moves):
+        return S.EnsembleRun("ensemble0", np.zeros((2000, 4, 1)), np.zeros((2000, 4)),
+                             np.full(4, acc), np.array([5.0]), moves=moves)
+
+    assert any("acceptance 0.12" in w for w in S.convergence([run(0.12, "stretch")], ["a"]))
+    assert not S.convergence([run(0.12, "fit-de")], ["a"])
+    assert "expected 0.1-0.6 with --moves fit-de" in " ".join(
+        S.convergence([run(0.03, "fit-de")], ["a"]))

@@ -78,6 +78,13 @@ MOVES = {
                "of freedom, 1.2 x its width; re-centred once on the ensemble's draws after "
                "150 steps) 50 %, differential evolution 50 %"),
 }
+#: Mean acceptance outside (low, high) is warned about, per moves (with the range expected).
+#: Independence proposals are accepted less often than local moves without mixing worse:
+#: each accepted one moves a walker across the posterior (measured on the 1 kHz brake
+#: posterior: 0.19-0.24 with τ 19-32 steps, where de-mix had 0.39 and τ 42-49).
+ACCEPTANCE = {"stretch": (0.15, 0.7, "0.2-0.5"), "de": (0.15, 0.7, "0.2-0.5"),
+              "de-mix": (0.15, 0.7, "0.2-0.5"), "de-stretch": (0.15, 0.7, "0.2-0.5"),
+              "fit-de": (0.05, 0.9, "0.1-0.6")}
 #: Step after which the fit proposal (``fit-de``) is re-centred, once, on the mean and
 #: covariance of the ensemble's draws of the steps since ADAPT_AT/2, and then kept fixed: the
 #: least-squares point is not exactly the posterior's centre, nor its curvature the
@@ -639,8 +646,10 @@ def convergence(runs: list[EnsembleRun], names: list[str]) -> list[str]:
                        f"{', '.join(bad)}: run longer (--resume --steps N) before trusting "
                        "the intervals")
         acc = float(np.mean(r.acceptance))
-        if not 0.15 <= acc <= 0.7:
-            out.append(f"{r.name}: acceptance {acc:.2f} (expected 0.2-0.5)")
+        lo, hi, expected = ACCEPTANCE.get(r.moves, ACCEPTANCE["stretch"])
+        if not lo <= acc <= hi:
+            out.append(f"{r.name}: acceptance {acc:.2f} (expected {expected} with "
+                       f"--moves {r.moves})")
     return out
 
 
