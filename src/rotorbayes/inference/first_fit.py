@@ -119,6 +119,7 @@ def fit_from_data(
             ThreadPoolExecutor | type(None)):
         # Long data on this machine: one restart at a time (each holds its own Jacobian).
         executor, workers = SerialExecutor(), 1
+        res.jac = None  # not held while the restarts run theirs; computed again if kept
         if verbose:
             print("long data: the restarts run one at a time (each fit's Jacobian is "
                   "large); --backend dask spreads them over other machines", flush=True)
@@ -133,8 +134,7 @@ def fit_from_data(
         if r is not None and r.ssr < best.ssr:
             best = r
             out.chose = f"restart {i + 1} of {restarts} (spread {spread} around the data start)"
-    if best is not res:
-        ensure_jacobian(best)
+    ensure_jacobian(best)
     if best is not res and best.uncertainty is None and fit_kw.get("uncertainty", True):
         attach_uncertainty(best)
     out.result = best

@@ -57,6 +57,11 @@ class DataStart:
         return "\n".join(lines + [f"  note: {t}" for t in self.notes])
 
 
+#: Most rows of the start's regression: longer data use every k-th row (a start needs far
+#: fewer; 500 000 rows is 500 s of coupled data at 1 kHz).
+REGRESSION_ROWS = 500_000
+
+
 def derivatives(theta: np.ndarray, dt: float, window: float = 0.15):
     """Smoothed angle, velocity and acceleration (Savitzky-Golay, cubic, ``window`` s)."""
     n = max(7, int(round(window / dt)) | 1)
@@ -209,14 +214,23 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
             f"{val('J_l'):g} (start value)"
         )
 
+    # Long data: every stride-th row is plenty for a start (and the regression's matrix,
+    # its weighted copy and lstsq's own copy of all rows would take GBs).
+    n_rows = sum(y.size for y in yu) + sum(y.size for y in yl)
+    stride = max(1, math.ceil(n_rows / REGRESSION_ROWS))
+    take = slice(None, None, stride)
+
     def assemble(ws, delta):
         A_rows, y_rows, group = [], [], []
         for cols, y in zip(Au, yu, strict=True):
-            A_rows.append(np.column_stack([cols.get(nm, np.zeros(y.size)) for nm in names]))
+            y = y[take]
+            A_rows.append(np.column_stack([cols[nm][take] if nm in cols else
+                                           np.zeros(y.size) for nm in names]))
             y_rows.append(y)
             group.append(np.zeros(y.size, int))
         for cols, y, (wl, sl) in zip(Al_parts, yl, lower_feats, strict=True):
-            cols = dict(cols)
+            cols = {k: v[take] for k, v in cols.items()}
+            y, wl, sl = y[take], wl[take], sl[take]
             yy = y
             if stribeck_on:
                 S = sl * _stribeck(np.abs(wl) / ws, delta, problem.shape)
