@@ -1,10 +1,10 @@
 """The rig's terms for the compiled solver: torques, friction, static bands and guards.
 
 Everything the solver (:mod:`rotorbayes.kernel.solver`) needs to know about the physics
-is here, as small inlined numba functions of the state ``(theta_u, omega_u, theta_l,
-omega_l)``, the modes of the discs and the *drive* ``d = (t, v, theta_p, omega_p)``
-(time, effective motor voltage, prescribed upper-disc motion).  The solver itself only
-knows how to integrate, locate events and interpolate.
+is here, as small numba functions (compiled apart, inlined by LLVM) of the state
+``(theta_u, omega_u, theta_l, omega_l)``, the modes of the discs and the *drive*
+``d = (t, v, theta_p, omega_p)`` (time, effective motor voltage, prescribed upper-disc
+motion).  The solver itself only knows how to integrate, locate events and interpolate.
 
 Effects plug in at three places:
 
@@ -180,7 +180,7 @@ def derived(p, dt):
 
 
 # ----------------------------------------------------------------------------- input
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def interp(t, y, inv_dt):
     """Linear interpolation of samples ``y`` (spacing ``1/inv_dt``, start 0) and its slope.
 
@@ -200,7 +200,7 @@ def interp(t, y, inv_dt):
     return y[i] + (x - i) * dy, dy * inv_dt
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def voltage(t, c, u):
     """Effective motor voltage [V]: delayed, offset, then through the dead zone."""
     v, _ = interp(t - c[_TDEL], u, c[_IDT])
@@ -216,7 +216,7 @@ def voltage(t, c, u):
     return v
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def grid_phase(c, cfg, ratio):
     """Where the solver's step grid starts, in samples: ``t_delay / dt`` modulo the step
     (``ratio`` samples), so that the grid ``(phase + j * ratio) * dt`` holds every delayed
@@ -277,19 +277,19 @@ def next_kink(t, t1, c, u):
     return best
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def has_kinks(c):
     """Whether :func:`next_kink` can find anything for these constants."""
     return c[_UDZ] > 0.0
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def prescribed_velocity(t, c, thp):
     """Velocity [rad/s] of the prescribed upper-disc motion at ``t``."""
     return interp(t, thp, c[_IDT])[1]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def drive(t, c, cfg, u, thp):
     """What drives the system at ``t``: ``(t, voltage, upper angle, upper velocity)``.
 
@@ -303,7 +303,7 @@ def drive(t, c, cfg, u, thp):
 
 
 # ------------------------------------------------------------------------ torques
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def torques(thu, wu, thl, wl, d, m):
     """External torques on both discs and the user effects' friction-level shifts [N m]."""
     c = m[0]
@@ -329,7 +329,7 @@ def torques(thu, wu, thl, wl, d, m):
     return te_u, te_l, su, sl
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def bands(su, sl, c):
     """Static bands ``(lo_u, hi_u, lo_l, hi_l)``: a sticking disc stays at rest while its
     external torque lies inside ``[lo, hi]``."""
@@ -341,7 +341,7 @@ def bands(su, sl, c):
     )
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def rhs(thu, wu, thl, wl, mu, ml, d, m):
     """Time derivatives of ``(theta_u, omega_u, theta_l, omega_l)`` in modes ``(mu, ml)``."""
     c = m[0]
@@ -365,7 +365,7 @@ def rhs(thu, wu, thl, wl, mu, ml, d, m):
     return dthu, dwu, dthl, dwl
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def guards(thu, wu, thl, wl, mu, ml, d, m):
     """Event functions of both discs; a mode stays valid while its guard is >= 0.
 
@@ -384,7 +384,7 @@ def guards(thu, wu, thl, wl, mu, ml, d, m):
     return gu, gl
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def mode_at_rest(te, lo, hi):
     """Mode of a disc at zero velocity with external torque ``te``."""
     if te > hi:
@@ -394,7 +394,7 @@ def mode_at_rest(te, lo, hi):
     return 0
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def modes_at_rest(thu, wu, thl, wl, d, m):
     """Modes of both discs if they were at rest now."""
     c, cfg = m[0], m[1]
@@ -405,7 +405,7 @@ def modes_at_rest(thu, wu, thl, wl, d, m):
     return mu, ml
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def effect_state_ok(thu, wu, thl, wl, d, m):
     """False if a user effect shifted a friction level below its asymmetry (or to NaN)."""
     c = m[0]

@@ -36,7 +36,7 @@ def shape_code(shape: str) -> int:
         ) from None
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def stribeck(x, delta, shape):
     """Stribeck decay ``S(x)`` for ``x = |omega| / ws`` (``S(0) = 1``)."""
     if x <= 0.0:
@@ -48,7 +48,7 @@ def stribeck(x, delta, shape):
     return 1.0 / (1.0 + p)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def slip_torque(w, s, Tc, dTc, b, db, dS, inv_ws, delta, shape):
     """Signed friction torque of a disc slipping in direction ``s`` at velocity ``w``.
 
