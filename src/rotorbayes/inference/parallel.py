@@ -384,12 +384,27 @@ def run_tasks(
             args = (_scatter(ex, shared),)
     futures: dict[Future, int] = {}
     done_count = 0
+    # A local pool gets a few tasks per worker at a time (a Ctrl-C then has little to
+    # cancel, and thousands of queued futures are not held); Dask gets them all at once
+    # (its scheduler balances the cluster).
+    window = len(items) if _is_dask(ex) else 4 * max(1, getattr(ex, "_max_workers", 2))
+    todo = iter(enumerate(items))
     try:
-        for i, it in enumerate(items):
-            futures[ex.submit(fn, *args, it)] = i
-        pending = set(futures)
+        pending: set[Future] = set()
+        for i, it in todo:
+            f = ex.submit(fn, *args, it)
+            futures[f] = i
+            pending.add(f)
+            if len(pending) >= window:
+                break
         while pending:
             done, pending = _wait(pending, return_when=FIRST_COMPLETED)
+            for i, it in todo:
+                f = ex.submit(fn, *args, it)
+                futures[f] = i
+                pending.add(f)
+                if len(pending) >= window:
+                    break
             for f in sorted(done, key=futures.__getitem__):
                 if f.cancelled():
                     raise _lost(ex, done_count, len(items))
