@@ -30,26 +30,34 @@ _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # The kernel compiles on first import (tens of seconds with a cold numba cache): said once.
 from .coldstart import compile_kernel as _compile_kernel
+from .coldstart import interrupted_while_loading as _interrupted_while_loading
 
-_compile_kernel()
+try:
+    _compile_kernel()
 
-from . import data, signals  # noqa: E402
-from .data import Experiment, load_experiment, save_experiment
-from .examples import example_names, load_example
-from .model import (
-    CONFIGS,
-    NAMES,
-    Effect,
-    Model,
-    Parameter,
-    ParameterError,
-    Simulation,
-    SimulationError,
-    Simulator,
-    effects,
-    parameters,
-    simulate,
-)  # fmt: skip
+    from . import data, signals  # noqa: E402
+    from .data import Experiment, load_experiment, save_experiment
+    from .examples import example_names, load_example
+    from .model import (
+        CONFIGS,
+        NAMES,
+        Effect,
+        Model,
+        Parameter,
+        ParameterError,
+        Simulation,
+        SimulationError,
+        Simulator,
+        effects,
+        parameters,
+        simulate,
+    )  # fmt: skip
+except KeyboardInterrupt:
+    # A Ctrl-C while the command line loads (numba's import, a cold compile) is an ordinary
+    # stop of the command, not a crash: exit 130 with a word, no traceback.  Python code
+    # that imports the package gets its KeyboardInterrupt as usual.
+    _interrupted_while_loading()
+    raise
 
 __version__ = "0.3.0"
 

@@ -181,11 +181,15 @@ class _logged:
 
 
 def main(argv=None) -> int:
-    ap = build_parser()
     try:
+        ap = build_parser()  # imports every command's module: seconds on a busy machine
         a = ap.parse_args(argv)
     except SystemExit as exc:  # --help, --version (0) or a usage error (2), already printed
         return exc.code if isinstance(exc.code, int) else 2
+    except KeyboardInterrupt:
+        print("rotorbayes: interrupted (Ctrl-C) while starting; nothing was written",
+              file=sys.stderr)
+        return EXIT.INTERRUPTED
     a._argv = list(sys.argv[1:] if argv is None else argv)
     if isinstance(getattr(a, "out", None), str) and len(a.out) > 1:
         a.out = a.out.rstrip("/")  # messages add their own "/": "fit0/", never "fit0//"

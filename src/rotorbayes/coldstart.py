@@ -67,3 +67,22 @@ def compile_kernel(stream=None) -> float | None:
         return None
     print(f" took {dt:.0f} s", file=stream, flush=True)
     return dt
+
+
+def launched_as_command() -> bool:
+    """True when this process is the ``rotorbayes`` command (the console script or
+    ``python -m rotorbayes.cli``), not Python code that imports the package."""
+    argv = list(getattr(sys, "orig_argv", sys.argv))
+    if "-m" in argv[:-1] and argv[argv.index("-m") + 1] == "rotorbayes.cli":
+        return True
+    return Path(sys.argv[0]).name == "rotorbayes" if sys.argv and sys.argv[0] else False
+
+
+def interrupted_while_loading() -> None:
+    """Called on a Ctrl-C during the package's import: the command ends with exit code 130
+    and one line (nothing has been written yet); imported as a library, nothing happens
+    here and the caller re-raises."""
+    if launched_as_command():
+        print("\nrotorbayes: interrupted (Ctrl-C) while loading; nothing was written",
+              file=sys.stderr, flush=True)
+        raise SystemExit(130)

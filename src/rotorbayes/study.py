@@ -266,9 +266,11 @@ class _Tee(io.TextIOBase):
         return len(s)
 
     def flush(self):
-        self.log.flush()
-        if self.echo is not None:
-            self.echo.flush()
+        # Also called when the tee is collected (IOBase closes itself), maybe after the
+        # study has closed its log: nothing left to flush then.
+        for stream in (self.log, self.echo):
+            if stream is not None and not getattr(stream, "closed", False):
+                stream.flush()
 
 
 def run(path: str | Path, *, quiet: bool = False, force: bool = False,
