@@ -1,8 +1,9 @@
 """``rotorbayes design FIT --out next/``: the next experiment's input (issue 20).
 
 The command-line face of :func:`rotorbayes.design.design_input`: the input that pins the
-fit's sloppiest direction (or ``--params``), or that separates two ``--separate`` effects,
-checked by simulation and refit; ``u.csv``, ``design.json``, ``design.txt`` and
+fit's sloppiest direction (or ``--params``), or that separates two or more ``--separate``
+effects (every pair; the worst-separated pair limits the design), checked by simulation
+and refit; ``u.csv``, ``design.json``, ``design.txt`` and
 ``design.png`` in ``--out`` (refused if it holds results, unless ``--force``).
 """
 
@@ -19,18 +20,19 @@ from .common import Outcome, csv_list, executor
 from .options import add_parallel_options, add_trust_option, ranged
 
 HELP = ("design the next experiment: the input that pins the fit's sloppiest direction (or "
-        "--params), or that separates two --separate effects, checked by simulation and "
-        "refit; u.csv, design.json, design.txt, design.png")
+        "--params), or that separates two or more --separate effects, checked by "
+        "simulation and refit; u.csv, design.json, design.txt, design.png")
 
 
 def add_arguments(p) -> None:
     p.add_argument("fit", help="a folder written by `rotorbayes fit` (the existing data)")
     p.add_argument("--out", required=True, help="folder for u.csv, design.json, design.txt "
                    "and design.png (refused if it holds results, unless --force)")
-    p.add_argument("--separate", metavar="EFFECT_A,EFFECT_B",
-                   help="design to tell two catalogue effects apart (each fitted to the "
-                   "existing data first); when the registry says no input can, say why and "
-                   "what can")
+    p.add_argument("--separate", metavar="EFFECT_A,EFFECT_B[,...]",
+                   help="design to tell two or more catalogue effects apart (each fitted to "
+                   "the existing data first; the smallest gap over every pair is "
+                   "maximised); for a pair the registry says no input can separate, say why "
+                   "and what can")
     p.add_argument("--params", metavar="NAME,...",
                    help="design to pin these free parameters (default: the fit's sloppiest "
                    "Fisher direction)")

@@ -9,9 +9,11 @@ separates candidate effects (issue 20).
   1-σ width along it when the new experiment is fitted together with the existing data;
 * ``params=[...]`` — named free parameters: minimise the sum of their predicted relative
   variances;
-* ``separate=[A, B]`` — two candidate effects, each fitted to the existing data as the
-  diagnosis would (``fit --add``): maximise the smaller of the two expected SSR gaps
-  (:func:`.information.separation_gap`).
+* ``separate=[A, B, ...]`` — two or more candidate effects, each fitted to the existing
+  data as the diagnosis would (``fit --add``): maximise the smallest expected SSR gap
+  (:func:`.information.separation_gap`) over every pair, so the worst-separated pair
+  limits the design; pairs the registry ties exactly are left to the procedure that
+  breaks the tie.
 
 It searches an input family (:mod:`.inputs`) from several starts through the executor layer
 (:func:`rotorbayes.inference.parallel.run_tasks`), compares the best input with the standard
@@ -138,15 +140,19 @@ class _Objective:
             Jn = f.new_rows(t, u)
             return math.log(max(float(np.sum(f.variances(f.F_old + Jn.T @ Jn, self.idx))),
                                 1e-300))
-        g = self.gaps(u)
-        return -math.log1p(min(g[k] for k in self.idx))
+        g = self.gaps(u, self.idx)
+        return -math.log1p(min(g[d] for d in self.idx))
 
-    def gaps(self, u: np.ndarray) -> tuple[float, float]:
-        a, b = self.frames
+    def gaps(self, u: np.ndarray, directions=None) -> dict[tuple[int, int], float]:
+        """Expected SSR gap of each direction ``(i, j)`` (candidate ``i`` true, ``j``
+        refitted) on input ``u``; every direction of every pair unless ``directions``."""
         t = self.family.t
-        Ja, ya = a.new_rows(t, u, with_prediction=True)
-        Jb, yb = b.new_rows(t, u, with_prediction=True)
-        return separation_gap(a, b, ya, yb, Jb), separation_gap(b, a, yb, ya, Ja)
+        rows = [f.new_rows(t, u, with_prediction=True) for f in self.frames]
+        if directions is None:
+            n = len(self.frames)
+            directions = [(i, j) for i in range(n) for j in range(n) if i != j]
+        return {(i, j): separation_gap(self.frames[i], self.frames[j], rows[i][1],
+                                       rows[j][1], rows[j][0]) for i, j in directions}
 
     def __call__(self, z: np.ndarray) -> float:
         try:
@@ -257,22 +263,37 @@ def _relative_step(frame: Frame, x: np.ndarray, x0: np.ndarray, pos: np.ndarray)
     return out
 
 
-def _check_separation(frames: list[Frame], labels, t, u, seed: int, max_nfev: int) -> dict:
-    """For each candidate as the truth: simulate, refit both to old + new, SSR gap."""
+def _direction_key(labels: Sequence[str], i: int, j: int) -> str:
+    """The name of direction ``(i, j)``: candidate ``i`` true, ``j`` refitted (with two
+    candidates the other is implied: ``"A true"``)."""
+    return f"{labels[i]} true" if len(labels) == 2 else f"{labels[i]} true, {labels[j]} refitted"
+
+
+def _check_separation(frames: list[Frame], labels, t, u, seed: int, max_nfev: int,
+                      used: Sequence[int] | None = None) -> dict:
+    """For each candidate as the truth: simulate, refit every candidate to old + new, and
+    the SSR gap of each other candidate over the true one (one entry per direction).
+    ``used``: the candidates that take part (default all)."""
+    used = list(range(len(frames))) if used is None else list(used)
     out = {}
-    for k, truth in enumerate(frames):
-        new_ex = _simulate_data(truth, t, u, seed + k)
-        ssr = []
-        for f in frames:
+    for k in used:
+        new_ex = _simulate_data(frames[k], t, u, seed + k)
+        ssr = {}
+        for m in used:
+            f = frames[m]
             prob, x0, _ = _combined(f, new_ex)
             res = _fit(prob, x0, uncertainty=False, max_nfev=max_nfev, parallel=True)
             r = f._scaled_rows(prob, prob.residuals(res.x)[:, None])[:, 0]
-            ssr.append(float(r @ r))
-        other = 1 - k
-        out[f"{labels[k]} true"] = {
-            "ssr_gap": ssr[other] - ssr[k],
-            "ssr_true_model": ssr[k], "ssr_other_model": ssr[other],
-            "n_residuals": int(new_ex.n * len(frames[0].problem.channels))}
+            ssr[m] = float(r @ r)
+        for other in used:
+            if other == k:
+                continue
+            entry = {"ssr_gap": ssr[other] - ssr[k], "ssr_true_model": ssr[k],
+                     "ssr_other_model": ssr[other],
+                     "n_residuals": int(new_ex.n * len(frames[0].problem.channels))}
+            if len(labels) != 2:
+                entry = {"true": labels[k], "refitted": labels[other], **entry}
+            out[_direction_key(labels, k, other)] = entry
     return out
 
 
@@ -352,8 +373,9 @@ def design_input(
         The fit on the existing data (a tuple: a Problem and its parameter vector).
     params : sequence of str, optional
         Target these free parameters instead of the sloppiest direction.
-    separate : sequence of two str, optional
-        Target the discrimination between these two catalogue effects.
+    separate : sequence of str, optional
+        Target the discrimination between these two or more catalogue effects: the
+        smallest expected SSR gap over every pair (the worst-separated pair) is maximised.
     duration, rate : float, optional
         Length [s] and sampling rate [Hz] of the new experiment (default: the first
         experiment's).
@@ -388,9 +410,12 @@ def design_input(
         raise DesignError(f"--starts {starts}: give at least 1 start")
     if separate is not None:
         separate = [s.strip() for s in separate if s.strip()]
-        if len(separate) != 2 or separate[0] == separate[1]:
-            raise DesignError(f"--separate {','.join(separate)}: give two different effects, "
-                              "e.g. --separate lower_asymmetric_coulomb,initial_torsion")
+        repeated = sorted({s for s in separate if separate.count(s) > 1})
+        if len(separate) < 2 or repeated:
+            why = f" ({', '.join(repeated)} given twice)" if repeated else ""
+            raise DesignError(f"--separate {','.join(separate)}: give two or more different "
+                              f"effects{why}, e.g. --separate "
+                              "lower_asymmetric_coulomb,string_damping,lower_stribeck")
         for s in separate:  # unknown names: the registry's own message, before any work
             try:
                 _effects.resolve([s])
@@ -407,6 +432,7 @@ def design_input(
                          "jitter where larger), i.i.d. in the prediction",
                 "new_experiment_alpha0": "0 (the string unwound before the new run)"}
     seconds: dict[str, float] = {}
+    plan = None
     # ------------------------------------------------------------------ the target
     t0 = time.perf_counter()
     if separate:
@@ -419,28 +445,57 @@ def design_input(
                     f"{problem.model.config} configuration (it applies to "
                     f"{', '.join(eff.configs)})")
         effects = [e.name for e in effs]
-        # The tie is read before any fit: the candidates' free sets are the fit's plus
-        # each effect's parameters.
-        free_all = set(problem.names_base()).union(*[set(e.names) for e in effs])
-        tie = _ties.tie_between(effects, free_all, n_experiments=len(problem.experiments),
-                                prescribed_upper=problem.prescribed_upper)
-        target = {"kind": "separate", "effects": effects,
-                  "words": f"tell {effects[0]} from {effects[1]}"}
-        if tie is not None:
-            return _no_input(problem, tie, target, settings, t_all)
+        n_c = len(effects)
+        pairs = [(i, j) for i in range(n_c) for j in range(i + 1, n_c)]
+        # The ties are read before any fit: a pair's candidates' free sets are the fit's
+        # plus each effect's parameters.
+        ties = {}
+        for i, j in pairs:
+            free_ij = set(problem.names_base()) | set(effs[i].names) | set(effs[j].names)
+            tie = _ties.tie_between([effects[i], effects[j]], free_ij,
+                                    n_experiments=len(problem.experiments),
+                                    prescribed_upper=problem.prescribed_upper)
+            if tie is not None:
+                ties[(i, j)] = tie
+        words = (f"tell {effects[0]} from {effects[1]}" if n_c == 2 else
+                 f"tell {', '.join(effects[:-1])} and {effects[-1]} apart, every pair")
+        target = {"kind": "separate", "effects": effects, "words": words}
+        if ties:
+            target["tied_pairs"] = [
+                {"effects": [effects[i], effects[j]], "tie": str(tie),
+                 "procedure": tie.procedure} for (i, j), tie in ties.items()]
+        separable = [ij for ij in pairs if ij not in ties]
+        if not separable:
+            return _no_input(problem, list(ties.values()), target, settings, t_all)
         cands = [_candidate(problem, x, s, max_nfev=100) for s in labels]
         frames = [Frame(c[0], c[1]) for c in cands]
         target["candidates"] = {lab: {"how": c[3], "rms_over_floor": c[0].rms_over_floor(
             c[0].residuals(c[1])), "estimates": c[0].values(c[1])}
             for lab, c in zip(labels, cands, strict=True)}
         # A candidate whose effect the existing data put at its null value is the fit's
-        # own model, which the other candidate contains (its effect at null too): data from
-        # it are fitted by the other exactly, whatever the input.  Only the other
-        # direction can be separated.
+        # own model, which every other candidate contains (its effect at null too): data
+        # from it are fitted by the other exactly, whatever the input.  Only the other
+        # direction of such a pair can be separated.  Two candidates both at null are
+        # both the fit's model: with more than two candidates such a pair is left out of
+        # the design (it would hold every input's worst gap at zero) and said so.
         at_null = [_at_null(c[0], c[1], c[2]) for c in cands]
         target["at_null"] = {lab: z for lab, z in zip(labels, at_null, strict=True)}
-        objective = _Objective("separate", fam, frames,
-                               idx=[k for k in range(2) if not at_null[k]] or [0, 1])
+        designed_pairs, dirs = [], []
+        for i, j in separable:
+            d = [(a, b) for a, b in ((i, j), (j, i)) if not at_null[a]]
+            if d or n_c == 2:
+                designed_pairs.append((i, j))
+                dirs += d or [(i, j), (j, i)]
+        if not designed_pairs:  # every separable pair at null on both sides
+            designed_pairs = list(separable)
+            dirs = [d for i, j in separable for d in ((i, j), (j, i))]
+        target["pairs"] = {"designed_for": [[effects[i], effects[j]]
+                                            for i, j in designed_pairs],
+                           "both_at_null": [[effects[i], effects[j]] for i, j in separable
+                                            if (i, j) not in designed_pairs],
+                           "tied": [[effects[i], effects[j]] for i, j in ties]}
+        plan = _Plan(effects, designed_pairs, separable, ties, at_null)
+        objective = _Objective("separate", fam, frames, idx=dirs)
         v = idx = None
     else:
         frame = Frame(problem, x)
@@ -478,7 +533,7 @@ def design_input(
                                          n_experiments=len(problem.experiments),
                                          prescribed_upper=problem.prescribed_upper)
             if tie is not None:
-                return _no_input(problem, tie, target, settings, t_all)
+                return _no_input(problem, [tie], target, settings, t_all)
             objective = _Objective("sloppiest", fam, frames, v=v)
     seconds["target"] = time.perf_counter() - t0
     # ------------------------------------------------------------------ the search
@@ -501,13 +556,13 @@ def design_input(
     u = fam(best["z"])
     seconds["search"] = time.perf_counter() - t0
     # ------------------------------------------------------------------ predictions
-    predicted, status, words = _predict(objective, frames, u, u_base, target)
-    responses = _responses(objective, frames, t, u, target, v)
+    predicted, status, words = _predict(objective, frames, u, u_base, target, plan)
+    responses = _responses(objective, frames, t, u, target, v, plan)
     achieved = None
     if check and status != NO_INPUT:
         t0 = time.perf_counter()
         achieved = _achieve(objective, frames, t, u, u_base, target, v, idx, seed,
-                            check_nfev, predicted)
+                            check_nfev, predicted, plan)
         seconds["check"] = time.perf_counter() - t0
         words += "\n" + achieved.pop("words")
     seconds["total"] = time.perf_counter() - t_all
@@ -517,15 +572,46 @@ def design_input(
         predicted=predicted, achieved=achieved,
         starts=[{k: (v_.tolist() if isinstance(v_, np.ndarray) else v_)
                  for k, v_ in r.items() if k != "z"} for r in runs],
-        settings=settings, seconds=seconds, responses=responses)
+        settings=settings, seconds=seconds, responses=responses,
+        procedure=plan.procedure() if plan is not None else "")
 
 
-def _no_input(problem: Problem, tie, target: dict, settings: dict, t_all) -> DesignResult:
+@dataclass
+class _Plan:
+    """Which pairs of ``--separate`` candidates the design serves (indices into
+    ``effects``): ``designed`` (in the objective), ``separable`` (not tied by the
+    registry), ``ties`` (pair -> the registry's Equivalence), ``at_null`` per candidate."""
+
+    effects: list[str]
+    designed: list[tuple[int, int]]
+    separable: list[tuple[int, int]]
+    ties: dict
+    at_null: list[bool]
+
+    def names(self, ij) -> str:
+        return f"{self.effects[ij[0]]} / {self.effects[ij[1]]}"
+
+    def directions(self, ij) -> list[tuple[int, int]]:
+        i, j = ij
+        d = [(a, b) for a, b in ((i, j), (j, i)) if not self.at_null[a]]
+        return d or [(i, j), (j, i)]
+
+    def procedure(self) -> str:
+        return "; ".join(dict.fromkeys(t.procedure for t in self.ties.values()))
+
+
+def _no_input(problem: Problem, ties: list, target: dict, settings: dict,
+              t_all) -> DesignResult:
     """The registry says no input can help: the words, the procedure, and the existing
-    input to repeat after re-zeroing (u.csv)."""
+    input to repeat after re-zeroing (u.csv).  ``ties``: the registry entries that apply
+    (one for a sloppiest direction or two candidates; one per tied pair otherwise)."""
     ex = problem.experiments[0]
+    ties = list({str(q): q for q in ties}.values())
+    tie = ties[0]
     target = {**target, "tie": str(tie), "tie_effects": list(tie.effects)}
-    words = _ties.no_input_words(tie)
+    if len(ties) > 1:
+        target["ties"] = [str(q) for q in ties]
+    words = " ".join(_ties.no_input_words(q) for q in ties)
     label = ex.name or ex.path or "the first experiment"
     words += (f" u.csv holds the existing experiment's input ({label}, "
               f"{ex.t[-1] - ex.t[0]:g} s) to run again: with the same input, what differs "
@@ -536,10 +622,11 @@ def _no_input(problem: Problem, tie, target: dict, settings: dict, t_all) -> Des
         input_family={"description": "the existing experiment's input, to run again "
                                      "after the procedure", "family": "repeat"},
         predicted={}, achieved=None, starts=[], settings=settings,
-        seconds={"total": time.perf_counter() - t_all}, procedure=tie.procedure)
+        seconds={"total": time.perf_counter() - t_all},
+        procedure="; ".join(dict.fromkeys(q.procedure for q in ties)))
 
 
-def _predict(objective: _Objective, frames, u, u_base, target):
+def _predict(objective: _Objective, frames, u, u_base, target, plan=None):
     f = frames[0]
     t = objective.family.t
     kind = target["kind"]
@@ -580,38 +667,7 @@ def _predict(objective: _Objective, frames, u, u_base, target):
             "; ".join(f"{n} {old[n]:.3g} -> {new[n]:.3g} (estimation input: {base[n]:.3g})"
                       for n in new) + "."
     else:
-        gd = objective.gaps(u)
-        gb = objective.gaps(u_base)
-        a, b = target["effects"]
-        nulls = [lab for lab, z in target.get("at_null", {}).items() if z]
-        use = objective.idx
-        pred = {"ssr_gap_with_design": {f"{a} true": gd[0], f"{b} true": gd[1]},
-                "ssr_gap_with_estimation_input": {f"{a} true": gb[0], f"{b} true": gb[1]},
-                "gain_vs_estimation_input": min(gd[k] for k in use) / max(
-                    min(gb[k] for k in use), 1e-12),
-                "directions_designed_for": [f"{(a, b)[k]} true" for k in use],
-                "units": "expected SSR gap in noise variances (floor^2): the part of the "
-                         "prediction difference the other model cannot absorb by refitting"}
-        gain = min(gd[k] for k in use)
-        words = (f"Target: {target['words']}. Expected SSR gap between the two models' best "
-                 f"fits to old and new data (noise variances, linearised): {gain:.3g} with the "
-                 f"designed input ({a} true {gd[0]:.3g}, {b} true {gd[1]:.3g}), "
-                 f"{min(gb[k] for k in use):.3g} with the standard estimation input.")
-        if len(nulls) == 1:
-            other = b if nulls[0] == a else a
-            words += (f" The existing data put {nulls[0]}'s parameters at their null value: "
-                      f"that candidate is the fit's own model, which {other} contains, so "
-                      f"data from it are fitted by {other} exactly whatever the input; the "
-                      f"design shows whether {other} is needed ({other} true).")
-        elif len(nulls) == 2:
-            words += (" The existing data put both effects at their null values: neither is "
-                      "supported by them, and either candidate fits data from the other.")
-        status = DESIGNED if gain >= 9.0 and len(nulls) < 2 else LITTLE_GAIN
-        if status == LITTLE_GAIN:
-            words += (" Even the best input found leaves a gap below 9 noise variances "
-                      "(3 sd): these effects cannot be told apart reliably by one more "
-                      "experiment of this length and these limits.")
-        return pred, status, words
+        return _predict_separation(objective, u, u_base, target, plan)
     status = DESIGNED if gain >= MIN_GAIN else LITTLE_GAIN
     if status == LITTLE_GAIN:
         words += (" The best input found narrows the target by less than "
@@ -621,7 +677,90 @@ def _predict(objective: _Objective, frames, u, u_base, target):
     return pred, status, words
 
 
-def _responses(objective, frames, t, u, target, v) -> dict:
+def _predict_separation(objective: _Objective, u, u_base, target, plan: _Plan):
+    """Predicted gaps of every separable pair, with the design and the estimation input;
+    the pair whose gap is smallest limits the design."""
+    labels = plan.effects
+    gd = objective.gaps(u)
+    gb = objective.gaps(u_base)
+    key = {d: _direction_key(labels, *d) for d in gd}
+    shown = [d for ij in plan.separable for d in (ij, ij[::-1])]
+    use = objective.idx
+    pairs = []
+    for ij in plan.separable:
+        dd = plan.directions(ij)
+        pairs.append({"effects": [labels[ij[0]], labels[ij[1]]],
+                      "directions_designed_for": [key[d] for d in dd],
+                      "designed_for": ij in plan.designed,
+                      "ssr_gap_with_design": min(gd[d] for d in dd),
+                      "ssr_gap_with_estimation_input": min(gb[d] for d in dd)})
+    designed = [p for p in pairs if p["designed_for"]]
+    limit = min(designed, key=lambda p: p["ssr_gap_with_design"])
+    gain = min(gd[d] for d in use)
+    base = min(gb[d] for d in use)
+    pred = {"ssr_gap_with_design": {key[d]: gd[d] for d in shown},
+            "ssr_gap_with_estimation_input": {key[d]: gb[d] for d in shown},
+            "gain_vs_estimation_input": gain / max(base, 1e-12),
+            "directions_designed_for": [key[d] for d in use],
+            "pairs": pairs, "limiting_pair": limit["effects"],
+            "units": "expected SSR gap in noise variances (floor^2): the part of the "
+                     "prediction difference the other model cannot absorb by refitting"}
+    nulls = [lab for lab, z in target.get("at_null", {}).items() if z]
+    if len(labels) == 2:
+        a, b = labels
+        words = (f"Target: {target['words']}. Expected SSR gap between the two models' best "
+                 f"fits to old and new data (noise variances, linearised): {gain:.3g} with the "
+                 f"designed input ({a} true {gd[(0, 1)]:.3g}, {b} true {gd[(1, 0)]:.3g}), "
+                 f"{base:.3g} with the standard estimation input.")
+        if len(nulls) == 1:
+            other = b if nulls[0] == a else a
+            words += (f" The existing data put {nulls[0]}'s parameters at their null value: "
+                      f"that candidate is the fit's own model, which {other} contains, so "
+                      f"data from it are fitted by {other} exactly whatever the input; the "
+                      f"design shows whether {other} is needed ({other} true).")
+        elif len(nulls) == 2:
+            words += (" The existing data put both effects at their null values: neither is "
+                      "supported by them, and either candidate fits data from the other.")
+        both_null = len(nulls) == 2
+    else:
+        words = (f"Target: {target['words']}. The design maximises the smallest expected SSR "
+                 "gap over the pairs (noise variances, linearised; a pair's gap is the "
+                 "smaller of its two directions, each candidate true in turn with the other "
+                 "refitted to old and new data): "
+                 f"{gain:.3g} with the designed input, {base:.3g} with the standard "
+                 f"estimation input; the pair that limits the design is "
+                 f"{' / '.join(limit['effects'])}. Per pair, design (estimation input): "
+                 + "; ".join(f"{' / '.join(p['effects'])} {p['ssr_gap_with_design']:.3g} "
+                             f"({p['ssr_gap_with_estimation_input']:.3g})"
+                             + ("" if p["designed_for"] else " [not designed for]")
+                             for p in pairs) + ".")
+        if nulls:
+            words += (" The existing data put " + ", ".join(nulls) + " at "
+                      + ("its" if len(nulls) == 1 else "their") + " null value: such a "
+                      "candidate is the fit's own model, which every other candidate "
+                      "contains, so only the other candidate's direction of its pairs is "
+                      "designed for (does the other effect show?).")
+        left = target.get("pairs", {}).get("both_at_null", [])
+        if left:
+            words += (" Left out of the design: " + "; ".join(" / ".join(p) for p in left)
+                      + " (both at their null values: both are the fit's own model, no "
+                      "data can tell them apart at these fits).")
+        both_null = not any(p["designed_for"] and not all(
+            target["at_null"][e] for e in p["effects"]) for p in pairs)
+    if plan.ties:
+        words += " " + " ".join(
+            f"No input can tell {plan.names(ij)} apart: {tie}. This holds in {tie.scope}, "
+            f"whatever the input. What separates them: {tie.procedure} (a second experiment;"
+            " the designed input serves the other pairs)." for ij, tie in plan.ties.items())
+    status = DESIGNED if gain >= 9.0 and not both_null else LITTLE_GAIN
+    if status == LITTLE_GAIN:
+        words += (" Even the best input found leaves a gap below 9 noise variances "
+                  "(3 sd): these effects cannot be told apart reliably by one more "
+                  "experiment of this length and these limits.")
+    return pred, status, words
+
+
+def _responses(objective, frames, t, u, target, v, plan=None) -> dict:
     """Predicted angles on the designed input (for the figure) and what tells the target."""
     out = {}
     for k, f in enumerate(frames):
@@ -630,9 +769,17 @@ def _responses(objective, frames, t, u, target, v) -> dict:
         label = target["effects"][k] if target["kind"] == "separate" else "fit"
         out[label] = {"theta_u": sim.theta_u, "theta_l": sim.theta_l}
     if target["kind"] == "separate":
-        Ja, ya = frames[0].new_rows(t, u, with_prediction=True)
-        Jb, yb = frames[1].new_rows(t, u, with_prediction=True)
-        out["difference"] = ("prediction difference / floor", ya - yb)
+        # The pair that limits the design (with two candidates, the pair).
+        i, j = (0, 1)
+        if len(frames) > 2:
+            g = objective.gaps(u, objective.idx)
+            i, j = min(plan.designed, key=lambda ij: min(g[d] for d in plan.directions(ij)))
+        Ja, ya = frames[i].new_rows(t, u, with_prediction=True)
+        Jb, yb = frames[j].new_rows(t, u, with_prediction=True)
+        what = "prediction difference / floor"
+        if len(frames) > 2:
+            what += f" ({plan.effects[i]} - {plan.effects[j]}, the limiting pair)"
+        out["difference"] = (what, ya - yb)
     elif target["kind"] == "sloppiest":
         f = frames[0]
         Jn = f.new_rows(t, u)
@@ -643,7 +790,8 @@ def _responses(objective, frames, t, u, target, v) -> dict:
     return out
 
 
-def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predicted) -> dict:
+def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predicted,
+             plan=None) -> dict:
     kind = target["kind"]
     if kind == "separate":
         labels = target["effects"]
@@ -653,15 +801,46 @@ def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predic
         gd = min(d[k]["ssr_gap"] for k in keys)
         gb = min(b[k]["ssr_gap"] for k in keys)
         pred = min(predicted["ssr_gap_with_design"][k] for k in keys)
-        words = (f"Check (each model's simulated data fitted by both, old and new data "
-                 f"together): achieved SSR gap {gd:.3g} noise variances with the design "
-                 f"(predicted {pred:.3g}), {gb:.3g} with the estimation input.")
+        out = {"design": d, "estimation_input": b, "ssr_gap_with_design": gd,
+               "ssr_gap_with_estimation_input": gb}
+        if len(labels) == 2:
+            words = (f"Check (each model's simulated data fitted by both, old and new data "
+                     f"together): achieved SSR gap {gd:.3g} noise variances with the design "
+                     f"(predicted {pred:.3g}), {gb:.3g} with the estimation input.")
+        else:
+            ppred = {tuple(q["effects"]): q for q in predicted["pairs"]}
+            pairs = []
+            for ij in list(plan.separable) + list(plan.ties):
+                ks = [_direction_key(labels, *dd) for dd in plan.directions(ij)]
+                names = (labels[ij[0]], labels[ij[1]])
+                q = ppred.get(names, {})
+                pairs.append({"effects": list(names), "tied": ij in plan.ties,
+                              "designed_for": ij in plan.designed,
+                              "predicted_with_design": q.get("ssr_gap_with_design"),
+                              "ssr_gap_with_design": min(d[k]["ssr_gap"] for k in ks),
+                              "ssr_gap_with_estimation_input": min(b[k]["ssr_gap"]
+                                                                   for k in ks)})
+            designed = [q for q in pairs if q["designed_for"]]
+            limit = min(designed, key=lambda q: q["ssr_gap_with_design"])
+            out["pairs"] = pairs
+            out["limiting_pair"] = limit["effects"]
+            words = ("Check (each candidate's simulated data fitted by every candidate, old "
+                     f"and new data together): achieved smallest gap {gd:.3g} noise "
+                     f"variances with the design (predicted {pred:.3g}), {gb:.3g} with the "
+                     "estimation input; the pair that limits it is "
+                     f"{' / '.join(limit['effects'])}. Per pair, achieved with the design "
+                     "(predicted; estimation input): " + "; ".join(
+                         f"{' / '.join(q['effects'])} {q['ssr_gap_with_design']:.3g} ("
+                         + ("tied, no input separates it" if q["tied"] else
+                            f"{q['predicted_with_design']:.3g}")
+                         + f"; {q['ssr_gap_with_estimation_input']:.3g})"
+                         for q in pairs) + ".")
         if gd < 0.5 * pred:
             words += (" The achieved gap is far below the linearised prediction: the "
                       "refitted model moved further than one linear step reaches, so the "
                       "prediction does not hold for this input; trust the achieved number.")
-        return {"design": d, "estimation_input": b, "ssr_gap_with_design": gd,
-                "ssr_gap_with_estimation_input": gb, "words": words}
+        out["words"] = words
+        return out
     f = frames[0]
     d = _check_information(f, t, u, kind, v, idx, seed, nfev)
     b = _check_information(f, t, u_base, kind, v, idx, seed, nfev)
