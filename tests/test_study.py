@@ -79,6 +79,93 @@ def test_a_study_runs_and_a_rerun_skips_unchanged_stages(data, capsys):
     assert rec3["fit0"] and rec3["fit1"] and rec3["diagnose1"] and not rec3["sample"]
 
 
+DESIGN_STUDY = """
+[analysis]
+out = "design_out"
+config = "coupled"
+data = ["est.csv"]
+
+[fit]
+max_nfev = 40
+
+[design]
+separate = ["lower_asymmetric_viscous", "string_damping"]
+duration = 6.0
+starts = {starts}
+max_evals = 15
+
+[report]
+html = false
+"""
+
+
+def test_a_design_stage_writes_next_and_is_skipped_when_unchanged(data):
+    """[design] in an analysis file: the stage runs `rotorbayes design` on the last fit
+    into OUT/design/ (u.csv at the data's rate for the asked duration, design.json with
+    the file's settings and the analysis seed), is skipped on a rerun with the same inputs
+    and reruns alone when its table changes."""
+    f = data / "design.toml"
+    f.write_text(DESIGN_STUDY.format(starts=1))
+    assert main(["run", str(f), "--quiet"]) == 0
+    out = data / "design_out"
+    rec = json.loads((out / "run.json").read_text())
+    assert [s["name"] for s in rec["stages"]] == ["fit0", "design"]
+    assert rec["seeds"]["design"] == 0
+    nxt = out / "design"
+    assert {"u.csv", "design.json", "design.txt", "design.png"} <= {
+        p.name for p in nxt.iterdir()}
+    doc = json.loads((nxt / "design.json").read_text())
+    assert doc["target"]["kind"] == "separate"
+    assert doc["target"]["effects"] == ["lower_asymmetric_viscous", "string_damping"]
+    assert doc["settings"]["starts"] == 1 and doc["settings"]["duration_s"] == 6.0
+    assert doc["settings"]["fit"].endswith("fit0")
+    assert doc["achieved"] is not None  # the self-check ran (check defaults to true)
+    u = (nxt / "u.csv").read_text().splitlines()
+    assert u[0] == "t,u" and len(u) == 1 + 1201
+    assert "---- design: rotorbayes design " in (out / "log.txt").read_text()
+    before = (nxt / "design.json").read_text()
+    # Unchanged: kept.
+    assert main(["run", str(f), "--quiet"]) == 0
+    rec2 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())
+            ["stages"]}
+    assert rec2 == {"fit0": True, "design": True}
+    assert (nxt / "design.json").read_text() == before
+    # Only [design] changed: the fit is kept, the design runs again.
+    f.write_text(DESIGN_STUDY.format(starts=2))
+    assert main(["run", str(f), "--quiet"]) == 0
+    rec3 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())
+            ["stages"]}
+    assert rec3 == {"fit0": True, "design": False}
+    assert json.loads((nxt / "design.json").read_text())["settings"]["starts"] == 2
+
+
+_D = "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[design]\n"
+
+
+@pytest.mark.parametrize("edit,message", [
+    (_D + "start=2\n", "[design] unknown key 'start'; valid keys: params, separate"),
+    (_D + "max_volts=9\n", "[design] max_volts = 9 must be positive and at most 5 V"),
+    (_D + "band_hz=0\n", "[design] band_hz = 0 must be positive"),
+    (_D + "separate=['warp', 'string_damping']\n", "[design] separate: unknown effect 'warp'"),
+    (_D + "separate=['string_damping']\n", "[design] separate = ['string_damping']: give two "
+     "or more different effects"),
+    (_D + "params=['J_l']\nseparate=['a', 'b']\n", "[design] give either params or separate"),
+    (_D + "params=['J_x']\n", "[design] params: unknown parameter 'J_x'"),
+    (_D + "family='chirp'\n", "[design] family = 'chirp'; choose steps or multisine"),
+    (_D + "starts=0\n", "[design] starts = 0 must lie between 1 and 256"),
+    ("[analysis]\nout='o'\nconfig='upper'\ndata=['est.csv']\n[design]\n"
+     "separate=['string_damping', 'voltage_offset']\n",
+     "[design] separate: effect 'string_damping' does not apply to the upper configuration"),
+])
+def test_a_bad_design_table_is_refused_before_any_work(data, capsys, edit, message):
+    f = data / "bad_design.toml"
+    f.write_text(edit)
+    assert main(["run", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and str(f) in err and "Traceback" not in err
+    assert not (data / "o").exists()
+
+
 @pytest.mark.parametrize("edit,message", [
     ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fitt]\n", "unknown table [fitt]"),
     ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\nsede=1\n",

@@ -1,10 +1,10 @@
 """A whole study from one file: ``rotorbayes run analysis.toml`` (and ``rotorbayes demo``).
 
 The analysis file (TOML; reference in ``docs/analysis_file.md``) names the data, the
-configuration, the fit, the diagnosis loop, the sampler, the identifiability study and the
-report.  :func:`load_analysis` validates all of it before any work starts: unknown tables
-or keys, unknown parameter names, inconsistent prior bounds and missing files are errors
-that name the file and the key.
+configuration, the fit, the diagnosis loop, the sampler, the identifiability study, the
+design of the next experiment and the report.  :func:`load_analysis` validates all of it
+before any work starts: unknown tables or keys, unknown parameter names, inconsistent
+prior bounds and missing files are errors that name the file and the key.
 
 :func:`run` executes the stages through the same functions as the commands
 (:mod:`rotorbayes.commands`; the log shows each stage as its command line), writes every
@@ -43,6 +43,9 @@ SCHEMA: dict[str, dict[str, tuple]] = {
                "ar1": (bool,)},
     "priors": {},
     "identify": {"profiles": (list,), "points": (int,)},
+    "design": {"params": (list,), "separate": (list,), "duration": (int, float),
+               "rate": (int, float), "max_volts": (int, float), "band_hz": (int, float),
+               "family": (str,), "starts": (int,), "max_evals": (int,), "check": (bool,)},
     "report": {"html": (bool,)},
     "parallel": {"backend": (str,), "workers": (int,), "scheduler": (str,)},
 }
@@ -56,6 +59,8 @@ LIMITS: dict[str, dict[str, tuple[float, float]]] = {
     "diagnose": {"max_steps": (0, 20), "noise_std": (0.0, 1.0)},
     "sample": {"walkers": (4, 10_000), "steps": (10, 10_000_000), "ensembles": (1, 64)},
     "identify": {"points": (3, 1001)},
+    "design": {"starts": (1, 256), "max_evals": (1, 1_000_000),
+               "duration": (0.0, 86_400.0), "rate": (0.0, 100_000.0)},
     "parallel": {"workers": (1, 256)},
 }
 
@@ -72,6 +77,8 @@ NON_EMPTY = {
     "channels": "choose theta_u and/or theta_l, or leave the key out (all channels)",
     "profiles": "list parameters or leave the key out",
     "p0": "name a start or leave the key out (a start from the data)",
+    "params": "list free parameters or leave the key out (the fit's sloppiest direction)",
+    "separate": "list two or more effects or leave the key out",
 }
 
 
@@ -221,12 +228,59 @@ def load_analysis(path: str | Path) -> Analysis:
     for n in a.table("identify").get("profiles", []):
         if n not in INFO:
             raise _err(p, "identify", f"profiles: unknown parameter {n!r}")
+    if "design" in doc:
+        _check_design(p, a.table("design"), an["config"])
     from .inference.parallel import BACKENDS
 
     backend = a.table("parallel").get("backend")
     if backend is not None and backend not in BACKENDS:
         raise _err(p, "parallel", f"backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     return a
+
+
+def _check_design(p: Path, d: dict, config: str) -> None:
+    """The ``[design]`` table's values, checked like ``rotorbayes design``'s options."""
+    from .design.inputs import FAMILIES, MAX_BAND_HZ
+    from .signals import MAX_VOLTAGE
+
+    if d.get("params") and d.get("separate"):
+        raise _err(p, "design", "give either params or separate, not both (neither: the "
+                   "fit's sloppiest direction)")
+    for n in d.get("params", []):
+        if n.split("[")[0] not in INFO:
+            raise _err(p, "design", f"params: unknown parameter {n!r}; valid names are: "
+                       f"{', '.join(INFO)}")
+    sep = d.get("separate")
+    if sep is not None:
+        repeated = sorted({e for e in sep if sep.count(e) > 1})
+        if len(sep) < 2 or repeated:
+            why = f" ({', '.join(repeated)} given twice)" if repeated else ""
+            raise _err(p, "design", f"separate = {sep!r}: give two or more different "
+                       f"effects{why}, e.g. separate = [\"lower_asymmetric_coulomb\", "
+                       "\"string_damping\"]")
+        for e in sep:
+            if ".py:" in e:  # validation runs no code
+                raise _err(p, "design", f"separate: {e!r}: name catalogue effects (`rotorbayes "
+                           "effects` lists them); an effect file's effect is designed for with "
+                           "`rotorbayes design FIT --separate ...`")
+            try:
+                eff = _effects.get(e)
+            except Exception as exc:  # noqa: BLE001 - the effect registry explains
+                raise _err(p, "design", f"separate: {exc}") from None
+            if config not in eff.configs:
+                raise _err(p, "design", f"separate: effect {e!r} does not apply to the "
+                           f"{config} configuration (it applies to {', '.join(eff.configs)})")
+    if "family" in d and d["family"] not in FAMILIES:
+        raise _err(p, "design", f"family = {d['family']!r}; choose {' or '.join(FAMILIES)}")
+    for k, hi, why in (("max_volts", MAX_VOLTAGE, " V, the amplifier's limit"),
+                       ("band_hz", MAX_BAND_HZ, " Hz, the rig's band"),
+                       ("duration", None, ""), ("rate", None, "")):
+        if k in d:
+            v = d[k]
+            if not (math.isfinite(v) and v > 0) or (hi is not None and v > hi):
+                raise _err(p, "design", f"{k} = {v!r} must be positive" + (
+                    f" and at most {hi:g}{why}" if hi is not None else "")
+                    + "; leave it out for the default")
 
 
 def _sha(data: bytes) -> str:
@@ -384,6 +438,7 @@ def _command_line(command: str, options: dict) -> str:
 def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # noqa: C901
             data_hashes, seed, an) -> dict:
     from .commands.compare import compare as compare_command
+    from .commands.design import design as design_command
     from .commands.diagnose import diagnose as diagnose_command
     from .commands.fit import fit as fit_command
     from .commands.identify import identify as identify_command
@@ -391,7 +446,8 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
     from .exitcodes import Interrupted
 
     functions = {"fit": fit_command, "diagnose": diagnose_command, "compare": compare_command,
-                 "sample": sample_command, "identify": identify_command}
+                 "sample": sample_command, "identify": identify_command,
+                 "design": design_command}
 
     tee = _Tee(log, None if quiet else sys.stdout)
     print(f"\n==== rotorbayes run {path} ({record['started']})", file=tee)
@@ -506,6 +562,21 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
             post = digest(out / "posterior", "summary.csv")
         stage("identify", out / "identify", digest(fit, "fit.json") + json.dumps(i) + post,
               "identify", opts, "identify.json")
+    if "design" in a.doc:
+        d = a.table("design")
+        opts = {"fit": str(fit), "out": str(out / "design"), "force": True, "seed": seed}
+        for k in ("params", "separate"):
+            if d.get(k):
+                opts[k] = ",".join(d[k])
+        for k in ("duration", "rate", "max_volts", "band_hz", "family", "starts",
+                  "max_evals"):
+            if k in d:
+                opts[k] = d[k]
+        if not d.get("check", True):
+            opts["no_check"] = True
+        record["seeds"]["design"] = seed
+        stage("design", out / "design", digest(fit, "fit.json") + json.dumps(d, sort_keys=True)
+              + json.dumps({"seed": seed}), "design", opts, "design.json")
     record["added_effects"] = added
     record["final_fit"] = str(fit)
     record["finished"] = datetime.datetime.now().isoformat(timespec="seconds")
