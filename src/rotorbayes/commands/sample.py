@@ -15,7 +15,7 @@ from .. import exitcodes as EXIT
 from ..exitcodes import Interrupted, Refused
 from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
 from .common import Outcome
-from .options import MAX_STEPS, MAX_WALKERS, add_trust_option, ranged
+from .options import MAX_STEPS, MAX_WALKERS, add_parallel_options, add_trust_option, ranged
 
 HELP = "posterior sampling with emcee from a fit (checkpointed; --resume continues)"
 
@@ -58,6 +58,15 @@ def add_arguments(sp) -> None:
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
     sp.add_argument("--force", action="store_true", help="overwrite results in --out")
     add_trust_option(sp)
+    add_parallel_options(sp, "ensembles")
+    for action in sp._actions:  # the ensembles' default differs from other commands'
+        if action.dest == "backend":
+            action.help = ("where the independent ensembles run, concurrently, in segments "
+                           "of steps: serial, local threads, local processes, or dask (a "
+                           "local Dask cluster of --workers processes, or the scheduler of "
+                           "--scheduler or DASK_SCHEDULER_ADDRESS). Default, without any of "
+                           "these options: one ensemble after the other in this process, "
+                           "its walkers in the kernel's threads (as fast on one machine)")
 
 
 #: Files ``sample`` derives from chain.h5 (rewritten by every run, --resume included).
@@ -95,7 +104,8 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
            steps: int | None = None, ensembles: int = 2, seed: int = 0, noise: str = "robust",
            ar1: bool = False, moves: str | None = None, priors: str | None = None,
            max_draws: int = 100, quiet: bool = False, force: bool = False,
-           trust_effects: bool = False) -> Outcome:
+           trust_effects: bool = False, backend: str | None = None,
+           workers: int | None = None, scheduler: str | None = None) -> Outcome:
     """emcee from the fit folder ``source`` into the folder ``out``, checkpointed at every
     step (chain.h5); with ``resume`` (``source`` then a sample folder) the same chains go on
     to ``steps`` in total.
@@ -105,6 +115,11 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
     emcee's proposals (a resumed run keeps its own), ``priors`` a TOML file; ``max_draws``
     per ensemble kept in posterior.nc.  Writes the summary tables and figures from the
     chains.
+
+    ``backend``, ``workers``, ``scheduler`` (or ``DASK_SCHEDULER_ADDRESS``, or a study on a
+    Dask cluster) run the ensembles concurrently on the executor
+    (:mod:`rotorbayes.inference.parallel`), in segments of steps, with the same chains bit
+    for bit; without them they run one after the other in this process, as before.
     """
     a = SimpleNamespace(**locals())  # the steps below read the options by name
     from ..outputs import clean_stale, folder_lock
@@ -216,11 +231,13 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     guard = InterruptGuard().start()  # Ctrl-C: stop between two steps, never inside one
     try:
         try:
-            runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
-                            n_steps=settings["steps"], n_ensembles=settings["ensembles"],
-                            seed=settings["seed"], progress=not a.quiet and sys.stderr.isatty(),
-                            should_stop=lambda: guard.hit > 0, keep_free=outputs,
-                            moves=a.moves or settings.get("moves"))
+            with _ensemble_executor(a) as ex:
+                runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
+                                n_steps=settings["steps"], n_ensembles=settings["ensembles"],
+                                seed=settings["seed"],
+                                progress=not a.quiet and sys.stderr.isatty(),
+                                should_stop=lambda: guard.hit > 0, keep_free=outputs,
+                                moves=a.moves or settings.get("moves"), executor=ex)
         except RuntimeError as exc:
             if "cannot place the walkers" not in str(exc):
                 raise
@@ -229,8 +246,8 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             earlier = (f" ({', '.join(stale)} still describe the earlier, shorter run "
                        "until then)") if stale else ""
             raise Interrupted(
-                f"interrupted (Ctrl-C): {exc.ensemble} stopped after step {exc.step} of "
-                f"{exc.total}; every finished step is kept in {out}/chain.h5 (settings in "
+                f"interrupted (Ctrl-C): {exc}; every finished step is kept in {out}/chain.h5 "
+                "(settings in "
                 f"settings.json). Continue with `rotorbayes sample {out} --resume`{earlier}"
             ) from None
         except BaseException as exc:
@@ -251,6 +268,26 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     finally:
         guard.stop()
     return written
+
+
+@contextlib.contextmanager
+def _ensemble_executor(a):
+    """The executor the ensembles run on, or None (one after the other in this process, as
+    before the executor layer): an executor when ``--backend``, ``--workers`` or
+    ``--scheduler`` is given, ``DASK_SCHEDULER_ADDRESS`` is set, or a study runs on a Dask
+    cluster. On one machine the serial loop already keeps every core busy (the walkers of
+    an ensemble are one parallel kernel batch), so it stays the default there."""
+    from ..inference import parallel as P
+    from .common import executor
+
+    opts = (getattr(a, "backend", None), getattr(a, "workers", None),
+            getattr(a, "scheduler", None))
+    if (opts == (None, None, None) and not os.environ.get(P.SCHEDULER_ENV)
+            and not P.is_dask(P.current_executor())):
+        yield None
+        return
+    with executor(*opts) as ex:
+        yield ex
 
 
 def _die_disk_full(out: Path, exc: BaseException) -> None:

@@ -425,6 +425,29 @@ def run_tasks(
             f.cancel()
 
 
+def share(ex: Executor, obj: Any) -> Any:
+    """``obj`` made ready to be named by many tasks submitted to ``ex`` by hand (as the first
+    argument of ``ex.submit``): on Dask scattered once to every worker (the tasks carry only
+    its key), elsewhere ``obj`` itself (threads share it; a process pool pickles it with each
+    task)."""
+    return _scatter(ex, obj) if _is_dask(ex) else obj
+
+
+def is_dask(ex: Executor | None) -> bool:
+    """Whether ``ex`` runs its tasks on a Dask cluster."""
+    return ex is not None and _is_dask(ex)
+
+
+def client_gone(ex: Executor) -> bool:
+    """Whether ``ex`` is a Dask executor whose scheduler is lost."""
+    return _is_dask(ex) and _client_gone(ex)
+
+
+def lost_scheduler(ex: Executor, done: int, total: int) -> ClusterError:
+    """The :class:`ClusterError` for a scheduler lost after ``done`` of ``total`` tasks."""
+    return _lost(ex, done, total)
+
+
 def _scatter(ex: Executor, obj: Any):
     client = ex._client  # type: ignore[attr-defined]
     try:

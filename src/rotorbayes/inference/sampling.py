@@ -270,8 +270,11 @@ class CheckpointError(ValueError):
 class SamplingStopped(Exception):
     """A run ended between two steps on request; every finished step is saved."""
 
-    def __init__(self, ensemble: str, step: int, total: int):
-        super().__init__(f"{ensemble} stopped after step {step} of {total}")
+    def __init__(self, ensemble: str, step: int, total: int,
+                 others: dict[str, int] | None = None):
+        others = {k: v for k, v in (others or {}).items() if k != ensemble}
+        more = "".join(f", {k} after step {v}" for k, v in others.items())
+        super().__init__(f"{ensemble} stopped after step {step} of {total}{more}")
         self.ensemble, self.step, self.total = ensemble, step, total
 
 
@@ -671,6 +674,7 @@ def sample(
     keep_free: int = 0,
     moves: str | None = None,
     start: str = "fit",
+    executor=None,
 ) -> list[EnsembleRun]:
     """Run (or continue) ``n_ensembles`` ensembles into ``folder/chain.h5`` (in memory,
     without checkpoints, when ``folder`` is None).
@@ -681,6 +685,11 @@ def sample(
     places the walkers of a new run (:func:`start_walkers`). An existing ``chain.h5`` is
     checked first (:func:`check_checkpoint`; a damaged one raises :class:`CheckpointError`);
     ``should_stop`` see :func:`run_ensemble`.
+
+    ``executor`` (:mod:`~rotorbayes.inference.parallel`; None: one ensemble after the other
+    in this process, emcee's own loop) runs the ensembles concurrently, in segments of steps
+    (:func:`_run_on_executor`): only this process writes ``chain.h5``, step by step, and the
+    chains are bit for bit those of the serial run.
     """
     if moves is not None and moves not in MOVES:
         raise ValueError(f"moves {moves!r}: choose one of {', '.join(MOVES)}")
@@ -717,9 +726,11 @@ def sample(
         owned = preallocate(path, chain_bytes(n_walkers, logpost.ndim, left, 1))
     reserve = DiskReserve(folder, keep_free if left else 0)
     try:
-        _run_all(logpost, x_fit, path, held, n_walkers=n_walkers, n_steps=n_steps,
-                 n_ensembles=n_ensembles, seed=seed, progress=progress,
-                 should_stop=should_stop, owned=owned, moves=moves, start=start)
+        run = _run_all if executor is None else _run_on_executor
+        kw = {} if executor is None else {"executor": executor}
+        run(logpost, x_fit, path, held, n_walkers=n_walkers, n_steps=n_steps,
+            n_ensembles=n_ensembles, seed=seed, progress=progress,
+            should_stop=should_stop, owned=owned, moves=moves, start=start, **kw)
     finally:
         reserve.close()
         if owned:  # give back the blocks past the end that were not needed
@@ -744,3 +755,263 @@ def _run_all(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensembles, see
             print(f"ensemble {e}: {taken} steps in {dt:.1f} s "
                   f"({taken * n_walkers / max(dt, 1e-9):.0f} log-posterior evaluations/s)",
                   flush=True)
+
+
+# ----------------------------------------------------- ensembles on an executor (segments)
+
+#: Steps of an ensemble's first segment on an executor; later segments aim at
+#: :data:`SEGMENT_SECONDS` of work each (at most :data:`SEGMENT_MAX` steps), so a Ctrl-C
+#: waits little and the checkpoint is written often.
+SEGMENT_FIRST, SEGMENT_SECONDS, SEGMENT_MAX = 5, 2.0, 500
+
+
+@dataclass
+class _Segment:
+    """One task: ``n`` steps of ensemble ``name`` from a given emcee state.
+
+    ``coords`` None: a new ensemble, placed from ``x_fit`` with ``seed`` (as
+    :func:`run_ensemble` does). ``random_state`` is the sampler's (numpy RandomState's)
+    state; ``proposal`` the fit proposal's mean and covariance (moves that use it)."""
+
+    name: str
+    n: int
+    moves: str
+    proposal: tuple | None
+    coords: np.ndarray | None = None
+    log_prob: np.ndarray | None = None
+    random_state: tuple | None = None
+    seed: int = 0
+    x_fit: np.ndarray | None = None
+    n_walkers: int = 0
+    start: str = "fit"
+
+
+@dataclass
+class _Chunk:
+    """What a segment returns: every step's positions, log-probabilities, acceptances and
+    the random state after it (so the checkpoint after any step can be continued)."""
+
+    name: str
+    chain: np.ndarray  # (n, walkers, ndim)
+    log_prob: np.ndarray  # (n, walkers)
+    accepted: np.ndarray  # (n, walkers) bool
+    random_states: list
+    seconds: float
+    cpu_seconds: float
+    pid: int
+    calls: int
+    failed: int
+
+
+def _run_segment(logpost: LogPosterior, seg: _Segment) -> _Chunk:
+    """Run one segment (a task on a worker): emcee from the state the segment carries,
+    the steps kept in memory and returned; nothing is written here."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    calls0, failed0 = logpost.n_calls, logpost.n_failed
+    if seg.coords is None:
+        rng = np.random.default_rng(seg.seed)
+        p0 = start_walkers(logpost, seg.x_fit, seg.n_walkers, rng, start=seg.start)
+        state = emcee.State(p0, random_state=np.random.RandomState(seg.seed).get_state())
+    else:
+        state = emcee.State(seg.coords, log_prob=seg.log_prob, random_state=seg.random_state)
+    n_walkers = state.coords.shape[0]
+    sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
+                                    moves=emcee_moves(seg.moves, seg.proposal))
+    backend = sampler.backend
+    chain = np.empty((seg.n, n_walkers, logpost.ndim))
+    logp = np.empty((seg.n, n_walkers))
+    acc = np.zeros((seg.n, n_walkers), bool)
+    states = []
+    before = np.zeros(n_walkers, int)
+    # A continued state was checked when its ensemble began (as in one uninterrupted run).
+    for k, st in enumerate(sampler.sample(state, iterations=seg.n, progress=False,
+                                          store=True,
+                                          skip_initial_state_check=seg.coords is not None)):
+        chain[k], logp[k] = st.coords, st.log_prob
+        acc[k] = backend.accepted > before
+        before = backend.accepted.copy()
+        states.append(st.random_state)
+    return _Chunk(seg.name, chain, logp, acc, states, time.perf_counter() - t0,
+                  time.process_time() - c0, os.getpid(), logpost.n_calls - calls0,
+                  logpost.n_failed - failed0)
+
+
+def _save_chunk(path: Path, name: str, chunk: _Chunk) -> None:
+    """Append a chunk to the ensemble's group one step at a time, each step as emcee saves
+    its own (positions, log-probabilities, acceptances, then the random state and the
+    step count): a kill between two writes leaves a checkpoint that continues exactly."""
+    backend = _backend(path, name)
+    backend.grow(chunk.chain.shape[0], None)
+    for k in range(chunk.chain.shape[0]):
+        backend.save_step(emcee.State(chunk.chain[k], log_prob=chunk.log_prob[k],
+                                      random_state=chunk.random_states[k]),
+                          chunk.accepted[k])
+
+
+def _run_on_executor(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensembles, seed,
+                     progress, should_stop, owned, moves, start, executor) -> None:
+    """The ensembles concurrently on ``executor``, in segments.
+
+    Each ensemble is a chain of tasks: a worker runs a segment of steps from the state the
+    task carries (positions, log-probabilities, the random state, the fit proposal) and
+    returns the steps; this process appends them to ``chain.h5`` step by step (the only
+    writer) and sends the ensemble's next segment. A segment never crosses
+    :data:`ADAPT_AT`, where the fit proposal is re-centred here from the stored chain, as
+    the serial run does. The random state travels whole, so the chains do not depend on
+    where or in how many segments they were run: bit for bit the serial ones. The
+    log-posterior (the data) goes to every worker once (Dask scatters it; threads share it;
+    a process pool gets it with each segment, not with each step). ``should_stop`` is asked
+    while waiting: the segments still running are dropped (their steps were never written)."""
+    from concurrent.futures import FIRST_COMPLETED, CancelledError
+    from concurrent.futures import wait as _wait
+
+    from . import parallel as P
+
+    active: dict[str, dict] = {}
+    fit_prop = None
+    for e in range(n_ensembles):
+        name = f"ensemble{e}"
+        done = held.get(name, 0)
+        if done >= n_steps:
+            continue
+        backend = _backend(path, name)
+        proposal, adapted = None, False
+        if uses_fit_proposal(moves):
+            stored = _stored_proposal(path, name) if done else None
+            if stored is None:
+                if fit_prop is None:
+                    fit_prop = fit_proposal(logpost, x_fit)
+                stored = (fit_prop, False)
+            proposal, adapted = stored
+            if done >= ADAPT_AT and not adapted:  # stopped between the step and its record
+                proposal, adapted = _adapted(backend.get_chain(), proposal), True
+                _set_attrs(path, name, proposal_mean=proposal[0], proposal_cov=proposal[1],
+                           proposal_adapted=ADAPT_AT)
+        seg = _Segment(name, 0, moves, proposal)
+        if done == 0:
+            backend.reset(n_walkers, logpost.ndim)
+            extra = {} if proposal is None else {"proposal_mean": proposal[0],
+                                                 "proposal_cov": proposal[1]}
+            _set_attrs(path, name, moves=moves, sampling_seconds=0.0, cpu_seconds=0.0,
+                       **extra)
+            seg.seed, seg.x_fit, seg.n_walkers, seg.start = (seed + 1000 * e, x_fit,
+                                                            n_walkers, start)
+        else:
+            last = backend.get_last_sample()
+            seg.coords, seg.log_prob, seg.random_state = (last.coords, last.log_prob,
+                                                          last.random_state)
+        active[name] = {"e": e, "done": done, "seg": seg, "adapted": adapted,
+                        "per_step": None, "t0": time.perf_counter(), "taken": 0}
+    if not active:
+        return
+    total = sum(n_steps - a["done"] for a in active.values())
+    step_bytes = 8 * n_walkers * (logpost.ndim + 1) + 8192
+    shared = P.share(executor, logpost)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=f"{len(active)} ensembles", unit="step", leave=False)
+    futures: dict = {}
+    me = os.getpid()
+
+    def submit(name: str) -> None:
+        a = active[name]
+        left = n_steps - a["done"]
+        n = SEGMENT_FIRST if a["per_step"] is None else int(
+            SEGMENT_SECONDS / max(a["per_step"], 1e-6))
+        n = max(1, min(n, SEGMENT_MAX, left))
+        if a["seg"].proposal is not None and not a["adapted"] and a["done"] < ADAPT_AT:
+            n = min(n, ADAPT_AT - a["done"])  # the proposal is re-centred at ADAPT_AT
+        a["seg"].n = n
+        futures[executor.submit(_run_segment, shared, a["seg"])] = name
+
+    try:
+        for name in active:
+            submit(name)
+        while futures:
+            if should_stop is not None and should_stop():
+                raise _stopped(active, n_steps)
+            ready, _ = _wait(list(futures), timeout=0.2, return_when=FIRST_COMPLETED)
+            for f in sorted(ready, key=lambda f: active[futures[f]]["e"]):
+                name = futures.pop(f)
+                a = active[name]
+                try:
+                    chunk = f.result()
+                except CancelledError:
+                    raise P.lost_scheduler(executor, total - _left(active, n_steps),
+                                           total) from None
+                except OSError as exc:
+                    if P.client_gone(executor):
+                        raise P.lost_scheduler(executor, 0, total) from exc
+                    raise
+                n = chunk.chain.shape[0]
+                if (not owned and _free_bytes(path.parent) < step_bytes * n + 100_000):
+                    raise EnvironmentFailure(
+                        f"{path.parent}: the disk is nearly full; sampling stopped after "
+                        f"step {a['done']} of {n_steps} of {name} and every finished step "
+                        f"is kept in {path}. Free some space and continue with "
+                        f"`rotorbayes sample {path.parent} --resume`")
+                _save_chunk(path, name, chunk)
+                _add_seconds(path, name, chunk.seconds, chunk.cpu_seconds)
+                if chunk.pid != me:  # counted in another process's copy
+                    logpost.n_calls += chunk.calls
+                    logpost.n_failed += chunk.failed
+                a["done"] += n
+                a["taken"] += n
+                a["per_step"] = chunk.seconds / n
+                seg = a["seg"]
+                seg.coords, seg.log_prob = chunk.chain[-1], chunk.log_prob[-1]
+                seg.random_state, seg.x_fit = chunk.random_states[-1], None
+                if seg.proposal is not None and not a["adapted"] and a["done"] == ADAPT_AT:
+                    seg.proposal = _adapted(_backend(path, name).get_chain(), seg.proposal)
+                    a["adapted"] = True
+                    _set_attrs(path, name, proposal_mean=seg.proposal[0],
+                               proposal_cov=seg.proposal[1], proposal_adapted=ADAPT_AT)
+                if bar is not None:
+                    bar.update(n)
+                    bar.set_postfix_str(_where(active, n_steps))
+                if a["done"] < n_steps:
+                    if should_stop is not None and should_stop():
+                        raise _stopped(active, n_steps)
+                    submit(name)
+                elif progress:
+                    dt = time.perf_counter() - a["t0"]
+                    msg = (f"ensemble {a['e']}: {a['taken']} steps in {dt:.1f} s "
+                           f"({a['taken'] * n_walkers / max(dt, 1e-9):.0f} log-posterior "
+                           "evaluations/s)")
+                    (bar.write(msg) if bar is not None else print(msg, flush=True))
+    finally:
+        for f in futures:
+            f.cancel()
+        if bar is not None:
+            bar.close()
+
+
+def _where(active: dict, n_steps: int) -> str:
+    """Each ensemble's steps, for the progress bar: ``e0 40/120 e1 35/120``."""
+    return " ".join(f"e{a['e']} {a['done']}/{n_steps}" for a in active.values())
+
+
+def _stopped(active: dict, n_steps: int) -> SamplingStopped:
+    """Stopped on request: where every ensemble of this session stands (all saved)."""
+    first = next(iter(active))
+    return SamplingStopped(first, active[first]["done"], n_steps,
+                           {n: a["done"] for n, a in active.items()})
+
+
+def _left(active: dict, n_steps: int) -> int:
+    return sum(n_steps - a["done"] for a in active.values())
+
+
+def _add_seconds(path: Path, name: str, wall: float, cpu: float) -> None:
+    """Add a segment's wall and CPU time (on its worker) to the group's totals."""
+    try:
+        import h5py
+
+        with h5py.File(path, "a") as f:
+            a = f[name].attrs
+            a["sampling_seconds"] = float(a.get("sampling_seconds", 0.0)) + wall
+            a["cpu_seconds"] = float(a.get("cpu_seconds", 0.0)) + cpu
+    except Exception:  # noqa: BLE001 - the clock must never cost a step or a checkpoint
+        pass
