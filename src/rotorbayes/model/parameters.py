@@ -239,8 +239,16 @@ def load_toml(path: str | Path, _chain: tuple[str, ...] = ()) -> dict[str, float
         raise ParameterError(f"{path}: base = {base!r} must be a string naming a set "
                              "(\"thesis:4.2:P0\") or another parameter file")
     if base is not None and not base.startswith("thesis:"):
+        named = base
         b = Path(base)
         base = b if b.is_absolute() or b.exists() else path.parent / b
+        if not named.strip() or not base.is_file():
+            why = ("is empty" if not named.strip() else
+                   "is a folder, not a parameter file" if base.is_dir() else
+                   f"is not a file (looked for {base.absolute()})")
+            raise ParameterError(f"{path}: base = {named!r} {why}; name a set such as "
+                                 "base = \"thesis:4.2:P0\" or another parameter file "
+                                 "(a path relative to this file)")
     out: dict[str, float] = {}
     if base is not None:
         out = (resolve(base) if isinstance(base, str)
