@@ -743,6 +743,10 @@ def _clean_meta(meta: Mapping[str, object]) -> dict[str, str]:
     return clean
 
 
+#: Rows written per block by :func:`save_experiment`.
+_WRITE_BLOCK = 100_000
+
+
 def save_experiment(
     exp: Experiment,
     path: str | os.PathLike,
@@ -812,12 +816,20 @@ def save_experiment(
     if not directory.is_dir():
         raise FileNotFoundError(f"directory {directory} does not exist; create it first")
 
-    lines = [f"# {k}: {v}" for k, v in merged.items()]
-    lines.append(",".join(cols))
-    # repr() of a Python float is the shortest string that parses back to the same double.
-    columns = [c.tolist() for c in cols.values()]
-    lines.extend(",".join(map(repr, row)) for row in zip(*columns, strict=True))
-    text = "\n".join(lines) + "\n"
+    head = [f"# {k}: {v}" for k, v in merged.items()]
+    head.append(",".join(cols))
+    n_rows = len(next(iter(cols.values())))
+
+    def chunks():
+        # The header, then the rows in blocks: a 10-million-row experiment is never held
+        # as one string (about 0.7 GB, and ten times that as Python objects).
+        yield "\n".join(head) + "\n"
+        for a in range(0, n_rows, _WRITE_BLOCK):
+            # repr() of a Python float is the shortest string that parses back to the
+            # same double.
+            columns = [c[a:a + _WRITE_BLOCK].tolist() for c in cols.values()]
+            yield "".join(",".join(map(repr, row)) + "\n"
+                          for row in zip(*columns, strict=True))
 
     # A hidden, unique temporary name in the same directory keeps os.replace atomic (same
     # filesystem) and lets concurrent writers not clobber each other's temporary files.
@@ -827,7 +839,8 @@ def save_experiment(
         # (tempfile.mkstemp would leave the measurement readable only by its owner).
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with open(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
+            for text in chunks():
+                fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
         if overwrite:
