@@ -523,6 +523,19 @@ def test_round_trip_is_exact(tmp_path, lower):
     assert again.read_bytes() == path.read_bytes()
 
 
+@pytest.mark.parametrize("block", [1, 7, 2000, 2001])
+def test_rows_written_in_blocks_give_the_same_file(tmp_path, monkeypatch, block):
+    """Long data are written a block of rows at a time (memory); block edges anywhere,
+    including one row per block and the last row alone, change no byte."""
+    exp = make_experiment()
+    whole = save_experiment(exp, tmp_path / "whole.csv", meta={"k": "v"}).read_bytes()
+    monkeypatch.setattr(data, "_WRITE_BLOCK", block)
+    parts = save_experiment(exp, tmp_path / f"b{block}.csv", meta={"k": "v"})
+    assert parts.read_bytes() == whole
+    assert whole.count(b"\n") == exp.n + 4  # 3 comment lines, the header, the rows
+    np.testing.assert_array_equal(load_experiment(parts).theta_l, exp.theta_l)
+
+
 def test_quantised_values_round_trip_below_1e_12(tmp_path):
     exp = make_experiment()
     back = load_experiment(save_experiment(exp, tmp_path / "q.csv"))
