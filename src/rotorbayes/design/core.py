@@ -51,6 +51,9 @@ DESIGNED, NO_INPUT, LITTLE_GAIN = "designed", "no input can help", "little to ga
 #: A design whose predicted width (or gap) improves on the existing data's by less than
 #: this factor is reported as little to gain.
 MIN_GAIN = 1.05
+#: A ``--separate`` candidate whose fit to the existing data is above this many times the
+#: encoder floor (worst channel) is said not to fit them.
+POOR_FIT = 5.0
 #: Function evaluations per optimisation start (each one a Jacobian on the new input).
 DEFAULT_EVALS = 400
 #: Local optimiser of each start: 'powell' (derivative-free) or 'lbfgsb' (forward
@@ -747,6 +750,16 @@ def _predict_separation(objective: _Objective, u, u_base, target, plan: _Plan):
                       "data can tell them apart at these fits).")
         both_null = not any(p["designed_for"] and not all(
             target["at_null"][e] for e in p["effects"]) for p in pairs)
+    poor = {lab: max((r for r in c["rms_over_floor"].values()
+                      if r is not None and math.isfinite(r)), default=0.0)
+            for lab, c in target.get("candidates", {}).items()}
+    poor = {lab: r for lab, r in poor.items() if r > POOR_FIT}
+    if poor:
+        words += (" The candidates do not all fit the existing data: " + ", ".join(
+            f"{lab} {r:.0f}x the floor" for lab, r in poor.items()) + ". The gaps assume "
+            "each candidate sits at its best fit; far from it the refits of the check move "
+            "the old data's misfit too, and the achieved gaps need not follow the predicted "
+            "ones. Fit the data well first (diagnose, restarts), then design.")
     if plan.ties:
         words += " " + " ".join(
             f"No input can tell {plan.names(ij)} apart: {tie}. This holds in {tie.scope}, "
