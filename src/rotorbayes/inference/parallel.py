@@ -110,6 +110,17 @@ def prepare_worker() -> None:
         os.environ.setdefault(k, v)
     import numba
 
+    # A Dask worker may import numba before the cluster's environment (WORKER_ENV) is set:
+    # numba's configuration then holds another thread count than the variable, and every
+    # later compilation (unpickling a compiled function, e.g. a model's effect hooks inside
+    # scattered data) would refuse it. Agree with the variable while numba's threads are
+    # not launched; once they are, the variable follows their count.
+    want = os.environ.get("NUMBA_NUM_THREADS")
+    if want is not None and want != str(numba.config.NUMBA_NUM_THREADS):
+        try:
+            numba.config.reload_config()
+        except RuntimeError:
+            os.environ["NUMBA_NUM_THREADS"] = str(numba.config.NUMBA_NUM_THREADS)
     try:
         numba.set_num_threads(1)
     except ValueError:  # pragma: no cover - numba already limited below 1 cannot happen

@@ -784,6 +784,7 @@ class _Segment:
     x_fit: np.ndarray | None = None
     n_walkers: int = 0
     start: str = "fit"
+    origin: int = 0  # the process id of the command
 
 
 @dataclass
@@ -806,6 +807,12 @@ class _Chunk:
 def _run_segment(logpost: LogPosterior, seg: _Segment) -> _Chunk:
     """Run one segment (a task on a worker): emcee from the state the segment carries,
     the steps kept in memory and returned; nothing is written here."""
+    if os.getpid() != seg.origin:
+        # A worker process runs one task per core: the walkers in one numba thread (the
+        # count is per thread, and a Dask task's thread is not the one set up at start).
+        import numba
+
+        numba.set_num_threads(1)
     t0, c0 = time.perf_counter(), time.process_time()
     calls0, failed0 = logpost.n_calls, logpost.n_failed
     if seg.coords is None:
@@ -887,7 +894,7 @@ def _run_on_executor(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensemb
                 proposal, adapted = _adapted(backend.get_chain(), proposal), True
                 _set_attrs(path, name, proposal_mean=proposal[0], proposal_cov=proposal[1],
                            proposal_adapted=ADAPT_AT)
-        seg = _Segment(name, 0, moves, proposal)
+        seg = _Segment(name, 0, moves, proposal, origin=os.getpid())
         if done == 0:
             backend.reset(n_walkers, logpost.ndim)
             extra = {} if proposal is None else {"proposal_mean": proposal[0],
