@@ -142,7 +142,35 @@ def warm_kernel() -> None:
 
 
 def _process_initializer() -> None:
+    _ignore_ctrl_c()
     prepare_worker()
+
+
+def _ignore_ctrl_c() -> None:
+    """A local worker process ignores Ctrl-C: the terminal sends it to the whole process
+    group, but the command's process alone decides what stops (and says what is kept); the
+    workers go when it shuts the pool down, without tracebacks of their own."""
+    import signal
+
+    with contextlib.suppress(ValueError, OSError):  # not the main thread: leave it
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _children_ignore_ctrl_c():
+    """Processes started in the block ignore Ctrl-C (an ignored signal stays ignored in a
+    new process, and Python then installs no handler of its own)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 @dataclass(frozen=True)
@@ -277,8 +305,10 @@ def _dask_client(spec: ExecutorSpec):
                     f"and workers with `dask worker {spec.scheduler}`, or drop the address "
                     "to run locally") from None
         else:
-            cluster = LocalCluster(n_workers=spec.n_workers(), threads_per_worker=1,
-                                   processes=True, dashboard_address=None, env=WORKER_ENV)
+            with _children_ignore_ctrl_c():  # the cluster's workers are this command's
+                cluster = LocalCluster(n_workers=spec.n_workers(), threads_per_worker=1,
+                                       processes=True, dashboard_address=None,
+                                       env=WORKER_ENV)
             client = Client(cluster, set_as_default=False)
         try:
             client.register_plugin(_worker_plugin(), name=_WarmUp.name)
