@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import stats
@@ -64,6 +65,8 @@ MIN_BLOCK_SECONDS = 0.2
 FAR_FROM_FLOOR = 3.0
 #: Upsampling factor of the smooth-input simulation of the input-hold allowance.
 HOLD_UPSAMPLE = 8
+#: Largest fine grid of that simulation [samples]; longer data get a smaller factor (>= 2).
+HOLD_MAX_FINE = 24_000_000
 #: Mean square of RMS/floor up to which the residual counts as noise alone (RMS 5 % above
 #: the floor: rounding while discs stick scatters the RMS that much around q/√12).
 NOISE_MS = 1.05**2
@@ -394,22 +397,26 @@ def hold_shift(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
     the SSR of the linear and of the smooth input model after that step."""
     from scipy.interpolate import CubicSpline
 
-    from ..data import Experiment
-
     if problem.prescribed_upper:
         return np.zeros(J.shape[1]), 0.0, 0.0
     dr = np.zeros_like(r)
     off = 0
     for i, ex in enumerate(problem.experiments):
-        K = int(upsample)
         n = ex.n
+        # Long data: at most HOLD_MAX_FINE samples on the fine grid (a 10 M-sample record
+        # at 8x took 9 GiB), but never fewer than 2 per sample, which still resolves the
+        # spline's bulge between two samples.
+        K = max(2, min(int(upsample), HOLD_MAX_FINE // max(n, 1)))
         tf = ex.t[0] + np.arange((n - 1) * K + 1) * (ex.dt / K)
         uf = CubicSpline(ex.t, ex.u)(tf)
-        # The same angles on the fine grid are never compared: only the coarse samples are.
-        fine = Experiment(tf, uf, np.zeros(tf.size),
-                          None if ex.theta_l is None else np.zeros(tf.size), name=ex.name)
+        # Only the input and its step on the fine grid: the angles there are never
+        # compared, only the coarse samples are (no Experiment of zeros is built).
+        fine = SimpleNamespace(u=uf, dt=float((tf[-1] - tf[0]) / (tf.size - 1)), theta_u=None)
+        del tf
         sim = problem.simulator_for(fine)
+        del uf
         st, thu, thl = sim.angles(sim.kernel_vector(problem.params_for(x, i)))
+        del sim
         st0, thu0, thl0 = problem.sims[i].angles(
             problem.sims[i].kernel_vector(problem.params_for(x, i)))
         for c in problem.channels:
