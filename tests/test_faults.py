@@ -248,6 +248,26 @@ def test_fit_stopped_by_sigint_at_random_moments_tells_the_truth(proj, tmp_path)
                 assert names == [], names
 
 
+def test_ctrl_c_after_the_command_has_finished_changes_nothing(tmp_path):
+    """The process is exiting (here: held in an exit hook); a Ctrl-C then must not turn a
+    finished, reported run into a death by SIGINT or a traceback."""
+    code = ("import atexit, sys, time; sys.argv = ['rotorbayes', *sys.argv[1:]]; "
+            "atexit.register(time.sleep, 3); from rotorbayes.cli import main; "
+            "sys.exit(main(sys.argv[1:]))")
+    p = subprocess.Popen([sys.executable, "-c", code, "simulate", "--model", "upper",
+                          "--duration", "2", "--out", "s.csv"], cwd=tmp_path, env=ENV,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (tmp_path / "s.csv").exists() and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)  # in the exit hook now
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 0, (p.returncode, err)
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert "wrote s.csv" in out
+
+
 def test_sample_killed_at_random_moments_resumes_to_exactly_the_steps_asked(proj, tmp_path):
     rng = random.Random(4)
     for k, sig in enumerate((signal.SIGKILL, signal.SIGINT)):

@@ -181,6 +181,14 @@ class _logged:
 
 
 def main(argv=None) -> int:
+    """Run one command; its exit code (:mod:`rotorbayes.exitcodes`)."""
+    try:
+        return _main(argv)
+    finally:
+        EXIT.exiting_after_command()
+
+
+def _main(argv=None) -> int:
     try:
         ap = build_parser()  # imports every command's module: seconds on a busy machine
         a = ap.parse_args(argv)

@@ -93,3 +93,19 @@ def describe_environment(exc: BaseException, path=None) -> str:
         return f"{where}the file system is read-only; choose an output folder elsewhere"
     what = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
     return f"{where}{what}; check the disk and the folder's permissions and run again"
+
+
+def exiting_after_command() -> None:
+    """Called when a command has finished and said so (whatever its exit code).
+
+    A Ctrl-C from then on could only kill the interpreter while it exits (Python restores
+    the default handler there), so the process would die by SIGINT after a complete,
+    reported result.  In the ``rotorbayes`` process itself SIGINT is ignored from here on;
+    Python code that calls :func:`rotorbayes.cli.main` keeps its handler.
+    """
+    import signal
+
+    from .coldstart import launched_as_command
+
+    if launched_as_command():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
