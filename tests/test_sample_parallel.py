@@ -164,3 +164,70 @@ def test_a_stop_request_ends_between_segments_and_says_where_each_ensemble_is(
                                f"step {n1}")
     got, _ = run(fitted, tmp_path / "S", P.SerialExecutor(), monkeypatch)
     assert got == ref
+
+
+# A program reading chain.h5 while it is written (emcee's HDFBackend in a notebook, h5py)
+# holds HDF5's file lock; a write then fails at once unless it waits.
+HOLD = """import sys, time, h5py
+while True:
+    try:
+        f = h5py.File(sys.argv[1], "r")
+        break
+    except OSError:
+        time.sleep(0.005)
+print("open", flush=True)
+time.sleep(float(sys.argv[2]))
+"""
+
+
+def hold_open(path: Path, seconds: float) -> subprocess.Popen:
+    p = subprocess.Popen([sys.executable, "-c", HOLD, str(path), str(seconds)],
+                         stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "open"
+    return p
+
+
+def test_a_reader_of_the_checkpoint_delays_sampling_and_changes_nothing(fitted, tmp_path):
+    f = load_fit(fitted)
+    S.sample(LogPosterior(f.problem, f.x), f.x, tmp_path / "ref", n_walkers=10, n_steps=150,
+             n_ensembles=1, seed=4, progress=False)
+    ref = chains(tmp_path / "ref" / "chain.h5")
+    out = tmp_path / "S"
+    p = cli(["sample", str(fitted), "--walkers", "10", "--steps", "150", "--ensembles", "1",
+             "--seed", "4", "--max-draws", "5", "--quiet", "--out", str(out)], tmp_path)
+    while not S.steps_held(out / "chain.h5") and p.poll() is None:
+        time.sleep(0.02)
+    readers = []
+    for _ in range(3):  # three readers, each holding the lock for a while mid-run
+        readers.append(hold_open(out / "chain.h5", 0.7))
+        readers[-1].wait(timeout=60)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    held = chains(out / "chain.h5")
+    assert held == ref  # the same chains, step for step, as a run nobody looked at
+
+
+def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(fitted, tmp_path,
+                                                                       monkeypatch, capsys):
+    out = tmp_path / "S"
+    args = ["--walkers", "10", "--ensembles", "1", "--seed", "4", "--max-draws", "5",
+            "--quiet"]
+    assert main(["sample", str(fitted), *args, "--steps", "20", "--out", str(out)]) == 0
+    before = chains(out / "chain.h5")
+    monkeypatch.setattr(S, "LOCK_WAIT", 0.5)
+    reader = hold_open(out / "chain.h5", 60)
+    try:
+        capsys.readouterr()
+        code = main(["sample", str(out), "--resume", "--steps", "40", "--quiet"])
+        err = capsys.readouterr().err
+    finally:
+        reader.kill()
+        reader.wait()
+    assert code == 4, err
+    assert "held the file open" in err and "--resume" in err and "Traceback" not in err
+    assert chains(out / "chain.h5") == before  # nothing written, nothing damaged
+    # Once it is closed, --resume goes on: the chains of a 40-step run nobody looked at.
+    assert main(["sample", str(out), "--resume", "--steps", "40", "--quiet"]) == 0
+    assert main(["sample", str(fitted), *args, "--steps", "40",
+                 "--out", str(tmp_path / "ref")]) == 0
+    assert chains(out / "chain.h5") == chains(tmp_path / "ref" / "chain.h5")

@@ -9,8 +9,9 @@ code   meaning
        result folder that is not ours); nothing was written or changed
 3      the environment failed: the disk is full, a folder is not writable, a read or
        write failed; the message names the file, earlier results are left as they were
-4      busy: another rotorbayes process is working on the same result folder; wait for it
-       (or stop it) and run again
+4      busy: another rotorbayes process is working on the same result folder, or another
+       program held ``chain.h5`` open for over a minute; wait for it (or stop it) and
+       run again
 130    interrupted (Ctrl-C or SIGTERM); the message says what was kept and how to go on
 141    the reader of the output went away (e.g. ``| head``); not an error of ours
 =====  ===============================================================================
@@ -36,7 +37,8 @@ TABLE = (
     (NOT_CONVERGED, "ran, but the fit did not converge (results written)"),
     (REFUSED, "refused input; nothing written or changed"),
     (ENVIRONMENT, "environment or I/O failure (disk full, folder not writable)"),
-    (BUSY, "another rotorbayes process works on the same result folder"),
+    (BUSY, "another rotorbayes process works on the same result folder, or another "
+           "program holds chain.h5 open"),
     (INTERRUPTED, "interrupted; the message says what was kept"),
     (BROKEN_PIPE, "the output's reader went away"),
 )

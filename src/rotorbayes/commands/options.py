@@ -97,14 +97,15 @@ def add_fit_options(p) -> None:
     add_trust_option(p)
 
 
-def add_parallel_options(p, what: str) -> None:
-    """Where the independent tasks run (rotorbayes.inference.parallel)."""
+def add_parallel_options(p, what: str, backend_help: str | None = None) -> None:
+    """Where the independent tasks run (rotorbayes.inference.parallel); ``backend_help``
+    replaces the ``--backend`` help for a command whose default differs."""
     from ..inference.parallel import BACKENDS, DEFAULT_BACKEND, SCHEDULER_ENV
 
     p.add_argument("--backend", choices=BACKENDS, default=None,
-                   help=f"where the {what} run: serial, local threads (default "
-                   f"{DEFAULT_BACKEND!r}), local processes, or dask (a local Dask cluster of "
-                   "--workers processes, or the scheduler given by --scheduler or "
+                   help=backend_help or f"where the {what} run: serial, local threads "
+                   f"(default {DEFAULT_BACKEND!r}), local processes, or dask (a local Dask "
+                   "cluster of --workers processes, or the scheduler given by --scheduler or "
                    f"{SCHEDULER_ENV})")
     p.add_argument("--workers", type=ranged(int, ge=1, le=256, why=" (parallel workers)"),
                    default=None, metavar="N",

@@ -58,15 +58,14 @@ def add_arguments(sp) -> None:
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
     sp.add_argument("--force", action="store_true", help="overwrite results in --out")
     add_trust_option(sp)
-    add_parallel_options(sp, "ensembles")
-    for action in sp._actions:  # the ensembles' default differs from other commands'
-        if action.dest == "backend":
-            action.help = ("where the independent ensembles run, concurrently, in segments "
-                           "of steps: serial, local threads, local processes, or dask (a "
-                           "local Dask cluster of --workers processes, or the scheduler of "
-                           "--scheduler or DASK_SCHEDULER_ADDRESS). Default, without any of "
-                           "these options: one ensemble after the other in this process, "
-                           "its walkers in the kernel's threads (as fast on one machine)")
+    add_parallel_options(
+        sp, "ensembles",
+        backend_help=("where the independent ensembles run, concurrently, in segments of "
+                      "steps: serial, local threads, local processes, or dask (a local Dask "
+                      "cluster of --workers processes, or the scheduler of --scheduler or "
+                      "DASK_SCHEDULER_ADDRESS). Default, without any of these options: one "
+                      "ensemble after the other in this process, its walkers in the "
+                      "kernel's threads (as fast on one machine)"))
 
 
 #: Files ``sample`` derives from chain.h5 (rewritten by every run, --resume included).
@@ -242,6 +241,8 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             if "cannot place the walkers" not in str(exc):
                 raise
             raise Refused(f"{fit.folder}/: {exc}") from None
+        except S.CheckpointBusy as exc:
+            raise EXIT.Busy(f"{exc.strerror} `rotorbayes sample {out} --resume`") from None
         except S.SamplingStopped as exc:
             earlier = (f" ({', '.join(stale)} still describe the earlier, shorter run "
                        "until then)") if stale else ""

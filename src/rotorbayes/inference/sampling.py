@@ -31,6 +31,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -259,8 +260,57 @@ def start_walkers(logpost: LogPosterior, x_fit, n_walkers: int, rng, *,
     return out
 
 
+#: Seconds a write to ``chain.h5`` waits while another program holds the file open for
+#: reading (HDF5 locks the file: a reader - emcee's ``HDFBackend`` or h5py in a notebook
+#: peeking at the chains - makes a write fail at once).
+LOCK_WAIT = 60.0
+
+
+class CheckpointBusy(OSError):
+    """Another program held ``chain.h5`` open for longer than :data:`LOCK_WAIT`."""
+
+
+def _is_lock_error(exc: BaseException) -> bool:
+    return isinstance(exc, BlockingIOError) or "unable to lock file" in str(exc)
+
+
+def open_h5(path, mode: str = "r", wait: float | None = None):
+    """``h5py.File(path, mode)``, waiting up to ``wait`` seconds (:data:`LOCK_WAIT`) while
+    another process holds the file's lock; then :class:`CheckpointBusy` names the file and
+    what to do."""
+    import h5py
+
+    return _waiting(lambda: h5py.File(path, mode), path, LOCK_WAIT if wait is None else wait)
+
+
+def _waiting(opener: Callable, path, wait: float):
+    t0, pause = time.monotonic(), 0.01
+    while True:
+        try:
+            return opener()
+        except OSError as exc:
+            if not _is_lock_error(exc):
+                raise
+            if time.monotonic() - t0 >= wait:
+                raise CheckpointBusy(
+                    errno.EAGAIN, f"{path}: another program has held the file open for "
+                    f"{wait:.0f} s (reading the chains while they are written?); every "
+                    "finished step is kept. Close it there, then continue with --resume"
+                ) from None
+        time.sleep(pause)
+        pause = min(2 * pause, 0.5)
+
+
+class _Backend(emcee.backends.HDFBackend):
+    """emcee's HDF5 backend whose every opening waits out another reader's lock."""
+
+    def open(self, mode="r"):
+        return _waiting(lambda: emcee.backends.HDFBackend.open(self, mode), self.filename,
+                        LOCK_WAIT)
+
+
 def _backend(path: Path, name: str) -> emcee.backends.HDFBackend:
-    return emcee.backends.HDFBackend(str(path), name=name)
+    return _Backend(str(path), name=name)
 
 
 class CheckpointError(ValueError):
@@ -293,7 +343,6 @@ def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
     A missing file holds nothing (a run killed before its first step). Raises
     :class:`CheckpointError` for an empty, unreadable, truncated or foreign file.
     """
-    import h5py
 
     path = Path(path)
     if not path.exists():
@@ -307,7 +356,7 @@ def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
         raise CheckpointError(f"{path}: the checkpoint is empty (0 bytes): damaged; {fix}")
     steps: dict[str, int] = {}
     try:
-        with h5py.File(path, "r") as f:
+        with open_h5(path, "r") as f:
             for e in range(n_ensembles):
                 name = f"ensemble{e}"
                 if name not in f:
@@ -348,10 +397,9 @@ def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
 
 def steps_held(path: Path) -> int:
     """The steps all ensembles of ``path`` hold (0 when absent or unreadable)."""
-    import h5py
 
     try:
-        with h5py.File(path, "r") as f:
+        with open_h5(path, "r", wait=5.0) as f:
             return sum(int(g.attrs.get("iteration", 0)) for g in f.values())
     except Exception:  # noqa: BLE001 - absent or damaged: nothing usable
         return 0
@@ -450,22 +498,9 @@ def run_ensemble(
     backend = _backend(path, name) if path is not None else emcee.backends.Backend()
     if done >= n_steps:
         return 0 if path is not None else _run_of(backend, name, moves)
-    proposal, adapted = None, False
-    if uses_fit_proposal(moves):
-        stored = _stored_proposal(path, name) if done else None
-        proposal, adapted = stored if stored is not None else (fit_proposal(logpost, x_fit),
-                                                                 False)
-        if done >= ADAPT_AT and not adapted:  # stopped between the step and its record
-            proposal, adapted = _adapted(backend.get_chain(), proposal), True
-            _set_attrs(path, name, proposal_mean=proposal[0], proposal_cov=proposal[1],
-                       proposal_adapted=ADAPT_AT)
+    proposal, adapted = _begin_group(backend, path, name, done, n_walkers, logpost.ndim,
+                                     moves, lambda: fit_proposal(logpost, x_fit))
     if done == 0:
-        if path is not None:
-            backend.reset(n_walkers, logpost.ndim)
-            extra = {} if proposal is None else {"proposal_mean": proposal[0],
-                                                 "proposal_cov": proposal[1]}
-            _set_attrs(path, name, moves=moves, sampling_seconds=0.0, cpu_seconds=0.0,
-                       **extra)
         rng = np.random.default_rng(seed)
         p0 = start_walkers(logpost, x_fit, n_walkers, rng, start=start)
         # emcee's own RandomState from the seed: the same seed gives the same run.
@@ -516,6 +551,29 @@ def run_ensemble(
     return n_steps - done
 
 
+def _begin_group(backend, path: Path | None, name: str, done: int, n_walkers: int,
+                 ndim: int, moves: str, fit_prop: Callable[[], tuple]) -> tuple:
+    """``(proposal, adapted)`` for an ensemble that holds ``done`` steps, with its HDF5
+    group made ready: a new group (``done`` 0) is reset and records its moves, clocks and
+    proposal; a group stopped between step ADAPT_AT and its record of the re-centred
+    proposal gets that record now. ``fit_prop()`` gives the fit's proposal when the group
+    holds none (moves without one: ``(None, False)``)."""
+    proposal, adapted = None, False
+    if uses_fit_proposal(moves):
+        stored = _stored_proposal(path, name) if done else None
+        proposal, adapted = stored if stored is not None else (fit_prop(), False)
+        if done >= ADAPT_AT and not adapted:  # stopped between the step and its record
+            proposal, adapted = _adapted(backend.get_chain(), proposal), True
+            _set_attrs(path, name, proposal_mean=proposal[0], proposal_cov=proposal[1],
+                       proposal_adapted=ADAPT_AT)
+    if done == 0 and path is not None:
+        backend.reset(n_walkers, ndim)
+        extra = {} if proposal is None else {"proposal_mean": proposal[0],
+                                             "proposal_cov": proposal[1]}
+        _set_attrs(path, name, moves=moves, sampling_seconds=0.0, cpu_seconds=0.0, **extra)
+    return proposal, adapted
+
+
 def _stored_proposal(path: Path | None, name: str):
     """The fit proposal a group holds (the fit's, or the adapted one after
     :data:`ADAPT_AT` steps) and whether it is adapted; a resumed run uses it, bit for bit."""
@@ -544,9 +602,8 @@ def _adapted(chain: np.ndarray, proposal):
 
 
 def _set_attrs(path: Path, name: str, **attrs) -> None:
-    import h5py
 
-    with h5py.File(path, "a") as f:
+    with open_h5(path, "a") as f:
         for k, v in attrs.items():
             f[name].attrs[k] = v
 
@@ -575,9 +632,8 @@ class _Clock:
         if self.path is None:
             return
         try:
-            import h5py
 
-            with h5py.File(self.path, "a") as f:
+            with open_h5(self.path, "a") as f:
                 a = f[self.name].attrs
                 a["sampling_seconds"] = float(a.get("sampling_seconds", 0.0)) + dw
                 a["cpu_seconds"] = float(a.get("cpu_seconds", 0.0)) + dc
@@ -717,10 +773,9 @@ def sample(
     left = sum(max(0, n_steps - held.get(f"ensemble{e}", 0)) for e in range(n_ensembles))
     owned = False
     if left:
-        import h5py
 
         if not path.exists():
-            with h5py.File(path, "a"):
+            with open_h5(path, "a"):
                 pass  # an empty HDF5 file, to own the blocks of the coming steps
         # Every coming step's blocks, owned by chain.h5 before the first is written.
         owned = preallocate(path, chain_bytes(n_walkers, logpost.ndim, left, 1))
@@ -875,32 +930,23 @@ def _run_on_executor(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensemb
     from . import parallel as P
 
     active: dict[str, dict] = {}
-    fit_prop = None
+    fit_prop: list = []
+
+    def the_fit_proposal():  # computed once, for all the ensembles that begin now
+        if not fit_prop:
+            fit_prop.append(fit_proposal(logpost, x_fit))
+        return fit_prop[0]
+
     for e in range(n_ensembles):
         name = f"ensemble{e}"
         done = held.get(name, 0)
         if done >= n_steps:
             continue
         backend = _backend(path, name)
-        proposal, adapted = None, False
-        if uses_fit_proposal(moves):
-            stored = _stored_proposal(path, name) if done else None
-            if stored is None:
-                if fit_prop is None:
-                    fit_prop = fit_proposal(logpost, x_fit)
-                stored = (fit_prop, False)
-            proposal, adapted = stored
-            if done >= ADAPT_AT and not adapted:  # stopped between the step and its record
-                proposal, adapted = _adapted(backend.get_chain(), proposal), True
-                _set_attrs(path, name, proposal_mean=proposal[0], proposal_cov=proposal[1],
-                           proposal_adapted=ADAPT_AT)
+        proposal, adapted = _begin_group(backend, path, name, done, n_walkers, logpost.ndim,
+                                         moves, the_fit_proposal)
         seg = _Segment(name, 0, moves, proposal, origin=os.getpid())
         if done == 0:
-            backend.reset(n_walkers, logpost.ndim)
-            extra = {} if proposal is None else {"proposal_mean": proposal[0],
-                                                 "proposal_cov": proposal[1]}
-            _set_attrs(path, name, moves=moves, sampling_seconds=0.0, cpu_seconds=0.0,
-                       **extra)
             seg.seed, seg.x_fit, seg.n_walkers, seg.start = (seed + 1000 * e, x_fit,
                                                             n_walkers, start)
         else:
@@ -1014,9 +1060,8 @@ def _left(active: dict, n_steps: int) -> int:
 def _add_seconds(path: Path, name: str, wall: float, cpu: float) -> None:
     """Add a segment's wall and CPU time (on its worker) to the group's totals."""
     try:
-        import h5py
 
-        with h5py.File(path, "a") as f:
+        with open_h5(path, "a") as f:
             a = f[name].attrs
             a["sampling_seconds"] = float(a.get("sampling_seconds", 0.0)) + wall
             a["cpu_seconds"] = float(a.get("cpu_seconds", 0.0)) + cpu
