@@ -1,4 +1,4 @@
-"""``rotorbayes run``: a whole study from an analysis file."""
+"""``rotorbayes run``: a whole study from an analysis file, or the studies of several."""
 
 from __future__ import annotations
 
@@ -8,28 +8,41 @@ from pathlib import Path
 from .common import Outcome, executor
 from .options import add_parallel_options
 
-HELP = "a whole study from an analysis file (TOML; see docs/analysis_file.md)"
+HELP = ("a whole study from an analysis file (TOML; see docs/analysis_file.md), or several "
+        "studies at once")
 
 
 def add_arguments(r) -> None:
-    r.add_argument("analysis", help="the analysis file")
+    r.add_argument("analysis", nargs="+",
+                   help="the analysis file; several files (e.g. one per data set) run as "
+                   "independent studies, several at a time")
     r.add_argument("--force", action="store_true", help="rerun every stage")
     r.add_argument("--quiet", action="store_true", help="print only the summary")
-    add_parallel_options(r, "independent fits (restarts, profile points)")
+    add_parallel_options(r, "independent fits (restarts, profile points), or the studies "
+                         "of several analysis files")
 
 
-def run(analysis: str, *, force: bool = False, quiet: bool = False,
+def run(analysis: str | list[str], *, force: bool = False, quiet: bool = False,
         backend: str | None = None, workers: int | None = None,
         scheduler: str | None = None) -> Outcome:
     """Run the study the analysis file ``analysis`` describes (:func:`rotorbayes.study.run`)
     with one executor for its parallel tasks (the options, else the file's [parallel]
-    table).  ``Outcome.doc`` is the run record (run.json)."""
+    table).  ``Outcome.doc`` is the run record (run.json).
+
+    Several files are independent studies, one task each on the executor
+    (:mod:`rotorbayes.study_batch`); ``Outcome.doc`` is then ``{"studies": [...]}``."""
+    files = [analysis] if isinstance(analysis, (str, Path)) else list(analysis)
+    if len(files) > 1:
+        from ..study_batch import run_studies
+
+        return run_studies(files, force=force, quiet=quiet, backend=backend,
+                           workers=workers, scheduler=scheduler)
     from ..study import load_analysis
     from ..study import run as run_study
 
     t0 = time.perf_counter()
-    with executor(backend, workers, scheduler, file=load_analysis(analysis).table("parallel")):
-        rec = run_study(analysis, quiet=quiet, force=force)
+    with executor(backend, workers, scheduler, file=load_analysis(files[0]).table("parallel")):
+        rec = run_study(files[0], quiet=quiet, force=force)
     print(f"\nstudy done in {time.perf_counter() - t0:.0f} s; outputs and run.json in "
           f"{Path(rec['final_fit']).parent}/")
     if rec.get("report"):
