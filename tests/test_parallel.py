@@ -9,6 +9,7 @@ configuration, 5 s at 200 Hz.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -210,9 +211,11 @@ def test_no_scheduler_at_the_address_is_a_plain_error(tmp_path):
     assert not (tmp_path / "ms").exists()
 
 
-def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
-    """A real `dask scheduler` and `dask worker`; the scheduler is killed mid-job."""
-    sched_file = tmp_path / "scheduler.json"
+@contextlib.contextmanager
+def real_cluster(folder: Path):
+    """A real `dask scheduler` and one `dask worker` process, as a user starts them; yields
+    ``(address, scheduler process, processes to stop)``."""
+    sched_file = folder / "scheduler.json"
     env = {**os.environ, **P.WORKER_ENV}
     dask_cli = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     sched = subprocess.Popen([*dask_cli, "--scheduler-file", str(sched_file), "--port", "0",
@@ -230,6 +233,17 @@ def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
             [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "1",
              "--nthreads", "1", "--no-dashboard"], stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL, env=env))
+        yield address, sched, procs
+    finally:
+        for q in procs:
+            if q.poll() is None:
+                q.kill()
+                q.wait(timeout=30)
+
+
+def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
+    """A real `dask scheduler` and `dask worker`; the scheduler is killed mid-job."""
+    with real_cluster(tmp_path) as (address, sched, procs):
         # Through the variable, as a user on a cluster would set it.
         p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "400",
                   "--max-nfev", "30", "--out", str(tmp_path / "ms")],
@@ -254,11 +268,6 @@ def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
         assert p.returncode == EXIT.ENVIRONMENT, err
         assert "lost the Dask scheduler" in err and "Traceback" not in err, err
         assert not (tmp_path / "ms").exists()
-    finally:
-        for q in procs:
-            if q.poll() is None:
-                q.kill()
-                q.wait(timeout=30)
 
 
 def test_multistart_command_on_a_local_dask_cluster(tmp_path):

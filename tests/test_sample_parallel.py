@@ -231,3 +231,40 @@ def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(fitted, 
     assert main(["sample", str(fitted), *args, "--steps", "40",
                  "--out", str(tmp_path / "ref")]) == 0
     assert chains(out / "chain.h5") == chains(tmp_path / "ref" / "chain.h5")
+
+
+def test_a_lost_scheduler_stops_sampling_cleanly_and_resume_finishes_the_chains(fitted,
+                                                                               tmp_path):
+    """A real `dask scheduler` and worker; the scheduler is killed while the ensembles run
+    on it: exit code 3 with one message, every finished step kept, and --resume on this
+    machine ends with the chains of an uninterrupted run."""
+    from test_parallel import real_cluster
+
+    args = ["--walkers", "10", "--steps", "300", "--ensembles", "2", "--seed", "6",
+            "--max-draws", "5", "--quiet"]
+    f = load_fit(fitted)
+    S.sample(LogPosterior(f.problem, f.x), f.x, tmp_path / "ref", n_walkers=10, n_steps=300,
+             n_ensembles=2, seed=6, progress=False)
+    ref = chains(tmp_path / "ref" / "chain.h5")
+    out = tmp_path / "S"
+    with real_cluster(tmp_path) as (address, sched, procs):
+        p = cli(["sample", str(fitted), *args, "--scheduler", address, "--out", str(out)],
+                tmp_path)
+        procs.append(p)
+        deadline = time.time() + 180
+        while not S.steps_held(out / "chain.h5") and p.poll() is None:
+            assert time.time() < deadline
+            time.sleep(0.05)
+        sched.kill()
+        _, err = p.communicate(timeout=120)
+    assert p.returncode == 3, err
+    assert "lost the Dask scheduler" in err and "--resume" in err, err
+    assert "Traceback" not in err
+    held = [v[4] for v in chains(out / "chain.h5").values()]
+    assert 0 < min(held) and sum(held) < 600, held  # stopped while sampling
+    assert main(["sample", str(out), "--resume", "--quiet"]) == 0
+    got = chains(out / "chain.h5")
+    assert got.keys() == ref.keys()
+    for name in ref:
+        (c, lp, _, rs, it), (c0, lp0, _, rs0, it0) = got[name], ref[name]
+        assert (c, lp, rs, it) == (c0, lp0, rs0, it0), name

@@ -484,9 +484,11 @@ def client_gone(ex: Executor) -> bool:
     return _is_dask(ex) and _client_gone(ex)
 
 
-def lost_scheduler(ex: Executor, done: int, total: int) -> ClusterError:
-    """The :class:`ClusterError` for a scheduler lost after ``done`` of ``total`` tasks."""
-    return _lost(ex, done, total)
+def lost_scheduler(ex: Executor, done: int, total: int, *, unit: str = "tasks",
+                   then: str | None = None) -> ClusterError:
+    """The :class:`ClusterError` for a scheduler lost after ``done`` of ``total`` tasks
+    (or other ``unit``); ``then`` says what to do (default: run the command again)."""
+    return _lost(ex, done, total, unit=unit, then=then)
 
 
 def _scatter(ex: Executor, obj: Any):
@@ -503,16 +505,17 @@ def _client_gone(ex: Executor) -> bool:
     return client is not None and client.status not in ("running", "connecting")
 
 
-def _lost(ex: Executor, done: int, total: int) -> ClusterError:
+def _lost(ex: Executor, done: int, total: int, *, unit: str = "tasks",
+          then: str | None = None) -> ClusterError:
     where = ""
     client = getattr(ex, "_client", None)
     if client is not None:
         with contextlib.suppress(Exception):
             where = f" at {client.scheduler.address}"
     return ClusterError(
-        f"lost the Dask scheduler{where} after {done} of {total} tasks had finished (it "
-        "stopped, or the network to it failed); restart the scheduler and its workers and "
-        "run the command again", done)
+        f"lost the Dask scheduler{where} after {done} of {total} {unit} had finished (it "
+        "stopped, or the network to it failed); "
+        + (then or "restart the scheduler and its workers and run the command again"), done)
 
 
 def map_ordered(fn: Callable, items: Iterable, *, shared: Any = _NOTHING,

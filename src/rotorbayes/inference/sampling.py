@@ -992,11 +992,10 @@ def _run_on_executor(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensemb
                 try:
                     chunk = f.result()
                 except CancelledError:
-                    raise P.lost_scheduler(executor, total - _left(active, n_steps),
-                                           total) from None
+                    raise _lost(executor, path, active, n_steps, total) from None
                 except OSError as exc:
                     if P.client_gone(executor):
-                        raise P.lost_scheduler(executor, 0, total) from exc
+                        raise _lost(executor, path, active, n_steps, total) from exc
                     raise
                 n = chunk.chain.shape[0]
                 if (not owned and _free_bytes(path.parent) < step_bytes * n + 100_000):
@@ -1051,6 +1050,17 @@ def _stopped(active: dict, n_steps: int) -> SamplingStopped:
     first = next(iter(active))
     return SamplingStopped(first, active[first]["done"], n_steps,
                            {n: a["done"] for n, a in active.items()})
+
+
+def _lost(executor, path: Path, active: dict, n_steps: int, total: int):
+    """The error for a Dask scheduler lost while the ensembles ran on it."""
+    from . import parallel as P
+
+    return P.lost_scheduler(
+        executor, total - _left(active, n_steps), total, unit="steps",
+        then=f"every finished step is kept in {path}. Continue with `rotorbayes sample "
+        f"{path.parent} --resume` (on this machine; or with --scheduler once the "
+        "scheduler and its workers run again)")
 
 
 def _left(active: dict, n_steps: int) -> int:
