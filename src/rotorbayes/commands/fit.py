@@ -61,6 +61,9 @@ def fit(data, *, model: str, out: str, validate=None, p0: str | None = None,
     try:
         with output_folder(a.out, a.force) as folder:
             doc = _run(a, folder, guard)
+        from ..inference.taskstore import remove_store
+
+        remove_store(a.out)  # the fit folder is complete: no restart left to resume
     except KeyboardInterrupt as exc:
         raise _fit_interrupted(exc, a.out) from None
     except SimulationError as exc:
@@ -300,7 +303,12 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     else:
         print("start: computed from the data (the equations of motion as a regression on "
               "smoothed derivatives of the measured angles; give --p0 to choose one)")
-        ff = E.fit_from_data(prob, restarts=a.restarts, verbose=True, **fit_kw)
+        from ..inference.taskstore import store_path
+
+        # The fit from the data start and each finished restart are kept beside --out:
+        # a re-run after a kill or Ctrl-C skips them.
+        ff = E.fit_from_data(prob, restarts=a.restarts, verbose=True,
+                             resume=store_path(a.out), **fit_kw)
         res, chose = ff.result, ff.chose
         start_source = {n: ff.start.source.get(n, ff.start.source.get(
             E.local_name(n)[0], "")) for n in prob.names}
@@ -433,14 +441,20 @@ def _parent_of(p0: str | None) -> str | None:
 def _fit_interrupted(exc: KeyboardInterrupt, out: str) -> Interrupted:
     """The message for Ctrl-C during a fit: nothing written, the best point so far."""
     from ..inference.least_squares import FitInterrupted
+    from ..inference.taskstore import store_path
 
     text = f"interrupted (Ctrl-C); nothing was written to {out}/"
+    kept = list(store_path(out).glob("*.npz"))
+    if kept:
+        text += (f" (the {len(kept)} fit(s) from the data start and its restarts that had "
+                 f"finished are kept in {store_path(out)}/: the same command with the same "
+                 "--out skips them)")
     if isinstance(exc, FitInterrupted):
         vals = "\n".join(f"{n} = {float(v)!r}" for n, v in zip(exc.names, exc.x, strict=True)
                          if "[" not in n)
         text += (f". The best point after {exc.nfev} evaluations (SSR {exc.ssr:.6g} rad²) "
                  f"was:\n{vals}\nTo continue from it, save these lines in a file such as "
                  "best.toml and run the fit again with --p0 best.toml")
-    else:
+    elif not kept:
         text += " (no fit evaluation had finished yet)"
     return Interrupted(text)

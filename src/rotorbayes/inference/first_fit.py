@@ -23,7 +23,13 @@ import numpy as np
 
 from .assess import NEAR_FLOOR, floor_ratio
 from .least_squares import FitResult, attach_uncertainty, fit
-from .multistart import _fit_start, ensure_jacobian, latin_hypercube
+from .multistart import (
+    _fit_from_record,
+    _fit_record,
+    _fit_start,
+    ensure_jacobian,
+    latin_hypercube,
+)
 from .parallel import SerialExecutor, current_executor, progress, run_tasks
 from .problem import Problem
 from .starts import DataStart, data_start
@@ -82,6 +88,7 @@ def fit_from_data(
     workers: int = 2,
     executor=None,
     verbose: bool = False,
+    resume=None,
     **fit_kw,
 ) -> FirstFit:
     """Least squares from a start computed from the data, restarted if needed.
@@ -94,15 +101,32 @@ def fit_from_data(
         Log-sd of the restarts' spread around the data start.
     workers, executor
         Where the restarts run (:func:`rotorbayes.inference.parallel.run_tasks`).
+    resume : path, optional
+        A task store (:mod:`.taskstore`): the fit from the data start and every finished
+        restart are kept there as they finish, and what it already holds for the same
+        problem, settings and start is read instead of fitted again (a re-run after a kill
+        ends as an uninterrupted run).
     """
     ds = data_start(problem)
     x0 = problem.x_from(ds.values)
     x0 = _within_constraints(problem, np.clip(x0, problem.lower, problem.upper))
     if verbose:
         print("start from the data:\n" + ds.describe(problem.names), flush=True)
-    res = fit(problem, x0, verbose=verbose, **fit_kw)
+    store = None
+    if resume is not None and restarts > 0:
+        from .taskstore import TaskStore, fingerprint, problem_fingerprint
+
+        store = TaskStore(resume, fingerprint(
+            "first fit", problem_fingerprint(problem), seed, restarts, spread, x0,
+            {k: v for k, v in sorted(fit_kw.items())}), "fit")
+    res = _kept(store, 0, x0, problem, "the fit from the data start", verbose)
+    if res is None:
+        res = fit(problem, x0, verbose=verbose, **fit_kw)
+        if store is not None:
+            store.put(0, fingerprint(x0), _fit_record(res, ""))
     out = FirstFit(res, ds)
     if restarts <= 0 or floor_ratio(problem, res.x) <= NEAR_FLOOR:
+        _complete(res, fit_kw)
         return out
     if verbose:
         print(
@@ -123,19 +147,54 @@ def fit_from_data(
         if verbose:
             print("long data: the restarts run one at a time (each fit's Jacobian is "
                   "large); --backend dask spreads them over other machines", flush=True)
-    tasks = run_tasks(_fit_start, list(starts), shared=(problem, fit_kw), executor=executor,
-                      workers=workers)
-    for i, (r, why) in progress(tasks, restarts, "restarts", enabled=verbose):
+    found: dict[int, tuple] = {}
+    if store is not None:
+        for i in range(restarts):
+            hit, rec = store.get(i + 1, fingerprint(starts[i]))
+            if hit:
+                found[i] = _fit_from_record(rec, problem)
+        if found and verbose:
+            print(f"{len(found)} of {restarts} restarts had finished in an earlier run: read "
+                  f"from {store.folder}", flush=True)
+    todo = [i for i in range(restarts) if i not in found]
+    tasks = run_tasks(_fit_start, [starts[i] for i in todo], shared=(problem, fit_kw),
+                      executor=executor, workers=workers)
+    for j, (r, why) in progress(tasks, len(todo), "restarts", enabled=verbose):
         if r is not None:
             r.problem = problem  # a process or Dask worker sent back its own copy
+        if store is not None:
+            store.put(todo[j] + 1, fingerprint(starts[todo[j]]), _fit_record(r, why))
+        found[todo[j]] = (r, why)
+    for i in range(restarts):  # in start order: the choice does not depend on who finished
+        r, why = found[i]
         row = {"start": starts[i].tolist(), "ssr": r.ssr if r else None,
                "success": bool(r and r.success), "failed": why}
         out.restarts.append(row)
         if r is not None and r.ssr < best.ssr:
             best = r
             out.chose = f"restart {i + 1} of {restarts} (spread {spread} around the data start)"
-    ensure_jacobian(best)
-    if best is not res and best.uncertainty is None and fit_kw.get("uncertainty", True):
-        attach_uncertainty(best)
+    _complete(best, fit_kw)
     out.result = best
     return out
+
+
+def _kept(store, index: int, start, problem: Problem, what: str, verbose: bool):
+    """The fit the task store holds for ``start`` (None when it holds none)."""
+    if store is None:
+        return None
+    from .taskstore import fingerprint
+
+    hit, rec = store.get(index, fingerprint(start))
+    if not hit or not rec["ok"]:
+        return None
+    if verbose:
+        print(f"{what} had finished in an earlier run: read from {store.folder}", flush=True)
+    return _fit_from_record(rec, problem)[0]
+
+
+def _complete(res: FitResult, fit_kw: dict) -> None:
+    """The kept fit's Jacobian and uncertainty (a fit read from a task store, or a restart
+    fitted without them, has none)."""
+    ensure_jacobian(res)
+    if res.uncertainty is None and fit_kw.get("uncertainty", True):
+        attach_uncertainty(res)
