@@ -180,6 +180,8 @@ def test_a_bad_design_table_is_refused_before_any_work(data, capsys, edit, messa
     ("[analysis]\nout='o'\nconfig='wagon'\ndata=['est.csv']\n", "config = 'wagon'"),
     ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[sample]\nsteps='many'\n",
      "[sample] steps = 'many' must be a int"),
+    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[sample]\nmoves='walk'\n",
+     "[sample] moves = 'walk'; choose one of stretch, de, de-mix"),
     ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\neffects=['warp']\n",
      "[fit] effects: unknown effect 'warp'"),
     ("[analysis\n", "not valid TOML"),
@@ -191,3 +193,15 @@ def test_a_bad_analysis_file_is_refused_before_any_work(data, capsys, edit, mess
     err = capsys.readouterr().err
     assert message in err and str(f) in err and "Traceback" not in err
     assert not (data / "o").exists()
+
+
+def test_the_sample_table_chooses_the_moves(tmp_path):
+    import h5py
+
+    f = tmp_path / "m.toml"
+    f.write_text("[analysis]\nout = 'o'\nconfig = 'upper'\ndata = ['example:upper_est']\n"
+                 "[sample]\nwalkers = 10\nsteps = 12\nensembles = 1\nmoves = 'de-mix'\n"
+                 "[report]\nhtml = false\n")
+    assert main(["run", str(f), "--quiet"]) == 0
+    with h5py.File(tmp_path / "o" / "posterior" / "chain.h5", "r") as h:
+        assert h["ensemble0"].attrs["moves"] == "de-mix"

@@ -40,7 +40,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
             "channels": (list,), "max_nfev": (int,)},
     "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float)},
     "sample": {"walkers": (int,), "steps": (int,), "ensembles": (int,), "noise": (str,),
-               "ar1": (bool,)},
+               "ar1": (bool,), "moves": (str,)},
     "priors": {},
     "identify": {"profiles": (list,), "points": (int,)},
     "design": {"params": (list,), "separate": (list,), "duration": (int, float),
@@ -203,6 +203,12 @@ def load_analysis(path: str | Path) -> Analysis:
     s = a.table("sample")
     if "noise" in s and s["noise"] not in ("robust", "floor", "sampled"):
         raise _err(p, "sample", f"noise = {s['noise']!r}; choose robust, floor or sampled")
+    if "moves" in s:
+        from .inference.sampling import MOVES
+
+        if s["moves"] not in MOVES:
+            raise _err(p, "sample", f"moves = {s['moves']!r}; choose one of "
+                       f"{', '.join(MOVES)}")
     for k in ("walkers", "steps", "ensembles"):
         if k in s and s[k] < 1:
             raise _err(p, "sample", f"{k} = {s[k]} must be >= 1")
@@ -540,6 +546,8 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
                 "noise": s.get("noise", "robust")}
         if s.get("ar1"):
             opts["ar1"] = True
+        if "moves" in s:
+            opts["moves"] = s["moves"]
         if a.table("priors"):
             pri = out / "priors.toml"
             write_text_atomic(pri, "[priors]\n" + "".join(
