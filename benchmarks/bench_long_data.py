@@ -6,6 +6,8 @@ Every step runs as a user runs it, one ``rotorbayes`` command in its own process
 * simulate 600 s (coupled, estimation input, encoder counts), four times (seeds 1-4);
 * fit one 600 s experiment from a start (``--p0``, ``--max-nfev`` small);
 * fit the four together (one ``alpha0`` each), the same way;
+* multistart on one experiment: 4 starts in 2 threads (each running fit holds its own
+  Jacobian);
 * sample each fit briefly (``--steps 10``, 32 walkers, 2 ensembles).
 
 The target is 2 GiB peak for each. Run it as
@@ -79,6 +81,10 @@ def main() -> None:
             ["fit", files[0], *fit_args, "--out", str(work / "fit1")], rows)
         run(f"fit 4 x {a.duration:g} s (--max-nfev {a.nfev})",
             ["fit", *files, *fit_args, "--out", str(work / "fit4")], rows)
+        run(f"multistart 1 x {a.duration:g} s (4 starts, 2 threads, --max-nfev {a.nfev})",
+            ["multistart", files[0], "--model", "coupled", "--starts", "4", "--around",
+             "thesis:4.2:P0", "--spread", "0.2", "--max-nfev", str(a.nfev), "--backend",
+             "threads", "--workers", "2", "--force", "--out", str(work / "ms1")], rows)
         for k in (1, 4):
             run(f"sample {k} x {a.duration:g} s ({a.steps} steps, 32 walkers, 2 ens.)",
                 ["sample", str(work / f"fit{k}"), "--steps", str(a.steps), "--walkers", "32",
