@@ -170,6 +170,12 @@ def main() -> None:
     ap.add_argument("--ensembles", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise", choices=["sampled", "robust"], default="sampled")
+    ap.add_argument("--case", choices=["brake", "coupled"], default="brake",
+                    help="brake: the 30 s brake posterior above; coupled: a second posterior "
+                    "the moves were not chosen on -- the coupled rig (thesis table 4.2 P_ref), "
+                    "--seconds of held-out input at 1 kHz, quantised, its default free set "
+                    "(J_l, k_alpha and Tc_l nearly exchangeable: a sloppy posterior)")
+    ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--only", help="alternative names separated by '|' (prefix match; the "
                     "names hold commas), e.g. 'stretch, ball|fit-de'")
     ap.add_argument("--first", type=int, default=len(ALTS), help="run only the first N "
@@ -180,15 +186,16 @@ def main() -> None:
     if a.only:
         want = [w.strip() for w in a.only.split("|") if w.strip()]
         alts = [x for x in ALTS if any(x.name.startswith(w) for w in want)]
-    p = rb.parameters.thesis_set("4.3", "P_ref")
-    t, u = rb.signals.estimation_signal(30.0, seed=1)
-    sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config="brake", alpha0=0.0,
+    table = "4.3" if a.case == "brake" else "4.2"
+    p = rb.parameters.thesis_set(table, "P_ref")
+    t, u = rb.signals.estimation_signal(a.seconds, seed=1)
+    sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config=a.case, alpha0=0.0,
                       quantize_angles=True)
-    prob = E.Problem("brake", [sim.to_experiment("brake_1khz_heldout")], base=p)
+    prob = E.Problem(a.case, [sim.to_experiment(f"{a.case}_1khz_heldout")], base=p)
     t0 = time.perf_counter()
     res = E.fit(prob, prob.x_from(p))
     lp = LogPosterior(prob, res.x, noise=a.noise)
-    print(f"brake, 30 s at 1 kHz (held-out smooth-steps input, quantised), "
+    print(f"{a.case}, {a.seconds:g} s at 1 kHz (held-out smooth-steps input, quantised), "
           f"{prob.n_residuals} residuals; noise {a.noise}: {lp.ndim} coordinates "
           f"({', '.join(lp.coord_names)}); fit + posterior set-up "
           f"{time.perf_counter() - t0:.1f} s")
