@@ -28,6 +28,7 @@ from .multistart import (
     _fit_record,
     _fit_start,
     ensure_jacobian,
+    kept_fits,
     latin_hypercube,
 )
 from .parallel import SerialExecutor, current_executor, progress, run_tasks
@@ -149,10 +150,7 @@ def fit_from_data(
                   "large); --backend dask spreads them over other machines", flush=True)
     found: dict[int, tuple] = {}
     if store is not None:
-        for i in range(restarts):
-            hit, rec = store.get(i + 1, fingerprint(starts[i]))
-            if hit:
-                found[i] = _fit_from_record(rec, problem)
+        found = kept_fits(store, starts, problem, first=1)  # 0: the data start's fit
         if found and verbose:
             print(f"{len(found)} of {restarts} restarts had finished in an earlier run: read "
                   f"from {store.folder}", flush=True)

@@ -278,10 +278,7 @@ def multistart(
         store = TaskStore(resume, fingerprint(
             "multistart", problem_fingerprint(problem), seed, n_starts, around, spread,
             {k: v for k, v in sorted(fit_kw.items())}), "start")
-        for i in range(n_starts):
-            hit, rec = store.get(i, fingerprint(starts[i]))
-            if hit:
-                results[i] = _fit_from_record(rec, problem)
+        results = kept_fits(store, starts, problem)
         if results and progress:
             print(f"  {len(results)} of {n_starts} starts had finished in an earlier run: "
                   f"read from {store.folder}", flush=True)
@@ -360,6 +357,19 @@ def _fit_from_record(rec: dict, problem: Problem) -> tuple[FitResult | None, str
         kw[k] = int(kw[k])
     kw["names"] = list(kw["names"])
     return FitResult(problem=problem, **kw), str(rec["why"])
+
+
+def kept_fits(store, starts, problem: Problem, first: int = 0) -> dict[int, tuple]:
+    """The fits a task store holds for ``starts`` (start ``i`` under index ``first + i``,
+    checked by the start's hash), as ``{i: (FitResult or None, why)}``."""
+    from .taskstore import fingerprint
+
+    found = {}
+    for i, s in enumerate(starts):
+        hit, rec = store.get(first + i, fingerprint(s))
+        if hit:
+            found[i] = _fit_from_record(rec, problem)
+    return found
 
 
 def _usable(f: FitResult) -> bool:
