@@ -74,6 +74,9 @@ def test_demo_prints_only_its_own_lines(demo):
     bad = foreign_lines(proc.stdout) + foreign_lines(proc.stderr)
     assert not bad, "library output reached the user:\n" + "\n".join(bad[:20])
     assert "demo done" in proc.stdout
+    # The bundled first run ends without telling the user to distrust it: its chains are
+    # long enough (50 τ) for its own posterior.
+    assert "not more than 50" not in proc.stdout + proc.stderr, proc.stderr[-2000:]
 
 
 def test_demo_says_one_headline_number_and_clean_paths(demo):
