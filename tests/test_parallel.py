@@ -212,9 +212,9 @@ def test_no_scheduler_at_the_address_is_a_plain_error(tmp_path):
 
 
 @contextlib.contextmanager
-def real_cluster(folder: Path):
-    """A real `dask scheduler` and one `dask worker` process, as a user starts them; yields
-    ``(address, scheduler process, processes to stop)``."""
+def real_cluster(folder: Path, workers: int = 1):
+    """A real `dask scheduler` and ``workers`` `dask worker` processes (0: none), as a user
+    starts them; yields ``(address, scheduler process, processes to stop)``."""
     sched_file = folder / "scheduler.json"
     env = {**os.environ, **P.WORKER_ENV}
     dask_cli = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
@@ -229,16 +229,51 @@ def real_cluster(folder: Path):
         import json
 
         address = json.loads(sched_file.read_text())["address"]
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "1",
-             "--nthreads", "1", "--no-dashboard"], stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL, env=env))
+        if workers:
+            procs.append(subprocess.Popen(
+                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers",
+                 str(workers), "--nthreads", "1", "--no-dashboard"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env))
         yield address, sched, procs
     finally:
         for q in procs:
             if q.poll() is None:
                 q.kill()
                 q.wait(timeout=30)
+
+
+@pytest.mark.parametrize("address", ["127.0.0.1:8786x", "http://127.0.0.1:8786",
+                                     "tcp://127.0.0.1:87860"])
+def test_a_malformed_scheduler_address_is_refused_at_once(tmp_path, address):
+    t0 = time.time()
+    p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
+              "--scheduler", address, "--out", str(tmp_path / "ms")])
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == EXIT.REFUSED, (out, err)
+    assert f"{address!r} (from --scheduler) is not a Dask scheduler address" in err
+    assert "tcp://HOST:PORT" in err and "Traceback" not in err and "Exception" not in err
+    assert "parallel tasks run" not in out  # nothing said about a cluster never reached
+    assert time.time() - t0 < 60 and not (tmp_path / "ms").exists()
+
+
+def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path):
+    """Workers end when their scheduler is lost; a user who restarts only the scheduler has
+    one without workers: every command says so (exit 3) instead of waiting forever."""
+    a = tmp_path / "a.toml"
+    a.write_text('[analysis]\nout = "A"\nconfig = "upper"\ndata = ["example:upper_est"]\n')
+    b = tmp_path / "b.toml"
+    b.write_text('[analysis]\nout = "B"\nconfig = "upper"\ndata = ["example:upper_val"]\n')
+    with real_cluster(tmp_path, workers=0) as (address, _, procs):
+        for args in (["run", str(a), str(b)],
+                     ["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
+                      "--out", str(tmp_path / "ms")]):
+            p = _cli([*args, "--scheduler", address], cwd=tmp_path)
+            procs.append(p)
+            out, err = p.communicate(timeout=180)
+            assert p.returncode == EXIT.ENVIRONMENT, (out, err)
+            assert f"the Dask scheduler at {address} (from --scheduler) has no workers" in err
+            assert "Traceback" not in err
+    assert not any((tmp_path / n).exists() for n in ("A", "B", "ms"))
 
 
 def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):

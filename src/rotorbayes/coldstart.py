@@ -15,6 +15,12 @@ import sys
 import time
 from pathlib import Path
 
+#: Set in a process rotorbayes starts as a child (a study of ``run a.toml b.toml ...``): the
+#: pid of the process that started it. The child ends itself when that process is gone (a
+#: Dask worker or the command killed), so no study runs on unwatched while the scheduler
+#: gives its task to another worker.
+PARENT_ENV = "ROTORBAYES_PARENT_PID"
+
 #: The message's first part (tests look for it).
 MESSAGE = "rotorbayes: compiling the integrator, once (numba caches it for later runs) ..."
 
@@ -86,3 +92,23 @@ def interrupted_while_loading() -> None:
         print("\nrotorbayes: interrupted (Ctrl-C) while loading; nothing was written",
               file=sys.stderr, flush=True)
         raise SystemExit(130)
+
+
+def end_with_parent() -> None:
+    """In a child process (:data:`PARENT_ENV` set): end this process by SIGTERM once the
+    process that started it is gone (every result is written whole or not at all, so an
+    end at any moment loses only the work under way)."""
+    pid = os.environ.pop(PARENT_ENV, None)  # not inherited further
+    if not pid or not pid.isdigit():
+        return
+    import signal
+    import threading
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != int(pid):
+                os.kill(os.getpid(), signal.SIGTERM)
+                return
+
+    threading.Thread(target=watch, name="rotorbayes-parent-watch", daemon=True).start()

@@ -135,7 +135,7 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
                                  f"{describe_environment(exc, '')}); choose another {flag}"
                                  ) from None
     try:
-        with folder_lock(out, flag=flag):
+        with folder_lock(out, flag=flag, other=flag):
             _check_folder_target(out, force, flag)  # again: another run may have finished
             clean_stale(out)
             check_free_space(out.parent, MIN_FREE_BYTES, what=f"{flag} {out}")
@@ -192,8 +192,12 @@ def _lock_path(out: Path) -> Path:
 
 
 @contextlib.contextmanager
-def folder_lock(path: str | os.PathLike, *, flag: str = "--out") -> Iterator[None]:
+def folder_lock(path: str | os.PathLike, *, flag: str = "--out",
+                other: str | None = "--out") -> Iterator[None]:
     """Hold the one lock of result folder ``path`` (its parent folder must exist).
+
+    ``flag`` starts the messages about the folder ("--out"); ``other`` is what the user may
+    change to write elsewhere (None: nothing to choose).
 
     The lock is ``flock`` on ``.NAME.lock`` beside the folder; it is released (and the file
     removed) when the block ends, and by the kernel when the process dies, even by SIGKILL.
@@ -223,7 +227,8 @@ def folder_lock(path: str | os.PathLike, *, flag: str = "--out") -> Iterator[Non
             who = f" (process {owner})" if owner.isdigit() else ""
             raise Busy(f"{out}/ is in use by another rotorbayes process{who}; two runs must "
                        "not write one result folder. Wait for it to finish (or stop it) and "
-                       f"run again, or choose another {flag}") from None
+                       "run again" + (f", or choose another {other}" if other else "")
+                       ) from None
         # The holder before us may have removed the file between our open and our lock.
         try:
             same = os.stat(lock).st_ino == os.fstat(fd).st_ino

@@ -352,7 +352,8 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
 
         raise EnvironmentFailure(f"{a.path}: [analysis] out: cannot create {out.parent} ("
                                  f"{describe_environment(exc, '')})") from None
-    with folder_lock(out, flag=f"{a.path}: [analysis] out ="):
+    with folder_lock(out, flag=f"{a.path}: [analysis] out =",
+                     other=f"[analysis] out in {a.path}"):
         _check_out(a, out, force)  # again, under the lock
         clean_stale(out)
         return _run_locked(a, path, out, quiet=quiet, force=force)

@@ -29,8 +29,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from .coldstart import PARENT_ENV
 from .commands.common import Outcome, executor
-from .exitcodes import ENVIRONMENT, INTERRUPTED, Interrupted, Refused
+from .exitcodes import BUSY, ENVIRONMENT, INTERRUPTED, Interrupted, Refused
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,10 @@ class StudyTask:
     force: bool
     numba_threads: int
 
+
+#: A study refused as busy this soon after its start is tried again (a moment ago its
+#: folder's lock may have been held by the child of a worker that was just killed).
+BUSY_RETRIES, BUSY_WAIT = 3, 2.0
 
 #: The studies' child processes running in this process (threads back-end), for Ctrl-C.
 _RUNNING: set[subprocess.Popen] = set()
@@ -70,19 +75,15 @@ def run_one(task: StudyTask) -> dict:
            "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
            "PYTHONUNBUFFERED": "1"}
     env.pop("DASK_SCHEDULER_ADDRESS", None)  # the study's own tasks run in its process
+    env[PARENT_ENV] = str(os.getpid())  # the child ends when this process is gone
     cmd = [sys.executable, "-m", "rotorbayes.cli", "run", str(p), "--quiet",
            "--backend", "serial", *(["--force"] if task.force else [])]
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, cwd=p.parent, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    with _RUNNING_LOCK:
-        _RUNNING.add(proc)
-    try:
-        out, err = proc.communicate()
-    finally:
-        with _RUNNING_LOCK:
-            _RUNNING.discard(proc)
-    code = proc.returncode
+    for attempt in range(BUSY_RETRIES + 1):
+        code, out, err = _child(cmd, p.parent, env)
+        if code != BUSY or time.perf_counter() - t0 > 10 or attempt == BUSY_RETRIES:
+            break
+        time.sleep(BUSY_WAIT)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     if code < 0:
         message = (f"its process was killed by signal {-code} (out of memory?); rerun the "
@@ -91,6 +92,19 @@ def run_one(task: StudyTask) -> dict:
         message = lines[-1] if code and lines else ""
     return {**row, "code": code, "seconds": time.perf_counter() - t0, "stdout": out,
             "stderr": err, "message": message}
+
+
+def _child(cmd: list[str], cwd: Path, env: dict) -> tuple[int, str, str]:
+    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    with _RUNNING_LOCK:
+        _RUNNING.add(proc)
+    try:
+        out, err = proc.communicate()
+    finally:
+        with _RUNNING_LOCK:
+            _RUNNING.discard(proc)
+    return proc.returncode, out, err
 
 
 def _stop_running() -> None:
@@ -162,8 +176,8 @@ def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
             _stop_running()
             done = sum(r is not None for r in rows)
             raise Interrupted(
-                f"interrupted (Ctrl-C) after {done} of {n} studies had finished; the studies "
-                "under way stopped, each keeping the stages it had finished. "
+                f"interrupted (Ctrl-C) after {done} of {n} studies had finished; any study "
+                "under way stopped, keeping the stages it had finished. "
                 "Run the same command again to continue: finished stages are skipped"
             ) from None
     codes = [r["code"] if r["code"] >= 0 else ENVIRONMENT for r in rows]

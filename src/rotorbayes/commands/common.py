@@ -170,7 +170,8 @@ def executor(backend: str | None = None, workers: int | None = None,
         spec = P.choose(*opts, file=file)
     except ValueError as exc:
         raise Refused(str(exc)) from None
-    if spec.backend != P.DEFAULT_BACKEND or spec.source != "default":
-        print(f"parallel tasks run {spec.describe()}", flush=True)
     with P.use_executor(spec) as ex:
+        # Said once the executor is there (a scheduler answered and has workers).
+        if spec.backend != P.DEFAULT_BACKEND or spec.source != "default":
+            print(f"parallel tasks run {spec.describe()}", flush=True)
         yield ex

@@ -45,7 +45,7 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     doc = d.as_dict()
     doc["fit"] = str(result.folder)
     # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
-    with folder_lock(result.folder, flag="diagnose"), InterruptGuard().start() as guard:
+    with folder_lock(result.folder, flag="diagnose", other=None), InterruptGuard().start() as guard:
         figs = [(plot_candidates(result.problem, result.x, d)[0], "diagnosis_candidates.png"),
                 (plot_torque_map(d)[0], "missing_torque.png")]
         for fig, name in figs:

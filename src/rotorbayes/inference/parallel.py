@@ -35,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import os
+import re
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import (
     FIRST_COMPLETED,
@@ -200,6 +201,22 @@ class ExecutorSpec:
         return f"on a local Dask cluster of {self.n_workers()} worker processes"
 
 
+#: The address forms of a Dask scheduler: [PROTOCOL://]HOST[:PORT].
+_ADDRESS = re.compile(
+    r"^(?:(?:tcp|tls|ucx|ws|wss)://)?(\[[0-9a-fA-F:.]+\]|[^\s/:\[\]]+)(?::(\d{1,5}))?$")
+
+
+def check_address(address: str, source: str) -> str:
+    """``address`` if it is a scheduler address (``tcp://HOST:PORT``), else ValueError
+    naming it, where it came from and the form to give; no connection is tried."""
+    m = _ADDRESS.match(address.strip())
+    if not m or (m.group(2) is not None and not 0 < int(m.group(2)) < 65536):
+        raise ValueError(
+            f"{address!r} (from {source}) is not a Dask scheduler address; give it as "
+            "tcp://HOST:PORT, as `dask scheduler` prints it (e.g. tcp://10.0.0.5:8786)")
+    return address.strip()
+
+
 def choose(
     backend: str | None = None,
     workers: int | None = None,
@@ -221,15 +238,19 @@ def choose(
         raise ValueError(f"unknown parallel back-end {backend!r}; choose one of "
                          f"{', '.join(BACKENDS)}")
     if scheduler:
-        return ExecutorSpec("dask", workers, scheduler, "--scheduler")
+        return ExecutorSpec("dask", workers, check_address(scheduler, "--scheduler"),
+                            "--scheduler")
     if backend not in (None, "dask"):
         return ExecutorSpec(backend, workers, None, "--backend")
     if env.get(SCHEDULER_ENV):
-        return ExecutorSpec("dask", workers, env[SCHEDULER_ENV], SCHEDULER_ENV)
+        return ExecutorSpec("dask", workers, check_address(env[SCHEDULER_ENV], SCHEDULER_ENV),
+                            SCHEDULER_ENV)
     if backend == "dask":
         return ExecutorSpec("dask", workers, None, "--backend")
     if file.get("scheduler"):
-        return ExecutorSpec("dask", workers or file.get("workers"), file["scheduler"],
+        return ExecutorSpec("dask", workers or file.get("workers"),
+                            check_address(str(file["scheduler"]),
+                                          "the analysis file's [parallel] scheduler"),
                             "the analysis file")
     if file.get("backend"):
         return ExecutorSpec(file["backend"], workers or file.get("workers"), None,
@@ -304,6 +325,16 @@ def _dask_client(spec: ExecutorSpec):
                     f"within {CONNECT_TIMEOUT:.0f} s: {exc}. Start one with `dask scheduler` "
                     f"and workers with `dask worker {spec.scheduler}`, or drop the address "
                     "to run locally") from None
+            try:  # a scheduler without workers would take the tasks and never run them
+                client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
+            except (OSError, TimeoutError):
+                with contextlib.suppress(Exception):
+                    client.close(timeout=5)
+                raise ClusterError(
+                    f"the Dask scheduler at {spec.scheduler} (from {spec.source}) has no "
+                    f"workers (none joined within {CONNECT_TIMEOUT:.0f} s); start some with "
+                    f"`dask worker {spec.scheduler}` (workers end when their scheduler is "
+                    "lost: after restarting a scheduler, restart its workers too)") from None
         else:
             with _children_ignore_ctrl_c():  # the cluster's workers are this command's
                 cluster = LocalCluster(n_workers=spec.n_workers(), threads_per_worker=1,
