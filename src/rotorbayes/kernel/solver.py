@@ -160,6 +160,8 @@ def _fail_residuals(r, row, col_u, col_l, n):
 # the whole right-hand side into every entry point and made the first compilation take
 # 248 s on 2 cores; compiled as functions (LLVM still inlines what pays) it takes 38 s and
 # gives the same numbers bit for bit (residuals, batch and simulation checked).
+# The one exception is terms.drive (small, numba-inlined): as a call it took and released
+# references to the input arrays twice per step.
 @njit(cache=True, error_model="numpy")
 def _integrate(
     p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
