@@ -49,6 +49,7 @@ from .terms import (
     HOOK_TYPE,
     derived,
     drive,
+    drive_source,
     effect_state_ok,
     grid_phase,
     guards,
@@ -105,16 +106,16 @@ def _horner(s, c):
 
 
 @njit(cache=True, error_model="numpy")
-def _step_to(t, x, y, mu, ml, k1, m, u, thp):
+def _step_to(t, x, y, mu, ml, k1, m, src):
     """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive."""
     c, cfg = m[0], m[1]
-    dm = drive(t + 0.5 * x, c, cfg, u, thp)
-    d1 = drive(t + x, c, cfg, u, thp)
+    dm = drive(t + 0.5 * x, c, cfg, src)
+    d1 = drive(t + x, c, cfg, src)
     return _rk4(x, y, mu, ml, k1, dm, d1, m), d1
 
 
 @njit(cache=True, error_model="numpy")
-def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, u, thp):
+def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, src):
     """Time ``tau`` in (0, h] at which the guard of ``disc`` crosses zero.
 
     Illinois regula falsi on ``tau -> guard(RK4 step of size tau)``.  Returns the right
@@ -131,7 +132,7 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, u, thp):
         x = b - fb * (b - a) / (fb - fa)
         if not (a < x < b):
             x = 0.5 * (a + b)
-        yx, d = _step_to(t, x, y, mu, ml, k1, m, u, thp)
+        yx, d = _step_to(t, x, y, mu, ml, k1, m, src)
         gu, gl = guards(yx[0], yx[1], yx[2], yx[3], mu, ml, d, m)
         fx = gu if disc == 0 else gl
         if fx < 0.0:
@@ -160,8 +161,7 @@ def _fail_residuals(r, row, col_u, col_l, n):
 # the whole right-hand side into every entry point and made the first compilation take
 # 248 s on 2 cores; compiled as functions (LLVM still inlines what pays) it takes 38 s and
 # gives the same numbers bit for bit (residuals, batch and simulation checked).
-# The one exception is terms.drive (small, numba-inlined): as a call it took and released
-# references to the input arrays twice per step.
+# The one exception is terms.drive (small, numba-inlined, see there).
 @njit(cache=True, error_model="numpy")
 def _integrate(
     p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
@@ -200,9 +200,10 @@ def _integrate(
     g = grid_phase(c, cfg, ratio)
     jj = 0 if g > 1e-9 else 1
     kinks = has_kinks(c)
+    src = drive_source(cfg, u, thp)
     y = (0.0, 0.0, 0.0, 0.0)
     # The rig starts at rest; each disc sticks unless its torque breaks it loose.
-    d1 = drive(0.0, c, cfg, u, thp)
+    d1 = drive(0.0, c, cfg, src)
     if cfg == CFG_PRESCRIBED:
         y = (d1[2], d1[3], 0.0, 0.0)
     mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], d1, m)
@@ -233,8 +234,8 @@ def _integrate(
         while True:
             t_tgt = next_kink(t, t_end, c, u) if kinks else t_end
             rem = t_tgt - t
-            dm = drive(t + 0.5 * rem, c, cfg, u, thp)
-            d1 = drive(t_tgt, c, cfg, u, thp)
+            dm = drive(t + 0.5 * rem, c, cfg, src)
+            d1 = drive(t_tgt, c, cfg, src)
             y1 = _rk4(rem, y, mu, ml, f, dm, d1, m)
             gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
             seg = rem
@@ -243,17 +244,17 @@ def _integrate(
             de = d1
             if not ok_step:
                 # Locate the earliest event among the violated guards.
-                d0 = drive(t, c, cfg, u, thp)
+                d0 = drive(t, c, cfg, src)
                 gu0, gl0 = guards(y[0], y[1], y[2], y[3], mu, ml, d0, m)
                 for dsc in range(2):
                     g1 = gu1 if dsc == 0 else gl1
                     if g1 < 0.0:
                         g0 = gu0 if dsc == 0 else gl0
-                        tl = _locate(t, rem, max(g0, 0.0), g1, dsc, y, mu, ml, f, m, u, thp)
+                        tl = _locate(t, rem, max(g0, 0.0), g1, dsc, y, mu, ml, f, m, src)
                         if disc < 0 or tl < seg:
                             seg = tl
                             disc = dsc
-                y1, de = _step_to(t, seg, y, mu, ml, f, m, u, thp)
+                y1, de = _step_to(t, seg, y, mu, ml, f, m, src)
             fe = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, de, m)
             t_seg = t + seg
             if kout < n and kout * dt <= t_seg + 1e-9 * dt:

@@ -289,20 +289,40 @@ def prescribed_velocity(t, c, thp):
     return interp(t, thp, c[_IDT])[1]
 
 
-# Inlined by numba (a small function): compiled apart, LLVM kept it a call, and every
-# call took and released references to ``u`` and ``thp`` (four atomic operations, twice
-# per step: a tenth of a 30 s brake residual, a third of the per-step bookkeeping).
+# Inlined by numba (a small function).  Compiled apart, LLVM kept it a call, and every call
+# took and released references to the input arrays (atomic operations, twice per step: a
+# tenth of a 30 s brake residual).  It reads one array, with no branch before the read, so
+# that numba's reference-count pruning removes the pair inside the solver's loop.
 @njit(cache=True, error_model="numpy", inline="always")
-def drive(t, c, cfg, u, thp):
+def drive(t, c, cfg, src):
     """What drives the system at ``t``: ``(t, voltage, upper angle, upper velocity)``.
 
-    The prescribed upper-disc motion is only read in :data:`CFG_PRESCRIBED`.  Evaluated
-    once per Runge-Kutta stage time, so the right-hand side works on scalars only.
+    ``src`` is the input voltage ``u`` (samples), or for :data:`CFG_PRESCRIBED` the
+    prescribed upper-disc angle (see :func:`drive_source`).  Evaluated once per
+    Runge-Kutta stage time, so the right-hand side works on scalars only.  The voltage is
+    that of :func:`voltage`, by the same operations.
     """
-    if cfg == CFG_PRESCRIBED:
-        th, w = interp(t, thp, c[_IDT])
-        return t, 0.0, th, w
-    return t, voltage(t, c, u), 0.0, 0.0
+    presc = cfg == CFG_PRESCRIBED
+    a, da = interp(t if presc else t - c[_TDEL], src, c[_IDT])
+    if presc:
+        return t, 0.0, a, da
+    v = a + c[_UOFF]
+    dz = c[_UDZ]
+    if dz > 0.0:
+        if v > dz:
+            v -= dz
+        elif v < -dz:
+            v += dz
+        else:
+            v = 0.0
+    return t, v, 0.0, 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def drive_source(cfg, u, thp):
+    """The array :func:`drive` reads: the prescribed upper-disc angle ``thp`` for
+    :data:`CFG_PRESCRIBED` (the voltage is not read then), else the input ``u``."""
+    return thp if cfg == CFG_PRESCRIBED else u
 
 
 # ------------------------------------------------------------------------ torques
