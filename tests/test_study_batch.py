@@ -134,3 +134,42 @@ def test_ctrl_c_stops_every_study_and_the_same_command_continues(tmp_path):
                   json.loads((tmp_path / n / "run.json").read_text())["stages"]}
         assert stages["fit0"]["skipped"] is True
         assert (tmp_path / n / "posterior" / "summary.md").exists()
+
+
+WRAPPER = """import os, subprocess, sys, time
+env = dict(os.environ, ROTORBAYES_PARENT_PID=str(os.getpid()))
+p = subprocess.Popen([sys.executable, "-m", "rotorbayes.cli", "run", sys.argv[1], "--quiet"],
+                     env=env, cwd=os.path.dirname(sys.argv[1]))
+print(p.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"  # a zombie has ended (its new parent may not reap it)
+
+
+def test_a_study_ends_when_the_process_that_started_it_is_killed(tmp_path):
+    """A study's child process (what a Dask worker or the command starts) must not run on
+    after its starter is SIGKILLed: the scheduler gives the task to another worker."""
+    f = analysis(tmp_path, "a.toml", "A", extra="[sample]\nwalkers = 16\nsteps = 3000\n")
+    w = subprocess.Popen([sys.executable, "-c", WRAPPER, str(f)], stdout=subprocess.PIPE,
+                         text=True, env=ENV)
+    child = int(w.stdout.readline())
+    t0 = time.time()
+    while not (tmp_path / "A" / "fit0" / "fit.json").exists():
+        assert _alive(child) and time.time() - t0 < 120
+        time.sleep(0.1)
+    w.kill()  # the starter dies by SIGKILL: it can pass nothing on
+    w.wait()
+    t1 = time.time()
+    while _alive(child) and time.time() - t1 < 10:
+        time.sleep(0.1)
+    assert not _alive(child), "the study ran on after the process that started it was killed"
+    # What it had finished is kept; the folder's lock is free for the next run.
+    stages = json.loads((tmp_path / "A" / "run.json").read_text())["stages"]
+    assert stages[0]["name"] == "fit0" and stages[0]["exit_code"] == 0
