@@ -182,9 +182,9 @@ class _logged:
 
 def main(argv=None) -> int:
     """Run one command; its exit code (:mod:`rotorbayes.exitcodes`)."""
-    from .coldstart import end_with_parent
+    from . import coldstart
 
-    end_with_parent()  # a study started by `run a.toml b.toml ...` ends with its starter
+    coldstart.end_with_parent()  # a study started by `run a.toml b.toml` ends with its starter
     try:
         return _main(argv)
     finally:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -77,13 +76,13 @@ def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
         pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex,
                        resume=store_path(a.out))  # finished points kept: a re-run skips them
         doc["profiles"].append(pr)
-        inside = [g for g, d in zip(pr["grid"], pr["delta_chi2"], strict=True)
-                  if d is not None and math.isfinite(d) and d < 3.84]
+        iv = I.profile_interval(pr)
         print(f"profile of {n}: {a.points} points in {time.perf_counter() - t0:.1f} s; "
-              + (f"95 % interval (Δχ² < 3.84) within [{min(inside):.7g}, {max(inside):.7g}] "
-                 f"{pr['unit']}" if inside else "no grid point within Δχ² < 3.84")
-              + ("; the interval reaches the grid's edge: widen it" if inside and (
-                  min(inside) == pr["grid"][0] or max(inside) == pr["grid"][-1]) else ""))
+              + (f"95 % interval (Δχ² < 3.84) about [{iv['lo']:.7g}, {iv['hi']:.7g}] "
+                 f"{pr['unit']} (ends interpolated between grid points)"
+                 if iv["lo"] is not None else "no grid point within Δχ² < 3.84")
+              + (f"; {iv['note']}" if iv["note"] and iv["lo"] is not None else
+                 f" ({iv['note']})" if iv["note"] else ""))
 
 
 def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:

@@ -43,7 +43,12 @@ def run(analysis: str | list[str], *, force: bool = False, quiet: bool = False,
     t0 = time.perf_counter()
     with executor(backend, workers, scheduler, file=load_analysis(files[0]).table("parallel")):
         rec = run_study(files[0], quiet=quiet, force=force)
-    print(f"\nstudy done in {time.perf_counter() - t0:.0f} s; outputs and run.json in "
+    kept = [s["name"] for s in rec.get("stages", []) if s.get("skipped")]
+    n = len(rec.get("stages", []))
+    again = ("; every stage's inputs were unchanged: all kept, nothing rerun (--force reruns)"
+             if kept and len(kept) == n else
+             f"; {len(kept)} of {n} stages kept (inputs unchanged)" if kept else "")
+    print(f"\nstudy done in {time.perf_counter() - t0:.0f} s{again}; outputs and run.json in "
           f"{Path(rec['final_fit']).parent}/")
     if rec.get("report"):
         print(f"report: {rec['report']}")

@@ -185,3 +185,46 @@ def profile(
     return {"parameter": name, "unit": info.unit, "grid": grid.tolist(),
             "delta_chi2": (chi2 - min(chi2_min, np.nanmin(chi2))).tolist(),
             "estimate": float(v0)}
+
+
+#: Δχ² of a 95 % profile-likelihood interval (one parameter).
+PROFILE_LEVEL = 3.84
+
+
+def profile_interval(pr: dict, level: float = PROFILE_LEVEL) -> dict:
+    """Where a profile (:func:`profile`) stays below ``level``, in words and numbers.
+
+    The ends are interpolated linearly in Δχ² between the last grid point inside and the
+    first outside. ``{"lo", "hi"}`` (None when no grid point is inside), ``"inside"`` (grid
+    points below the level) and ``"note"``: what to distrust - an end at the grid's edge
+    (the interval may be wider), or fewer than 3 points inside (the grid is too coarse for
+    the interval's shape)."""
+    g = [float(v) for v in pr.get("grid") or []]
+    d = [float(v) if v is not None else math.nan for v in pr.get("delta_chi2") or []]
+    ok = [i for i in range(min(len(g), len(d))) if math.isfinite(d[i]) and d[i] < level]
+    if not ok:
+        return {"lo": None, "hi": None, "inside": 0,
+                "note": "no grid point within the interval: the grid is too coarse; give "
+                "more points"}
+    k = min(ok, key=lambda i: d[i])
+    a = b = k
+    while a - 1 in ok:
+        a -= 1
+    while b + 1 in ok:
+        b += 1
+
+    def cross(i_in: int, i_out: int) -> float:
+        if not math.isfinite(d[i_out]):
+            return g[i_in]
+        t = (level - d[i_in]) / (d[i_out] - d[i_in])
+        return g[i_in] + t * (g[i_out] - g[i_in])
+
+    lo = cross(a, a - 1) if a > 0 else g[0]
+    hi = cross(b, b + 1) if b < len(g) - 1 else g[-1]
+    notes = []
+    if a == 0 or b == len(g) - 1:
+        notes.append("the interval reaches the grid's edge: widen it")
+    if b - a + 1 < 3:
+        notes.append(f"only {b - a + 1} grid point(s) inside: the ends are rough "
+                     "interpolations; give more points")
+    return {"lo": lo, "hi": hi, "inside": b - a + 1, "note": "; ".join(notes)}

@@ -72,7 +72,8 @@ class MultistartResult:
             n_cl = len(set(self.clusters[worse].tolist()))
             stuck = [f for f, w in zip(self.fits, worse, strict=True) if w and f.nfev <= 2]
             text += (
-                f"\n{int(worse.sum())} starts stopped elsewhere, in {n_cl} other "
+                f"\n{int(worse.sum())} start{'s' if worse.sum() != 1 else ''} stopped "
+                f"elsewhere, in {n_cl} other "
                 f"cluster(s) with SSR {np.min(self.ssr[worse]) / max(best, 1e-300):.3g}x to "
                 f"{np.max(self.ssr[worse]) / max(best, 1e-300):.3g}x the best: the cost has "
                 "local minima, so the estimate depends on the start P0 (thesis §4.3)."

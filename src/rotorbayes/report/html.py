@@ -18,6 +18,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..inference.identify import profile_interval
 from ..outputs import write_text_atomic
 from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
@@ -753,15 +754,13 @@ def _identify(f: Found) -> Raw | None:
     if prof:
         rows = []
         for pr in prof:
-            grid, d2 = pr.get("grid") or [], pr.get("delta_chi2") or []
-            inside = [g for g, d in zip(grid, d2, strict=False)
-                      if d is not None and math.isfinite(d) and d < 3.84]
-            edge = bool(inside) and (min(inside) == grid[0] or max(inside) == grid[-1])
+            grid = pr.get("grid") or []
+            iv = profile_interval(pr)
             rows.append([Raw(f"<code>{esc(pr.get('parameter'))}</code>"), pr.get("estimate"),
-                         Raw(f"{num(min(inside), 7)} … {num(max(inside), 7)}") if inside else
-                         "no grid point", _unit(pr.get("unit")),
+                         Raw(f"{num(iv['lo'], 7)} … {num(iv['hi'], 7)}")
+                         if iv["lo"] is not None else "no grid point", _unit(pr.get("unit")),
                          Raw(f"{num(grid[0], 7)} … {num(grid[-1], 7)}") if grid else None,
-                         "the interval reaches the grid's edge: widen it" if edge else ""])
+                         iv["note"]])
         out.append(Raw("<h3>Profile likelihoods</h3>"))
         out.append(table(["parameter", "estimate", "95 % interval (Δχ² < 3.84)", "unit", "grid",
                           "note"], rows, numeric=(1, 2, 4)))
