@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -113,22 +114,27 @@ def fit_from_data(
     x0 = _within_constraints(problem, np.clip(x0, problem.lower, problem.upper))
     if verbose:
         print("start from the data:\n" + ds.describe(problem.names), flush=True)
-    store = None
-    if resume is not None and restarts > 0:
-        from .taskstore import TaskStore, fingerprint, problem_fingerprint
+    from .taskstore import TaskStore, fingerprint, problem_fingerprint
 
-        store = TaskStore(resume, fingerprint(
+    def open_store():  # made only when restarts are needed: a fit without them leaves none
+        return TaskStore(resume, fingerprint(
             "first fit", problem_fingerprint(problem), seed, restarts, spread, x0,
             {k: v for k, v in sorted(fit_kw.items())}), "fit")
+
+    use = resume is not None and restarts > 0
+    store = open_store() if use and Path(resume).is_dir() else None
     res = _kept(store, 0, x0, problem, "the fit from the data start", verbose)
+    kept = res is not None
     if res is None:
         res = fit(problem, x0, verbose=verbose, **fit_kw)
-        if store is not None:
-            store.put(0, fingerprint(x0), _fit_record(res, ""))
     out = FirstFit(res, ds)
     if restarts <= 0 or floor_ratio(problem, res.x) <= NEAR_FLOOR:
         _complete(res, fit_kw)
         return out
+    if use:
+        store = store or open_store()
+        if not kept:
+            store.put(0, fingerprint(x0), _fit_record(res, ""))
     if verbose:
         print(
             f"the fit from the data start ends {floor_ratio(problem, res.x):.3g}x the floor; "
