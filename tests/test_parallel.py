@@ -244,36 +244,35 @@ def real_cluster(folder: Path, workers: int = 1):
 
 @pytest.mark.parametrize("address", ["127.0.0.1:8786x", "http://127.0.0.1:8786",
                                      "tcp://127.0.0.1:87860"])
-def test_a_malformed_scheduler_address_is_refused_at_once(tmp_path, address):
+def test_a_malformed_scheduler_address_is_refused_at_once(tmp_path, address, capsys):
+    from rotorbayes.cli import main
+
     t0 = time.time()
-    p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
-              "--scheduler", address, "--out", str(tmp_path / "ms")])
-    out, err = p.communicate(timeout=120)
-    assert p.returncode == EXIT.REFUSED, (out, err)
+    assert main(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
+                 "--scheduler", address, "--out", str(tmp_path / "ms")]) == EXIT.REFUSED
+    out, err = capsys.readouterr()
     assert f"{address!r} (from --scheduler) is not a Dask scheduler address" in err
     assert "tcp://HOST:PORT" in err and "Traceback" not in err and "Exception" not in err
     assert "parallel tasks run" not in out  # nothing said about a cluster never reached
-    assert time.time() - t0 < 60 and not (tmp_path / "ms").exists()
+    assert time.time() - t0 < 10 and not (tmp_path / "ms").exists()
 
 
 def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path):
     """Workers end when their scheduler is lost; a user who restarts only the scheduler has
-    one without workers: every command says so (exit 3) instead of waiting forever."""
+    one without workers: the command says so (exit 3) instead of waiting forever. (The
+    check is made where every command connects; `run` of several files used to hang.)"""
     a = tmp_path / "a.toml"
     a.write_text('[analysis]\nout = "A"\nconfig = "upper"\ndata = ["example:upper_est"]\n')
     b = tmp_path / "b.toml"
     b.write_text('[analysis]\nout = "B"\nconfig = "upper"\ndata = ["example:upper_val"]\n')
     with real_cluster(tmp_path, workers=0) as (address, _, procs):
-        for args in (["run", str(a), str(b)],
-                     ["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
-                      "--out", str(tmp_path / "ms")]):
-            p = _cli([*args, "--scheduler", address], cwd=tmp_path)
-            procs.append(p)
-            out, err = p.communicate(timeout=180)
-            assert p.returncode == EXIT.ENVIRONMENT, (out, err)
-            assert f"the Dask scheduler at {address} (from --scheduler) has no workers" in err
-            assert "Traceback" not in err
-    assert not any((tmp_path / n).exists() for n in ("A", "B", "ms"))
+        p = _cli(["run", str(a), str(b), "--scheduler", address], cwd=tmp_path)
+        procs.append(p)
+        out, err = p.communicate(timeout=180)
+        assert p.returncode == EXIT.ENVIRONMENT, (out, err)
+        assert f"the Dask scheduler at {address} (from --scheduler) has no workers" in err
+        assert "Traceback" not in err
+    assert not any((tmp_path / n).exists() for n in ("A", "B"))
 
 
 def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
