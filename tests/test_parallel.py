@@ -202,11 +202,16 @@ def _cli(args, env=None, **kw):
 
 
 def test_no_scheduler_at_the_address_is_a_plain_error(tmp_path):
+    t0 = time.perf_counter()
     p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
-              "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "ms")])
+              "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "ms")],
+             env={P.TIMEOUT_ENV: "2"})
     out, err = p.communicate(timeout=120)
+    took = time.perf_counter() - t0
     assert p.returncode == EXIT.ENVIRONMENT, (out, err)
     assert "no Dask scheduler answered at tcp://127.0.0.1:9 (from --scheduler)" in err
+    # The variable's wait, not the default 15 s (the rest is the interpreter's start).
+    assert "within 2 s" in err and took < 14, (took, err)
     assert "dask scheduler" in err and "Traceback" not in err
     assert not (tmp_path / "ms").exists()
 
@@ -266,13 +271,25 @@ def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path):
     b = tmp_path / "b.toml"
     b.write_text('[analysis]\nout = "B"\nconfig = "upper"\ndata = ["example:upper_val"]\n')
     with real_cluster(tmp_path, workers=0) as (address, _, procs):
-        p = _cli(["run", str(a), str(b), "--scheduler", address], cwd=tmp_path)
+        p = _cli(["run", str(a), str(b), "--scheduler", address], cwd=tmp_path,
+                 env={P.TIMEOUT_ENV: "3"})
         procs.append(p)
         out, err = p.communicate(timeout=180)
         assert p.returncode == EXIT.ENVIRONMENT, (out, err)
         assert f"the Dask scheduler at {address} (from --scheduler) has no workers" in err
         assert "Traceback" not in err
     assert not any((tmp_path / n).exists() for n in ("A", "B"))
+
+
+@pytest.mark.parametrize("value", ["abc", "0", "-5", "nan", "inf"])
+def test_a_bad_dask_timeout_is_refused_with_its_name(monkeypatch, value):
+    monkeypatch.setenv(P.TIMEOUT_ENV, value)
+    with pytest.raises(P.ClusterError, match=f"{P.TIMEOUT_ENV}='{value}' is not a number"):
+        P.connect_timeout()
+    monkeypatch.setenv(P.TIMEOUT_ENV, " 7.5 ")
+    assert P.connect_timeout() == 7.5
+    monkeypatch.delenv(P.TIMEOUT_ENV)
+    assert P.connect_timeout() == P.CONNECT_TIMEOUT
 
 
 def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):

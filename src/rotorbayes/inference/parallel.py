@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import math
 import os
 import re
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -60,8 +61,10 @@ DEFAULT_BACKEND = "threads"
 #: The environment variable Dask itself reads for the scheduler's address.
 SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 
-#: Seconds to wait for a scheduler to answer before giving up.
+#: Seconds to wait for a scheduler to answer, and for its first worker, before giving up;
+#: the variable :data:`TIMEOUT_ENV` sets another (a slow cluster queue, or tests).
 CONNECT_TIMEOUT = 15.0
+TIMEOUT_ENV = "ROTORBAYES_DASK_TIMEOUT"
 
 #: Thread counts every worker runs with: one task per worker, each single-threaded.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
@@ -305,6 +308,22 @@ def open_executor(spec: ExecutorSpec) -> Iterator[Executor]:
         yield client.get_executor(pure=False)
 
 
+def connect_timeout() -> float:
+    """Seconds to wait for a scheduler and its first worker: :data:`TIMEOUT_ENV`, else
+    :data:`CONNECT_TIMEOUT`.  A value that is not a positive number is refused."""
+    raw = os.environ.get(TIMEOUT_ENV, "").strip()
+    if not raw:
+        return CONNECT_TIMEOUT
+    try:
+        value = float(raw)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ClusterError(f"{TIMEOUT_ENV}={raw!r} is not a number of seconds > 0; set it to "
+                           f"e.g. 60, or unset it for the default {CONNECT_TIMEOUT:.0f} s")
+    return value
+
+
 @contextlib.contextmanager
 def _dask_client(spec: ExecutorSpec):
     try:
@@ -313,26 +332,27 @@ def _dask_client(spec: ExecutorSpec):
         raise ClusterError("the Dask back-end needs dask[distributed]: pip install "
                            "'dask[distributed]'") from exc
     cluster = None
+    wait = connect_timeout() if spec.scheduler else CONNECT_TIMEOUT
     quiet = _quiet_dask_logs()
     try:
         if spec.scheduler:
             try:
-                client = Client(spec.scheduler, timeout=CONNECT_TIMEOUT,
+                client = Client(spec.scheduler, timeout=wait,
                                 set_as_default=False)
             except (OSError, TimeoutError) as exc:
                 raise ClusterError(
                     f"no Dask scheduler answered at {spec.scheduler} (from {spec.source}) "
-                    f"within {CONNECT_TIMEOUT:.0f} s: {exc}. Start one with `dask scheduler` "
+                    f"within {wait:g} s: {exc}. Start one with `dask scheduler` "
                     f"and workers with `dask worker {spec.scheduler}`, or drop the address "
                     "to run locally") from None
             try:  # a scheduler without workers would take the tasks and never run them
-                client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
+                client.wait_for_workers(1, timeout=wait)
             except (OSError, TimeoutError):
                 with contextlib.suppress(Exception):
                     client.close(timeout=5)
                 raise ClusterError(
                     f"the Dask scheduler at {spec.scheduler} (from {spec.source}) has no "
-                    f"workers (none joined within {CONNECT_TIMEOUT:.0f} s); start some with "
+                    f"workers (none joined within {wait:g} s); start some with "
                     f"`dask worker {spec.scheduler}` (workers end when their scheduler is "
                     "lost: after restarting a scheduler, restart its workers too)") from None
         else:
