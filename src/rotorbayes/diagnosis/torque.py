@@ -307,9 +307,11 @@ def _complete(p: dict) -> dict:
 
 
 def _voltage(u: np.ndarray, t: np.ndarray, p: dict) -> np.ndarray:
-    """The effective motor voltage (offset, delay, dead zone) at the sample times."""
+    """The effective motor voltage (offset, delay, dead zone) at the sample times, as the
+    kernel's :func:`rotorbayes.kernel.terms.drive` has it (held at ``u[0]`` before the
+    first sample)."""
     d = p.get("t_delay", 0.0) or 0.0
-    v = np.interp(t - d, t, u, left=0.0) if d > 0 else u.copy()
+    v = np.interp(t - d, t, u) if d > 0 else u.copy()
     v = v + (p.get("u_offset", 0.0) or 0.0)
     dz = p.get("u_deadzone", 0.0) or 0.0
     if dz > 0:

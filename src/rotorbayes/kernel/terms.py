@@ -8,7 +8,7 @@ motion).  The solver itself only knows how to integrate, locate events and inter
 
 Effects plug in at three places:
 
-* the **input** (:func:`voltage`): delay, offset and dead zone of the motor voltage.  Their
+* the **input** (:func:`drive`): delay, offset and dead zone of the motor voltage.  Their
   kinks are reported by :func:`next_kink` so the solver can end a step on them;
 * the **torques** (:func:`torques`): the string (stiffness, pre-torsion ``alpha0``,
   damping) and, for user-defined effects, an extra torque on either disc;
@@ -201,22 +201,6 @@ def interp(t, y, inv_dt):
 
 
 @njit(cache=True, error_model="numpy")
-def voltage(t, c, u):
-    """Effective motor voltage [V]: delayed, offset, then through the dead zone."""
-    v, _ = interp(t - c[_TDEL], u, c[_IDT])
-    v += c[_UOFF]
-    dz = c[_UDZ]
-    if dz > 0.0:
-        if v > dz:
-            v -= dz
-        elif v < -dz:
-            v += dz
-        else:
-            v = 0.0
-    return v
-
-
-@njit(cache=True, error_model="numpy")
 def grid_phase(c, cfg, ratio):
     """Where the solver's step grid starts, in samples: ``t_delay / dt`` modulo the step
     (``ratio`` samples), so that the grid ``(phase + j * ratio) * dt`` holds every delayed
@@ -300,7 +284,8 @@ def drive(t, c, cfg, src):
     ``src`` is the input voltage ``u`` (samples), or for :data:`CFG_PRESCRIBED` the
     prescribed upper-disc angle (see :func:`drive_source`).  Evaluated once per
     Runge-Kutta stage time, so the right-hand side works on scalars only.  The voltage is
-    that of :func:`voltage`, by the same operations.
+    delayed by ``t_delay`` (held at ``u[0]`` before the first sample), offset by
+    ``u_offset``, then through the dead zone ``±u_deadzone``.
     """
     presc = cfg == CFG_PRESCRIBED
     a, da = interp(t if presc else t - c[_TDEL], src, c[_IDT])

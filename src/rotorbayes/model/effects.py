@@ -381,7 +381,7 @@ _CATALOGUE: tuple[Effect, ...] = (
         (_p("u_offset", "V", -0.5, 0.5, 0.0, "motor voltage offset"),),
         "theta_u residual drifts linearly while u is near zero",
         motor=True,
-        kernel_term="terms.voltage",
+        kernel_term="terms.drive",
         equivalences=(
             "with Coulomb + viscous upper friction, u_offset is exactly a change of dTc_u by "
             "-k_m*u_offset (without a dead zone)",
@@ -399,7 +399,7 @@ _CATALOGUE: tuple[Effect, ...] = (
         "residual proportional to the derivative of the response; cross-correlation with u "
         "peaks at a positive lag",
         motor=True,
-        kernel_term="terms.voltage, terms.grid_phase (the step grid follows the delay)",
+        kernel_term="terms.drive, terms.grid_phase (the step grid follows the delay)",
         resolution=Resolution(
             "sample", 0.1, "", "",
             "a delay below a tenth of a sample cannot be told from how the input "
@@ -412,7 +412,7 @@ _CATALOGUE: tuple[Effect, ...] = (
         (_p("u_deadzone", "V", 0.0, 1.0, 0.0, "motor dead zone half-width", 0.05),),
         "simulated upper disc moves where the measured one stays still at small |u|",
         motor=True,
-        kernel_term="terms.voltage, terms.next_kink (dead-zone edges)",
+        kernel_term="terms.drive, terms.next_kink (dead-zone edges)",
         resolution=Resolution(
             "torque", 1.0, "u", "k_m",
             "a dead zone whose motor torque k_m*u_deadzone is below the upper "
