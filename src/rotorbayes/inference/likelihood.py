@@ -12,7 +12,8 @@ log-posterior, all rows in one parallel kernel batch (emcee's ``vectorize=True``
   a broken validity constraint) returns ``-inf`` before any simulation.
 * **likelihood** (``noise``):
 
-  - ``"robust"`` (default): Gaussian at each channel's floor, *curvature-adjusted* so that
+  - ``"robust"`` (default): Gaussian at the floors, weighted as the fit weighs the
+    channels (so that it peaks at the fit), *curvature-adjusted* so that
     the posterior is as wide as the errors really make the estimate — rounding that is
     constant while a disc sticks, errors correlated for as long as the motion that causes
     them, the input's unknown behaviour between samples (:mod:`.uncertainty`).  The
@@ -194,6 +195,19 @@ class LogPosterior:
         self.channels = list(problem.channels)
         # The noise floor of each channel (quantisation, or the data's jitter if larger).
         self.floor, self.floor_notes = problem.noise_floors()
+        # The σ of each channel in the Gaussian that is evaluated (fixed σ, no AR(1)): the
+        # floor; for ``robust`` noise one scale for every *weighted* residual, so that the
+        # Gaussian peaks where the fit does.  The honest covariance is that of the fit's
+        # estimator (the problem's channel weights); the adjustment ẑ + C (z − ẑ) is only
+        # centred on the fit if the adjusted likelihood's maximum is the fit's minimum.
+        # With the floors instead (unequal floors, unit weights) its maximum sat elsewhere
+        # and C⁻¹ moved it further: 2-9 honest sd from the fit on reference data.
+        self.sigma = dict(self.floor)
+        if self.noise == "robust":
+            w = problem.weights
+            common = math.exp(float(np.mean([math.log(self.floor[c] * w[c])
+                                             for c in self.channels])))
+            self.sigma = {c: common / w[c] for c in self.channels}
         names = [f"log_{n}" if lg else n for n, lg in zip(problem.names, self.log, strict=True)]
         if self.noise == "sampled":
             names += [f"log_sigma_{c}" for c in self.channels]
@@ -236,7 +250,7 @@ class LogPosterior:
         H = np.zeros((J.shape[1], J.shape[1]))
         for (c, a, b) in self.segments:
             Js = J[a:b]
-            H += (Js.T @ Js) / (self.floor[c] * self.problem.weights[c]) ** 2
+            H += (Js.T @ Js) / (self.sigma[c] * self.problem.weights[c]) ** 2
         del J
         d = np.where(self.log, x_fit, 1.0)  # dθ/dz
         H *= np.outer(d, d)
@@ -305,7 +319,7 @@ class LogPosterior:
             S = np.exp(Z[:, k : k + len(self.channels)])
             k += len(self.channels)
         else:
-            S = np.tile([self.floor[c] for c in self.channels], (Z.shape[0], 1))
+            S = np.tile([self.sigma[c] for c in self.channels], (Z.shape[0], 1))
         P = Z[:, k : k + len(self.channels)] if self.ar1 else np.zeros_like(S)
         return X, S, P
 
