@@ -474,3 +474,24 @@ def test_no_partial_folders_anywhere_after_the_misuse_tests(tmp_path):
     with output_folder(tmp_path / "r") as tmp:
         assert tmp.name.startswith(".r.partial-")
     assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_a_data_warning_is_one_line_of_ours_once(tmp_path):
+    """A file above the rig's ±5 V reads as one `rotorbayes fit: warning: ...` line (not
+    Python's form with the source file and code line), once, on screen and in log.txt."""
+    src = rb.examples.example_path("upper_est").read_text().splitlines()
+    first = next(i for i, line in enumerate(src) if line and line[0].isdigit())
+    cells = src[first + 100].split(",")
+    cells[1] = "6.5"
+    src[first + 100] = ",".join(cells)
+    data = tmp_path / "over.csv"
+    data.write_text("\n".join(src) + "\n")
+    r = subprocess.run([sys.executable, "-m", "rotorbayes.cli", "fit", "--model", "upper",
+                        str(data), str(data), "--out", str(tmp_path / "f")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    lines = [s for s in r.stderr.splitlines() if "6.5 V exceeds ±5 V" in s]
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith(f"rotorbayes fit: warning: {data}, line {first + 101}: ")
+    assert "DataWarning" not in r.stderr and "load_experiment" not in r.stderr
+    assert (tmp_path / "f" / "log.txt").read_text().count("exceeds ±5 V") == 1

@@ -491,6 +491,17 @@ def test_voltage_above_limit_warns(tmp_path):
         load_experiment(write(tmp_path, [HEADER, *GOOD], name="fine.csv"))
 
 
+def test_voltage_at_the_limit_up_to_rounding_does_not_warn(tmp_path):
+    """A generator's arithmetic leaves -5.000000000000009 V where it meant the limit."""
+    lines = [HEADER, *GOOD[:4], "0.04,-5.000000000000009,0.008,0.00016", *GOOD[5:]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_experiment(write(tmp_path, lines))
+    lines[5] = "0.04,-5.00001,0.008,0.00016"
+    with pytest.warns(DataWarning, match=r"u = -5\.00001 V exceeds ±5 V"):
+        load_experiment(write(tmp_path, lines, name="over.csv"))
+
+
 def test_data_file_error_pickles():
     err = DataFileError("x.csv", 3, "bad")
     clone = pickle.loads(pickle.dumps(err))

@@ -27,9 +27,11 @@ Adding a command ``NAME``
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from . import exitcodes as EXIT
@@ -180,6 +182,29 @@ class _logged:
         return False
 
 
+@contextlib.contextmanager
+def _own_warnings(cmd: str):
+    """The package's own warnings (a data file's voltage above the rig's limit, ...) as one
+    line each, ``rotorbayes CMD: warning: ...``, each message once; Python's form (source
+    file, line and code) is for the warnings of other libraries."""
+    seen = set()
+    show = warnings.showwarning
+
+    def _show(message, category, filename, lineno, file=None, line=None):
+        if not category.__module__.startswith("rotorbayes"):
+            return show(message, category, filename, lineno, file, line)
+        text = str(message)
+        if text not in seen:
+            seen.add(text)
+            print(f"rotorbayes {cmd}: warning: {text}", file=sys.stderr)
+
+    warnings.showwarning = _show
+    try:
+        yield
+    finally:
+        warnings.showwarning = show
+
+
 def main(argv=None) -> int:
     """Run one command; its exit code (:mod:`rotorbayes.exitcodes`)."""
     from . import coldstart
@@ -205,7 +230,7 @@ def _main(argv=None) -> int:
     if isinstance(getattr(a, "out", None), str) and len(a.out) > 1:
         a.out = a.out.rstrip("/")  # messages add their own "/": "fit0/", never "fit0//"
     try:
-        with _logged(a) as log:
+        with _logged(a) as log, _own_warnings(a.cmd):
             outcome = run_command(a)
             log.folder = outcome.folder
         sys.stdout.flush()  # a closed pipe shows here, not at exit
