@@ -160,7 +160,9 @@ def test_single_folders_render_what_they_hold(study, tmp_path):
         # fit1 has a parent: the chain comes from the parent link (no compare/ inside it).
         "fit1": {"verdict", "data", "fit", "diagnosis", "chain", "reproducibility"},
         "compare": {"verdict", "compare", "chain", "reproducibility"},
-        "posterior": {"verdict", "posterior", "reproducibility"},
+        # The posterior of fit1: the fit it came from (settings.json) and its chain too.
+        "posterior": {"verdict", "data", "fit", "diagnosis", "chain", "posterior",
+                      "reproducibility"},
         "identify": {"verdict", "identifiability", "reproducibility"},
     }
     for name, want in cases.items():
@@ -243,7 +245,8 @@ def test_report_command(study, tmp_path, capsys):
     # A second run replaces the file.
     assert main(["report", str(study / "posterior"), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "absent (not in" in printed and "sections: verdict, posterior" in printed
+    assert "absent (not in" in printed
+    assert "sections: verdict, data, fit, diagnosis, chain, posterior" in printed
     assert out.stat().st_size != size
     assert [p.name for p in tmp_path.iterdir()] == ["study.html"]
     # Errors: exit 2 with one line, no traceback.

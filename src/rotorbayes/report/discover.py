@@ -135,7 +135,17 @@ def discover(folder: str | Path) -> Found:
     if kind == "compare":
         return Found(root, "compare", compare=root)
     if kind == "sample":
-        return Found(root, "sample", posterior=root)
+        # The posterior of a fit: the fit (and the chain it ends, its comparison) too, from
+        # the folder settings.json names (or one of that name beside this one, if moved).
+        found = Found(root, "sample", posterior=root)
+        fit = (read_json(root / "settings.json") or {}).get("fit")
+        if isinstance(fit, str) and fit:
+            p = _moved(Path(fit), root)
+            if (p / "fit.json").exists():
+                found.chain = fit_chain(p)
+                comp = p / "compare"
+                found.compare = comp if kind_of(comp) == "compare" else None
+        return found
     if kind == "identify":
         return Found(root, "identify", identify=root)
     run = read_json(root / "run.json")

@@ -946,7 +946,7 @@ def _check_report_path(path: Path, force: bool) -> None:
                           "choose another --out")
     if path.suffix.lower() not in (".html", ".htm"):
         raise ReportError(f"--out {path}: a report is an HTML file; give a name ending in "
-                          ".html (e.g. --out {path.with_suffix('.html')})")
+                          f".html (e.g. --out {path.with_suffix('.html')})")
     if path.exists() and not path.is_file():
         raise ReportError(f"--out {path}: is not a regular file; choose another --out")
     if path.exists() and not force and not is_our_report(path):
