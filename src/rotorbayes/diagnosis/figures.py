@@ -33,7 +33,10 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     for k, c in enumerate(chans):
         ax = axes[k, 0]
         seg = slice(k * ex.n, (k + 1) * ex.n)
-        ax.plot(ex.t, r[seg], color="0.75", lw=0.8, label="residual (measured − simulated)")
+        # The residual is drawn last, thin and dark, so that a candidate that explains it
+        # (a thick curve on the same path) does not hide it.
+        ax.plot(ex.t, r[seg], color="0.15", lw=0.6, zorder=3,
+                label="residual (measured − simulated)")
         # Candidates' corrections can coincide (an exact tie such as initial_torsion and
         # lower_asymmetric_coulomb): wide to narrow lines, own dashes and markers at shifted
         # samples, and a word in the legend when one lies on another.
@@ -42,7 +45,7 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
             y = -s.correction[seg]
             same = [o.effect for o in shown[:i] if np.allclose(
                 -o.correction[seg], y, rtol=0.02, atol=0.02 * float(np.max(np.abs(y))) + 1e-300)]
-            ax.plot(ex.t, y, color=_CAND_COLORS[i % 3], lw=(3.2, 2.0, 1.0)[i % 3],
+            ax.plot(ex.t, y, color=_CAND_COLORS[i % 3], lw=(3.2, 2.0, 1.0)[i % 3], alpha=0.8,
                     ls=("-", "--", ":")[i % 3], marker=("o", "s", "^")[i % 3], ms=5,
                     markevery=(i * every // 3, every),
                     label=f"{s.effect} would remove this (p adj. {s.p_adjusted:.2g})"
