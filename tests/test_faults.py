@@ -235,7 +235,7 @@ def test_fit_stopped_by_sigint_at_random_moments_tells_the_truth(proj, tmp_path)
         time.sleep(delay)
         p.send_signal(signal.SIGINT)
         out, err = p.communicate(timeout=120)
-        assert "Traceback" not in err, err
+        assert "Traceback" not in err and "Exception ignored" not in err, err
         names = listing(cwd)
         if p.returncode == 0:
             assert names == ["f"] and (cwd / "f" / "fit.json").exists()
@@ -246,6 +246,30 @@ def test_fit_stopped_by_sigint_at_random_moments_tells_the_truth(proj, tmp_path)
             else:
                 assert "nothing was written" in err or "wrote nothing new" in err, err
                 assert names == [], names
+
+
+def test_ctrl_c_while_the_command_loads_ends_it_at_once_whatever_the_moment(proj, tmp_path):
+    """Stops while numba and the command's modules import: a KeyboardInterrupt raised there
+    used to land in importlib's weakref callback ("Exception ignored", the command went on),
+    in a module's top level (a traceback), or end Python 3.11 by SIGINT (exit -2): 12 of 80
+    such stops before the fix."""
+    rng = random.Random(23)
+    for k, delay in enumerate(sorted(rng.uniform(0.1, 1.6) for _ in range(6))):
+        cwd = tmp_path / f"l{k}"
+        cwd.mkdir()
+        p = cli(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out", "f"],
+                cwd)
+        time.sleep(delay)
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+        assert "Traceback" not in err and "Exception ignored" not in err, (delay, err)
+        if p.returncode == 0:  # loaded and fitted before the signal came: complete
+            assert listing(cwd) == ["f"] and (cwd / "f" / "fit.json").exists()
+            continue
+        assert p.returncode == 130, (delay, p.returncode, err)
+        assert listing(cwd) in ([], ["f"]), listing(cwd)
+        if listing(cwd) == []:
+            assert "nothing was written" in err or "wrote nothing new" in err, err
 
 
 def test_ctrl_c_after_the_command_has_finished_changes_nothing(tmp_path):

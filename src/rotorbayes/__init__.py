@@ -31,6 +31,9 @@ _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # The kernel compiles on first import (tens of seconds with a cold numba cache): said once.
 from .coldstart import compile_kernel as _compile_kernel
 from .coldstart import interrupted_while_loading as _interrupted_while_loading
+from .coldstart import stop_at_once_while_loading as _stop_at_once_while_loading
+
+_stop_at_once_while_loading()  # the command only: a Ctrl-C while loading ends it at once
 
 try:
     _compile_kernel()

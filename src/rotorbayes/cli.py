@@ -222,10 +222,13 @@ def _main(argv=None) -> int:
         a = ap.parse_args(argv)
     except SystemExit as exc:  # --help, --version (0) or a usage error (2), already printed
         return exc.code if isinstance(exc.code, int) else 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Python code calling main(); the command ends at once instead
         print("rotorbayes: interrupted (Ctrl-C) while starting; nothing was written",
               file=sys.stderr)
         return EXIT.INTERRUPTED
+    from . import coldstart
+
+    coldstart.loaded()  # a Ctrl-C is each command's own business from here on
     a._argv = list(sys.argv[1:] if argv is None else argv)
     if isinstance(getattr(a, "out", None), str) and len(a.out) > 1:
         a.out = a.out.rstrip("/")  # messages add their own "/": "fit0/", never "fit0//"
