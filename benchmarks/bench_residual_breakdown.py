@@ -67,7 +67,13 @@ def child(repeats: int) -> dict:
     zero = np.zeros_like(sim.u)
 
     def kernel(pp, cols, stride=sim.stride, uu=sim.u):
-        a = (uu, sim.dt, sim.cfg, sim.shape, stride, 1, sim.theta_u)
+        if hasattr(S, "step_grid"):  # the kernel's grid follows the input (since 2026-11-24)
+            from rotorbayes.model.simulate import INPUT_TOLERANCE
+
+            grid = S.step_grid(uu, stride, INPUT_TOLERANCE / sim.dt)
+            a = (uu, sim.dt, sim.cfg, sim.shape, grid, float(stride), sim.theta_u)
+        else:  # an older kernel: a uniform grid of `stride` samples
+            a = (uu, sim.dt, sim.cfg, sim.shape, stride, 1, sim.theta_u)
         return lambda: S.residuals_into_plain(pp, kq, *a, mu, ml, 1.0, 1.0, r, 0, *cols)
 
     fns = {

@@ -4,10 +4,11 @@ Each disc is in one of three modes: slip in the positive direction (+1), slip in
 negative direction (-1) or stick (0, velocity held at exactly zero, friction equal to the
 external torque).  Inside a mode the equations of motion are smooth, so they are integrated
 with the classical fourth-order Runge-Kutta method on a *fixed* grid aligned with the
-(delayed) input samples: a step is an odd number of samples, so its middle stage falls
-halfway between two samples, and with an input delay the grid is shifted by the delay
-(:func:`rotorbayes.kernel.terms.grid_phase`), so the delayed samples and the end of the
-held start are step points too.  A step ends early at
+(delayed) input samples and chosen from the input alone (:func:`step_grid`: long steps
+where the input is smooth, short ones over its fast transitions): a step is an odd number
+of samples, so its middle stage falls halfway between two samples, and with an input delay
+the grid is shifted by the delay (:func:`rotorbayes.kernel.terms.delay_samples`), so the
+delayed samples and the end of the held start are step points too.  A step ends early at
 
 * an **event**, located inside the step by regula falsi on the Runge-Kutta map itself:
   slip -> zero velocity (``s * omega`` reaches 0; the disc sticks if its external torque
@@ -47,11 +48,11 @@ from .layout import (
 )  # fmt: skip
 from .terms import (
     HOOK_TYPE,
+    delay_samples,
     derived,
     drive,
     drive_source,
     effect_state_ok,
-    grid_phase,
     guards,
     has_kinks,
     modes_at_rest,
@@ -148,6 +149,62 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, src):
     return b
 
 
+@njit(cache=True, error_model="numpy")
+def _input_defect(u, k, m):
+    """How far the Runge-Kutta stages of a step over samples ``k .. k + m`` misjudge the
+    linearly interpolated input ``u``: the larger of Simpson's rule's errors in the
+    integral of ``u`` and in its first moment about the middle (the rule uses the values
+    the stages see: both ends and the middle), in volts times samples.  Zero wherever the
+    input is a quadratic over the step (a hold, a ramp, a slow wave); large over a fast
+    transition between levels."""
+    c = k + 0.5 * m
+    i0 = 0.0
+    i1 = 0.0
+    for i in range(k, k + m):
+        a = u[i]
+        b = u[i + 1]
+        i0 += 0.5 * (a + b)
+        i1 += (i - c) * 0.5 * (a + b) + (a + 2.0 * b) / 6.0
+    if m % 2 == 1:
+        um = 0.5 * (u[k + (m - 1) // 2] + u[k + (m + 1) // 2])
+    else:
+        um = u[k + m // 2]
+    s0 = m / 6.0 * (u[k] + 4.0 * um + u[k + m])
+    s1 = m * m / 12.0 * (u[k + m] - u[k])
+    return max(abs(i0 - s0), abs(i1 - s1) / (0.5 * m))
+
+
+@njit(cache=True, error_model="numpy")
+def step_grid(u, max_stride, tol):
+    """The Runge-Kutta step points [samples] for the input ``u``: from each point the
+    longest step of an odd number of samples, at most ``max_stride``, whose
+    :func:`_input_defect` is at most ``tol`` [V samples] (one sample always passes: the
+    input is linear there); the last step ends at ``n - 1``.
+
+    The grid depends on the input alone, never on the parameters, so the simulated
+    angles stay continuous in the parameters.  Long steps where the input is smooth,
+    short ones over fast transitions, where a long step would see the transition at only
+    three points.
+    """
+    n = u.shape[0]
+    last = n - 1
+    out = np.empty(n)
+    out[0] = 0.0
+    j = 1
+    k = 0
+    while k < last:
+        rem = last - k
+        m = rem if rem <= max_stride else max_stride
+        while m > 1 and _input_defect(u, k, m) > tol:
+            m = m - 1 if m % 2 == 0 else m - 2
+        if m < 1:
+            m = 1
+        k += m
+        out[j] = k
+        j += 1
+    return out[:j].copy()
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _fail_residuals(r, row, col_u, col_l, n):
     """A failed experiment: every residual of its channels is NaN."""
@@ -164,7 +221,7 @@ def _fail_residuals(r, row, col_u, col_l, n):
 # The one exception is terms.drive (small, numba-inlined, see there).
 @njit(cache=True, error_model="numpy")
 def _integrate(
-    p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
     full, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
     meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
 ):  # fmt: skip
@@ -178,7 +235,8 @@ def _integrate(
     """
     n = u.shape[0]
     bad = violations(p, cfg)
-    if bad.any() or substeps < 1 or stride < 1 or (stride > 1 and substeps > 1) or not dt > 0.0:
+    if (bad.any() or grid.shape[0] < 2 or not grid[0] == 0.0 or not grid[-1] >= n - 1.0
+            or not h0 > 0.0 or not dt > 0.0):
         if full:
             out_thu[:] = np.nan
             out_wu[:] = np.nan
@@ -190,15 +248,16 @@ def _integrate(
     c = derived(p, dt)
     m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift)
     max_ev = events.shape[0]
-    ratio = stride / substeps  # step length in samples
     last = n - 1.0
-    # The step grid: every `ratio` samples, shifted by the input delay (grid_phase), so the
-    # delayed input's kinks -- its sample times and the end of its held start, t_delay --
-    # sit on the grid as the undelayed samples do; the middle stage of a step then falls
-    # halfway between two (delayed) samples.  Only dead-zone edges remain to be located
-    # inside a step (next_kink).
-    g = grid_phase(c, cfg, ratio)
-    jj = 0 if g > 1e-9 else 1
+    # The step grid: the input's own grid (`grid`, in samples, from step_grid) shifted by
+    # the input delay, so the delayed input's kinks -- its sample times and the end of its
+    # held start, t_delay -- sit on step points as the undelayed samples do; before the
+    # held start's end, steps of `h0` samples counted back from it.  Only dead-zone edges
+    # remain to be located inside a step (next_kink).  The grid moves continuously with
+    # the delay: where the held start gains a step, that step has zero length.
+    dly = delay_samples(c, cfg)
+    n_hold = int(math.floor(dly / h0))
+    jj = 0 if dly - n_hold * h0 > 1e-9 else 1
     kinks = has_kinks(c)
     src = drive_source(cfg, u, thp)
     y = (0.0, 0.0, 0.0, 0.0)
@@ -227,7 +286,10 @@ def _integrate(
         if status != OK:
             break
         t = t_end
-        s_end = min(g + jj * ratio, last)
+        if jj <= n_hold:
+            s_end = min(dly - (n_hold - jj) * h0, last)
+        else:
+            s_end = min(dly + grid[jj - n_hold], last)
         jj += 1
         t_end = s_end * dt
         n_step_ev = 0
@@ -343,7 +405,7 @@ def _integrate(
 
 _F1 = types.float64[::1]
 _SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
-    _F1, _F1, _F1, types.float64, types.int64, types.int64, types.int64, types.int64, _F1,
+    _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
     types.boolean, HOOK_TYPE, HOOK_TYPE,
     _F1, _F1, _F1, _F1, types.int8[::1], types.int8[::1], types.float64[:, ::1],
 )  # fmt: skip
@@ -351,7 +413,7 @@ _SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
 
 @njit(_SIMULATE_SIGNATURE, cache=True, error_model="numpy", nogil=True)
 def simulate_into(
-    p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
     out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
 ):  # fmt: skip
     """Integrate one experiment and write the result into preallocated arrays.
@@ -370,8 +432,12 @@ def simulate_into(
         :data:`CFG_UPPER`, :data:`CFG_COUPLED` or :data:`CFG_PRESCRIBED`.
     shape : int
         Stribeck shape code (see :mod:`rotorbayes.model.friction`).
-    stride, substeps : int
-        The Runge-Kutta step is ``dt * stride / substeps``; one of the two must be 1.
+    grid : float64[k]
+        The Runge-Kutta step points in samples, from 0 to at least ``n - 1``, before the
+        input delay's shift (:func:`step_grid`).
+    h0 : float
+        The step [samples] while the delayed input is held at ``u[0]`` (before
+        ``t_delay``).
     thp : float64[n]
         Prescribed upper-disc angle [rad] (only read for ``CFG_PRESCRIBED``).
     use_hooks, hook_torque, hook_shift
@@ -388,14 +454,14 @@ def simulate_into(
     """
     no_f = np.empty(0)
     return _integrate(
-        p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+        p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
         True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
         no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
     )  # fmt: skip
 
 
 _RESIDUALS_SIGNATURE = types.int64(
-    _F1, _F1, _F1, types.float64, types.int64, types.int64, types.int64, types.int64, _F1,
+    _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
     types.boolean, HOOK_TYPE, HOOK_TYPE,
     _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
     types.int64,
@@ -404,7 +470,7 @@ _RESIDUALS_SIGNATURE = types.int64(
 
 @njit(_RESIDUALS_SIGNATURE, cache=True, error_model="numpy", nogil=True)
 def residuals_into(
-    p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
     meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
 ):  # fmt: skip
     """Integrate one experiment and write only its weighted residuals (no output arrays).
@@ -419,7 +485,7 @@ def residuals_into(
     no_f = np.empty(0)
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
-        p, q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+        p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
         False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
@@ -428,14 +494,14 @@ def residuals_into(
 
 _BATCH_SIGNATURE = types.void(
     types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, types.int64, types.int64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
+    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
     types.float64[:, ::1], types.float64[:, ::1], types.int64[::1],
 )  # fmt: skip
 
 
 @njit(_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
 def simulate_batch_into(
-    P, Q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
     out_thu, out_thl, status,
 ):  # fmt: skip
     """Integrate one experiment for every row of ``P`` (and ``Q``) in parallel threads.
@@ -451,14 +517,14 @@ def simulate_batch_into(
         ml = np.empty(n, dtype=np.int8)
         ev = np.empty((0, 3))
         s, _ = simulate_into(
-            P[i], Q[i], u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque,
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
             hook_shift, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
         )  # fmt: skip
         status[i] = s
 
 
 _PLAIN_SIGNATURE = types.int64(
-    _F1, _F1, _F1, types.float64, types.int64, types.int64, types.int64, types.int64, _F1,
+    _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
     _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
     types.int64,
 )  # fmt: skip
@@ -466,7 +532,7 @@ _PLAIN_SIGNATURE = types.int64(
 
 @njit(_PLAIN_SIGNATURE, cache=True, error_model="numpy", nogil=True)
 def residuals_into_plain(
-    p, q, u, dt, cfg, shape, stride, substeps, thp, meas_u, meas_l, w_u, w_l, r, row, col_u,
+    p, q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, r, row, col_u,
     col_l,
 ):  # fmt: skip
     """:func:`residuals_into` for a model without user-defined effects.
@@ -478,7 +544,7 @@ def residuals_into_plain(
     no_f = np.empty(0)
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
-        p, q, u, dt, cfg, shape, stride, substeps, thp, False, None, None,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None,
         False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
@@ -487,7 +553,7 @@ def residuals_into_plain(
 
 _RESIDUALS_BATCH_SIGNATURE = types.void(
     types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, types.int64, types.int64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
+    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
     _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
     types.int64[::1],
 )  # fmt: skip
@@ -495,7 +561,7 @@ _RESIDUALS_BATCH_SIGNATURE = types.void(
 
 @njit(_RESIDUALS_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
 def residuals_batch_into(
-    P, Q, u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque, hook_shift,
+    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
     meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
 ):  # fmt: skip
     """:func:`residuals_into` for every row of ``P`` (and ``Q``) in parallel threads:
@@ -504,21 +570,21 @@ def residuals_batch_into(
     m = P.shape[0]
     for i in prange(m):
         status[i] = residuals_into(
-            P[i], Q[i], u, dt, cfg, shape, stride, substeps, thp, use_hooks, hook_torque,
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
             hook_shift, meas_u, meas_l, w_u, w_l, R, i, col_u, col_l,
         )  # fmt: skip
 
 
 _PLAIN_BATCH_SIGNATURE = types.void(
     types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, types.int64, types.int64, _F1, _F1, _F1, types.float64, types.float64,
+    types.int64, _F1, types.float64, _F1, _F1, _F1, types.float64, types.float64,
     types.float64[:, ::1], types.int64, types.int64, types.int64[::1],
 )  # fmt: skip
 
 
 @njit(_PLAIN_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
 def residuals_batch_into_plain(
-    P, Q, u, dt, cfg, shape, stride, substeps, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
+    P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
     status,
 ):  # fmt: skip
     """:func:`residuals_batch_into` for a model without user-defined effects (see
@@ -526,6 +592,6 @@ def residuals_batch_into_plain(
     m = P.shape[0]
     for i in prange(m):
         status[i] = residuals_into_plain(
-            P[i], Q[i], u, dt, cfg, shape, stride, substeps, thp, meas_u, meas_l, w_u, w_l, R,
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
             i, col_u, col_l,
         )  # fmt: skip

@@ -201,20 +201,18 @@ def interp(t, y, inv_dt):
 
 
 @njit(cache=True, error_model="numpy")
-def grid_phase(c, cfg, ratio):
-    """Where the solver's step grid starts, in samples: ``t_delay / dt`` modulo the step
-    (``ratio`` samples), so that the grid ``(phase + j * ratio) * dt`` holds every delayed
-    sample time and the end of the held start, ``t = t_delay`` (before it the delayed input
-    is held at ``u[0]``).  The input's kinks then sit on step points whatever the delay,
-    as the samples do without one.  The phase moves continuously with the delay; where it
-    wraps (the delay a whole number of steps) the step it adds or drops has zero length.
-    0 without a delay and for a prescribed upper-disc motion (which is not delayed).
+def delay_samples(c, cfg):
+    """The input delay in samples, ``t_delay / dt``: the solver's step grid is the input's
+    grid shifted by it, so that the delayed sample times and the end of the held start,
+    ``t = t_delay`` (before it the delayed input is held at ``u[0]``), are step points.
+    The input's kinks then sit on step points whatever the delay, as the samples do
+    without one, and the grid moves continuously with the delay.  0 without a delay and
+    for a prescribed upper-disc motion (which is not delayed).
     """
     d = c[_TDEL]
     if d <= 0.0 or cfg == CFG_PRESCRIBED:
         return 0.0
-    x = d * c[_IDT]
-    return x - ratio * math.floor(x / ratio)
+    return d * c[_IDT]
 
 
 @njit(cache=True, error_model="numpy")
@@ -222,7 +220,7 @@ def next_kink(t, t1, c, u):
     """The first time in ``(t, t1)`` at which the effective voltage has a slope jump that
     falls inside a Runge-Kutta step, or ``t1`` if there is none: where the offset, delayed
     input crosses ``±u_deadzone``.  (The delayed sample times and the end of the held start
-    are step points already, see :func:`grid_phase`.)
+    are step points already, see :func:`delay_samples`.)
 
     Kinks closer than ``1e-9`` samples to either end are ignored, so the result moves
     continuously with the parameters: a kink that reaches a step boundary leaves a segment

@@ -399,7 +399,7 @@ _CATALOGUE: tuple[Effect, ...] = (
         "residual proportional to the derivative of the response; cross-correlation with u "
         "peaks at a positive lag",
         motor=True,
-        kernel_term="terms.drive, terms.grid_phase (the step grid follows the delay)",
+        kernel_term="terms.drive, terms.delay_samples (the step grid follows the delay)",
         resolution=Resolution(
             "sample", 0.1, "", "",
             "a delay below a tenth of a sample cannot be told from how the input "

@@ -26,6 +26,12 @@ from .parameters import NAMES, ParameterError, resolve
 #: Default step: ``None`` chooses it from the sample interval (:func:`default_step`).
 DEFAULT_STEP = None
 
+#: How much of the input a Runge-Kutta step may misjudge [V s] (see
+#: :func:`rotorbayes.kernel.solver.step_grid`): a step is shortened where the input,
+#: linearly interpolated, departs from a quadratic by more than this over the step (a
+#: transition between two levels within a few tens of milliseconds).
+INPUT_TOLERANCE = 5e-7
+
 
 def default_step(dt: float) -> float:
     """The default largest Runge-Kutta step [s] for samples ``dt`` apart: 15 ms at 1 kHz
@@ -213,6 +219,15 @@ class Simulator:
             raise ValueError(f"step = {step} must be > 0 seconds")
         self.step = float(step)
         self.stride, self.substeps = stride_of(step, self.dt)
+        if self.substeps > 1:  # steps shorter than a sample: every sample alike
+            k = np.arange((self.n - 1) * self.substeps + 1, dtype=float)
+            self.grid = k / self.substeps
+        elif self.prescribed:  # the motion is the input; its steps stay uniform
+            self.grid = np.minimum(np.arange(0, self.n - 1 + self.stride, self.stride,
+                                             dtype=float), self.n - 1.0)
+        else:
+            self.grid = _solver.step_grid(self.u, self.stride, INPUT_TOLERANCE / self.dt)
+        self.h0 = self.stride / self.substeps
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -221,7 +236,7 @@ class Simulator:
     def _kernel_args(self) -> tuple:
         """The kernel's experiment arguments, shared by single and batched runs."""
         use, ht, hs = self.model.hooks()
-        return (self.u, self.dt, self.cfg, self.shape, self.stride, self.substeps,
+        return (self.u, self.dt, self.cfg, self.shape, self.grid, self.h0,
                 self.theta_u, use, ht, hs)  # fmt: skip
 
     @property
