@@ -205,8 +205,10 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
             b = n.split("[")[0]
             if b not in names_base:
                 names_base.append(b)
+        step = doc.get("step")
         prob = Problem(model, exps, free=names_base, base=base,
-                       channels=tuple(doc["channels"]), weights=doc.get("weights"))
+                       channels=tuple(doc["channels"]), weights=doc.get("weights"),
+                       step=None if step is None else float(step))
     except (KeyError, TypeError, AttributeError) as exc:
         raise ResultError(f"{path}: cannot rebuild the fit from it ({type(exc).__name__}: "
                           f"{exc}): damaged, or written by another rotorbayes; fit again"

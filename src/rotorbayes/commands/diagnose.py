@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 from ..exitcodes import Interrupted, Refused
@@ -21,6 +22,26 @@ def add_arguments(g) -> None:
                    help="Gaussian measurement noise std [rad] besides encoder quantisation "
                    "(default 0)")
     add_trust_option(g)
+
+
+def _integration(result) -> dict:
+    """The integrator's own error at the fit, in words (what a verdict must not forget)."""
+    from ..inference import quality
+    from ..inference.assess import INTEGRATION_LIMIT, Assessment, channel_rows
+
+    prob = result.problem
+    floors, _ = prob.noise_floors()
+    a = Assessment(channels=channel_rows(prob, quality(prob, result.x), "estimation", floors))
+    r = a.integration_ratio
+    warn = None
+    if math.isfinite(r) and r > INTEGRATION_LIMIT:
+        step = prob.sims[0].step
+        warn = (f"the integrator's own error at this fit is {r:.2g}x the floor (RMS, steps of "
+                f"up to {1e3 * step:.3g} ms against one-sample steps): the verdict and the "
+                "ranking above may answer the integration, not the model; fit again with "
+                f"--step {step / 3:.2g} and diagnose that fit")
+    return {"ratio": None if math.isnan(r) else r, "line": a.integration_line(),
+            "warning": warn}
 
 
 def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False) -> Outcome:
@@ -42,7 +63,12 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     d = run_diagnosis(result.problem, result.x, noise_std=noise or 0.0)
     print()
     print(d.text())
+    integ = _integration(result)
+    print(integ["line"])
+    if integ["warning"]:
+        print(f"warning: {integ['warning']}", file=sys.stderr)
     doc = d.as_dict()
+    doc["integration"] = integ
     doc["fit"] = str(result.folder)
     # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
     with folder_lock(result.folder, flag="diagnose", other=None), InterruptGuard().start() as guard:

@@ -43,7 +43,7 @@ def fit(data, *, model: str, out: str, validate=None, p0: str | None = None,
         without=None, channels=None, weights: str | None = None,
         prescribed_upper: bool = False, max_nfev: int = 200, ftol: float = 1e-10,
         xtol: float = 1e-10, gtol: float = 1e-10, force: bool = False,
-        trust_effects: bool = False) -> Outcome:
+        trust_effects: bool = False, step: float | None = None) -> Outcome:
     """Fit the ``model`` configuration ("upper", "coupled" or "brake") to the measurement
     files ``data`` and write fit.json and figures into the folder ``out``.
 
@@ -137,7 +137,7 @@ def build_problem(a, exps, start_spec=None):
     weights = _parse_weights(a.weights, a.model, channels, a.prescribed_upper) \
         if a.weights is not None else None
     prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
-                   fixed=fixed)
+                   fixed=fixed, step=getattr(a, "step", None))
     return prob, from_upper
 
 
@@ -333,6 +333,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     print("\nresidual RMS against the encoder quantisation floor (resolution/sqrt(12)):")
     print(assessment.table())
     print(f"verdict: {assessment.verdict}")
+    print(assessment.integration_line())
     w, V = res.sloppy_directions()
     sloppy = {n: float(c) for n, c in zip(res.names, V[:, 0], strict=True)}
     ratio = float(w[-1] / max(w[0], 1e-300))
@@ -383,6 +384,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         "start": chose,
         "free": list(res.names),
         "prescribed_upper": bool(prob.prescribed_upper),
+        "step": prob.step,  # the largest Runge-Kutta step [s]; None: the default
         "weights": dict(prob.weights),
         "parent": _parent_of(a.p0),
         "assessment": assessment.as_dict(),

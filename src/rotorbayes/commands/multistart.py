@@ -39,7 +39,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
                max_nfev: int = 200, ftol: float = 1e-10, xtol: float = 1e-10,
                gtol: float = 1e-10, backend: str | None = None, workers: int | None = None,
                scheduler: str | None = None, force: bool = False,
-               trust_effects: bool = False) -> Outcome:
+               trust_effects: bool = False, step: float | None = None) -> Outcome:
     """``starts`` fits of the ``model`` configuration to ``data`` from spread starts (a
     Latin hypercube over the bounds, or a log-normal ``spread`` around the set ``around``);
     writes multistart.json, summary.txt and the waterfall and spread figures into ``out``.

@@ -92,6 +92,11 @@ def add_fit_options(p) -> None:
     for tol in ("ftol", "xtol", "gtol"):
         p.add_argument(f"--{tol}", type=ranged(gt=0, why=" (a convergence tolerance)"),
                        default=1e-10, help=f"{tol} of scipy.optimize.least_squares")
+    p.add_argument("--step", type=ranged(gt=0, why=" (seconds)"), default=None,
+                   metavar="SECONDS",
+                   help="largest Runge-Kutta step of the simulation (default: 15 ms at 1 kHz, "
+                   "shorter over fast input transitions); give it when the fit's integration "
+                   "check says the integrator's own error is material; kept in fit.json")
     p.add_argument("--force", action="store_true",
                    help="replace the results in --out (only once the new run has succeeded)")
     add_trust_option(p)

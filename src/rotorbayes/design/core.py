@@ -217,7 +217,8 @@ def _combined(frame: Frame, new_ex: Experiment) -> tuple[Problem, np.ndarray, np
     index in the frame's coordinates."""
     prob0 = frame.problem
     prob = Problem(frame.model, list(prob0.experiments) + [new_ex], free=frame.names_base,
-                   base=frame.params_new, channels=prob0.channels, weights=prob0.weights)
+                   base=frame.params_new, channels=prob0.channels, weights=prob0.weights,
+                   shape=prob0.shape, step=prob0.step)
     pos = [frame.names.index(n) for n in prob.names]
     return prob, frame.x_comb[pos], np.array(pos)
 
@@ -318,7 +319,8 @@ def _candidate(problem: Problem, x: np.ndarray, name: str, max_nfev: int):
         return cand, x, eff, "already on in the fit"
     free = names + [p for p in eff.names if p not in names]
     cand = Problem(m.with_effects([eff]), problem.experiments, free=free, base=base,
-                   channels=problem.channels, weights=problem.weights)
+                   channels=problem.channels, weights=problem.weights, shape=problem.shape,
+                   step=problem.step)
     vals = dict(base)
     vals.update({n: v for n, v in problem.values(x).items()})
     x0 = cand.start_vector(vals)
