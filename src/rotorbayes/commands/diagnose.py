@@ -65,6 +65,12 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     print(d.text())
     integ = _integration(result)
     print(integ["line"])
+    v = (result.doc.get("assessment") or {}).get("worst_ratio_to_floor_validation")
+    if d.adequate and isinstance(v, (int, float)) and v > 1.5:
+        print(f"note: this verdict is on the estimation data; the fit's validation data are "
+              f"at {v:.3g}x the floor: the model fits these data but predicts others less "
+              "well (a missing effect these data do not excite, or parameters they do not "
+              "determine): compare the fit on its validation data, or fit both together")
     if integ["warning"]:
         print(f"warning: {integ['warning']}", file=sys.stderr)
     doc = d.as_dict()

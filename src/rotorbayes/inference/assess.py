@@ -215,7 +215,8 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessmen
                 why = ("the fit wants to leave the physical range: usually a wrong basin, "
                        "a missing effect or a wrong fixed value; its standard error means "
                        "nothing")
-            a.warnings.append(f"{n} = {v:.4g} {unit} is at its {which} bound {b:g}: {why}")
+            a.warnings.append(f"{n} = {v:.4g} {unit} is at its {which} bound {b:g} (within "
+                              f"{100 * BOUND_TOL:g} % of its range, {lo:g} to {hi:g}): {why}")
     # Validity constraints between two parameters (Tc >= |dTc|, ...): the optimiser sees a
     # wall there, and an end point on it is as suspect as one on a bound.
     free = {local_name(n)[0] for n in result.names}
