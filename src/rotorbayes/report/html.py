@@ -464,7 +464,9 @@ def _fit(f: Found) -> Raw | None:
     out.append(table(heads, [prow(n) for n in free + fixed], numeric=(1, 2, 3),
                      row_cls=lambda k: "" if k < len(free) else "muted",
                      caption=f"{len(free)} free, {len(fixed)} fixed (grey); standard errors "
-                     "from the Jacobian at the fit, noise at the residual RMS"))
+                     "as fit.json gives them: honest (rounding simulated as it is, model "
+                     "error from the residuals' time blocks, an allowance for the input "
+                     "between samples; docs/uncertainty.md)"))
     if off:
         out.append(Raw(f"<details><summary>{len(off)} parameters of effects that are off"
                        "</summary>"))
