@@ -87,6 +87,7 @@ data = ["est.csv"]
 
 [fit]
 max_nfev = 40
+step = 0.011
 
 [design]
 separate = ["lower_asymmetric_viscous", "string_damping"]
@@ -111,6 +112,8 @@ def test_a_design_stage_writes_next_and_is_skipped_when_unchanged(data):
     rec = json.loads((out / "run.json").read_text())
     assert [s["name"] for s in rec["stages"]] == ["fit0", "design"]
     assert rec["seeds"]["design"] == 0
+    # [fit] step reaches the fit, which keeps it for the design that reads it
+    assert json.loads((out / "fit0" / "fit.json").read_text())["step"] == 0.011
     nxt = out / "design"
     assert {"u.csv", "design.json", "design.txt", "design.png"} <= {
         p.name for p in nxt.iterdir()}
@@ -184,6 +187,8 @@ def test_a_bad_design_table_is_refused_before_any_work(data, capsys, edit, messa
      "[sample] moves = 'walk'; choose one of stretch, de, de-mix"),
     ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\neffects=['warp']\n",
      "[fit] effects: unknown effect 'warp'"),
+    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\nstep=5.0\n",
+     "[fit] step = 5.0 must lie between 1e-06 and 1"),
     ("[analysis\n", "not valid TOML"),
 ])
 def test_a_bad_analysis_file_is_refused_before_any_work(data, capsys, edit, message):

@@ -37,7 +37,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "analysis": {"name": (str,), "out": (str,), "config": (str,), "data": (list,),
                  "validate": (list,), "seed": (int,)},
     "fit": {"p0": (str,), "free": (list,), "fixed": (list,), "effects": (list,),
-            "channels": (list,), "max_nfev": (int,)},
+            "channels": (list,), "max_nfev": (int,), "step": (int, float)},
     "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float)},
     "sample": {"walkers": (int,), "steps": (int,), "ensembles": (int,), "noise": (str,),
                "ar1": (bool,), "moves": (str,)},
@@ -55,7 +55,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
 #: not end, not fit on a disk, or mean nothing).
 LIMITS: dict[str, dict[str, tuple[float, float]]] = {
     "analysis": {"seed": (0, 2**31 - 1)},
-    "fit": {"max_nfev": (1, 1_000_000)},
+    "fit": {"max_nfev": (1, 1_000_000), "step": (1e-6, 1.0)},
     "diagnose": {"max_steps": (0, 20), "noise_std": (0.0, 1.0)},
     "sample": {"walkers": (4, 10_000), "steps": (10, 10_000_000), "ensembles": (1, 64)},
     "identify": {"points": (3, 1001)},
@@ -508,6 +508,8 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
             fit_args[k] = ",".join(fit_t[k])
     if fit_t.get("max_nfev"):
         fit_args["max_nfev"] = fit_t["max_nfev"]
+    if fit_t.get("step") is not None:
+        fit_args["step"] = float(fit_t["step"])
     if fit_t.get("effects"):
         fit_args["add"] = [a.resolve(e) if ".py:" in e else e for e in fit_t["effects"]]
     first = out / "fit0"

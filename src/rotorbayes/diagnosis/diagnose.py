@@ -199,9 +199,12 @@ def diagnose(
     ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor,
                           context=context)
     maps = missing_torque(problem, x, floors=floor)
+    pooled = (f" (the {len(problem.experiments)} experiments pooled; `fit` quotes the worst "
+              "single experiment)" if len(problem.experiments) > 1 else "")
     evidence = notes + [
         "residual RMS / noise floor: "
         + ", ".join(f"{c} {v:.2f} (floor {floor[c]:.2g} rad)" for c, v in ratios.items())
+        + pooled
     ]
     judgements = {s.effect: _judge(s, problem, x, worst, context) for s in ranking}
     # Effects worth a claim come first, the one predicted to lower the error most first

@@ -65,7 +65,9 @@ class Assessment:
         if not rows:
             return ("integration check: the steps are one sample long (nothing finer to "
                     "compare with)")
-        parts = ", ".join(f"{c['channel']} {c['integration_max']:.2g} rad largest "
+        several = len({c["experiment"] for c in rows}) > 1
+        parts = ", ".join((f"{c['experiment']} " if several else "")
+                          + f"{c['channel']} {c['integration_max']:.2g} rad largest "
                           f"({c['integration_ratio']:.2g}x the floor as RMS)" for c in rows)
         return (f"integration check at the fit (its step grid against one-sample steps): "
                 f"{parts}")
