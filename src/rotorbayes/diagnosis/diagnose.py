@@ -167,6 +167,9 @@ class Diagnosis:
         lines.append("missing-torque map (measured angles, slip samples):")
         for m in self.maps:
             lines.append("  " + m.words())
+        if not self.maps:
+            lines.append("  none: fewer than 50 samples in clear slip (at rest, friction "
+                         "balances any torque, so a map has nothing to show)")
         lines.append("")
         lines.append(self.advice)
         return "\n".join(lines)
