@@ -225,8 +225,12 @@ def diagnose(
                   if not judgements[s.effect]["claimable"]]
     at_floor = worst <= AT_FLOOR
     adequate = at_floor and not claimable
+    # The map to quote: the one whose explained torque stands highest above its own noise
+    # (a disc that lacks a large torque makes the other disc's fitted parameters absorb
+    # part of it, and that disc's map then shows a clean but secondary dependence).
     strongest = max(
-        (m for m in maps if m.strongest and m.supports_words), key=lambda m: m.strongest[1],
+        (m for m in maps if m.strongest and m.supports_words),
+        key=lambda m: math.sqrt(max(m.strongest[1], 0.0)) * m.rms / max(m.noise_rms, 1e-300),
         default=None,
     )
     foreign = None

@@ -302,28 +302,109 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         est["ws_l"], how["ws_l"] = float(ws), "data: best of a grid (lower disc)"
     if stribeck_on and "delta_l" in free:
         est["delta_l"], how["delta_l"] = float(delta), "data: best of a grid (lower disc)"
-    for n, v in est.items():
-        info = problem.model.info[n]
-        lo, hi = info.lower, info.upper
-        margin = 1e-3 * (hi - lo)
-        note = how[n]
-        if not math.isfinite(v):
-            continue
-        if v < lo + margin or v > hi - margin:
-            clipped = min(max(v, lo + margin), hi - margin)
-            if info.lower >= 0 and v <= 0 and n != "J_l":
-                # A friction level the regression sends below zero is small: start it at
-                # a few percent of the bound's width instead of on the bound.
-                clipped = lo + 0.01 * min(hi - lo, 1.0)
-            note += f" (regression gave {v:.3g}, outside the bounds; moved inside)"
-            v = clipped
-        out.values[n] = float(v)
-        out.source[n] = note
-    if "Ts_l" in out.values and stribeck_on:
-        tc = out.values["Tc_l"]
-        if not out.values["Ts_l"] > tc:
-            out.values["Ts_l"] = tc * 1.5 + 1e-3
-            out.source["Ts_l"] += " (raised above Tc_l)"
+    def finish(est: dict, how: dict) -> tuple[dict, dict]:
+        """Values and their sources from regression estimates, moved inside the bounds."""
+        values, source = dict(out.values), dict(out.source)
+        for n, v in est.items():
+            info = problem.model.info[n]
+            lo, hi = info.lower, info.upper
+            margin = 1e-3 * (hi - lo)
+            note = how[n]
+            if not math.isfinite(v):
+                continue
+            if v < lo + margin or v > hi - margin:
+                clipped = min(max(v, lo + margin), hi - margin)
+                if info.lower >= 0 and v <= 0 and n != "J_l":
+                    # A friction level the regression sends below zero is small: start it
+                    # at a few percent of the bound's width instead of on the bound.
+                    clipped = lo + 0.01 * min(hi - lo, 1.0)
+                note += f" (regression gave {v:.3g}, outside the bounds; moved inside)"
+                v = clipped
+            values[n] = float(v)
+            source[n] = note
+        if "Ts_l" in values and stribeck_on:
+            tc = values["Tc_l"]
+            if not values["Ts_l"] > tc:
+                values["Ts_l"] = tc * 1.5 + 1e-3
+                source["Ts_l"] += " (raised above Tc_l)"
+        return values, source
+
+    out.values, out.source = finish(est, how)
+    info_j, info_k = (problem.model.info.get(n) for n in ("J_l", "k_alpha"))
+    if ({"J_l", "k_alpha"} <= set(names) and not torsion_offsets and Au
+            and (est["J_l"] <= info_j.lower + 1e-3 * (info_j.upper - info_j.lower)
+                 or est["k_alpha"] <= info_k.lower + 1e-3 * (info_k.upper - info_k.lower))):
+        # The lower disc's equation is homogeneous: when the string torque is too weak in
+        # the upper disc's equation to set its scale, the joint regression drops the lower
+        # disc to nothing.  Its ratios still come from its own equation; the scale is then
+        # the one whose simulation fits the data best.
+        rescued = _rescale_lower(problem, names, assemble(ws, delta), est, how, finish)
+        if rescued is not None:
+            out.values, out.source, note = rescued
+            out.notes.append(note)
     if scale_note:
         out.notes.append(scale_note)
     return out
+
+
+def _rescale_lower(problem: Problem, names: list, rows, est: dict, how: dict, finish):
+    """The lower disc's parameters as ratios to J_l from its own equation, their common
+    scale from a scan (geometric, across J_l's bounds) of the simulated fit, the upper
+    disc's parameters re-regressed at each scale.  None when it does not fit better than
+    ``est``."""
+    A, y, g = rows
+    lower = [j for j, n in enumerate(names) if n in LOWER_TERMS or n == "k_alpha"]
+    upper = [j for j, n in enumerate(names) if j not in lower]
+    jJ, jk = names.index("J_l"), names.index("k_alpha")
+    Al, yl = A[g == 1], y[g == 1]
+    others = [j for j in lower if j != jJ]
+    if Al.shape[0] < 3 * len(lower) or not others:
+        return None
+    ratios, *_ = np.linalg.lstsq(Al[:, others], yl - Al[:, jJ], rcond=None)
+    ratio = dict(zip(others, ratios, strict=True))
+    if not ratio[jk] > 0:
+        return None
+    Au_, yu_ = A[g == 0], y[g == 0]
+
+    def candidate(s: float) -> dict:
+        e = dict(est)
+        e["J_l"] = s
+        for j, r in ratio.items():
+            e[names[j]] = s * float(r)
+        if upper:
+            rhs = yu_ - e["k_alpha"] * Au_[:, jk]
+            sol, *_ = np.linalg.lstsq(Au_[:, upper], rhs, rcond=None)
+            e.update({names[j]: float(v) for j, v in zip(upper, sol, strict=True)})
+        if "dS_l" in e:
+            e["Ts_l"] = e.get("Tc_l", 0.0) + e.pop("dS_l")
+        return e
+
+    def cost(values: dict) -> float:
+        try:
+            r = problem.residuals(problem.x_from(values))
+        except Exception:  # noqa: BLE001 - an unsimulable candidate is just a bad one
+            return math.inf
+        return float(r @ r) if np.all(np.isfinite(r)) else math.inf
+
+    info = problem.model.info["J_l"]
+    lo, hi = info.lower, info.upper
+    scales = np.geomspace(max(lo, 1e-9) * 1.01, hi * 0.99, 25)
+    base_values, _ = finish(est, how)
+    best = (cost(base_values), None)
+    for s in scales:
+        values, source = finish(candidate(float(s)), how)
+        c = cost(values)
+        if c < best[0]:
+            best = (c, (values, source, float(s)))
+    if best[1] is None:
+        return None
+    values, source, s = best[1]
+    for n in [names[j] for j in lower] + ["Ts_l"] * ("dS_l" in names):
+        if n in source and not source[n].startswith("data: lower disc's ratios"):
+            source[n] = ("data: lower disc's ratios from its equation, scale from a scan "
+                         "of the simulated fit")
+    note = (f"the string torque was too weak in the upper disc's equation to set the lower "
+            f"disc's scale (the joint regression dropped it to nothing); the lower disc's "
+            f"parameters are its own equation's ratios at the scale J_l = {s:.3g} that fits "
+            "the data best of a scan of 25")
+    return values, source, note
