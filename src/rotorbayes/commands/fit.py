@@ -194,7 +194,13 @@ def _fmt_params(prob, names, x, se=None, x0=None, at_bound=()) -> str:
         else:
             s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
         st = f"{x0[i]:12.5g}" if x0 is not None else ""
-        rows.append(f"{n:<12} {x[i]:12.5g} {s} {st}  {prob.info(n).unit}")
+        # Enough digits to show the standard error's own two digits (a value printed to
+        # 5 digits beside an error of 1e-6 of it cannot be compared with anything).
+        digits = 5
+        if se is not None and np.isfinite(se[i]) and se[i] > 0 and x[i] != 0:
+            digits = int(min(max(5, math.ceil(math.log10(abs(x[i]) / se[i])) + 2), 12))
+        rows.append(f"{n:<12} {x[i]:>{max(12, digits + 7)}.{digits}g} {s} {st}  "
+                    f"{prob.info(n).unit}")
     return "\n".join(rows)
 
 
