@@ -77,6 +77,14 @@ def test_multistart_command(tmp_path, capsys):
     for f in ("waterfall.png", "parameter_spread.png", "summary.txt"):
         assert (out / f).exists()
     assert "starts end within" in capsys.readouterr().out
+    # The multistart folder is a start: the fit begins at its best end point.
+    best = int(np.nanargmin([np.inf if s is None else s for s in doc["ssr"]]))
+    assert main(["fit", "--model", "coupled", "example:coupled_est", "--free", "J_l,k_alpha",
+                 "--base", "thesis:4.2:P0", "--p0", str(out), "--max-nfev", "1",
+                 "--out", str(tmp_path / "f")]) in (0, 1)
+    fit = json.loads((tmp_path / "f" / "fit.json").read_text())
+    for n, v in zip(doc["names"], doc["ends"][best], strict=True):
+        assert fit["estimates"][n]["start"] == pytest.approx(v, rel=1e-12)
 
 
 @pytest.mark.parametrize("argv,needle", [

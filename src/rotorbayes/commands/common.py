@@ -98,7 +98,26 @@ def param_spec(spec: str | None):
                           "written by `rotorbayes fit`, a TOML file or a named set") from None
     if Path(spec).is_dir() and (Path(spec) / "fit.json").exists():
         return param_spec(str(Path(spec) / "fit.json"))
+    if Path(spec).is_dir() and (Path(spec) / "multistart.json").exists():
+        return _best_of_multistart(Path(spec) / "multistart.json")
     return spec
+
+
+def _best_of_multistart(path: Path) -> dict[str, float]:
+    """The end point of a multistart's best fit (smallest SSR) as parameter values: a
+    multistart folder works as ``--p0``."""
+    try:
+        d = json.loads(path.read_text())
+        ok = [i for i, (s, e) in enumerate(zip(d["ssr"], d["ends"], strict=True))
+              if s is not None and math.isfinite(s) and e is not None]
+        if not ok:
+            raise Refused(f"{path}: no start of this multistart ended in a fit; give another "
+                          "start (a fit folder, a TOML file or a named set)")
+        best = min(ok, key=lambda i: d["ssr"][i])
+        return {n: float(v) for n, v in zip(d["names"], d["ends"][best], strict=True)}
+    except (OSError, KeyError, TypeError, ValueError) as exc:
+        raise Refused(f"{path}: cannot read the best start from it ({exc}); give a fit "
+                      "folder, a TOML file or a named set") from None
 
 
 def resolve_values(spec, model) -> dict[str, float]:

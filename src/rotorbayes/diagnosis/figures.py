@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..plots import pyplot
+from .diagnose import LEVEL
 
 _LABEL = {
     "velocity": "velocity [rad/s]", "direction": "direction of rotation",
@@ -16,6 +17,7 @@ _LABEL = {
 
 
 #: Colours of the top candidates' corrections (the residual is grey).
+
 _CAND_COLORS = ("tab:blue", "tab:orange", "tab:green")
 
 
@@ -48,7 +50,8 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
             ax.plot(ex.t, y, color=_CAND_COLORS[i % 3], lw=(3.2, 2.0, 1.0)[i % 3], alpha=0.8,
                     ls=("-", "--", ":")[i % 3], marker=("o", "s", "^")[i % 3], ms=5,
                     markevery=(i * every // 3, every),
-                    label=f"{s.effect} would remove this (p adj. {s.p_adjusted:.2g})"
+                    label=f"{s.effect}: its one-step correction (p adj. {s.p_adjusted:.2g}"
+                    + ("; not significant" if s.p_adjusted >= LEVEL else "") + ")"
                     + (f" — the same curve as {', '.join(same)}" if same else ""))
         ax.set_ylabel(f"{c} error [rad]")
     axes[-1, 0].set_xlabel("time [s]")
