@@ -295,9 +295,11 @@ def diagnose(
             advice = ("No catalogue effect explains the residual"
                       + (f" (the best, {top.effect}, is material but cannot produce the "
                          "dependence below)" if top is not None else "")
-                      + f": {where}.\nWrite a user effect for it (docs/effects.md; "
-                      "examples/angle_friction.py is a worked example) and add it with "
-                      "--add FILE.py:NAME.")
+                      + f": {where}.\nFirst make sure the fit is not a local minimum "
+                      "(`rotorbayes multistart` with the fit's options; a better basin is "
+                      "then the --p0 of a new fit). If it is the best there is, write a user "
+                      "effect for it (docs/effects.md; examples/angle_friction.py is a worked "
+                      "example) and add it with --add FILE.py:NAME.")
     return Diagnosis(
         adequate=adequate,
         verdict=verdict,

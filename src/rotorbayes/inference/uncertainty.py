@@ -186,10 +186,11 @@ class Uncertainty:
             return None
         return (
             f"the fit is {self.rms_over_floor:.3g}x the noise floor: a physical effect is "
-            "missing, and every interval is conditional on a model these data reject (the "
-            "estimates are the best of a wrong model; standard errors carry the residual's "
-            "size and correlation, not the bias of the missing physics). Run `rotorbayes "
-            "diagnose` and add what is missing before trusting the numbers."
+            "missing or the fit ended in a wrong basin (try `rotorbayes multistart`), and "
+            "every interval is conditional on a model these data reject (the estimates are "
+            "the best of a wrong model or a local minimum; standard errors carry the "
+            "residual's size and correlation, not that bias). Run `rotorbayes diagnose` "
+            "and add what is missing before trusting the numbers."
         )
 
 
