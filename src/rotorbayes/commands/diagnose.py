@@ -37,7 +37,7 @@ def _integration(result) -> dict:
     if math.isfinite(r) and r > INTEGRATION_LIMIT:
         step = prob.sims[0].step
         warn = (f"the integrator's own error at this fit is {r:.2g}x the floor (RMS, steps of "
-                f"up to {1e3 * step:.3g} ms against one-sample steps): the verdict and the "
+                f"up to {1e3 * step:.3g} ms against finer ones): the verdict and the "
                 "ranking above may answer the integration, not the model; fit again with "
                 f"--step {step / 3:.2g} and diagnose that fit")
     return {"ratio": None if math.isnan(r) else r, "line": a.integration_line(),

@@ -27,7 +27,7 @@ AT_FLOOR = 1.5
 NEAR_FLOOR = 3.0
 #: Relative distance to a bound (of the bounds' width) that counts as "at the bound".
 BOUND_TOL = 1e-3
-#: The integrator's own error (RMS, its steps against one-sample steps) above this share
+#: The integrator's own error (RMS, its steps against finer ones) above this share
 #: of the floor is material: added in quadrature it alone would raise the RMS / floor of a
 #: fit at the floor by over 4 % -- and it is not noise, so tests and intervals see it.
 INTEGRATION_LIMIT = 0.3
@@ -53,7 +53,7 @@ class Assessment:
     @property
     def integration_ratio(self) -> float:
         """The integrator's own error (RMS) over the floor, worst fitted channel on any
-        data (NaN when not checked: one-sample steps)."""
+        data (NaN when not checked)."""
         r = [c["integration_ratio"] for c in self.channels
              if c["fitted"] and c.get("integration_ratio") is not None]
         return max(r) if r else math.nan
@@ -63,14 +63,14 @@ class Assessment:
         rows = [c for c in self.channels if c["fitted"] and c["data"] == "estimation"
                 and c.get("integration_max") is not None]
         if not rows:
-            return ("integration check: the steps are one sample long (nothing finer to "
-                    "compare with)")
+            return "integration check: not made (the simulation failed at the fit)"
         several = len({c["experiment"] for c in rows}) > 1
         parts = ", ".join((f"{c['experiment']} " if several else "")
                           + f"{c['channel']} {c['integration_max']:.2g} rad largest "
                           f"({c['integration_ratio']:.2g}x the floor as RMS)" for c in rows)
-        return (f"integration check at the fit (its step grid against one-sample steps): "
-                f"{parts}")
+        fine = rows[0].get("integration_fine_step")
+        against = (f"steps of {1e3 * fine:.3g} ms" if fine else "finer steps")
+        return (f"integration check at the fit (its step grid against {against}): {parts}")
 
     @property
     def worst_ratio_validation(self) -> float:
@@ -170,8 +170,9 @@ def channel_rows(problem, quality_rows, data: str, floors: dict | None = None) -
                     "floor": floor,
                     "ratio": rms / floor,
                     "fitted": c in problem.channels,
-                    # the integrator's own error there (None: one-sample steps, not checked)
+                    # the integrator's own error there (None: not checked)
                     "integration_max": None if integ is None else integ["max"],
+                    "integration_fine_step": None if integ is None else integ.get("fine_step"),
                     "integration_ratio": None if integ is None else integ["rms"] / floor,
                 }
             )
@@ -198,7 +199,7 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessmen
         step = prob.sims[0].step if prob.sims else math.nan
         a.warnings.append(
             f"the integrator's own error at this fit is {ir:.2g}x the floor (RMS, its steps "
-            f"of up to {1e3 * step:.3g} ms against one-sample steps): part of the residual is "
+            f"of up to {1e3 * step:.3g} ms against finer ones): part of the residual is "
             "the integration, not the model, so distrust the verdict, the diagnosis and the "
             f"intervals; fit again with a shorter step (--step {step / 3:.2g}) and report "
             "the input and parameters (the default step should have been short enough)")
