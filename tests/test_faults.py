@@ -222,30 +222,34 @@ def test_ctrl_c_in_sample_stops_between_steps_and_resume_finishes(proj, tmp_path
 
 
 # --------------------------------------------- real processes stopped at random moments
+def _fit_stopped_by_sigint_says_what_is_on_disk(proj, cwd: Path, delay: float) -> None:
+    """Start `fit` in ``cwd``, send SIGINT after ``delay`` s: no traceback, and what the
+    message says is what is on disk."""
+    cwd.mkdir()
+    p = cli(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out", "f"], cwd)
+    time.sleep(delay)
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=120)
+    assert "Traceback" not in err and "Exception ignored" not in err, (delay, err)
+    names = listing(cwd)
+    if p.returncode == 0:  # finished before the signal came: complete
+        assert names == ["f"] and (cwd / "f" / "fit.json").exists()
+        return
+    assert p.returncode == 130, (delay, p.returncode, err)
+    if "kept, complete" in err:
+        assert names == ["f"] and (cwd / "f" / "friction.png").exists()
+    else:
+        assert "nothing was written" in err or "wrote nothing new" in err, err
+        assert names == [], names
+
+
 def test_fit_stopped_by_sigint_at_random_moments_tells_the_truth(proj, tmp_path):
     """Whatever the moment, what the message says is what is on disk."""
     rng = random.Random(17)
     # The first moment falls while the package loads (numba's import): exit 130, no
     # traceback, nothing written, as later.
     for k, delay in enumerate([0.4, *(rng.uniform(2.0, 9.0) for _ in range(2))]):
-        cwd = tmp_path / f"r{k}"
-        cwd.mkdir()
-        p = cli(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out", "f"],
-                cwd)
-        time.sleep(delay)
-        p.send_signal(signal.SIGINT)
-        out, err = p.communicate(timeout=120)
-        assert "Traceback" not in err and "Exception ignored" not in err, err
-        names = listing(cwd)
-        if p.returncode == 0:
-            assert names == ["f"] and (cwd / "f" / "fit.json").exists()
-        else:
-            assert p.returncode == 130, err
-            if "kept, complete" in err:
-                assert names == ["f"] and (cwd / "f" / "friction.png").exists()
-            else:
-                assert "nothing was written" in err or "wrote nothing new" in err, err
-                assert names == [], names
+        _fit_stopped_by_sigint_says_what_is_on_disk(proj, tmp_path / f"r{k}", delay)
 
 
 def test_ctrl_c_while_the_command_loads_ends_it_at_once_whatever_the_moment(proj, tmp_path):
@@ -255,21 +259,7 @@ def test_ctrl_c_while_the_command_loads_ends_it_at_once_whatever_the_moment(proj
     such stops before the fix."""
     rng = random.Random(23)
     for k, delay in enumerate(sorted(rng.uniform(0.1, 1.6) for _ in range(6))):
-        cwd = tmp_path / f"l{k}"
-        cwd.mkdir()
-        p = cli(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out", "f"],
-                cwd)
-        time.sleep(delay)
-        p.send_signal(signal.SIGINT)
-        out, err = p.communicate(timeout=120)
-        assert "Traceback" not in err and "Exception ignored" not in err, (delay, err)
-        if p.returncode == 0:  # loaded and fitted before the signal came: complete
-            assert listing(cwd) == ["f"] and (cwd / "f" / "fit.json").exists()
-            continue
-        assert p.returncode == 130, (delay, p.returncode, err)
-        assert listing(cwd) in ([], ["f"]), listing(cwd)
-        if listing(cwd) == []:
-            assert "nothing was written" in err or "wrote nothing new" in err, err
+        _fit_stopped_by_sigint_says_what_is_on_disk(proj, tmp_path / f"l{k}", delay)
 
 
 def test_ctrl_c_after_the_command_has_finished_changes_nothing(tmp_path):

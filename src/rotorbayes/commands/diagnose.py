@@ -27,21 +27,14 @@ def add_arguments(g) -> None:
 def _integration(result) -> dict:
     """The integrator's own error at the fit, in words (what a verdict must not forget)."""
     from ..inference import quality
-    from ..inference.assess import INTEGRATION_LIMIT, Assessment, channel_rows
+    from ..inference.assess import Assessment, channel_rows, integration_warning
 
     prob = result.problem
     floors, _ = prob.noise_floors()
     a = Assessment(channels=channel_rows(prob, quality(prob, result.x), "estimation", floors))
     r = a.integration_ratio
-    warn = None
-    if math.isfinite(r) and r > INTEGRATION_LIMIT:
-        step = prob.sims[0].step
-        warn = (f"the integrator's own error at this fit is {r:.2g}x the floor (RMS, steps of "
-                f"up to {1e3 * step:.3g} ms against finer ones): the verdict and the "
-                "ranking above may answer the integration, not the model; fit again with "
-                f"--step {step / 3:.2g} and diagnose that fit")
     return {"ratio": None if math.isnan(r) else r, "line": a.integration_line(),
-            "warning": warn}
+            "warning": integration_warning(prob, r)}
 
 
 def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False) -> Outcome:

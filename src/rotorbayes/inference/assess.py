@@ -179,6 +179,19 @@ def channel_rows(problem, quality_rows, data: str, floors: dict | None = None) -
     return out
 
 
+def integration_warning(problem, ratio: float) -> str | None:
+    """What to say when the integrator's own error at a fit (RMS over the floor) is
+    material (above :data:`INTEGRATION_LIMIT`); None when it is not."""
+    if not (math.isfinite(ratio) and ratio > INTEGRATION_LIMIT):
+        return None
+    step = problem.sims[0].step if problem.sims else math.nan
+    return (f"the integrator's own error at this fit is {ratio:.2g}x the floor (RMS, its "
+            f"steps of up to {1e3 * step:.3g} ms against finer ones): part of the residual is "
+            "the integration, not the model, so distrust the verdict, the diagnosis and the "
+            f"intervals; fit again with a shorter step (--step {step / 3:.2g}) and report "
+            "the input and parameters (the default step should have been short enough)")
+
+
 def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessment:
     """The :class:`Assessment` of a :class:`~rotorbayes.inference.FitResult`.
 
@@ -194,15 +207,9 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessmen
     sources = sources or {}
     if not result.success:
         a.warnings.append(f"the fit did not converge: {result.message}")
-    ir = a.integration_ratio
-    if math.isfinite(ir) and ir > INTEGRATION_LIMIT:
-        step = prob.sims[0].step if prob.sims else math.nan
-        a.warnings.append(
-            f"the integrator's own error at this fit is {ir:.2g}x the floor (RMS, its steps "
-            f"of up to {1e3 * step:.3g} ms against finer ones): part of the residual is "
-            "the integration, not the model, so distrust the verdict, the diagnosis and the "
-            f"intervals; fit again with a shorter step (--step {step / 3:.2g}) and report "
-            "the input and parameters (the default step should have been short enough)")
+    warn = integration_warning(prob, a.integration_ratio)
+    if warn:
+        a.warnings.append(warn)
     # Estimates at or near a bound.
     for n, v, lo, hi in zip(result.names, result.x, prob.lower, prob.upper, strict=True):
         width = hi - lo
