@@ -198,8 +198,10 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     # A reserve file left by a killed run is free space, not a result.
     (out / ".chain.h5.reserve").unlink(missing_ok=True)
     if a.resume:
-        held = S.check_checkpoint(chain, n_walkers=settings["walkers"], ndim=lp.ndim,
-                                  n_ensembles=settings["ensembles"])
+        held, restored = S.recover_checkpoint(chain, n_walkers=settings["walkers"],
+                                              ndim=lp.ndim, n_ensembles=settings["ensembles"])
+        if restored:
+            print(f"warning: {restored}", file=sys.stderr, flush=True)
         most = max(held.values(), default=0)
         if settings["steps"] < most:
             raise Refused(f"--steps {settings['steps']} is below the {most} steps {chain} "
