@@ -103,3 +103,22 @@ def test_failed_experiments_give_nan_residuals_and_the_others_stay():
     assert np.all(np.isfinite(R[0])) and np.all(np.isnan(R[1]))
     np.testing.assert_array_equal(R[0], R[2])
     np.testing.assert_array_equal(prob.residuals(bad, penalty=7.0), np.full(R.shape[1], 7.0))
+
+
+def test_a_derived_problem_keeps_every_setting_it_is_not_told_to_change():
+    """Problem.like is where derived problems (an effect added, a parameter profiled, a
+    designed experiment) copy their settings: channels, weights, friction shape and step
+    survive, the free set and base change as asked, and an unknown setting is refused."""
+    brake = thesis_set("4.3", "P_ref")
+    prob = E.Problem("brake", [_data("brake", brake, seconds=2.0)], base=brake,
+                     channels=("theta_l", "theta_u"), weights={"theta_u": 2.5},
+                     shape="rational", step=0.009)  # fmt: skip
+    sub = prob.like(free=["J_l", "Tc_l"], base=dict(brake, k_m=3.0))
+    assert (sub.channels, sub.weights, sub.shape, sub.step) == (
+        prob.channels, prob.weights, "rational", 0.009)
+    assert sub.names == ["J_l", "Tc_l"] and sub.base["k_m"] == 3.0
+    eff = prob.with_effects(["input_delay"])
+    assert "input_delay" in eff.effects and eff.names == prob.names
+    assert (eff.shape, eff.step, eff.weights) == ("rational", 0.009, prob.weights)
+    with pytest.raises(TypeError, match="no setting stepsize"):
+        prob.like(stepsize=0.01)

@@ -216,9 +216,8 @@ def _combined(frame: Frame, new_ex: Experiment) -> tuple[Problem, np.ndarray, np
     """Old data plus ``new_ex``: the problem, its start (the fit) and, per free name, the
     index in the frame's coordinates."""
     prob0 = frame.problem
-    prob = Problem(frame.model, list(prob0.experiments) + [new_ex], free=frame.names_base,
-                   base=frame.params_new, channels=prob0.channels, weights=prob0.weights,
-                   shape=prob0.shape, step=prob0.step)
+    prob = prob0.like(model=frame.model, experiments=list(prob0.experiments) + [new_ex],
+                      free=frame.names_base, base=frame.params_new)
     pos = [frame.names.index(n) for n in prob.names]
     return prob, frame.x_comb[pos], np.array(pos)
 
@@ -318,9 +317,7 @@ def _candidate(problem: Problem, x: np.ndarray, name: str, max_nfev: int):
         cand = problem
         return cand, x, eff, "already on in the fit"
     free = names + [p for p in eff.names if p not in names]
-    cand = Problem(m.with_effects([eff]), problem.experiments, free=free, base=base,
-                   channels=problem.channels, weights=problem.weights, shape=problem.shape,
-                   step=problem.step)
+    cand = problem.like(model=m.with_effects([eff]), free=free, base=base)
     vals = dict(base)
     vals.update({n: v for n, v in problem.values(x).items()})
     x0 = cand.start_vector(vals)

@@ -130,9 +130,8 @@ class Frame:
         lower = self.model.config != "upper"
         z = np.zeros_like(u)
         ex = Experiment(t, u, z, z.copy() if lower else None, name="designed")
-        return Problem(self.model, [ex], free=self.names_base, base=self.params_new,
-                       channels=self.problem.channels, weights=self.problem.weights,
-                       shape=self.problem.shape, step=self.problem.step)
+        return self.problem.like(model=self.model, experiments=[ex], free=self.names_base,
+                                 base=self.params_new)
 
     def new_rows(self, t: np.ndarray, u: np.ndarray, *, with_prediction: bool = False):
         """The new experiment's Jacobian in combined relative coordinates and noise units

@@ -106,9 +106,7 @@ def _profile_point(shared: tuple, v: float) -> float:
     others = [n for n in problem.names_base() if n != local_name(name)[0]]
     base = dict(problem.params_for(x, 0))
     base[local_name(name)[0]] = float(v)
-    sub = Problem(problem.model, problem.experiments, free=others, base=base,
-                  channels=problem.channels, weights=problem.weights, shape=problem.shape,
-                  step=problem.step)
+    sub = problem.like(free=others, base=base)
     start = sub.x_from({**base, **problem.values(x)})
     try:
         r = fit(sub, start, parallel=False, max_nfev=max_nfev, uncertainty=False)

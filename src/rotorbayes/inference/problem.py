@@ -345,18 +345,24 @@ class Problem:
             theta_u=ex.theta_u if self.prescribed_upper else None,
         )
 
+    def like(self, **changes) -> Problem:
+        """A problem with this one's settings -- model, experiments, free names, base
+        values, channels, weights, friction shape, step -- some of them changed
+        (``like(free=[...], base=...)``). Every derived problem (an effect added, a
+        parameter profiled, an experiment designed) is made here, so a new setting is
+        carried over in one place, not at every call site."""
+        kw = {"model": self.model, "experiments": self.experiments,
+              "free": list(self.names_base()), "base": self.base, "channels": self.channels,
+              "weights": self.weights, "shape": self.shape, "step": self.step}  # fmt: skip
+        unknown = sorted(set(changes) - set(kw))
+        if unknown:
+            raise TypeError(f"Problem.like: no setting {', '.join(unknown)}")
+        kw.update(changes)
+        return Problem(kw.pop("model"), kw.pop("experiments"), **kw)
+
     def with_effects(self, extra: Iterable[str]) -> Problem:
         """The same data and free set with more effects on (their parameters fixed at null)."""
-        return Problem(
-            self.model.with_effects(extra),
-            self.experiments,
-            free=list(self.names_base()),
-            base=self.base,
-            channels=self.channels,
-            weights=self.weights,
-            shape=self.shape,
-            step=self.step,
-        )
+        return self.like(model=self.model.with_effects(extra))
 
     def names_base(self) -> list[str]:
         """Free parameter names with per-experiment names folded (``alpha0``)."""
