@@ -56,6 +56,9 @@ from .torque import TorqueMap, missing_torque
 
 #: Significance level of the ranking (after Holm's correction).
 LEVEL = 0.01
+#: Far above the floor, an effect that is material and resolvable but not significant at
+#: :data:`LEVEL` is named as the one to try (not claimed) if its adjusted p is below this.
+TRY_LEVEL = 0.2
 #: A claim must be predicted to lower the worst channel's RMS/floor by at least this
 #: fraction of its current value ...
 MATERIAL_FRACTION = 0.05
@@ -104,6 +107,9 @@ class Diagnosis:
     evidence: list[str] = field(default_factory=list)
     judgements: dict[str, dict] = field(default_factory=dict)
     immaterial: list[dict] = field(default_factory=list)
+    #: Far above the floor with nothing claimed: the effect to try first (material,
+    #: resolvable, not significant; see :data:`TRY_LEVEL`).
+    candidate: str | None = None
 
     def as_dict(self) -> dict:
         ranking = []
@@ -116,6 +122,7 @@ class Diagnosis:
             "adequate": self.adequate,
             "verdict": self.verdict,
             "claimed_effect": self.claimed,
+            "candidate_effect": self.candidate,
             "advice": self.advice,
             "evidence": self.evidence,
             "immaterial": self.immaterial,
@@ -157,10 +164,12 @@ class Diagnosis:
                          f"{pred:>16}  {est}{tag}")
         if self.immaterial:
             lines.append("")
-            lines.append("detectable but immaterial (significant, yet not worth a claim: "
-                         f"a claim needs a predicted fall of the worst RMS/floor of at least "
-                         f"{100 * MATERIAL_FRACTION:g} % and {MATERIAL_FLOOR_UNITS:g} floor "
-                         "units, and a size the data can resolve):")
+            lines.append("detectable but immaterial (a significant score test, yet not "
+                         "evidence that the effect is there: a claim needs a predicted fall "
+                         f"of the worst RMS/floor of at least {100 * MATERIAL_FRACTION:g} % "
+                         f"and {MATERIAL_FLOOR_UNITS:g} floor units, and a size the data can "
+                         "resolve; below that, what the test sees is as likely the input's "
+                         "unknown shape between samples or the encoder rounding):")
             for item in self.immaterial:
                 lines.append("  " + item["words"])
         lines.append("")
@@ -225,6 +234,7 @@ def diagnose(
                   if not judgements[s.effect]["claimable"]]
     at_floor = worst <= AT_FLOOR
     adequate = at_floor and not claimable
+    untested = None
     # The map to quote: the one whose explained torque stands highest above its own noise
     # (a disc that lacks a large torque makes the other disc's fitted parameters absorb
     # part of it, and that disc's map then shows a clean but secondary dependence).
@@ -250,6 +260,24 @@ def diagnose(
                        "but immaterial'); adding it would not change the fit materially.")
     else:
         top = claimable[0] if claimable else None
+        # Far above the floor the score tests lose power (their variance is estimated from
+        # the residuals, which the missing physics dominates): an effect predicted to lower
+        # the error materially, and of a size the data resolve, is then named as the one to
+        # try -- not claimed -- rather than left out.
+        untested = next(
+            (s for s in sorted(ranking, key=lambda s: judgements[s.effect][
+                "predicted_worst_rms_over_floor"])
+             if judgements[s.effect]["material"] and judgements[s.effect]["resolvable"]
+             and not judgements[s.effect]["significant"] and not s.equivalent_to_free
+             and s.p_adjusted < TRY_LEVEL and not at_floor),
+            None) if top is None else None
+        vetoed = None
+        if untested is not None and foreign is not None:
+            # As for a claim: a clear dependence the effect cannot produce comes first.
+            own = [r2 for var, r2 in foreign.ranking
+                   if var in EXPLAINS.get(untested.effect, ())]
+            if not own or foreign.strongest[1] >= max(own) + 0.2:
+                vetoed, untested = untested, None
         if top is not None and foreign is not None:
             # The foreign dependence vetoes the claim only if it clearly beats every
             # variable the top effect could produce, on the same disc's map.
@@ -264,6 +292,17 @@ def diagnose(
                        if not at_floor else
                        f"the error is near the floor ({worst:.2f}x) but {top.effect} is "
                        f"significant and material (predicted {pred:.3g}x)")
+        elif untested is not None:
+            pred = judgements[untested.effect]["predicted_worst_rms_over_floor"]
+            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor; no "
+                       f"catalogue effect passes the significance test, but adding "
+                       f"{untested.effect} is predicted to lower it to {pred:.3g}x (p "
+                       f"{untested.p_adjusted:.2g} after correction): worth a refit")
+        elif vetoed is not None:
+            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor; "
+                       f"{vetoed.effect} would lower it to "
+                       f"{judgements[vetoed.effect]['predicted_worst_rms_over_floor']:.3g}x but "
+                       "cannot produce the dependence the missing-torque map shows (below)")
         else:
             best = significant[0] if significant else None
             verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and no "
@@ -276,7 +315,8 @@ def diagnose(
             tie = [s.effect for s in significant[1:] if s.effect in top.alike]
             est = ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in
                             zip(top.step.items(), top.units, strict=True))
-            advice = (f"Most likely missing: {top.effect} — {top.physics} (p {top.p_adjusted:.2g}"
+            advice = (f"Most likely missing: {top.effect} — {top.physics.rstrip('.')} "
+                      f"(p {top.p_adjusted:.2g}"
                       f" after correction; one-step estimate {est}; predicted worst RMS/floor "
                       f"{worst:.3g} -> "
                       f"{judgements[top.effect]['predicted_worst_rms_over_floor']:.3g}).")
@@ -288,13 +328,31 @@ def diagnose(
                 advice += " Registry: " + "; ".join(top.equivalences) + "."
             advice += (f"\nAdd it and refit: rotorbayes fit ... --p0 FIT/fit.json --add "
                        f"{top.effect}; then diagnose the new fit (one effect at a time).")
+        elif untested is not None:
+            where = (strongest.words() if strongest else
+                     "; ".join(m.words() for m in maps) or "no missing-torque map could be made")
+            est = ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in
+                            zip(untested.step.items(), untested.units, strict=True))
+            advice = (f"Worth trying first: {untested.effect} — "
+                      f"{untested.physics.rstrip('.')} (one-step "
+                      f"estimate {est}; predicted worst RMS/floor {worst:.3g} -> "
+                      f"{judgements[untested.effect]['predicted_worst_rms_over_floor']:.3g}). "
+                      f"Its score test is not significant (p {untested.p_adjusted:.2g} after "
+                      "correction): this far above the floor the tests have little power, so "
+                      "a refit decides, not the test. Missing-torque map: " + where + ".\n"
+                      f"Add it and refit: rotorbayes fit ... --p0 FIT/fit.json --add "
+                      f"{untested.effect}; keep it only if `rotorbayes compare` finds the new "
+                      "fit materially better on validation data, then diagnose the new fit. "
+                      "If it does not help, make sure the fit is not a local minimum "
+                      "(`rotorbayes multistart`).")
         else:
             where = foreign.words() if foreign else (
                 strongest.words() if strongest else
                 "; ".join(m.words() for m in maps) or "no missing-torque map could be made")
+            best = top if top is not None else vetoed
             advice = ("No catalogue effect explains the residual"
-                      + (f" (the best, {top.effect}, is material but cannot produce the "
-                         "dependence below)" if top is not None else "")
+                      + (f" (the best, {best.effect}, is material but cannot produce the "
+                         "dependence below)" if best is not None else "")
                       + f": {where}.\nFirst make sure the fit is not a local minimum "
                       "(`rotorbayes multistart` with the fit's options; a better basin is "
                       "then the --p0 of a new fit). If it is the best there is, write a user "
@@ -315,6 +373,7 @@ def diagnose(
         evidence=evidence,
         judgements=judgements,
         immaterial=immaterial,
+        candidate=untested.effect if not adequate and untested is not None else None,
     )
 
 
@@ -377,6 +436,9 @@ def _judge(s: EffectScore, problem: Problem, x: np.ndarray, worst: float,
         out.update(resolvable=bool(resolvable), resolution_words=res.words)
     out["claimable"] = bool(significant and material and out["resolvable"])
     why = []
+    if not significant:
+        why.append("equivalent to the free parameters" if s.equivalent_to_free else
+                   f"not significant (a claim needs p < {LEVEL:g} after correction)")
     if not material:
         why.append(f"predicted worst RMS/floor {worst:.4g} -> {pred:.4g}, a fall of "
                    f"{fall:.2g} ({100 * fall / worst if worst else 0:.2g} %): immaterial")

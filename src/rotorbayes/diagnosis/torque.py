@@ -75,6 +75,10 @@ MIN_R2 = 0.2
 DISTINCT_R2 = 0.2
 #: ... or leaves at most 1/DISTINCT_RATIO of the unexplained part the next best leaves.
 DISTINCT_RATIO = 2.0
+#: Two variables "move together" only if at least this fraction of the weaker one's R²
+#: is shared with the stronger one (what it adds beyond it is small): two dependences that
+#: each explain a part of their own are not confused with one seen twice.
+SHARED = 0.5
 
 
 @dataclass
@@ -88,6 +92,14 @@ class TorqueMap:
     ranking: list[tuple[str, float]]
     rms: float
     noise_rms: float
+    #: Per variable: the part a map of rounding noise alone would seem to explain (RMS
+    #: [N m]); a dependence is named only well above it (see :meth:`bar`).  Empty: the
+    #: per-sample noise ``noise_rms`` is the bar (the stricter rule).
+    null: dict[str, float] = field(default_factory=dict)
+    #: Per variable: the fraction of its adjusted R² that the strongest variable's
+    #: already holds (near 1: the two move together in the data; near 0: each explains
+    #: its own part).  Empty: unknown, the R² rule alone decides.
+    shared: dict[str, float] = field(default_factory=dict)
 
     @property
     def strongest(self) -> tuple[str, float] | None:
@@ -107,14 +119,22 @@ class TorqueMap:
         # Another variable is as good if its R² is within DISTINCT_R2 of the best one's and
         # it leaves less than DISTINCT_RATIO times the best one's unexplained part.
         return [(k, v) for k, v in self.ranking if v >= s[1] - DISTINCT_R2
-                and (1 - v) < DISTINCT_RATIO * max(1 - s[1], 1e-12)]
+                and (1 - v) < DISTINCT_RATIO * max(1 - s[1], 1e-12)
+                and (k == s[0] or self.shared.get(k, 1.0) >= SHARED)]
+
+    def bar(self, variable: str) -> float:
+        """The explained RMS [N m] a dependence on ``variable`` must reach to be named:
+        :data:`NOISE_FACTOR` times what rounding noise alone would seem to explain with
+        the same regression on the same samples (the noise is correlated over the
+        derivative filter's window, so this is larger than the white-noise value)."""
+        return NOISE_FACTOR * self.null.get(variable, self.noise_rms)
 
     @property
     def supports_words(self) -> bool:
         """The map supports naming one dependence (above noise, clear, distinct)."""
         s = self.strongest
         return bool(s is not None and self.above_noise and s[1] >= MIN_R2
-                    and math.sqrt(max(s[1], 0.0)) * self.rms >= NOISE_FACTOR * self.noise_rms
+                    and math.sqrt(max(s[1], 0.0)) * self.rms >= self.bar(s[0])
                     and len(self.together) == 1)
 
     def words(self) -> str:
@@ -128,13 +148,15 @@ class TorqueMap:
             return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) with no "
                     "clear dependence on the candidate variables")
         explained = math.sqrt(max(s[1], 0.0)) * self.rms
-        if explained < NOISE_FACTOR * self.noise_rms:
-            # The best candidate is worth a look, but its part is not clearly above the
-            # map's noise: say so, as a hint (no claim).
+        if explained < self.bar(s[0]):
+            # The best candidate is worth a look, but its part is not clearly above what
+            # noise alone would explain: say so, as a hint (no claim).
             best = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
+            what = ("the map's noise" if s[0] not in self.null else
+                    "what rounding noise alone seems to explain")
             return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}); the "
                     f"best candidate, {best}, explains {explained:.2g} N m of it, below "
-                    f"{NOISE_FACTOR:g}x the map's noise: a hint to look at in "
+                    f"{NOISE_FACTOR:g}x {what}: a hint to look at in "
                     "missing_torque.png, not a finding")
         if len(self.together) > 1:
             names = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
@@ -142,13 +164,21 @@ class TorqueMap:
                     f"varies with several variables alike: {names}; they move together in "
                     "these data, so the map cannot tell which")
         what, cause = WORDS[s[0]]
+        also = [k for k, v in self.ranking[1:] if v >= MIN_R2 and k not in dict(self.together)
+                and self.shared.get(k, 1.0) < SHARED
+                and math.sqrt(v) * self.rms >= self.bar(k)]
+        more = (f"; apart from it, also with {', '.join(SHORT[k] for k in also)} (each "
+                "explains a part of its own)" if also else "")
         return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) that "
-                f"{what} (explains {100 * s[1]:.0f} % of it): {cause}")
+                f"{what} (explains {100 * s[1]:.0f} % of it): {cause}{more}")
 
     def as_dict(self) -> dict:
         return {"disc": self.disc, "rms_N_m": self.rms, "noise_rms_N_m": self.noise_rms,
                 "above_noise": self.above_noise, "supports_words": self.supports_words,
-                "ranking": [{"variable": k, "adjusted_r2": v} for k, v in self.ranking],
+                "ranking": [{"variable": k, "adjusted_r2": v,
+                             "noise_explains_N_m": self.null.get(k),
+                             "shared_with_strongest": self.shared.get(k)}
+                            for k, v in self.ranking],
                 "words": self.words()}
 
 
@@ -173,29 +203,62 @@ def _binned(x: np.ndarray, n_bins: int = 16) -> np.ndarray:
     return X
 
 
+def _design(k: str, feats: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The regression columns of a dependence on variable ``k`` (None: it never varies)."""
+    v = feats[k]
+    one = np.ones((v.size, 1))
+    if k == "direction":
+        return np.column_stack([one, v])
+    if k.startswith("angle_"):
+        # A load varying with angle acts alike in both directions; a friction level
+        # varying with angle acts against the motion: both columns, with the sign.
+        h = int(k[-1])
+        s = feats["direction"]
+        return np.column_stack([one, s, np.sin(h * v), np.cos(h * v), s * np.sin(h * v),
+                                s * np.cos(h * v)])
+    if k == "time":
+        # A drift is a trend, not any function of time (which would explain everything).
+        tt = (v - v.mean()) / max(np.ptp(v), 1e-12)
+        return np.column_stack([one, tt, tt**2])
+    if np.ptp(v) == 0:
+        return None
+    return _binned(v)
+
+
 def _rank(M: np.ndarray, feats: dict[str, np.ndarray]) -> list[tuple[str, float]]:
-    one = np.ones((M.size, 1))
     out = []
-    for k, v in feats.items():
-        if k == "direction":
-            X = np.column_stack([one, v])
-        elif k.startswith("angle_"):
-            # A load varying with angle acts alike in both directions; a friction level
-            # varying with angle acts against the motion: both columns, with the sign.
-            h = int(k[-1])
-            s = feats["direction"]
-            X = np.column_stack([one, s, np.sin(h * v), np.cos(h * v), s * np.sin(h * v),
-                                 s * np.cos(h * v)])
-        elif k == "time":
-            # A drift is a trend, not any function of time (which would explain everything).
-            tt = (v - v.mean()) / max(np.ptp(v), 1e-12)
-            X = np.column_stack([one, tt, tt**2])
-        else:
-            if np.ptp(v) == 0:
-                continue
-            X = _binned(v)
-        out.append((k, _adj_r2(M, X)))
+    for k in feats:
+        X = _design(k, feats)
+        if X is not None:
+            out.append((k, _adj_r2(M, X)))
     return sorted([o for o in out if math.isfinite(o[1])], key=lambda kv: -kv[1])
+
+
+def _null_and_shared(M: np.ndarray, R: np.ndarray, feats: dict[str, np.ndarray],
+                     ranking: list[tuple[str, float]]) -> tuple[dict, dict]:
+    """What rounding noise alone seems to explain per variable, and how much of each
+    variable's R² the strongest one already holds (see :class:`TorqueMap`).
+
+    The noise: the same regression on ``R`` (the balance of the fit's simulation with
+    rounding minus without; the map subtracts two such roundings, hence sqrt 2), by its
+    plain R², never less than white noise's sqrt(columns / samples)."""
+    null: dict[str, float] = {}
+    shared: dict[str, float] = {}
+    r_rms = float(np.sqrt(np.mean(R**2)))
+    st = float(np.sum((R - R.mean()) ** 2))
+    n = R.size
+    top = ranking[0] if ranking else None
+    X_top = _design(top[0], feats) if top else None
+    for k, r2 in ranking:
+        X = _design(k, feats)
+        beta, *_ = np.linalg.lstsq(X, R, rcond=None)
+        r2_noise = 1.0 - float(np.sum((R - X @ beta) ** 2)) / st if st > 0 else 0.0
+        white = math.sqrt(X.shape[1] / max(n, 1))
+        null[k] = math.sqrt(2.0) * r_rms * max(math.sqrt(max(r2_noise, 0.0)), white)
+        if top is not None and k != top[0] and r2 > 0:
+            joint = _adj_r2(M, np.column_stack([X_top, X]))
+            shared[k] = float(min(max((top[1] + r2 - joint) / r2, 0.0), 1.0))
+    return null, shared
 
 
 def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
@@ -249,8 +312,10 @@ def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
         R = np.concatenate([pt[3] for pt in parts])
         # What rounding alone does to a balance: the map cannot resolve less.
         noise = float(np.sqrt(np.mean(R**2)))
-        out.append(TorqueMap(disc, T, M, F, _rank(M, F), float(np.sqrt(np.mean(M**2))),
-                             noise))
+        ranking = _rank(M, F)
+        null, shared = _null_and_shared(M, R, F, ranking)
+        out.append(TorqueMap(disc, T, M, F, ranking, float(np.sqrt(np.mean(M**2))), noise,
+                             null, shared))
     return out
 
 

@@ -237,7 +237,10 @@ def _verdict(f: Found) -> Raw:
                    '<span class="tag bad">inadequate</span>')
             items.append(Raw(f"Diagnosis of {esc(fit.label)}: {tag} {esc(d.get('verdict', ''))}"
                              + (f"; most likely missing: <strong>{esc(d['claimed_effect'])}"
-                                "</strong>" if d.get("claimed_effect") else "")))
+                                "</strong>" if d.get("claimed_effect") else
+                                f"; worth trying first: <strong>{esc(d['candidate_effect'])}"
+                                "</strong> (material, not significant)"
+                                if d.get("candidate_effect") else "")))
             if d.get("immaterial"):
                 items.append(_immaterial(d["immaterial"]))
         if len(f.chain) > 1:
@@ -562,7 +565,9 @@ def _diagnosis(f: Found) -> Raw | None:
         for x in earlier:
             d = x.diagnosis
             what = (f"claimed {d['claimed_effect']}" if d.get("claimed_effect") else
-                    "adequate" if d.get("adequate") else "no effect claimed")
+                    "adequate" if d.get("adequate") else
+                    f"no effect claimed; worth trying {d['candidate_effect']}"
+                    if d.get("candidate_effect") else "no effect claimed")
             out.append(Raw(f"<details><summary>{esc(x.label)}: {esc(what)} — "
                            f"{esc(d.get('verdict', ''))}</summary>"))
             out.append(_one_diagnosis(x, open_=False))
@@ -684,7 +689,10 @@ def _chain(f: Found) -> Raw | None:
         for label, d in claims:
             items.append(f"{label}: " + (f"claimed {d['claimed_effect']}" if
                                          d.get("claimed_effect") else "adequate" if
-                                         d.get("adequate") else "no effect claimed")
+                                         d.get("adequate") else
+                                         f"no effect claimed; worth trying "
+                                         f"{d['candidate_effect']}" if
+                                         d.get("candidate_effect") else "no effect claimed")
                          + f" — {d.get('verdict', '')}")
         out.append(Raw("<h3>What each diagnosis said</h3>"))
         out.append(ul(items))
