@@ -420,7 +420,8 @@ def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
         if rates[k] > MAX_ANGULAR_RATE:
             where = (
                 f"{key} changes by {theta[k + lag] - theta[k]:.6g} in {t[k + lag] - t[k]:.6g} s "
-                f"(a rate of {rates[k]:.4g} per s, faster than the rig's discs ever turn, about "
+                f"(from t = {float(t[k]):.6g} to {float(t[k + lag]):.6g} s; a rate of "
+                f"{rates[k]:.4g} per s, faster than the rig's discs ever turn, about "
                 f"{MAX_ANGULAR_RATE:g} rad/s)"
             )
             if np.all(np.abs(theta - np.round(theta)) <= 1e-6):

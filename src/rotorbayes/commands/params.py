@@ -19,7 +19,12 @@ def params(name: str | None = None) -> Outcome:
     if name:
         p = _params.resolve(param_spec(name))
         for n in _params.NAMES:
-            print(f"{n:<12} {p[n]:12.6g}  {_params.INFO[n].unit}")
+            v = p[n]
+            if v != v and n == "Ts_l":  # nan: the null value, no Stribeck peak
+                print(f"{n:<12} {'= Tc_l':>12}  {_params.INFO[n].unit}  (no Stribeck peak: "
+                      "the lower_stribeck effect is off)")
+                continue
+            print(f"{n:<12} {v:12.6g}  {_params.INFO[n].unit}")
         return Outcome(doc={n: p[n] for n in _params.NAMES})
     print(_params.table_markdown())
     print("\nnamed sets: " + ", ".join(_params.named_sets()))
