@@ -210,3 +210,44 @@ def test_the_sample_table_chooses_the_moves(tmp_path):
     assert main(["run", str(f), "--quiet"]) == 0
     with h5py.File(tmp_path / "o" / "posterior" / "chain.h5", "r") as h:
         assert h["ensemble0"].attrs["moves"] == "de-mix"
+
+
+@pytest.mark.parametrize("helps", [True, False])
+def test_a_study_tries_a_candidate_effect_and_keeps_it_only_if_it_helps(data, monkeypatch,
+                                                                        helps):
+    """Far above the floor `diagnose` may name an effect worth trying that its low-power
+    score tests do not claim (made so here: every p set to 0.05). The study tries it and
+    keeps it only if the worst RMS/floor fell materially (here it does, 977x -> 0.99x; with
+    the study's rule made to say no, it is dropped and the study ends at fit0)."""
+    import dataclasses
+    import importlib
+
+    D = importlib.import_module("rotorbayes.diagnosis.diagnose")
+    real = D.score_tests
+    monkeypatch.setattr(D, "score_tests", lambda *a, **k: [
+        dataclasses.replace(s, p_adjusted=0.05) for s in real(*a, **k)])
+    if not helps:  # the study's keep-or-drop rule says no (diagnose's own is untouched)
+        import sys
+
+        rule = D.is_material
+        monkeypatch.setattr(D, "is_material", lambda before, after: False if sys._getframe(
+            1).f_globals["__name__"] == "rotorbayes.study" else rule(before, after))
+    f = data / "cand.toml"
+    f.write_text(STUDY.split("[sample]")[0].replace('out = "out"', f'out = "cand{helps}"')
+                 + "[report]\nhtml = false\n")
+    assert main(["run", str(f), "--quiet"]) == 0
+    out = data / f"cand{helps}"
+    rec = json.loads((out / "run.json").read_text())
+    d0 = json.loads((out / "fit0" / "diagnosis.json").read_text())
+    assert d0["claimed_effect"] is None
+    assert d0["candidate_effect"] == "lower_asymmetric_viscous"
+    log = (out / "log.txt").read_text()
+    assert "trying lower_asymmetric_viscous" in log
+    if helps:
+        assert rec["added_effects"] == ["lower_asymmetric_viscous"]
+        assert rec["final_fit"].endswith("fit1") and not rec["rejected_effects"]
+        assert json.loads((out / "fit1" / "diagnosis.json").read_text())["adequate"]
+    else:
+        assert rec["added_effects"] == [] and rec["final_fit"].endswith("fit0")
+        assert [r["effect"] for r in rec["rejected_effects"]] == ["lower_asymmetric_viscous"]
+        assert "did not lower the worst RMS/floor materially" in log

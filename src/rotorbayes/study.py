@@ -520,19 +520,42 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
     fit = first
     dg = a.table("diagnose")
     added: list[str] = []
+    rejected: list[dict] = []
     if "diagnose" in a.doc:
+        from .diagnosis.diagnose import is_material
+
         noise = {"noise": float(dg["noise_std"])} if dg.get("noise_std") else {}
+        tried = None  # (effect, worst RMS/floor before it, the fit before it): a candidate
         for k in range(1, dg.get("max_steps", 3) + 2):
             stage(f"diagnose{k - 1}", fit, digest(fit, "fit.json") + json.dumps(dg),
                   "diagnose", {"fit": str(fit), **noise}, "diagnosis.json")
             d = json.loads((fit / "diagnosis.json").read_text())
-            if d["adequate"] or not d.get("claimed_effect") or not dg.get("add_effects", True):
+            worst = max(d["rms_over_floor"].values())
+            if tried is not None:
+                # A candidate (worth trying, not claimed) stays only if it lowered the error
+                # materially; else the study goes on from the fit before it.
+                eff0, before, prev = tried
+                tried = None
+                if not is_material(before, worst):
+                    print(f"\n{eff0} was worth trying but did not lower the worst RMS/floor "
+                          f"materially ({before:.3g}x -> {worst:.3g}x): dropped; the study "
+                          f"goes on from {prev.name}/", file=tee)
+                    rejected.append({"effect": eff0, "before": before, "after": worst,
+                                     "fit": str(fit)})
+                    added.pop()
+                    fit = prev
+                    break
+            eff = d.get("claimed_effect") or d.get("candidate_effect")
+            if d["adequate"] or not eff or not dg.get("add_effects", True):
                 break
             if k > dg.get("max_steps", 3):
                 print(f"\nmax_steps = {dg.get('max_steps', 3)} reached; the model is still "
                       "inadequate", file=tee)
                 break
-            eff = d["claimed_effect"]
+            if not d.get("claimed_effect"):
+                tried = (eff, worst, fit)
+                print(f"\nno effect claimed; trying {eff}, predicted to lower the worst "
+                      "RMS/floor materially (kept only if it does)", file=tee)
             added.append(eff)
             nxt = out / f"fit{k}"
             stage(f"fit{k}", nxt, digest(fit, "fit.json", "diagnosis.json") + base, "fit",
@@ -589,6 +612,7 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
         stage("design", out / "design", digest(fit, "fit.json") + json.dumps(d, sort_keys=True)
               + json.dumps({"seed": seed}), "design", opts, "design.json")
     record["added_effects"] = added
+    record["rejected_effects"] = rejected
     record["final_fit"] = str(fit)
     record["finished"] = datetime.datetime.now().isoformat(timespec="seconds")
     _write_record(record_path, record)
