@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..inference.assess import AT_FLOOR
+from ..inference.assess import AT_FLOOR, NEAR_FLOOR
 from ..inference.problem import Problem, local_name
 from ..model import effects as _effects
 from .score import EffectScore, score_tests
@@ -56,8 +56,10 @@ from .torque import TorqueMap, missing_torque
 
 #: Significance level of the ranking (after Holm's correction).
 LEVEL = 0.01
-#: Far above the floor, an effect that is material and resolvable but not significant at
-#: :data:`LEVEL` is named as the one to try (not claimed) if its adjusted p is below this.
+#: Far above the floor (worst channel above
+#: :data:`rotorbayes.inference.assess.NEAR_FLOOR` times it), an effect that is material and
+#: resolvable but not significant at :data:`LEVEL` is named as the one to try (not claimed)
+#: if its adjusted p is below this; nearer the floor the tests have their power.
 TRY_LEVEL = 0.2
 #: A claim must be predicted to lower the worst channel's RMS/floor by at least this
 #: fraction of its current value ...
@@ -269,7 +271,7 @@ def diagnose(
                 "predicted_worst_rms_over_floor"])
              if judgements[s.effect]["material"] and judgements[s.effect]["resolvable"]
              and not judgements[s.effect]["significant"] and not s.equivalent_to_free
-             and s.p_adjusted < TRY_LEVEL and not at_floor),
+             and s.p_adjusted < TRY_LEVEL and worst > NEAR_FLOOR),
             None) if top is None else None
         vetoed = None
         if untested is not None and foreign is not None:
