@@ -58,12 +58,28 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     print(d.text())
     integ = _integration(result)
     print(integ["line"])
-    v = (result.doc.get("assessment") or {}).get("worst_ratio_to_floor_validation")
+    fa = result.doc.get("assessment") or {}
+    v = fa.get("worst_ratio_to_floor_validation")
+    sp = fa.get("validation_spread")
     if d.adequate and isinstance(v, (int, float)) and v > 1.5:
+        if isinstance(sp, dict) and sp.get("undetermined"):
+            why = (f"the estimation data do not determine {', '.join(sp['undetermined'])} "
+                   "(infinite standard errors), so the gap may be theirs rather than a "
+                   "missing effect: fit both together")
+        elif isinstance(sp, dict) and v <= sp.get("q90", -1.0):
+            why = (f"within what the estimates' own uncertainty predicts there "
+                   f"({sp['q10']:.3g}x-{sp['q90']:.3g}x for 80 % of {sp['draws']} parameter "
+                   "draws): these data do not determine the parameters well enough to "
+                   "predict that experiment to the floor; fit both together to narrow them")
+        else:
+            why = ("the model fits these data but predicts others less well (a missing "
+                   "effect these data do not excite, or parameters they do not determine)"
+                   + (f"; the estimates' own uncertainty explains up to {sp['q90']:.3g}x "
+                      "(90 % of parameter draws)" if isinstance(sp, dict) and "q90" in sp
+                      else "")
+                   + ": compare the fit on its validation data, or fit both together")
         print(f"note: this verdict is on the estimation data; the fit's validation data are "
-              f"at {v:.3g}x the floor: the model fits these data but predicts others less "
-              "well (a missing effect these data do not excite, or parameters they do not "
-              "determine): compare the fit on its validation data, or fit both together")
+              f"at {v:.3g}x the floor: {why}")
     if integ["warning"]:
         print(f"warning: {integ['warning']}", file=sys.stderr)
     doc = d.as_dict()

@@ -327,7 +327,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
           f"{res.seconds:.1f} s)\n")
     q_est = E.quality(prob, res.x)
     q_val = E.quality(prob, res.x, val) if val else []
-    assessment = E.assess(res, q_est, q_val, sources=sources)
+    assessment = E.assess(res, q_est, q_val, sources=sources, val_experiments=val or ())
     print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound))
     if res.uncertainty is not None:
         print(_uncertainty_words(res))

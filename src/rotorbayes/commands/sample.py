@@ -211,6 +211,10 @@ def _sample_locked(a, src: Path, out: Path) -> int:
         if not held and not chain.exists():
             print(f"{out}/ holds no finished step yet (the run was stopped before its first "
                   "step): sampling starts at step 0")
+        elif held:
+            print(f"resuming {chain}: " + ", ".join(
+                f"{n} at step {k}" for n, k in sorted(held.items()))
+                + f" of {settings['steps']} (each continues from its stored state)")
     else:
         check_free_space(out.parent, need, what=f"--out {out}")
     created = not out.exists()

@@ -307,11 +307,27 @@ def diagnose(
                        "cannot produce the dependence the missing-torque map shows (below)")
         else:
             best = significant[0] if significant else None
-            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and no "
-                       "catalogue effect would lower it materially"
-                       + (f" (the best detectable, {best.effect}, is predicted to reach "
-                          f"{judgements[best.effect]['predicted_worst_rms_over_floor']:.3g}x)"
-                          if best is not None else ""))
+            unsupported = min(
+                (s for s in ranking if judgements[s.effect]["material"]
+                 and not judgements[s.effect]["significant"] and not s.equivalent_to_free),
+                key=lambda s: judgements[s.effect]["predicted_worst_rms_over_floor"],
+                default=None)
+            if unsupported is not None:
+                # Material but without the tests' support: say so, not "immaterial".
+                j = judgements[unsupported.effect]
+                verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and "
+                           "no catalogue effect is supported by the tests (the largest "
+                           f"predicted fall, {unsupported.effect} to "
+                           f"{j['predicted_worst_rms_over_floor']:.3g}x, has p "
+                           f"{unsupported.p_adjusted:.2g} after correction"
+                           + ("" if j["resolvable"] else ", and a size below what the data "
+                              "resolve") + ")")
+            else:
+                verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and "
+                           "no catalogue effect would lower it materially"
+                           + (f" (the best detectable, {best.effect}, is predicted to reach "
+                              f"{judgements[best.effect]['predicted_worst_rms_over_floor']:.3g}"
+                              "x)" if best is not None else ""))
         if top is not None and foreign is None:
             claimed = top.effect
             tie = [s.effect for s in significant[1:] if s.effect in top.alike]

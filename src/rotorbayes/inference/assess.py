@@ -42,6 +42,10 @@ class Assessment:
     at_bound: list[str] = field(default_factory=list)
     fixed_suspects: list[dict] = field(default_factory=list)
     jitter_floor: bool = False  # a floor is the data's own jitter, not the encoder's step
+    #: What the validation data's worst RMS/floor would be if the model were right and only
+    #: the estimates' own uncertainty separated the fit from the truth (see
+    #: :func:`validation_spread`); None when not computed.
+    spread: dict | None = None
 
     @property
     def worst_ratio(self) -> float:
@@ -104,9 +108,33 @@ class Assessment:
                     f"channel{val}): the model does not explain the data to the encoders' "
                     "resolution (a missing effect, a wrong fixed value or a wrong basin)")
         if math.isfinite(v) and v > NEAR_FLOOR >= w:
-            text += ("; above the floor on the validation data: the model fits these data "
-                     "but does not predict others")
+            text += "; " + self.validation_words()
         return text
+
+    def validation_words(self) -> str:
+        """Why the validation data sit above the floor while the estimation data do not:
+        more than the estimates' uncertainty explains (the model does not predict), or
+        within it (the estimation data do not determine the parameters well enough)."""
+        v = self.worst_ratio_validation
+        sp = self.spread
+        if sp is None:
+            return ("above the floor on the validation data: the model fits these data "
+                    "but does not predict others")
+        if "undetermined" in sp:
+            return ("above the floor on the validation data, and the estimation data do not "
+                    f"determine {', '.join(sp['undetermined'])} (infinite standard errors): "
+                    "the gap may be theirs rather than a missing effect; fit both together")
+        band = f"{_times(sp['q10'])}-{_times(sp['q90'])}"
+        if v <= sp["q90"]:
+            return (f"above the floor on the validation data, but within what the estimates' "
+                    f"own uncertainty predicts there ({band} for 80 % of {sp['draws']} "
+                    "parameter draws from the fit's covariance): these data do not determine "
+                    "the parameters well enough to predict that experiment to the floor; fit "
+                    "both together to narrow them")
+        return (f"above the floor on the validation data, more than the estimates' own "
+                f"uncertainty predicts there ({band} for 80 % of {sp['draws']} parameter "
+                "draws from the fit's covariance): the model fits these data but does not "
+                "predict others (a missing effect these data do not excite)")
 
     def table(self) -> str:
         rows = [
@@ -135,6 +163,7 @@ class Assessment:
             "warnings": self.warnings,
             "at_bound": self.at_bound,
             "fixed_suspects": self.fixed_suspects,
+            "validation_spread": self.spread,
         }
 
 
@@ -192,16 +221,78 @@ def integration_warning(problem, ratio: float) -> str | None:
             "the input and parameters (the default step should have been short enough)")
 
 
-def assess(result, q_est, q_val=(), *, sources: dict | None = None) -> Assessment:
+def validation_spread(result, experiments, floors: dict, *, draws: int = 40,
+                      seed: int = 0) -> dict | None:
+    """The worst fitted channel's RMS/floor that ``experiments`` (validation data) would
+    show if the model were right and the truth were a draw from the fit's honest
+    covariance: per draw ``sqrt(floor² + mean((sim(draw) - sim(fit))²)) / floor``, the worst
+    channel over the experiments; its 10 %, 50 % and 90 % points over ``draws`` draws
+    (fixed seed). ``{"undetermined": names}`` when the covariance is not finite there (the
+    data do not determine those parameters); None when fewer than half the draws
+    simulate."""
+    prob = result.problem
+    cov = np.asarray(result.honest_covariance(), float)
+    if not experiments or cov.size == 0:
+        return None
+    if not np.all(np.isfinite(cov)):
+        bad = [n for n, row in zip(result.names, cov, strict=True) if not np.all(np.isfinite(row))]
+        return {"undetermined": bad}
+    rng = np.random.default_rng(seed)
+    try:
+        Z = rng.multivariate_normal(np.asarray(result.x, float), cov, size=draws,
+                                    method="eigh")
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    lo, hi = prob.lower, prob.upper
+
+    def angles(x, ex, sim):
+        p = prob.params_for(x, 0)
+        if "alpha0" not in prob.names:
+            p["alpha0"] = prob.base["alpha0"]
+        s = sim.simulate(p, raise_on_failure=False)
+        return {"theta_u": s.theta_u, "theta_l": s.theta_l}
+
+    sims = [prob.simulator_for(ex) for ex in experiments]
+    at_fit = [angles(np.asarray(result.x, float), ex, sim)
+              for ex, sim in zip(experiments, sims, strict=True)]
+    worst = []
+    for z in Z:
+        z = np.clip(z, lo, hi)
+        w = 0.0
+        for ex, sim, ref in zip(experiments, sims, at_fit, strict=True):
+            got = angles(z, ex, sim)
+            for c in prob.channels:
+                d = got[c] - ref[c] if got[c] is not None and ref[c] is not None else None
+                if d is None or not np.all(np.isfinite(d)):
+                    w = math.nan
+                    break
+                f = floors.get(c, quantisation_floor(c))
+                w = max(w, math.sqrt(f * f + float(np.mean(d * d))) / f)
+        if math.isfinite(w):
+            worst.append(w)
+    if len(worst) < draws / 2:
+        return None
+    q10, q50, q90 = np.quantile(worst, [0.1, 0.5, 0.9])
+    return {"q10": float(q10), "q50": float(q50), "q90": float(q90), "draws": len(worst)}
+
+
+def assess(result, q_est, q_val=(), *, sources: dict | None = None,
+           val_experiments=()) -> Assessment:
     """The :class:`Assessment` of a :class:`~rotorbayes.inference.FitResult`.
 
     ``q_est`` / ``q_val`` are :func:`~rotorbayes.inference.quality` rows on estimation and
     validation data; ``sources`` says where each fixed value came from (for the words).
+    ``val_experiments``: the validation data themselves; when they sit above the floor and
+    the estimation data do not, :func:`validation_spread` says whether the estimates' own
+    uncertainty explains the gap.
     """
     prob = result.problem
     floors, notes = prob.noise_floors()
     a = Assessment(channels=channel_rows(prob, q_est, "estimation", floors) + channel_rows(
         prob, q_val, "validation", floors))
+    v = a.worst_ratio_validation
+    if val_experiments and math.isfinite(v) and v > NEAR_FLOOR >= a.worst_ratio:
+        a.spread = validation_spread(result, list(val_experiments), floors)
     a.warnings.extend(notes)
     a.jitter_floor = bool(notes)
     sources = sources or {}
