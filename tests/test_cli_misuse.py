@@ -494,4 +494,12 @@ def test_a_data_warning_is_one_line_of_ours_once(tmp_path):
     assert len(lines) == 1, r.stderr
     assert lines[0].startswith(f"rotorbayes fit: warning: {data}, line {first + 101}: ")
     assert "DataWarning" not in r.stderr and "load_experiment" not in r.stderr
-    assert (tmp_path / "f" / "log.txt").read_text().count("exceeds ±5 V") == 1
+    log = (tmp_path / "f" / "log.txt").read_text()
+    assert log.count("exceeds ±5 V") == 1
+    # The header says when the command started and when it ended (trial 9: it gave the end
+    # time alone, which read as the start).
+    import re
+
+    head = log.splitlines()[0]
+    m = re.match(r"==== (\S+) rotorbayes fit .* \(ended (\S+)\)$", head)
+    assert m and m.group(1) <= m.group(2), head

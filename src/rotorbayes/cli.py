@@ -156,6 +156,9 @@ class _logged:
         self.a, self.folder = a, None
 
     def __enter__(self):
+        import datetime
+
+        self.started = datetime.datetime.now().isoformat(timespec="seconds")
         self.out, self.err = sys.stdout, sys.stderr
         self.cap_out, self.cap_err = _Capture(sys.stdout), _Capture(sys.stderr)
         sys.stdout, sys.stderr = self.cap_out, self.cap_err
@@ -174,7 +177,8 @@ class _logged:
             err = "".join(p for p in self.cap_err.parts if "\r" not in p and "it/s" not in p)
             try:
                 with (Path(folder) / "log.txt").open("a") as fh:
-                    fh.write(f"==== {stamp} rotorbayes {' '.join(self.a._argv)}\n{text}")
+                    fh.write(f"==== {self.started} rotorbayes {' '.join(self.a._argv)} "
+                             f"(ended {stamp})\n{text}")
                     if err:
                         fh.write(f"---- stderr\n{err}")
             except OSError:
