@@ -290,7 +290,8 @@ def speed_line(rows) -> str:
     slow = min(rows, key=lambda r: r["ess"])
     secs, cpu, n = slow["sampling_s"], slow["cpu_s"], slow["evaluations"]
     head = (f"Speed (moves {slow['moves']}): slowest parameter {slow['parameter']}, ESS "
-            f"{slow['ess']:.0f} (the lower of arviz's bulk ESS over every thinned draw, "
+            f"{slow['ess']:.0f} (the lower of arviz's bulk ESS over all post-burn-in draws, "
+            "thinned -- not only those kept in posterior.nc, as in the table -- "
             f"{slow['ess_bulk_all']:.0f}, and walkers × steps / τ, {slow['ess_tau']:.0f})")
     if not (math.isfinite(secs) and secs > 0):
         return head + f"; {n} log-posterior evaluations (no sampling time recorded)."
