@@ -205,6 +205,22 @@ def test_torque_map_words_name_a_dependence_below_the_noise_bar_as_a_hint_only()
     assert "no clear dependence" in words(0.0013, [("angle_1", 0.1), ("input", 0.05)])
 
 
+def _stribeck_missing_with_every_p(monkeypatch, p_adjusted: float):
+    """The diagnosis of a coupled fit to data with Stribeck friction hidden, its score
+    tests made to give every effect ``p_adjusted`` (tests that have lost their power)."""
+    import dataclasses
+    import importlib
+
+    D = importlib.import_module("rotorbayes.diagnosis.diagnose")
+    _, est, _ = _hidden("lower_stribeck")
+    prob = E.Problem("coupled", [est])
+    res = E.fit_from_data(prob).result
+    real = D.score_tests
+    monkeypatch.setattr(D, "score_tests", lambda *a, **k: [
+        dataclasses.replace(s, p_adjusted=p_adjusted) for s in real(*a, **k)])
+    return D.diagnose(prob, res.x)
+
+
 def test_far_above_the_floor_a_material_effect_the_tests_miss_is_named_to_try(monkeypatch):
     """A fresh-eyes trial (coupled rig from the independent reference, Stribeck friction
     hidden, 690x the floor) saw `lower_stribeck` predicted to lower the error to 215x at
@@ -212,18 +228,7 @@ def test_far_above_the_floor_a_material_effect_the_tests_miss_is_named_to_try(mo
     materially', its words 'claimable'.  Far above the floor the score tests lose power;
     here they are made to (every p set to 0.05): the effect is named as the one to try,
     never claimed, and its words say it is not significant."""
-    import dataclasses
-    import importlib
-
-    D = importlib.import_module("rotorbayes.diagnosis.diagnose")
-
-    truth, est, _ = _hidden("lower_stribeck")
-    prob = E.Problem("coupled", [est])
-    res = E.fit_from_data(prob).result
-    real = D.score_tests
-    monkeypatch.setattr(D, "score_tests", lambda *a, **k: [
-        dataclasses.replace(s, p_adjusted=0.05) for s in real(*a, **k)])
-    d = D.diagnose(prob, res.x)
+    d = _stribeck_missing_with_every_p(monkeypatch, 0.05)
     assert not d.adequate and d.claimed is None
     assert d.candidate == "lower_stribeck", d.text()
     assert "would lower it materially" not in d.verdict and "worth a refit" in d.verdict
@@ -278,17 +283,7 @@ def test_a_material_effect_without_the_tests_support_is_not_called_immaterial(mo
     predicted to lower the error by 8 % (material) at p 0.54, and the verdict said 'no
     catalogue effect would lower it materially'.  Made so here (every p 0.6, above the
     level at which an effect is named to try): the verdict names the effect and its p."""
-    import dataclasses
-    import importlib
-
-    D = importlib.import_module("rotorbayes.diagnosis.diagnose")
-    truth, est, _ = _hidden("lower_stribeck")
-    prob = E.Problem("coupled", [est])
-    res = E.fit_from_data(prob).result
-    real = D.score_tests
-    monkeypatch.setattr(D, "score_tests", lambda *a, **k: [
-        dataclasses.replace(s, p_adjusted=0.6) for s in real(*a, **k)])
-    d = D.diagnose(prob, res.x)
+    d = _stribeck_missing_with_every_p(monkeypatch, 0.6)
     assert not d.adequate and d.claimed is None and d.candidate is None
     assert d.judgements["lower_stribeck"]["material"]
     assert "would lower it materially" not in d.verdict

@@ -266,26 +266,19 @@ def diagnose(
         # the residuals, which the missing physics dominates): an effect predicted to lower
         # the error materially, and of a size the data resolve, is then named as the one to
         # try -- not claimed -- rather than left out.
-        untested = next(
-            (s for s in sorted(ranking, key=lambda s: judgements[s.effect][
-                "predicted_worst_rms_over_floor"])
-             if judgements[s.effect]["material"] and judgements[s.effect]["resolvable"]
-             and not judgements[s.effect]["significant"] and not s.equivalent_to_free
-             and s.p_adjusted < TRY_LEVEL and worst > NEAR_FLOOR),
-            None) if top is None else None
+        # Material but without the tests' support, largest predicted fall first.
+        unsupported = sorted(
+            (s for s in ranking if judgements[s.effect]["material"]
+             and not judgements[s.effect]["significant"] and not s.equivalent_to_free),
+            key=lambda s: judgements[s.effect]["predicted_worst_rms_over_floor"])
+        untested = next((s for s in unsupported if judgements[s.effect]["resolvable"]
+                         and s.p_adjusted < TRY_LEVEL and worst > NEAR_FLOOR),
+                        None) if top is None else None
         vetoed = None
-        if untested is not None and foreign is not None:
-            # As for a claim: a clear dependence the effect cannot produce comes first.
-            own = [r2 for var, r2 in foreign.ranking
-                   if var in EXPLAINS.get(untested.effect, ())]
-            if not own or foreign.strongest[1] >= max(own) + 0.2:
-                vetoed, untested = untested, None
-        if top is not None and foreign is not None:
-            # The foreign dependence vetoes the claim only if it clearly beats every
-            # variable the top effect could produce, on the same disc's map.
-            own = [r2 for var, r2 in foreign.ranking if var in EXPLAINS.get(top.effect, ())]
-            if own and foreign.strongest[1] < max(own) + 0.2:
-                foreign = None
+        if untested is not None and _vetoes(foreign, untested.effect):
+            vetoed, untested = untested, None  # as for a claim: the dependence comes first
+        if top is not None and not _vetoes(foreign, top.effect):
+            foreign = None
         if top is not None:
             j = judgements[top.effect]
             pred = j["predicted_worst_rms_over_floor"]
@@ -307,19 +300,15 @@ def diagnose(
                        "cannot produce the dependence the missing-torque map shows (below)")
         else:
             best = significant[0] if significant else None
-            unsupported = min(
-                (s for s in ranking if judgements[s.effect]["material"]
-                 and not judgements[s.effect]["significant"] and not s.equivalent_to_free),
-                key=lambda s: judgements[s.effect]["predicted_worst_rms_over_floor"],
-                default=None)
-            if unsupported is not None:
+            if unsupported:
                 # Material but without the tests' support: say so, not "immaterial".
-                j = judgements[unsupported.effect]
+                u = unsupported[0]
+                j = judgements[u.effect]
                 verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and "
                            "no catalogue effect is supported by the tests (the largest "
-                           f"predicted fall, {unsupported.effect} to "
+                           f"predicted fall, {u.effect} to "
                            f"{j['predicted_worst_rms_over_floor']:.3g}x, has p "
-                           f"{unsupported.p_adjusted:.2g} after correction"
+                           f"{u.p_adjusted:.2g} after correction"
                            + ("" if j["resolvable"] else ", and a size below what the data "
                               "resolve") + ")")
             else:
@@ -331,8 +320,7 @@ def diagnose(
         if top is not None and foreign is None:
             claimed = top.effect
             tie = [s.effect for s in significant[1:] if s.effect in top.alike]
-            est = ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in
-                            zip(top.step.items(), top.units, strict=True))
+            est = _estimate_words(top)
             advice = (f"Most likely missing: {top.effect} — {top.physics.rstrip('.')} "
                       f"(p {top.p_adjusted:.2g}"
                       f" after correction; one-step estimate {est}; predicted worst RMS/floor "
@@ -347,10 +335,8 @@ def diagnose(
             advice += (f"\nAdd it and refit: rotorbayes fit ... --p0 FIT/fit.json --add "
                        f"{top.effect}; then diagnose the new fit (one effect at a time).")
         elif untested is not None:
-            where = (strongest.words() if strongest else
-                     "; ".join(m.words() for m in maps) or "no missing-torque map could be made")
-            est = ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in
-                            zip(untested.step.items(), untested.units, strict=True))
+            where = _map_words(None, strongest, maps)
+            est = _estimate_words(untested)
             advice = (f"Worth trying first: {untested.effect} — "
                       f"{untested.physics.rstrip('.')} (one-step "
                       f"estimate {est}; predicted worst RMS/floor {worst:.3g} -> "
@@ -364,9 +350,7 @@ def diagnose(
                       "If it does not help, make sure the fit is not a local minimum "
                       "(`rotorbayes multistart`).")
         else:
-            where = foreign.words() if foreign else (
-                strongest.words() if strongest else
-                "; ".join(m.words() for m in maps) or "no missing-torque map could be made")
+            where = _map_words(foreign, strongest, maps)
             best = top if top is not None else vetoed
             advice = ("No catalogue effect explains the residual"
                       + (f" (the best, {best.effect}, is material but cannot produce the "
@@ -393,6 +377,31 @@ def diagnose(
         immaterial=immaterial,
         candidate=untested.effect if not adequate and untested is not None else None,
     )
+
+
+def _vetoes(foreign: TorqueMap | None, effect: str) -> bool:
+    """Whether the map's clear dependence on a variable no catalogue effect produces
+    (``foreign``) rules ``effect`` out: it beats every variable the effect could produce,
+    on the same disc's map, by 0.2 in R² (or the effect produces none of them)."""
+    if foreign is None:
+        return False
+    own = [r2 for var, r2 in foreign.ranking if var in EXPLAINS.get(effect, ())]
+    return not own or foreign.strongest[1] >= max(own) + 0.2
+
+
+def _estimate_words(s: EffectScore) -> str:
+    """``t_delay ≈ 0.0069 s``: an effect's one-step estimate."""
+    return ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in
+                     zip(s.step.items(), s.units, strict=True))
+
+
+def _map_words(foreign: TorqueMap | None, strongest: TorqueMap | None, maps) -> str:
+    """The missing-torque map to quote: a foreign dependence, else the map standing
+    highest above its noise, else every map."""
+    m = foreign or strongest
+    if m is not None:
+        return m.words()
+    return "; ".join(x.words() for x in maps) or "no missing-torque map could be made"
 
 
 def _rms_speeds(problem: Problem, x: np.ndarray) -> dict[str, float]:

@@ -245,22 +245,18 @@ def validation_spread(result, experiments, floors: dict, *, draws: int = 40,
         return None
     lo, hi = prob.lower, prob.upper
 
-    def angles(x, ex, sim):
-        p = prob.params_for(x, 0)
-        if "alpha0" not in prob.names:
-            p["alpha0"] = prob.base["alpha0"]
-        s = sim.simulate(p, raise_on_failure=False)
+    def angles(x, sim):
+        s = sim.simulate(prob.params_for_other(x), raise_on_failure=False)
         return {"theta_u": s.theta_u, "theta_l": s.theta_l}
 
     sims = [prob.simulator_for(ex) for ex in experiments]
-    at_fit = [angles(np.asarray(result.x, float), ex, sim)
-              for ex, sim in zip(experiments, sims, strict=True)]
+    at_fit = [angles(np.asarray(result.x, float), sim) for sim in sims]
     worst = []
     for z in Z:
         z = np.clip(z, lo, hi)
         w = 0.0
-        for ex, sim, ref in zip(experiments, sims, at_fit, strict=True):
-            got = angles(z, ex, sim)
+        for sim, ref in zip(sims, at_fit, strict=True):
+            got = angles(z, sim)
             for c in prob.channels:
                 d = got[c] - ref[c] if got[c] is not None and ref[c] is not None else None
                 if d is None or not np.all(np.isfinite(d)):

@@ -448,9 +448,7 @@ def quality(
     rows = []
     for i, ex in enumerate(exps):
         own = experiments is None
-        p = problem.params_for(x, i if own else 0)
-        if not own and "alpha0" not in problem.names:
-            p["alpha0"] = problem.base["alpha0"]
+        p = problem.params_for(x, i) if own else problem.params_for_other(x)
         sim = problem.sims[i] if own else problem.simulator_for(ex)
         s = sim.simulate(p, raise_on_failure=False)
         chans = {"theta_u": (ex.theta_u, s.theta_u)}

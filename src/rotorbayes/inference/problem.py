@@ -391,6 +391,15 @@ class Problem:
                 p[base] = float(v)
         return p
 
+    def params_for_other(self, x: np.ndarray) -> dict[str, float]:
+        """The full parameter set at ``x`` for an experiment outside the problem
+        (validation data): experiment 0's values, with ``alpha0`` from :attr:`base` unless
+        it is a shared free parameter (each experiment starts with its own torsion)."""
+        p = self.params_for(x, 0)
+        if "alpha0" not in self.names:
+            p["alpha0"] = self.base["alpha0"]
+        return p
+
     def start_vector(self, values: Mapping[str, float]) -> np.ndarray:
         """Start vector from ``values``; a free parameter of an added effect that sits at
         its null value starts at the effect's typical value instead (see
