@@ -237,6 +237,29 @@ def _main(argv=None) -> int:
     if isinstance(getattr(a, "out", None), str) and len(a.out) > 1:
         a.out = a.out.rstrip("/")  # messages add their own "/": "fit0/", never "fit0//"
     try:
+        return _run_and_report(a)
+    except Exception as exc:
+        if not coldstart.ctrl_c_seen():
+            raise
+        # A Ctrl-C that C code turned into another exception (coldstart.ctrl_c_seen):
+        # results are whole or absent whatever the exception, so the stop is what it was.
+        code = _interrupted(a)
+        print(f"rotorbayes {a.cmd}: (the stop surfaced as {type(exc).__name__}: "
+              f"{str(exc)[:160]})", file=sys.stderr)
+        return code
+
+
+def _interrupted(a) -> int:
+    # Every command builds its results whole or not at all (a partial folder, atomic
+    # files), and keeps work that was done (InterruptGuard): what is left is true.
+    print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C) before its results were complete; "
+          "it wrote nothing new (earlier results, if any, are unchanged)", file=sys.stderr)
+    return EXIT.INTERRUPTED
+
+
+def _run_and_report(a) -> int:
+    """Run the parsed command; its exit code, with each known failure as one message."""
+    try:
         with _logged(a) as log, _own_warnings(a.cmd):
             outcome = run_command(a)
             log.folder = outcome.folder
@@ -246,11 +269,7 @@ def _main(argv=None) -> int:
         print(f"rotorbayes {a.cmd}: {exc}", file=sys.stderr)
         return EXIT.INTERRUPTED
     except KeyboardInterrupt:
-        # Every command builds its results whole or not at all (a partial folder, atomic
-        # files), and keeps work that was done (InterruptGuard): what is left is true.
-        print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C) before its results were complete; "
-              "it wrote nothing new (earlier results, if any, are unchanged)", file=sys.stderr)
-        return EXIT.INTERRUPTED
+        return _interrupted(a)
     except BrokenPipeError:
         # The reader (e.g. `| head`) stopped reading: not an error of ours. Python's recipe:
         # point stdout at devnull so the flush at exit does not fail again.
