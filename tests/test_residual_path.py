@@ -92,6 +92,33 @@ def test_residual_path_equals_simulation_then_subtraction(name):
         np.testing.assert_array_equal(R[j], _by_simulation(prob, x)[0])
 
 
+@pytest.mark.parametrize("name", list(PROBLEMS))
+def test_kernel_vectors_from_the_template_equal_the_long_way(name):
+    """Problem.kernel_vectors puts x into a copy of the base vectors; the numbers must be
+    those of Simulator.kernel_vector(params_for(x, i)), also at NaN and after the base
+    values are changed in place."""
+    prob = PROBLEMS[name]
+    x0 = prob.x_from(prob.base)
+    rng = np.random.default_rng(4)
+    X = list(x0 * (1 + 0.05 * rng.uniform(-1, 1, size=(4, x0.size))))
+    X.append(np.full(x0.size, np.nan))
+    old = dict(prob.base)
+    try:
+        for _round in range(2):
+            for x in X:
+                for i, sim in enumerate(prob.sims):
+                    fast = prob.kernel_vectors(x, i)
+                    slow = sim.kernel_vector(prob.params_for(x, i))
+                    for a, b in zip(fast, slow, strict=True):
+                        np.testing.assert_array_equal(a, b)
+            assert all(f[1] is not None for f in prob._fills.values())  # the fast way ran
+            prob.base["J_l"] = prob.base["J_l"] * 1.5  # a fixed value changed in place
+            prob.base["J_u"] = prob.base["J_u"] * 0.8
+    finally:
+        prob.base.clear()
+        prob.base.update(old)
+
+
 def test_failed_experiments_give_nan_residuals_and_the_others_stay():
     prob = PROBLEMS["brake-two-experiments-both-channels"]
     x = prob.x_from(prob.base)

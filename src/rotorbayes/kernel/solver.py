@@ -106,6 +106,42 @@ def _horner(s, c):
     return c[0] + s * (c[1] + s * (c[2] + s * c[3]))
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _differences(s0, a, c):
+    """Forward differences of the cubic with coefficients ``c`` at fractions ``s0, s0 + a,
+    ...``: its value at ``s0`` and its first, second and third differences there."""
+    c0, c1, c2, c3 = c
+    a2 = a * a
+    a3 = a2 * a
+    v = c0 + s0 * (c1 + s0 * (c2 + s0 * c3))
+    d1 = c1 * a + c2 * (2.0 * s0 * a + a2) + c3 * (3.0 * s0 * s0 * a + 3.0 * s0 * a2 + a3)
+    d2 = 2.0 * c2 * a2 + c3 * (6.0 * s0 * a2 + 6.0 * a3)
+    return v, d1, d2, 6.0 * c3 * a3
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _next(f):
+    """The forward differences ``f`` of :func:`_differences` one sample on."""
+    v, d1, d2, d3 = f
+    return v + d1, d1 + d2, d2 + d3, d3
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _last_sample(k, lim, dt, inv_dt, n):
+    """The last sample ``j >= k`` (below ``n``) with ``j * dt <= lim``, given that ``k``
+    is one: the same test the samples are put to one by one."""
+    j = int(lim * inv_dt)
+    if j > n - 1:
+        j = n - 1
+    if j < k:
+        j = k
+    while j + 1 < n and (j + 1) * dt <= lim:
+        j += 1
+    while j > k and j * dt > lim:
+        j -= 1
+    return j
+
+
 @njit(cache=True, error_model="numpy")
 def _step_to(t, x, y, mu, ml, k1, m, src):
     """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive."""
@@ -218,7 +254,7 @@ def _fail_residuals(r, row, col_u, col_l, n):
 # the whole right-hand side into every entry point and made the first compilation take
 # 248 s on 2 cores; compiled as functions (LLVM still inlines what pays) it takes 38 s and
 # gives the same numbers bit for bit (residuals, batch and simulation checked).
-# The one exception is terms.drive (small, numba-inlined, see there).
+# The exceptions are terms.drive and terms.rhs (numba-inlined, see there).
 @njit(cache=True, error_model="numpy")
 def _integrate(
     p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
@@ -249,6 +285,7 @@ def _integrate(
     m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift)
     max_ev = events.shape[0]
     last = n - 1.0
+    inv_dt = 1.0 / dt
     # The step grid: the input's own grid (`grid`, in samples, from step_grid) shifted by
     # the input delay, so the delayed input's kinks -- its sample times and the end of its
     # held start, t_delay -- sit on step points as the undelayed samples do; before the
@@ -280,6 +317,8 @@ def _integrate(
         if col_l >= 0:
             r[row, col_l] = w_l * (meas_l[0] - y[2])
     kout = 1
+    ou = np.uint64(col_u if col_u > 0 else 0)
+    ol = np.uint64(col_l if col_l > 0 else 0)
     t_end = 0.0
     s_end = 0.0
     while s_end < last:
@@ -319,15 +358,52 @@ def _integrate(
                 y1, de = _step_to(t, seg, y, mu, ml, f, m, src)
             fe = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, de, m)
             t_seg = t + seg
-            if kout < n and kout * dt <= t_seg + 1e-9 * dt:
-                # Samples inside this single-mode segment, from its cubic Hermite
-                # interpolant (states and derivatives at both ends) in Horner form.
-                inv = 1.0 / seg if seg > 0.0 else 0.0
+            lim = t_seg + 1e-9 * dt
+            if kout < n and kout * dt <= lim:
+                # Samples kout .. k1 lie inside this single-mode segment: values from its
+                # cubic Hermite interpolant (states and derivatives at both ends).
+                k1 = _last_sample(kout, lim, dt, inv_dt, n)
                 cu = _cubic(seg, y[0], f[0], y1[0], fe[0])
                 cl = _cubic(seg, y[2], f[2], y1[2], fe[2])
-                cwu = _cubic(seg, y[1], f[1], y1[1], fe[1])
-                cwl = _cubic(seg, y[3], f[3], y1[3], fe[3])
-                while kout < n and kout * dt <= t_seg + 1e-9 * dt:
+                if full:
+                    cwu = _cubic(seg, y[1], f[1], y1[1], fe[1])
+                    cwl = _cubic(seg, y[3], f[3], y1[3], fe[3])
+                inv = 1.0 / seg if seg > 0.0 else 0.0
+                if seg > 0.0 and k1 - kout >= 2:
+                    # Equally spaced fractions: all but the last sample by forward
+                    # differences (three additions per value instead of a conversion, a
+                    # product and a Horner evaluation); the last one, possibly a hair
+                    # past the end, by Horner at its fraction clipped to 1 as below.
+                    s0 = (kout * dt - t) * inv
+                    a = dt * inv
+                    fu = _differences(s0, a, cu)
+                    fl = _differences(s0, a, cl)
+                    if full:
+                        fwu = _differences(s0, a, cwu)
+                        fwl = _differences(s0, a, cwl)
+                        for k in range(kout, k1):
+                            out_thu[k] = fu[0]
+                            out_thl[k] = fl[0]
+                            out_wu[k] = fwu[0]
+                            out_wl[k] = fwl[0]
+                            out_mu[k], out_ml[k] = mu, ml
+                            fu = _next(fu)
+                            fl = _next(fl)
+                            fwu = _next(fwu)
+                            fwl = _next(fwl)
+                    else:
+                        # The same values as the full output, into the residual.
+                        # Unsigned indices: numba then adds no negative-index wraparound
+                        # to each access.
+                        for k in range(np.uint64(kout), np.uint64(k1)):
+                            if col_u >= 0:
+                                r[row, ou + k] = w_u * (meas_u[k] - fu[0])
+                            if col_l >= 0:
+                                r[row, ol + k] = w_l * (meas_l[k] - fl[0])
+                            fu = _next(fu)
+                            fl = _next(fl)
+                    kout = k1
+                while kout <= k1:
                     sfrac = (kout * dt - t) * inv if seg > 0.0 else 1.0
                     if sfrac > 1.0:
                         sfrac = 1.0
@@ -338,7 +414,6 @@ def _integrate(
                         out_wl[kout] = _horner(sfrac, cwl)
                         out_mu[kout], out_ml[kout] = mu, ml
                     else:
-                        # The same interpolant as the full output, into the residual.
                         if col_u >= 0:
                             r[row, col_u + kout] = w_u * (meas_u[kout] - _horner(sfrac, cu))
                         if col_l >= 0:

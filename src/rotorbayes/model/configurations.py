@@ -274,6 +274,19 @@ class Model:
         q = np.array([float(values.get(n, self.info[n].null)) for n in self.user_names])
         return p, q
 
+    def kernel_slot(self, name: str) -> tuple[int, int] | None:
+        """Where :meth:`kernel_vectors` puts the value of ``name`` unchanged: ``(0, i)`` for
+        ``p[i]``, ``(1, i)`` for ``q[i]``; ``None`` when it does not (a parameter of an
+        effect that is off, ``Ts_l`` without the Stribeck effect), or ``name`` is unknown.
+        Without the Stribeck effect ``Ts_l`` also follows ``Tc_l``."""
+        if name in self.off or (name == "Ts_l" and not self.stribeck):
+            return None
+        if name in _layout.INDEX:
+            return 0, _layout.INDEX[name]
+        if name in self.user_names:
+            return 1, self.user_names.index(name)
+        return None
+
     def problems(self, values: Mapping[str, float]) -> list[str]:
         """Why ``values`` cannot be simulated in this model (empty if they can)."""
         p, q = self.kernel_vectors(values)
