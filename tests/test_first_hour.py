@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import io
 import math
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -51,6 +53,22 @@ def test_compile_notice_only_with_a_cold_cache(tmp_path, monkeypatch):
     (tmp_path / "empty" / "x").mkdir(parents=True)
     (tmp_path / "empty" / "x" / "solver.simulate_into-1.py399.nbi").write_text("")
     assert coldstart.cache_is_cold()  # another Python's index does not count
+    # An index of this numba whose stamp is the solver's content is warm, whatever the
+    # file times (a checkout rewrites them; numba >= 0.61 stamps by content); one of an
+    # edited solver is cold.  (The trial of 2026-11-24 printed "compiling ... took 0 s".)
+    import hashlib
+    import pickle
+    from importlib.metadata import version
+
+    import rotorbayes.kernel.solver as solver
+
+    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
+    index = tmp_path / "empty" / "x" / f"solver.simulate_into-1.{tag}.nbi"
+    for content, cold in ((b"edited", True), (Path(solver.__file__).read_bytes(), False)):
+        with open(index, "wb") as f:
+            pickle.dump(version("numba"), f)
+            f.write(pickle.dumps((hashlib.sha256(content).digest(), {})))
+        assert coldstart.cache_is_cold() is cold
     # The kernel is imported already in this process: nothing to compile, nothing said.
     buf = io.StringIO()
     assert coldstart.compile_kernel(buf) is None and buf.getvalue() == ""

@@ -35,22 +35,50 @@ def _cache_dirs(kernel_dir: Path) -> list[Path]:
     return [Path.home() / ".cache" / "numba"]
 
 
+def _index_is_current(index: Path, source: Path, numba_version: str | None) -> bool:
+    """Whether numba would take the cache entry ``index`` (a ``.nbi`` file) for ``source``.
+
+    An index holds numba's version, then the source's stamp: a SHA-256 of its content in
+    numba >= 0.61 (a checkout or a copy that changes only the file's time keeps the cache),
+    ``(mtime, size)`` before.  Anything unreadable counts as not current."""
+    import hashlib
+    import pickle
+
+    try:
+        with open(index, "rb") as f:
+            version = pickle.load(f)
+            stamp, _ = pickle.loads(f.read())
+    except Exception:  # noqa: BLE001 -- a damaged or foreign index: numba would recompile
+        return False
+    if numba_version is not None and version != numba_version:
+        return False
+    if isinstance(stamp, bytes):
+        return stamp == hashlib.sha256(source.read_bytes()).digest()
+    st = source.stat()
+    return tuple(stamp) == (st.st_mtime, st.st_size)
+
+
 def cache_is_cold() -> bool:
-    """True when no numba cache index of the solver for this Python is newer than the
-    kernel's sources (numba would compile on import)."""
+    """True when numba has no cache entry of the solver that matches its source for this
+    Python and this numba (numba would compile on import)."""
+    from importlib.metadata import PackageNotFoundError, version
+
     spec = importlib.util.find_spec("rotorbayes.kernel")
     if spec is None or not spec.submodule_search_locations:
         return False
     kernel_dir = Path(next(iter(spec.submodule_search_locations)))
-    sources = list(kernel_dir.glob("*.py"))
-    newest_source = max((p.stat().st_mtime for p in sources), default=0.0)
+    source = kernel_dir / "solver.py"
+    try:
+        numba_version = version("numba")
+    except PackageNotFoundError:
+        numba_version = None
     tag = f"py{sys.version_info.major}{sys.version_info.minor}"
     for d in _cache_dirs(kernel_dir):
         if not d.is_dir():
             continue
         pattern = f"solver.*.{tag}.nbi"
         found = d.glob(pattern) if d.name == "__pycache__" else d.rglob(pattern)
-        if any(p.stat().st_mtime >= newest_source for p in found):
+        if any(_index_is_current(p, source, numba_version) for p in found):
             return False
     return True
 
