@@ -147,17 +147,31 @@ def test_shared_data_is_scattered_once_not_sent_with_every_task(cluster):
                          [str(d.key) for d in ts.dependencies for _ in d.who_has])
                 for k, ts in dask_scheduler.tasks.items() if "_fit_start" in str(k)}
 
+    scattered = []
+    scatter = P._scatter
+
+    def _scatter(ex, obj):  # who holds the data the moment it is scattered
+        fut = scatter(ex, obj)
+        scattered.append((str(fut.key), client.who_has([fut])[fut.key]))
+        return fut
+
     seen = None
-    for _i, (r, _why) in P.run_tasks(_fit_start, list(starts),
-                                     shared=(prob, {"uncertainty": False}), executor=cluster):
-        assert r is not None
-        if seen is None:
-            seen = client.run_on_scheduler(deps)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(P, "_scatter", _scatter)
+        for _i, (r, _why) in P.run_tasks(_fit_start, list(starts),
+                                         shared=(prob, {"uncertainty": False}),
+                                         executor=cluster):
+            assert r is not None
+            if seen is None:
+                seen = client.run_on_scheduler(deps)
     assert len(seen) >= 1
-    # Every task depends on the one scattered problem, which both workers hold already.
+    # Every task depends on the one scattered problem, and nothing else ...
     shared = {d for ds, _ in seen.values() for d in ds}
     assert len(shared) == 1 and all(len(ds) == 1 for ds, _ in seen.values())
-    assert all(len(holders) == 2 for _, holders in seen.values())
+    # ... which both workers held before the first task ran (read later, Dask's active
+    # memory manager may have dropped a replica no waiting task needed: seen in CI).
+    assert len(scattered) == 1 and scattered[0][0] in shared
+    assert len(scattered[0][1]) == 2
 
 
 def test_a_worker_killed_mid_job_changes_nothing(cluster):
