@@ -9,6 +9,7 @@ score tests, the ranking and the refit), not that the catalogue is right about a
 from __future__ import annotations
 
 import json
+import shlex
 
 import numpy as np
 import pytest
@@ -75,6 +76,8 @@ def test_hidden_catalogue_effect_is_ranked_first_and_adding_it_reaches_the_floor
         assert effect in top.alike, (effect, [(s.effect, s.p_adjusted) for s in d.ranking])
     true = next(s for s in d.ranking if s.effect == effect)
     assert true.p_adjusted < 0.01 and d.claimed in (effect, *true.alike)
+    if effect == "string_damping":  # the map looks at the twist rate too (trial 10)
+        assert any(v == "torsion_rate" for m in d.maps for v, _ in m.ranking[:2])
     # Add it, start from the one-step estimate and the best grid point, refit.
     model2 = Model("coupled") if without else model.with_effects([effect])
     prob2 = E.Problem(model2, [est], base=prob.params_for(res.x, 0))
@@ -135,25 +138,29 @@ def test_an_effect_outside_the_catalogue_is_named_by_the_torque_map():
     assert abs(res2.values["a_fric"] - 0.3) < 0.01
 
 
-def test_cli_fit_diagnose_add_chain(tmp_path, capsys):
+def test_cli_fit_diagnose_add_chain(tmp_path, capsys, monkeypatch):
     truth, est, val = _hidden("lower_asymmetric_viscous")
     for ex, name in ((est, "est.csv"), (val, "val.csv")):
         rb.save_experiment(ex, tmp_path / name)
-    f1, f2 = tmp_path / "f1", tmp_path / "f2"
+    monkeypatch.chdir(tmp_path)
+    f1, f2 = tmp_path / "f1", tmp_path / "f1_lower_asymmetric_viscous"
     assert main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--validate",
                  str(tmp_path / "val.csv"), "--out", str(f1)]) == 0
     assert main(["diagnose", str(f1)]) == 0
     text = capsys.readouterr().out
     assert "INADEQUATE" in text and "Most likely missing: lower_asymmetric_viscous" in text
+    # The advice's refit command is a real one (trial 10 met "--p0 FIT/fit.json"): the
+    # fit's model and files as typed from here, the fit folder as --p0, a new folder.
+    cmd = text.split("Add it and refit: ", 1)[1].split(";", 1)[0]
+    assert cmd == ("rotorbayes fit --model coupled est.csv --validate val.csv --p0 f1/ "
+                   "--add lower_asymmetric_viscous --out f1_lower_asymmetric_viscous/")
     doc = json.loads((f1 / "diagnosis.json").read_text())
     assert doc["adequate"] is False
     assert list(doc["ranking"][0])[0] == "effect"
     assert doc["ranking"][0]["effect"] == "lower_asymmetric_viscous"
     for fig in ("diagnosis_candidates.png", "missing_torque.png"):
         assert (f1 / fig).stat().st_size > 10_000
-    assert main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--validate",
-                 str(tmp_path / "val.csv"), "--p0", str(f1), "--add",
-                 "lower_asymmetric_viscous", "--out", str(f2)]) == 0
+    assert main(shlex.split(cmd)[1:]) == 0  # the advice, as printed
     out = capsys.readouterr().out
     assert "db_l" in out and "the diagnosis of the --p0 fit" in out
     doc2 = json.loads((f2 / "fit.json").read_text())

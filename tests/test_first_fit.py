@@ -8,6 +8,7 @@ accuracy of the model against a real rig.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -143,6 +144,20 @@ def test_estimate_at_a_bound_is_flagged(tmp_path):
     a = E.assess(res, E.quality(prob, res.x))
     assert a.at_bound == ["Tc_u"]
     assert any(w.startswith("Tc_u") and "lower bound 0" in w for w in a.warnings)
+    # Near a bound rather than on it: warned when nearer than two standard errors (trial
+    # 10: delta_l 4.991 of at most 5, standard error 4.6, passed without a word), not when
+    # the estimate is well determined there.
+    j = res.names.index("Tc_u")
+    width = prob.upper[j] - prob.lower[j]
+    x = np.array(res.x, float)
+    x[j] = prob.lower[j] + 0.01 * width
+    for se_j, flagged in ((0.01 * width, True), (0.001 * width, False)):
+        se = np.array(res.stderr, float)
+        se[j] = se_j
+        near = dataclasses.replace(res, x=x, stderr=se)
+        an = E.assess(near, E.quality(prob, near.x))
+        assert (an.at_bound == ["Tc_u"]) is flagged, an.at_bound
+        assert any("less than two standard errors" in w for w in an.warnings) is flagged
     # With the thesis's (small, fixed) asymmetry dTc_u the fit stops on the validity
     # constraint Tc_u >= |dTc_u| instead: said as well.
     prob2 = E.Problem("upper", [ex], free=["k_m", "Tc_u", "b_u"], base=dict(p, dTc_u=-0.0058))

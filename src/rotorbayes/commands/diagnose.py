@@ -54,6 +54,7 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
           f"{len(result.problem.names)} free parameters, effects: "
           f"{', '.join(result.problem.model.effect_names) or 'none'})")
     d = run_diagnosis(result.problem, result.x, noise_std=noise or 0.0)
+    d.advice = _with_refit_command(d.advice, result.folder, result.doc)
     print()
     print(d.text())
     integ = _integration(result)
@@ -98,3 +99,40 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     print(f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
           f"missing_torque.png ({d.seconds:.1f} s)")
     return Outcome(folder=Path(fit), doc=doc)
+
+
+def _with_refit_command(advice: str, folder: Path, doc: dict) -> str:
+    """The advice with its generic refit command made concrete: the fit's model, data and
+    validation files (as the user can type them from here), ``--p0`` the fit folder, the
+    effect, and a new folder beside the fit."""
+    import os
+    import re
+    import shlex
+
+    from ..diagnosis.diagnose import REFIT_TOKEN
+    from ..examples import EXAMPLES
+
+    def here(entry: dict) -> str:
+        path = str(entry.get("path", ""))
+        if not path:
+            return "DATA.csv"
+        if Path(path).parent.resolve() == EXAMPLES.resolve():
+            return f"example:{Path(path).stem}"
+        rel = os.path.relpath(path)
+        return shlex.quote(rel if len(rel) < len(path) else path)
+
+    files = " ".join(here(e) for e in doc.get("data_files") or []) or "DATA.csv"
+    val = "".join(f" --validate {here(e)}" for e in doc.get("validation_files") or [])
+    extra = " --prescribed-upper" if doc.get("prescribed_upper") else ""
+    chans = doc.get("channels")
+    if isinstance(chans, list) and chans and len(chans) == 1:
+        extra += f" --channels {chans[0]}"
+    name = shlex.quote(os.path.relpath(folder))
+    out = folder.name
+
+    def command(m: re.Match) -> str:
+        effect = m.group(1)
+        return (f"rotorbayes fit --model {doc.get('config', 'MODEL')} {files}{val}{extra} "
+                f"--p0 {name}/ --add {effect} --out {shlex.quote(out + '_' + effect)}/")
+
+    return re.sub(re.escape(REFIT_TOKEN) + r" --add (\S+?)(?=[;\s]|$)", command, advice)

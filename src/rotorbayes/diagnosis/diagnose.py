@@ -74,7 +74,7 @@ EXPLAINS = {
     "lower_asymmetric_viscous": {"direction", "velocity"},
     "lower_stribeck": {"velocity", "direction"},
     "initial_torsion": {"torsion", "direction", "velocity"},
-    "string_damping": {"torsion", "velocity"},
+    "string_damping": {"torsion_rate", "torsion", "velocity"},
     "voltage_offset": {"input", "direction"},
     "input_delay": {"input_rate", "input"},
     "motor_deadzone": {"input", "velocity"},
@@ -89,6 +89,11 @@ def is_material(before: float, after: float) -> bool:
     :data:`MATERIAL_FLOOR_UNITS` floor units."""
     fall = before - after
     return bool(fall >= MATERIAL_FRACTION * before and fall >= MATERIAL_FLOOR_UNITS)
+
+
+#: Stands in the advice for the refit command; the ``diagnose`` command puts the real one
+#: (the fit's model, data and folder) in its place (:mod:`rotorbayes.commands.diagnose`).
+REFIT_TOKEN = "rotorbayes fit ... --p0 FIT/"
 
 
 @dataclass
@@ -332,7 +337,7 @@ def diagnose(
                            "input can.")
             if top.equivalences:
                 advice += " Registry: " + "; ".join(top.equivalences) + "."
-            advice += (f"\nAdd it and refit: rotorbayes fit ... --p0 FIT/fit.json --add "
+            advice += (f"\nAdd it and refit: {REFIT_TOKEN} --add "
                        f"{top.effect}; then diagnose the new fit (one effect at a time).")
         elif untested is not None:
             where = _map_words(None, strongest, maps)
@@ -344,7 +349,7 @@ def diagnose(
                       f"Its score test is not significant (p {untested.p_adjusted:.2g} after "
                       "correction): this far above the floor the tests have little power, so "
                       "a refit decides, not the test. Missing-torque map: " + where + ".\n"
-                      f"Add it and refit: rotorbayes fit ... --p0 FIT/fit.json --add "
+                      f"Add it and refit: {REFIT_TOKEN} --add "
                       f"{untested.effect}; keep it only if `rotorbayes compare` finds the new "
                       "fit materially better on validation data, then diagnose the new fit. "
                       "If it does not help, make sure the fit is not a local minimum "

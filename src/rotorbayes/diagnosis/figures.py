@@ -11,8 +11,8 @@ from .diagnose import LEVEL
 _LABEL = {
     "velocity": "velocity [rad/s]", "direction": "direction of rotation",
     "angle_1": "angle within a revolution [rad]", "angle_2": "angle within a revolution [rad]",
-    "torsion": "string torsion α [rad]", "input": "input voltage [V]",
-    "input_rate": "input rate [V/s]", "time": "time [s]",
+    "torsion": "string torsion α [rad]", "torsion_rate": "twist rate dα/dt [rad/s]",
+    "input": "input voltage [V]", "input_rate": "input rate [V/s]", "time": "time [s]",
 }
 
 

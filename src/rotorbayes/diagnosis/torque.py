@@ -11,8 +11,8 @@ clear slip are used: at rest friction is set-valued and balances anything.
 
 The map ranks how much of ``M`` each candidate variable explains (adjusted R² of a
 binned-mean or harmonic fit): the disc's velocity and its direction, its angle within a
-revolution (once and twice per revolution), the string's torsion, the input and its rate,
-time.
+revolution (once and twice per revolution), the string's torsion and its rate, the input
+and its rate, time.
 
 What the map can support.  Smoothed derivatives of quantised angles are not exact: the
 same balance computed on the fit's own simulation, rounded like the encoders, is not zero
@@ -49,7 +49,10 @@ WORDS = {
     "angle_2": ("varies with its angle, twice per revolution", "friction or load varying "
                 "with angle (an oval or misaligned contact)"),
     "torsion": ("varies with the string's torsion", "a string stiffness that is not "
-                "linear, or damping in the string"),
+                "linear, or damping in the string (a fit without it bends the stiffness "
+                "to take part of it)"),
+    "torsion_rate": ("varies with the rate of the string's twist", "damping in the string "
+                     "(string_damping)"),
     "input": ("varies with the input voltage", "a motor constant, offset or dead zone "
               "unlike the model's"),
     "input_rate": ("follows changes of the input", "a delay or dynamics between the "
@@ -61,6 +64,7 @@ WORDS = {
 SHORT = {"velocity": "its speed", "direction": "the direction of rotation",
          "angle_1": "its angle (once per revolution)",
          "angle_2": "its angle (twice per revolution)", "torsion": "the string's torsion",
+         "torsion_rate": "the twist rate",
          "input": "the input voltage", "input_rate": "the input's rate", "time": "time"}
 
 #: The missing torque, and the part a dependence explains, must be this many times the
@@ -356,7 +360,8 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
     if has_l and m.configuration.has_lower:
         fl = np.nan_to_num(friction_curve(wl, _complete(p), "l", shape=problem.shape))
         Ml = p["J_l"] * al + fl + np.sign(wl) * shift_l + string - extra_l
-        feats = {"velocity": wl, "direction": np.sign(wl), "torsion": alpha, **common}
+        feats = {"velocity": wl, "direction": np.sign(wl), "torsion": alpha,
+                 "torsion_rate": dalpha, **common}
         if np.ptp(thl) >= MIN_TURNS * 2 * np.pi:
             feats.update(angle_1=np.mod(thl, 2 * np.pi), angle_2=np.mod(thl, 2 * np.pi))
         out["l"] = (t, Ml, feats, slip_mask(wl, n, 0.02))
@@ -368,6 +373,7 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             feats.update(angle_1=np.mod(thu, 2 * np.pi), angle_2=np.mod(thu, 2 * np.pi))
         if has_l:
             feats["torsion"] = alpha
+            feats["torsion_rate"] = dalpha
         out["u"] = (t, Mu, feats, slip_mask(wu, n, 0.02))
     return out
 
