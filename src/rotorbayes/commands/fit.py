@@ -186,7 +186,7 @@ def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> 
     return weights
 
 
-def _fmt_params(prob, names, x, se=None, x0=None, at_bound=()) -> str:
+def _fmt_params(prob, names, x, se=None, x0=None, at_bound=(), near_bound=()) -> str:
     rows = [f"{'parameter':<12} {'estimate':>12} {'std. error':>12} {'start':>12}  unit"]
     for i, n in enumerate(names):
         if n in at_bound:
@@ -200,7 +200,7 @@ def _fmt_params(prob, names, x, se=None, x0=None, at_bound=()) -> str:
         if se is not None and np.isfinite(se[i]) and se[i] > 0 and x[i] != 0:
             digits = int(min(max(5, math.ceil(math.log10(abs(x[i]) / se[i])) + 2), 12))
         rows.append(f"{n:<12} {x[i]:>{max(12, digits + 7)}.{digits}g} {s} {st}  "
-                    f"{prob.info(n).unit}")
+                    f"{prob.info(n).unit}" + ("  NEAR A BOUND" if n in near_bound else ""))
     return "\n".join(rows)
 
 
@@ -328,7 +328,10 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     q_est = E.quality(prob, res.x)
     q_val = E.quality(prob, res.x, val) if val else []
     assessment = E.assess(res, q_est, q_val, sources=sources, val_experiments=val or ())
-    print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound))
+    print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound,
+                      assessment.near_bound))
+    if chose.startswith("restart"):  # trial 10 read this column as the data start above
+        print(f"start: where the kept fit, {chose}, began (not the start from the data)")
     if res.uncertainty is not None:
         print(_uncertainty_words(res))
     print()
@@ -371,6 +374,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
             "stderr": float(res.stderr[i]), "start": float(res.x0[i]),
             "source": "estimated", "start_source": start_source.get(n, ""),
             "at_bound": n in assessment.at_bound,
+            "near_bound": n in assessment.near_bound,
         }
     doc = {
         "config": a.model, "effects": list(prob.effects),

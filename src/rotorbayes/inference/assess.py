@@ -43,6 +43,8 @@ class Assessment:
     channels: list[dict]
     warnings: list[str] = field(default_factory=list)
     at_bound: list[str] = field(default_factory=list)
+    #: Nearer a bound than two standard errors (and within NEAR_BOUND of the range).
+    near_bound: list[str] = field(default_factory=list)
     fixed_suspects: list[dict] = field(default_factory=list)
     jitter_floor: bool = False  # a floor is the data's own jitter, not the encoder's step
     #: What the validation data's worst RMS/floor would be if the model were right and only
@@ -165,6 +167,7 @@ class Assessment:
             "channels": self.channels,
             "warnings": self.warnings,
             "at_bound": self.at_bound,
+            "near_bound": self.near_bound,
             "fixed_suspects": self.fixed_suspects,
             "validation_spread": self.spread,
         }
@@ -315,7 +318,7 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None,
                 and min(d_lo, d_hi) < min(2.0 * e, NEAR_BOUND * width))
         if at or near:
             which, b = ("lower", lo) if d_lo <= d_hi else ("upper", hi)
-            a.at_bound.append(n)
+            (a.at_bound if at else a.near_bound).append(n)
             if which == "lower" and b == 0:
                 why = ("the data show none of it, or the fit stopped in a wrong basin "
                        "where it does not matter; with the RMS far above the floor suspect "

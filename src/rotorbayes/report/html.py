@@ -456,7 +456,8 @@ def _fit(f: Found) -> Raw | None:
                and v else None)
         if p.get("status") == "free":
             status = Raw('<span class="tag bad">free, AT BOUND</span>' if p.get("at_bound")
-                         else "free")
+                         else '<span class="tag bad">free, NEAR A BOUND</span>'
+                         if p.get("near_bound") else "free")
             src = "estimated" + (f"; start {_plain(p.get('start'))} from {p['start_source']}"
                                  if p.get("start_source") else "")
         else:
