@@ -172,9 +172,10 @@ FAST_RIG = dict(k_m=4.64, J_u=0.4765, Tc_u=0.1999, dTc_u=-0.0204, b_u=4.76, db_u
 
 
 def test_fast_transitions_stay_within_target_on_a_rig_unlike_the_thesis():
-    """A 15 ms step saw a 30-50 ms transition at only three points: 8.1e-5 rad from the
-    reference here (5x the target; 6.6e-4 on a 12 s trial record) before the step grid
-    followed the input (1.3e-6 after).  The input
+    """A 15 ms step of the fourth-order method saw a 30-50 ms transition at only three
+    points: 8.1e-5 rad from the reference here (5x the target; 6.6e-4 on a 12 s trial
+    record) before the step grid followed the input (1.3e-6 after; 8.2e-7 with the
+    fifth-order method's 25 ms steps).  The input
     between samples is linear in the model; the reference is run on that (the integrator's
     accuracy) and on the smooth input itself (what a rig whose amplifier follows a smooth
     command gives: the model's own hold adds its part)."""
@@ -192,4 +193,4 @@ def test_fast_transitions_stay_within_target_on_a_rig_unlike_the_thesis():
     # The grid is shortened only around the transitions: most steps keep the full length.
     grid = rb.Simulator(rb.Model("brake", eff), u, DT).grid
     strides = np.diff(grid)
-    assert np.mean(strides == strides.max()) > 0.8 and strides.min() < 5
+    assert np.mean(strides == strides.max()) > 0.8 and strides.min() <= strides.max() / 4

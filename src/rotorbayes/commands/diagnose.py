@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from ..exitcodes import Interrupted, Refused
+from ..inference.assess import VALIDATION_NOTE
 from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
 from .common import Outcome, strict_json
 from .options import add_trust_option, ranged
@@ -62,7 +63,7 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     fa = result.doc.get("assessment") or {}
     v = fa.get("worst_ratio_to_floor_validation")
     sp = fa.get("validation_spread")
-    if d.adequate and isinstance(v, (int, float)) and v > 1.5:
+    if d.adequate and isinstance(v, (int, float)) and v > VALIDATION_NOTE:
         if isinstance(sp, dict) and sp.get("undetermined"):
             why = (f"the estimation data do not determine {', '.join(sp['undetermined'])} "
                    "(infinite standard errors), so the gap may be theirs rather than a "

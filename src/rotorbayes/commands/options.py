@@ -94,7 +94,7 @@ def add_fit_options(p) -> None:
                        default=1e-10, help=f"{tol} of scipy.optimize.least_squares")
     p.add_argument("--step", type=ranged(gt=0, why=" (seconds)"), default=None,
                    metavar="SECONDS",
-                   help="largest Runge-Kutta step of the simulation (default: 15 ms at 1 kHz, "
+                   help="largest Runge-Kutta step of the simulation (default: 25 ms at 1 kHz, "
                    "shorter over fast input transitions); give it when the fit's integration "
                    "check says the integrator's own error is material; kept in fit.json")
     p.add_argument("--force", action="store_true",

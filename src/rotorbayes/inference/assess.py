@@ -25,6 +25,11 @@ from .problem import local_name
 #: RMS / floor up to which a channel counts as "at the floor" and "near the floor".
 AT_FLOOR = 1.5
 NEAR_FLOOR = 3.0
+
+#: Validation data this far above the floor get a note when the estimation data are at it;
+#: the spread of the estimates' own predictions there (:func:`validation_spread`) says
+#: whether their uncertainty explains it.
+VALIDATION_NOTE = 1.5
 #: Relative distance to a bound (of the bounds' width) that counts as "at the bound".
 BOUND_TOL = 1e-3
 #: An estimate nearer a bound than two standard errors is warned about when it is
@@ -293,7 +298,7 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None,
     a = Assessment(channels=channel_rows(prob, q_est, "estimation", floors) + channel_rows(
         prob, q_val, "validation", floors))
     v = a.worst_ratio_validation
-    if val_experiments and math.isfinite(v) and v > NEAR_FLOOR >= a.worst_ratio:
+    if val_experiments and math.isfinite(v) and v > VALIDATION_NOTE and a.worst_ratio <= NEAR_FLOOR:
         a.spread = validation_spread(result, list(val_experiments), floors)
     a.warnings.extend(notes)
     a.jitter_floor = bool(notes)

@@ -170,7 +170,9 @@ class Uncertainty:
                 n: {
                     "stderr": _num(se[j]),
                     "stderr_white": _num(sw[j]),
-                    "inflation": _num(se[j] / sw[j]) if sw[j] > 0 else None,
+                    "inflation": (_num(se[j] / sw[j])
+                                  if np.isfinite(se[j]) and np.isfinite(sw[j]) and sw[j] > 0
+                                  else None),
                     "share_noise": _num(sh[n]["noise"]),
                     "share_model_error": _num(sh[n]["model_error"]),
                     "share_input_hold": _num(sh[n]["input_hold"]),

@@ -3,10 +3,11 @@
 Each disc is in one of three modes: slip in the positive direction (+1), slip in the
 negative direction (-1) or stick (0, velocity held at exactly zero, friction equal to the
 external torque).  Inside a mode the equations of motion are smooth, so they are integrated
-with the classical fourth-order Runge-Kutta method on a *fixed* grid aligned with the
-(delayed) input samples and chosen from the input alone (:func:`step_grid`: long steps
-where the input is smooth, short ones over its fast transitions): a step is an odd number
-of samples, so its middle stage falls halfway between two samples, and with an input delay
+with Butcher's fifth-order Runge-Kutta method (:func:`_rk5`) on a *fixed* grid aligned
+with the (delayed) input samples and chosen from the input alone (:func:`step_grid`: long
+steps where the input is smooth, short ones over its fast transitions): a step is an odd
+number of samples, so none of its stages (quarters, middle) falls on a sample, where the
+linearly interpolated input has a kink, and with an input delay
 the grid is shifted by the delay (:func:`rotorbayes.kernel.terms.delay_samples`), so the
 delayed samples and the end of the held start are step points too.  A step ends early at
 
@@ -24,6 +25,11 @@ grid is fixed (moving only continuously with the delay) and every event or kink 
 root of a smooth function, the simulated angles are continuous (and piecewise smooth) in
 the parameters: no step-size controller introduces jitter that least squares or a sampler
 would see as noise.
+
+Between step points the angles come from the quintic Hermite interpolant of each segment
+(angle, velocity and acceleration at both ends), so the samples inside a step are as
+accurate as the step points: with a cubic one the interpolation, not the method, set the
+error of long steps.
 
 The physics lives in :mod:`rotorbayes.kernel.terms`; this module only integrates, locates
 and interpolates.  The kernel never raises: it returns a status code
@@ -69,25 +75,54 @@ _VMAX = 1e6
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rk4(h, y, mu, ml, k1, dm, d1, m):
-    """One classical Runge-Kutta step of size ``h`` in fixed modes.
+def _rk5(t, h, y, mu, ml, k1, m, src):
+    """One step of size ``h`` from ``t`` in fixed modes by Butcher's six-stage
+    fifth-order Runge-Kutta method; returns the state and the drive at the end.
 
-    ``k1`` is the right-hand side at the start (shared with the dense output of the
-    previous segment); ``dm`` and ``d1`` are the drives at the middle and end of the step.
+    ``k1`` is the right-hand side at the start (shared with the interpolant of the
+    previous segment).  The stages sit at the start, the quarters, the middle and the end
+    of the step: the input is read there (:func:`rotorbayes.kernel.terms.drive`), and the
+    weights on those points are Boole's rule's (see :func:`_input_defect`).
     """
+    c, cfg = m[0], m[1]
     thu, wu, thl, wl = y
     a1, a2, a3, a4 = k1
+    d_q = drive(t + 0.25 * h, c, cfg, src)
+    d_m = drive(t + 0.5 * h, c, cfg, src)
+    d_3q = drive(t + 0.75 * h, c, cfg, src)
+    d_1 = drive(t + h, c, cfg, src)
+    q = 0.25 * h
+    b1, b2, b3, b4 = rhs(thu + q * a1, wu + q * a2, thl + q * a3, wl + q * a4, mu, ml, d_q, m)
+    e = 0.125 * h
+    c1, c2, c3, c4 = rhs(
+        thu + e * (a1 + b1), wu + e * (a2 + b2), thl + e * (a3 + b3), wl + e * (a4 + b4),
+        mu, ml, d_q, m,
+    )  # fmt: skip
     hh = 0.5 * h
-    b1, b2, b3, b4 = rhs(thu + hh * a1, wu + hh * a2, thl + hh * a3, wl + hh * a4, mu, ml, dm, m)
-    c1, c2, c3, c4 = rhs(thu + hh * b1, wu + hh * b2, thl + hh * b3, wl + hh * b4, mu, ml, dm, m)
-    e1, e2, e3, e4 = rhs(thu + h * c1, wu + h * c2, thl + h * c3, wl + h * c4, mu, ml, d1, m)
-    k = h / 6.0
+    e1, e2, e3, e4 = rhs(
+        thu + h * c1 - hh * b1, wu + h * c2 - hh * b2, thl + h * c3 - hh * b3,
+        wl + h * c4 - hh * b4, mu, ml, d_m, m,
+    )  # fmt: skip
+    f1, f2, f3, f4 = rhs(
+        thu + h * (0.1875 * a1 + 0.5625 * e1), wu + h * (0.1875 * a2 + 0.5625 * e2),
+        thl + h * (0.1875 * a3 + 0.5625 * e3), wl + h * (0.1875 * a4 + 0.5625 * e4),
+        mu, ml, d_3q, m,
+    )  # fmt: skip
+    s = h / 7.0
+    g1, g2, g3, g4 = rhs(
+        thu + s * (-3.0 * a1 + 2.0 * b1 + 12.0 * c1 - 12.0 * e1 + 8.0 * f1),
+        wu + s * (-3.0 * a2 + 2.0 * b2 + 12.0 * c2 - 12.0 * e2 + 8.0 * f2),
+        thl + s * (-3.0 * a3 + 2.0 * b3 + 12.0 * c3 - 12.0 * e3 + 8.0 * f3),
+        wl + s * (-3.0 * a4 + 2.0 * b4 + 12.0 * c4 - 12.0 * e4 + 8.0 * f4),
+        mu, ml, d_1, m,
+    )  # fmt: skip
+    k = h / 90.0
     return (
-        thu + k * (a1 + 2.0 * (b1 + c1) + e1),
-        wu + k * (a2 + 2.0 * (b2 + c2) + e2),
-        thl + k * (a3 + 2.0 * (b3 + c3) + e3),
-        wl + k * (a4 + 2.0 * (b4 + c4) + e4),
-    )
+        thu + k * (7.0 * a1 + 32.0 * c1 + 12.0 * e1 + 32.0 * f1 + 7.0 * g1),
+        wu + k * (7.0 * a2 + 32.0 * c2 + 12.0 * e2 + 32.0 * f2 + 7.0 * g2),
+        thl + k * (7.0 * a3 + 32.0 * c3 + 12.0 * e3 + 32.0 * f3 + 7.0 * g3),
+        wl + k * (7.0 * a4 + 32.0 * c4 + 12.0 * e4 + 32.0 * f4 + 7.0 * g4),
+    ), d_1
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -101,29 +136,33 @@ def _cubic(h, ya, fa, yb, fb):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _quintic(h, ya, va, aa, yb, vb, ab):
+    """Coefficients (in powers of the fraction ``s``) of the quintic Hermite interpolant
+    of a segment of length ``h`` with values ``ya, yb``, first derivatives ``va, vb`` and
+    second derivatives ``aa, ab`` at its ends."""
+    d0 = h * va
+    a0 = 0.5 * h * h * aa
+    big_d = yb - ya - d0 - a0
+    big_e = h * vb - d0 - 2.0 * a0
+    big_f = h * h * ab - 2.0 * a0
+    return (
+        ya, d0, a0,
+        10.0 * big_d - 4.0 * big_e + 0.5 * big_f,
+        -15.0 * big_d + 7.0 * big_e - big_f,
+        6.0 * big_d - 3.0 * big_e + 0.5 * big_f,
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _horner5(s, c):
+    """The quintic with coefficients ``c`` (from :func:`_quintic`) at fraction ``s``."""
+    return c[0] + s * (c[1] + s * (c[2] + s * (c[3] + s * (c[4] + s * c[5]))))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _horner(s, c):
     """The cubic with coefficients ``c`` (from :func:`_cubic`) at fraction ``s``."""
     return c[0] + s * (c[1] + s * (c[2] + s * c[3]))
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _differences(s0, a, c):
-    """Forward differences of the cubic with coefficients ``c`` at fractions ``s0, s0 + a,
-    ...``: its value at ``s0`` and its first, second and third differences there."""
-    c0, c1, c2, c3 = c
-    a2 = a * a
-    a3 = a2 * a
-    v = c0 + s0 * (c1 + s0 * (c2 + s0 * c3))
-    d1 = c1 * a + c2 * (2.0 * s0 * a + a2) + c3 * (3.0 * s0 * s0 * a + 3.0 * s0 * a2 + a3)
-    d2 = 2.0 * c2 * a2 + c3 * (6.0 * s0 * a2 + 6.0 * a3)
-    return v, d1, d2, 6.0 * c3 * a3
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _next(f):
-    """The forward differences ``f`` of :func:`_differences` one sample on."""
-    v, d1, d2, d3 = f
-    return v + d1, d1 + d2, d2 + d3, d3
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -145,17 +184,14 @@ def _last_sample(k, lim, dt, inv_dt, n):
 @njit(cache=True, error_model="numpy")
 def _step_to(t, x, y, mu, ml, k1, m, src):
     """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive."""
-    c, cfg = m[0], m[1]
-    dm = drive(t + 0.5 * x, c, cfg, src)
-    d1 = drive(t + x, c, cfg, src)
-    return _rk4(x, y, mu, ml, k1, dm, d1, m), d1
+    return _rk5(t, x, y, mu, ml, k1, m, src)
 
 
 @njit(cache=True, error_model="numpy")
 def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, src):
     """Time ``tau`` in (0, h] at which the guard of ``disc`` crosses zero.
 
-    Illinois regula falsi on ``tau -> guard(RK4 step of size tau)``.  Returns the right
+    Illinois regula falsi on ``tau -> guard(Runge-Kutta step of size tau)``.  Returns the right
     end of the final bracket, where the guard is already violated, so the new mode
     starts on the correct side of the switching surface.
     """
@@ -185,29 +221,50 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, src):
     return b
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _lin(u, x):
+    """The linearly interpolated input ``u`` at (fractional) sample ``x``."""
+    i = int(x)
+    if i >= u.shape[0] - 1:
+        return u[u.shape[0] - 1]
+    return u[i] + (x - i) * (u[i + 1] - u[i])
+
+
 @njit(cache=True, error_model="numpy")
 def _input_defect(u, k, m):
     """How far the Runge-Kutta stages of a step over samples ``k .. k + m`` misjudge the
-    linearly interpolated input ``u``: the larger of Simpson's rule's errors in the
-    integral of ``u`` and in its first moment about the middle (the rule uses the values
-    the stages see: both ends and the middle), in volts times samples.  Zero wherever the
-    input is a quadratic over the step (a hold, a ramp, a slow wave); large over a fast
+    linearly interpolated input ``u``: the largest of Boole's rule's errors in the
+    integral of ``u`` and in its first and second moments about the middle (the rule uses
+    the values the stages see, at the ends, quarters and middle), in volts times samples.
+    Zero wherever the input is a polynomial of low degree over the step; large over a fast
     transition between levels."""
     c = k + 0.5 * m
     i0 = 0.0
     i1 = 0.0
+    i2 = 0.0
     for i in range(k, k + m):
         a = u[i]
         b = u[i + 1]
+        d = i - c
         i0 += 0.5 * (a + b)
-        i1 += (i - c) * 0.5 * (a + b) + (a + 2.0 * b) / 6.0
-    if m % 2 == 1:
-        um = 0.5 * (u[k + (m - 1) // 2] + u[k + (m + 1) // 2])
-    else:
-        um = u[k + m // 2]
-    s0 = m / 6.0 * (u[k] + 4.0 * um + u[k + m])
-    s1 = m * m / 12.0 * (u[k + m] - u[k])
-    return max(abs(i0 - s0), abs(i1 - s1) / (0.5 * m))
+        i1 += a * (0.5 + d) + (b - a) * (1.0 / 3.0 + 0.5 * d)
+        i2 += a * (1.0 / 3.0 + d + d * d) + (b - a) * (0.25 + 2.0 * d / 3.0 + 0.5 * d * d)
+    q = 0.25 * m
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for j in range(5):
+        w = (7.0, 32.0, 12.0, 32.0, 7.0)[j]
+        x = (j - 2) * q
+        v = w * _lin(u, k + j * q)
+        s0 += v
+        s1 += v * x
+        s2 += v * x * x
+    s0 *= m / 90.0
+    s1 *= m / 90.0
+    s2 *= m / 90.0
+    hm = 0.5 * m
+    return max(abs(i0 - s0), abs(i1 - s1) / hm, abs(i2 - s2) / (hm * hm))
 
 
 @njit(cache=True, error_model="numpy")
@@ -220,7 +277,7 @@ def step_grid(u, max_stride, tol):
     The grid depends on the input alone, never on the parameters, so the simulated
     angles stay continuous in the parameters.  Long steps where the input is smooth,
     short ones over fast transitions, where a long step would see the transition at only
-    three points.
+    five points.
     """
     n = u.shape[0]
     last = n - 1
@@ -335,9 +392,7 @@ def _integrate(
         while True:
             t_tgt = next_kink(t, t_end, c, u) if kinks else t_end
             rem = t_tgt - t
-            dm = drive(t + 0.5 * rem, c, cfg, src)
-            d1 = drive(t_tgt, c, cfg, src)
-            y1 = _rk4(rem, y, mu, ml, f, dm, d1, m)
+            y1, d1 = _rk5(t, rem, y, mu, ml, f, m, src)
             gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
             seg = rem
             ok_step = gu1 >= 0.0 and gl1 >= 0.0
@@ -360,65 +415,35 @@ def _integrate(
             t_seg = t + seg
             lim = t_seg + 1e-9 * dt
             if kout < n and kout * dt <= lim:
-                # Samples kout .. k1 lie inside this single-mode segment: values from its
-                # cubic Hermite interpolant (states and derivatives at both ends).
+                # Samples kout .. k1 lie inside this single-mode segment: angles from its
+                # quintic Hermite interpolant (angle, velocity and acceleration at both
+                # ends), velocities from the cubic one.
                 k1 = _last_sample(kout, lim, dt, inv_dt, n)
-                cu = _cubic(seg, y[0], f[0], y1[0], fe[0])
-                cl = _cubic(seg, y[2], f[2], y1[2], fe[2])
+                cu = _quintic(seg, y[0], f[0], f[1], y1[0], fe[0], fe[1])
+                cl = _quintic(seg, y[2], f[2], f[3], y1[2], fe[2], fe[3])
+                inv = 1.0 / seg if seg > 0.0 else 0.0
                 if full:
                     cwu = _cubic(seg, y[1], f[1], y1[1], fe[1])
                     cwl = _cubic(seg, y[3], f[3], y1[3], fe[3])
-                inv = 1.0 / seg if seg > 0.0 else 0.0
-                if seg > 0.0 and k1 - kout >= 2:
-                    # Equally spaced fractions: all but the last sample by forward
-                    # differences (three additions per value instead of a conversion, a
-                    # product and a Horner evaluation); the last one, possibly a hair
-                    # past the end, by Horner at its fraction clipped to 1 as below.
-                    s0 = (kout * dt - t) * inv
-                    a = dt * inv
-                    fu = _differences(s0, a, cu)
-                    fl = _differences(s0, a, cl)
-                    if full:
-                        fwu = _differences(s0, a, cwu)
-                        fwl = _differences(s0, a, cwl)
-                        for k in range(kout, k1):
-                            out_thu[k] = fu[0]
-                            out_thl[k] = fl[0]
-                            out_wu[k] = fwu[0]
-                            out_wl[k] = fwl[0]
-                            out_mu[k], out_ml[k] = mu, ml
-                            fu = _next(fu)
-                            fl = _next(fl)
-                            fwu = _next(fwu)
-                            fwl = _next(fwl)
-                    else:
-                        # The same values as the full output, into the residual.
-                        # Unsigned indices: numba then adds no negative-index wraparound
-                        # to each access.
-                        for k in range(np.uint64(kout), np.uint64(k1)):
-                            if col_u >= 0:
-                                r[row, ou + k] = w_u * (meas_u[k] - fu[0])
-                            if col_l >= 0:
-                                r[row, ol + k] = w_l * (meas_l[k] - fl[0])
-                            fu = _next(fu)
-                            fl = _next(fl)
-                    kout = k1
-                while kout <= k1:
-                    sfrac = (kout * dt - t) * inv if seg > 0.0 else 1.0
-                    if sfrac > 1.0:
-                        sfrac = 1.0
-                    if full:
-                        out_thu[kout] = _horner(sfrac, cu)
-                        out_wu[kout] = _horner(sfrac, cwu)
-                        out_thl[kout] = _horner(sfrac, cl)
-                        out_wl[kout] = _horner(sfrac, cwl)
-                        out_mu[kout], out_ml[kout] = mu, ml
-                    else:
+                    for k in range(kout, k1 + 1):
+                        sfrac = (k * dt - t) * inv if seg > 0.0 else 1.0
+                        if sfrac > 1.0:
+                            sfrac = 1.0
+                        out_thu[k] = _horner5(sfrac, cu)
+                        out_wu[k] = _horner(sfrac, cwu)
+                        out_thl[k] = _horner5(sfrac, cl)
+                        out_wl[k] = _horner(sfrac, cwl)
+                        out_mu[k], out_ml[k] = mu, ml
+                else:
+                    for k in range(np.uint64(kout), np.uint64(k1 + 1)):
+                        sfrac = (k * dt - t) * inv if seg > 0.0 else 1.0
+                        if sfrac > 1.0:
+                            sfrac = 1.0
                         if col_u >= 0:
-                            r[row, col_u + kout] = w_u * (meas_u[kout] - _horner(sfrac, cu))
+                            r[row, ou + k] = w_u * (meas_u[k] - _horner5(sfrac, cu))
                         if col_l >= 0:
-                            r[row, col_l + kout] = w_l * (meas_l[kout] - _horner(sfrac, cl))
-                    kout += 1
+                            r[row, ol + k] = w_l * (meas_l[k] - _horner5(sfrac, cl))
+                kout = k1 + 1
             y = y1
             f = fe
             if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], de, m):

@@ -27,35 +27,35 @@ from .parameters import NAMES, ParameterError, resolve
 DEFAULT_STEP = None
 
 #: How much of the input a Runge-Kutta step may misjudge [V s] (see
-#: :func:`rotorbayes.kernel.solver.step_grid`): a step is shortened where the input,
-#: linearly interpolated, departs from a quadratic by more than this over the step (a
-#: transition between two levels within a few tens of milliseconds).
+#: :func:`rotorbayes.kernel.solver.step_grid`): a step is shortened where the stages,
+#: reading the linearly interpolated input at five points, misjudge its integral or its
+#: first two moments over the step by more than this (a transition between two levels
+#: within a few tens of milliseconds).
 INPUT_TOLERANCE = 5e-7
 
 
 def default_step(dt: float) -> float:
-    """The default largest Runge-Kutta step [s] for samples ``dt`` apart: 15 ms at 1 kHz
-    and faster, ``15 ms * sqrt(1 ms / dt)`` at slower rates (one sample at 200 Hz).
+    """The default largest Runge-Kutta step [s] for samples ``dt`` apart: 25 ms at 1 kHz
+    and faster, ``25 ms * sqrt(1 ms / dt)`` at slower rates (one sample at 200 Hz).
 
-    The error the linear interpolation's kinks leave inside a step grows with the step
-    squared and with the kinks' size, i.e. with ``dt``.  Measured against the event-driven
-    reference on 30 s brake runs: at 1 kHz 1.3e-7, 4.4e-7 and 1.4e-6 rad with 9, 15 and
-    21 ms steps; at 200 Hz 8e-9 rad with one sample (5 ms) but 1.8e-5 with three (15 ms).
-    Verified by tests/test_integrator_accuracy.py, test_effects.py and test_input_delay.py;
-    use ``step=dt`` for rough, noisy inputs (a sticking disc whose torque leaves its band
-    and returns between two step points is not seen).
+    Measured against the event-driven reference (tests/reference.py) on the accuracy
+    suite's 28 cases (every configuration and catalogue effect, stick-slip, delays, fast
+    transitions): at 1 kHz the worst case, a brake with a voltage offset, is 4.8e-7,
+    6.3e-6 and 1.9e-5 rad with 15, 25 and 35 ms steps; the Stribeck drop after a
+    breakaway is what longer steps miss.  Verified by tests/test_integrator_accuracy.py,
+    test_effects.py and test_input_delay.py; use ``step=dt`` for rough, noisy inputs (a
+    sticking disc whose torque leaves its band and returns between two step points is not
+    seen).
     """
-    return 15e-3 * min(1.0, math.sqrt(1e-3 / dt))
+    return 25e-3 * min(1.0, math.sqrt(1e-3 / dt))
 
 
 def stride_of(step: float, dt: float) -> tuple[int, int]:
     """``(stride, substeps)`` of the Runge-Kutta grid for a largest step ``step``.
 
     A step of at least one sample is the largest *odd* number of samples not above
-    ``step``: with an odd stride the middle Runge-Kutta stage falls halfway between two
-    samples, where the linear interpolation's bias cancels that of the steps' ends; with
-    an even stride it falls on a sample and the error is ten times larger (measured on a
-    30 s brake run at 1 kHz: 3.1e-6 rad with 10 samples, 1.3e-7 and 1.7e-7 with 9 and 11).
+    ``step``: with an odd stride no Runge-Kutta stage (quarters, middle) falls on a
+    sample, where the linearly interpolated input has a kink.
     A step shorter than a sample divides each sample into equal substeps.
     """
     if step >= dt:
