@@ -503,3 +503,15 @@ def test_a_data_warning_is_one_line_of_ours_once(tmp_path):
     head = log.splitlines()[0]
     m = re.match(r"==== (\S+) rotorbayes fit .* \(ended (\S+)\)$", head)
     assert m and m.group(1) <= m.group(2), head
+
+
+@pytest.mark.parametrize("cmd", ["sample", "diagnose", "compare"])
+def test_a_data_file_given_where_a_fit_belongs(here, capsys, cmd):
+    """Trial 11: `sample data.csv` answered with json's own 'Expecting value: line 1'."""
+    (here / "est.csv").write_text("t,u,theta_u\n0,0,0\n0.001,0,0\n")
+    out = ["--out", "o"] if cmd == "sample" else []
+    refused(capsys, [cmd, "est.csv", *out], "est.csv: not a fit (a data file)",
+            "rotorbayes fit --out")
+    (here / "fit.json").write_text("{not json")
+    refused(capsys, [cmd, "fit.json", *out], "not a fit (not JSON)")
+    assert listing(here) == ["est.csv", "fit.json"]

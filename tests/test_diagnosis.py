@@ -296,3 +296,27 @@ def test_a_material_effect_without_the_tests_support_is_not_called_immaterial(mo
     assert "would lower it materially" not in d.verdict
     assert "no catalogue effect is supported by the tests" in d.verdict
     assert "lower_stribeck" in d.verdict and "p 0.6" in d.verdict
+
+
+def test_cross_correlation_band_allows_for_autocorrelation():
+    """A residual correlated in time (encoder rounding while a disc sticks) and a smooth
+    input are cross-correlated by chance far beyond the white band; the Bartlett band of
+    the compare figure holds such unrelated pairs at about its 1 % rate, and stays the
+    white band for a white residual."""
+    from scipy.signal import lfilter
+
+    from rotorbayes.diagnosis.compare import Z99, correlation, cross_band
+
+    n = 20000
+    white_hits = bartlett_hits = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        e = lfilter([1.0], [1.0, -0.99], rng.standard_normal(n))
+        u = lfilter(np.ones(300) / 300, [1.0], rng.standard_normal(n + 300))[300:]
+        _, ccf = correlation(e, u, 0)
+        white_hits += abs(ccf[0]) > Z99 / np.sqrt(n)
+        bartlett_hits += abs(ccf[0]) > cross_band(e, u)
+    assert white_hits >= 10 and bartlett_hits <= 2, (white_hits, bartlett_hits)
+    rng = np.random.default_rng(1)
+    w = rng.standard_normal(n)
+    assert abs(cross_band(w, rng.standard_normal(n)) - Z99 / np.sqrt(n)) < 0.2 * Z99 / np.sqrt(n)

@@ -43,6 +43,8 @@ def test_interval_digits_follow_the_width():
     assert fmt_interval(-0.00525013, -0.00524978) == "[-0.00525013, -0.00524978]"
     assert fmt_interval(-1.2, 3.4) == "[-1.2, 3.4]"
     assert fmt_value(4.3687012, 2.7e-6) == "4.3687012"
+    # Trial 11's corner titles: "k_m = 3.2 ± 1.6e-05" beside "b_u = 1.7499982".
+    assert fmt_value(3.2, 1.6e-5) == "3.200000" and fmt_value(12.0, 0.5) == "12.00"
     assert significant_digits(1.0, 0.0) == 6  # no spread: the default
 
 

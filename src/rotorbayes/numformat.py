@@ -23,8 +23,12 @@ def significant_digits(value: float, spread: float, *, extra: int = 2,
 
 
 def fmt_value(value: float, spread: float, **kw) -> str:
-    """``value`` with the digits that its spread (an sd or an interval's width) resolves."""
-    return f"{value:.{significant_digits(value, spread, **kw)}g}"
+    """``value`` with the digits that its spread (an sd or an interval's width) resolves,
+    trailing zeros kept (3.2 resolved to 1e-6 is ``3.200000``, not ``3.2``)."""
+    if not math.isfinite(value):
+        return f"{value}"
+    out = f"{value:#.{significant_digits(value, spread, **kw)}g}"
+    return out[:-1] if out.endswith(".") else out
 
 
 def fmt_interval(lo: float, hi: float) -> str:

@@ -165,8 +165,12 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
     path = fit_json_path(spec)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
         raise ResultError(f"{path}: cannot read it ({exc})") from None
+    except ValueError:
+        what = "a data file" if path.suffix.lower() in (".csv", ".txt", ".mat") else "not JSON"
+        raise ResultError(f"{path}: not a fit ({what}); give the folder `rotorbayes fit --out` "
+                          "wrote, or its fit.json") from None
     if not isinstance(doc, dict):
         raise ResultError(f"{path}: not a fit written by `rotorbayes fit` (not a JSON object)")
     need = ("config", "data", "free", "params", "estimates", "channels")

@@ -71,5 +71,12 @@ def _compare_into(fits, last, out: Path, C, F) -> tuple[list[str], dict]:
                     " (the error is structured, not noise)")
         print(f"{c}: {100 * outside:.0f} % of autocorrelation lags 1..{lags.max()} outside the "
               "99 % band of a white residual" + note)
+        lags_u, ccf = v["ccf"]
+        peak = float(np.max(np.abs(ccf)))
+        out_u = float(np.mean(np.abs(ccf) > v["band_u"]))
+        print(f"{c}: cross-correlation with u at most {peak:.3f}, "
+              f"{100 * out_u:.0f} % of lags outside +-{v['band_u']:.3f}, the 99 % band of a "
+              "residual unrelated to u but as correlated in time"
+              + (" (the error depends on the input)" if out_u > 0.05 else ""))
     write_text_atomic(out / "compare.json", strict_json(doc))
     return written, doc

@@ -52,6 +52,31 @@ def correlation(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray,
     return lags, out
 
 
+def cross_band(a: np.ndarray, b: np.ndarray) -> float:
+    """Half-width of the 99 % band of the sample cross-correlation of two series that are
+    unrelated but each autocorrelated (Bartlett: its variance is ``sum_k rho_a(k) rho_b(k)
+    / n``, with a triangular taper over lags up to ``n / 4``).  For a white ``a`` this is
+    the white band ``Z99 / sqrt(n)``; for a residual correlated by encoder rounding and a
+    smooth input it is several times wider, and only a correlation beyond it says that
+    the residual depends on the input."""
+    n = a.size
+    if n < 8:
+        return Z99 / math.sqrt(max(n, 1))
+    m = 1 << int(math.ceil(math.log2(2 * n)))
+
+    def acf(x):
+        x = x - x.mean()
+        f = np.fft.rfft(x, m)
+        r = np.fft.irfft(f * np.conj(f), m)[:n]
+        return r / r[0] if r[0] > 0 else np.zeros(n)
+
+    ra, rb = acf(np.asarray(a, float)), acf(np.asarray(b, float))
+    k = n // 4
+    w = 1.0 - np.arange(k) / k
+    s = ra[0] * rb[0] + 2.0 * float(np.sum(w[1:] * ra[1:k] * rb[1:k]))
+    return Z99 * math.sqrt(max(s, 1.0) / n)
+
+
 def lag1(r: np.ndarray) -> float:
     """Lag-1 autocorrelation of a residual."""
     r = r - r.mean()
@@ -201,7 +226,10 @@ def compare_fits(fits) -> dict:
 
 def table(doc: dict) -> str:
     """The before/after table in plain text."""
-    lines = [f"{'fit':<18} {'data':<10} {'k':>3} {'SSR [rad²]':>11} {'RMS/floor':>22} "
+    # The whole label: the folder names the diagnosis suggests ("fit0_motor_deadzone")
+    # differ at their ends, and a cut one reads as another fit.
+    w = max([18] + [len(f["label"]) for f in doc["fits"]])
+    lines = [f"{'fit':<{w}} {'data':<10} {'k':>3} {'SSR [rad²]':>11} {'RMS/floor':>22} "
              f"{'fit %':>14} {'max |e|':>9} {'AICc':>11} {'BIC':>11}"]
     for f in doc["fits"]:
         for data in ("estimation", "validation"):
@@ -211,7 +239,7 @@ def table(doc: dict) -> str:
             rms = " ".join(f"{c[6:]} {v:.3g}" for c, v in d["rms_over_floor"].items())
             fit = " ".join(f"{v:.2f}" for v in d["nrmse_fit_percent"].values())
             mx = max(d["max_error_rad"].values())
-            lines.append(f"{f['label'][-18:]:<18} {data:<10} {f['k']:3d} {d['ssr']:11.4g} "
+            lines.append(f"{f['label']:<{w}} {data:<10} {f['k']:3d} {d['ssr']:11.4g} "
                          f"{rms:>22} {fit:>14} {mx:9.3g} {d['aicc']:11.5g} {d['bic']:11.5g}")
     if doc["steps"]:
         lines.append("")
@@ -251,7 +279,7 @@ def residual_views(problem, x, i: int = 0) -> dict:
         lags_u, ccf = correlation(e, ex.u, max_lag)
         views["channels"][c] = {
             "error": e, "acf": (lags, acf), "ccf": (lags_u, ccf),
-            "band": Z99 / math.sqrt(e.size),
+            "band": Z99 / math.sqrt(e.size), "band_u": cross_band(e, ex.u),
         }
     if ex.theta_l is not None:
         views["omega_l"] = wl

@@ -156,8 +156,10 @@ def plot_error_vs_state(views):
 
 
 def plot_residual_correlation(views):
-    """Residual autocorrelation and cross-correlation with the input, 99 % bands of a
-    white residual (MATLAB's ``resid``)."""
+    """Residual autocorrelation with the 99 % band of a white residual (MATLAB's
+    ``resid``), and cross-correlation with the input with the 99 % band of a residual
+    unrelated to it but autocorrelated as it is (:func:`~rotorbayes.diagnosis.compare.
+    cross_band`): the white band is far too narrow for a smooth input."""
     plt = pyplot()
     chans = list(views["channels"])
     fig, axes = plt.subplots(len(chans), 2, figsize=(10, 2.8 * len(chans) + 0.6),
@@ -169,8 +171,14 @@ def plot_residual_correlation(views):
             lags, val = v[key]
             ax = axes[i, j]
             ax.plot(lags, val, color="tab:blue", lw=1)
-            ax.axhspan(-v["band"], v["band"], color="0.8", alpha=0.6,
-                       label="99 % band of a white residual")
+            if key == "acf":
+                ax.axhspan(-v["band"], v["band"], color="0.8", alpha=0.6,
+                           label="99 % band of a white residual")
+            else:
+                bu = v.get("band_u", v["band"])
+                ax.axhspan(-bu, bu, color="0.8", alpha=0.6,
+                           label="99 % band of a residual unrelated to u\n"
+                                 "(its own and u's autocorrelation)")
             ax.set_xlabel("lag [samples]")
             ax.set_ylabel(f"{c}")
             ax.set_title(f"{c}: {title}", fontsize=9)

@@ -493,9 +493,11 @@ def _compare(f: Found) -> Raw | None:
     fits = doc.get("fits", [])
     out = [Raw(f"<p>From {_path(f.compare)}: the error of the last fit "
                f"({esc(fits[-1]['label']) if fits else '?'}) against the state, and its "
-               "autocorrelation and cross-correlation with the input with the 99 % band of a "
-               "white residual. A structured error (many lags outside the band, a pattern "
-               "against velocity or angle) means missing physics, not noise.</p>")]
+               "autocorrelation (99 % band of a white residual) and cross-correlation with "
+               "the input (99 % band of a residual unrelated to the input but correlated in "
+               "time as this one is). Far above the floor, a structured error (many lags "
+               "outside the band, a pattern against velocity or angle) means missing "
+               "physics; at the floor the autocorrelation is the encoder's own rounding.</p>")]
     if len(fits) == 1:
         out.append(_fits_table(fits))
     out.append(_figs((f.compare / "error_vs_state.png", "error against the state"),
