@@ -320,3 +320,26 @@ def test_cross_correlation_band_allows_for_autocorrelation():
     rng = np.random.default_rng(1)
     w = rng.standard_normal(n)
     assert abs(cross_band(w, rng.standard_normal(n)) - Z99 / np.sqrt(n)) < 0.2 * Z99 / np.sqrt(n)
+
+
+def test_the_angle_dependence_is_split_into_friction_and_load_with_its_form():
+    """Trial 12: the map's regression separates friction varying with angle from a load,
+    but the words said only "friction or load"; they now give the form to write."""
+    from rotorbayes.diagnosis.torque import TorqueMap
+
+    rng = np.random.default_rng(3)
+    n = 20000
+    th = np.mod(np.cumsum(rng.uniform(0.0, 0.01, n)), 2 * np.pi)
+    s = np.where(rng.uniform(size=n) < 0.5, -1.0, 1.0)
+    m = (-s * 0.003 * np.cos(th - 1.0) + 0.001 * np.cos(th + 0.5) + 0.002 * s
+         + 1e-4 * rng.standard_normal(n))
+    feats = {"angle_1": th, "angle_2": th, "direction": s}
+    tm = TorqueMap("l", np.arange(n) * 1e-3, m, feats, [("angle_1", 0.9)],
+                   float(np.sqrt(np.mean(m**2))), 1e-4)
+    terms = tm.angle_terms("angle_1")
+    assert terms["friction"]["amplitude"] == pytest.approx(0.003, rel=0.02)
+    assert terms["friction"]["phase"] == pytest.approx(1.0, abs=0.02)
+    assert terms["load"]["amplitude"] == pytest.approx(0.001, rel=0.05)
+    assert terms["load"]["phase"] == pytest.approx(-0.5, abs=0.05)
+    assert "mostly extra friction against the motion, 0.003*cos(theta_l - 1" in tm.words()
+    assert tm.as_dict()["angle_terms"]["angle_1"]["friction"]["harmonic"] == 1

@@ -16,6 +16,7 @@ own kernel, so the input's behaviour between samples is a real model error for t
 from __future__ import annotations
 
 import importlib
+import json
 import math
 
 import numpy as np
@@ -242,3 +243,36 @@ def test_hidden_effect_is_ranked_first_claimed_and_fixed(effect):
     assert max(ratios.values()) < 1.5, ratios
     d2 = diagnose(prob2, res2.x)
     assert d2.adequate and d2.claimed is None, d2.text()
+
+
+def test_compare_tests_only_nested_steps_and_warns_far_from_the_floor():
+    """Trial 12: a user effect replaced by another of the same size (not nested) had been
+    called "significant and material" with no test; and an added effect that absorbed part
+    of a different missing one at 20x -> 17.8x the floor was called so with no caveat."""
+    s = _step(252.0, 2.17, -99.9, float("nan"))
+    s["nested"] = False
+    s.update(weigh_step(s))
+    assert s["verdict"] == "material, not nested" and "no test says" in s["words"]
+    s = _step(20.1, 17.8, -20.0, 2.6e-8)
+    assert s["verdict"] == "significant and material"
+    assert "still 17.8x the floor" in s["words"] and "absorb part" in s["words"]
+    s = _step(392.0, 1.0, -99.99, 1e-300)
+    assert "absorb" not in s["words"]
+
+
+def test_compare_runs_no_likelihood_ratio_test_between_fits_that_are_not_nested(tmp_path,
+                                                                                   capsys):
+    from rotorbayes.cli import main
+
+    base = ["fit", "--model", "upper", "example:upper_est"]
+    assert main([*base, "--out", str(tmp_path / "f0")]) == 0
+    for name in ("voltage_offset", "motor_deadzone"):
+        assert main([*base, "--add", name, "--out", str(tmp_path / name)]) == 0
+    capsys.readouterr()
+    fits = [str(tmp_path / n) for n in ("f0", "voltage_offset", "motor_deadzone")]
+    assert main(["compare", *fits, "--out", str(tmp_path / "c")]) == 0
+    doc = json.loads((tmp_path / "c" / "compare.json").read_text())
+    first, second = doc["steps"]
+    assert first["nested"] and first["estimation"]["lr_test"]["df"] == 1
+    assert not second["nested"] and second["estimation"]["lr_test"] is None
+    assert "not nested" in second["verdict"]

@@ -174,10 +174,58 @@ class TorqueMap:
         more = (f"; apart from it, also with {', '.join(SHORT[k] for k in also)} (each "
                 "explains a part of its own)" if also else "")
         return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) that "
-                f"{what} (explains {100 * s[1]:.0f} % of it): {cause}{more}")
+                f"{what} (explains {100 * s[1]:.0f} % of it): {cause}"
+                f"{self._angle_words(s[0])}{more}")
+
+    def angle_terms(self, variable: str) -> dict | None:
+        """For a dependence on angle (``angle_1``, ``angle_2``): the two parts the map's
+        regression separates, as a user effect would write them, with ``theta`` the disc's
+        angle and ``s`` its direction of rotation:
+
+        * ``friction``: extra friction against the motion, ``A cos(h (theta - phi))``
+          (the missing torque is ``-s`` times it);
+        * ``load``: a torque alike in both directions, ``A cos(h (theta - phi))``.
+
+        Each as ``{"amplitude": A [N m], "phase": phi [rad], "harmonic": h}``; the constant
+        and direction columns (a Coulomb level, an asymmetry) are left out."""
+        if not variable.startswith("angle_") or variable not in self.features:
+            return None
+        X = _design(variable, self.features)
+        if X is None or X.shape[0] <= X.shape[1]:
+            return None
+        beta, *_ = np.linalg.lstsq(X, self.torque, rcond=None)
+        h = int(variable[-1])
+        out = {}
+        # columns: 1, s, sin, cos, s sin, s cos
+        for name, (a, b, sign) in (("load", (beta[2], beta[3], 1.0)),
+                                   ("friction", (beta[4], beta[5], -1.0))):
+            a, b = sign * a, sign * b
+            out[name] = {"amplitude": float(math.hypot(a, b)),
+                         "phase": float(math.atan2(a, b) / h), "harmonic": h}
+        return out
+
+    def _angle_words(self, variable: str) -> str:
+        terms = self.angle_terms(variable)
+        if not terms:
+            return ""
+        f, ld = terms["friction"], terms["load"]
+        th = "theta_l" if self.disc == "l" else "theta_u"
+        h = f["harmonic"]
+        arg = f"{th} - " if h == 1 else f"{h}*({th} - "
+        close = "" if h == 1 else ")"
+        main, other = (("friction", f), ("load", ld)) if f["amplitude"] >= ld["amplitude"] \
+            else (("load", ld), ("friction", f))
+        what = {"friction": "extra friction against the motion",
+                "load": "a torque alike in both directions (a load)"}
+        return (f"; its form: mostly {what[main[0]]}, {main[1]['amplitude']:.2g}*cos({arg}"
+                f"{main[1]['phase']:.3g}{close}) N m, beside {other[0]} of amplitude "
+                f"{other[1]['amplitude']:.2g} N m (a start for your own effect, "
+                "docs/effects.md)")
 
     def as_dict(self) -> dict:
+        terms = {k: self.angle_terms(k) for k, _ in self.ranking if k.startswith("angle_")}
         return {"disc": self.disc, "rms_N_m": self.rms, "noise_rms_N_m": self.noise_rms,
+                "angle_terms": {k: v for k, v in terms.items() if v},
                 "above_noise": self.above_noise, "supports_words": self.supports_words,
                 "ranking": [{"variable": k, "adjusted_r2": v,
                              "noise_explains_N_m": self.null.get(k),
