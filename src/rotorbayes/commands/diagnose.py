@@ -22,6 +22,10 @@ def add_arguments(g) -> None:
                    default=None,
                    help="Gaussian measurement noise std [rad] besides encoder quantisation "
                    "(default 0)")
+    g.add_argument("--add", action="append", metavar="FILE.py:NAME", default=None,
+                   help="an effect of your own to test beside the catalogue's (repeatable): "
+                   "a score test at the fit, a one-step estimate that `fit --p0` of this "
+                   "folder starts from, a predicted fall (see docs/effects.md)")
     add_trust_option(g)
 
 
@@ -38,7 +42,8 @@ def _integration(result) -> dict:
             "warning": integration_warning(prob, r)}
 
 
-def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False) -> Outcome:
+def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False,
+             add: list[str] | None = None) -> Outcome:
     """Verdict, ranking of missing effects and missing-torque map of the fit folder ``fit``
     (written into it: diagnosis.json, diagnosis_candidates.png, missing_torque.png).
     ``noise`` is Gaussian measurement noise [rad] besides the encoders' rounding.
@@ -54,8 +59,25 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     print(f"diagnosing {result.folder}/ ({result.doc['config']} configuration, "
           f"{len(result.problem.names)} free parameters, effects: "
           f"{', '.join(result.problem.model.effect_names) or 'none'})")
-    d = run_diagnosis(result.problem, result.x, noise_std=noise or 0.0)
-    d.advice = _with_refit_command(d.advice, result.folder, result.doc)
+    specs = {}
+    for spec in add or []:
+        if ":" not in spec or not spec.split(":", 1)[0].endswith(".py"):
+            raise Refused(f"--add {spec}: give an effect of your own as FILE.py:NAME (the "
+                          "catalogue's effects are tested anyway)")
+        from ..model import effects as _effects
+
+        try:
+            e = _effects.resolve([spec])[0]
+        except (_effects.EffectError, ValueError) as exc:
+            raise Refused(f"--add {spec}: {exc}") from None
+        if e.name in result.problem.model.effect_names:
+            raise Refused(f"--add {spec}: the fit has {e.name} on already; nothing to test")
+        specs[e.name] = spec
+    if specs:
+        print(f"testing beside the catalogue: {', '.join(specs.values())}")
+    d = run_diagnosis(result.problem, result.x, noise_std=noise or 0.0,
+                      user_effects=list(specs.values()))
+    d.advice = _with_refit_command(d.advice, result.folder, result.doc, specs)
     print()
     print(d.text())
     integ = _integration(result)
@@ -102,7 +124,8 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     return Outcome(folder=Path(fit), doc=doc)
 
 
-def _with_refit_command(advice: str, folder: Path, doc: dict) -> str:
+def _with_refit_command(advice: str, folder: Path, doc: dict,
+                        specs: dict[str, str] | None = None) -> str:
     """The advice with its generic refit command made concrete: the fit's model, data and
     validation files (as the user can type them from here), ``--p0`` the fit folder, the
     effect, and a new folder beside the fit."""
@@ -133,7 +156,8 @@ def _with_refit_command(advice: str, folder: Path, doc: dict) -> str:
 
     def command(m: re.Match) -> str:
         effect = m.group(1)
+        spec = shlex.quote((specs or {}).get(effect, effect))
         return (f"rotorbayes fit --model {doc.get('config', 'MODEL')} {files}{val}{extra} "
-                f"--p0 {name}/ --add {effect} --out {shlex.quote(out + '_' + effect)}/")
+                f"--p0 {name}/ --add {spec} --out {shlex.quote(out + '_' + effect)}/")
 
     return re.sub(re.escape(REFIT_TOKEN) + r" --add (\S+?)(?=[;\s]|$)", command, advice)

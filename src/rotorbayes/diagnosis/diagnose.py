@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -198,6 +199,7 @@ def diagnose(
     noise_std: float = 0.0,
     n_blocks: int = 30,
     seed: int = 0,
+    user_effects: Sequence[str] = (),
 ) -> Diagnosis:
     """Diagnose the fit ``x`` of ``problem``.
 
@@ -206,6 +208,9 @@ def diagnose(
     noise_std : float
         Gaussian measurement noise [rad] the data carry besides encoder quantisation
         (0 for synthetic quantised data; the floor becomes ``sqrt(q²/12 + noise_std²)``).
+    user_effects : sequence of str
+        Effects of your own (``FILE.py:NAME``) to test beside the catalogue's, with the
+        same rules: a score test at the fit, a one-step estimate, a predicted fall.
     """
     t0 = time.perf_counter()
     floor, notes = problem.noise_floors(noise_std if noise_std else None)
@@ -215,8 +220,15 @@ def diagnose(
     ratios = problem.rms_over_floor(r, floor)
     worst = max(ratios.values())
     context: dict = {}
+    extra = {}
+    for spec in user_effects:
+        pe = problem.with_effects([spec])
+        new = [e for e in pe.model.effects if e.name not in problem.model.effect_names]
+        if not new:
+            raise ValueError(f"{spec}: the fit has this effect on already; nothing to test")
+        extra[new[0].name] = pe
     ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor,
-                          context=context)
+                          context=context, extra=extra)
     maps = missing_torque(problem, x, floors=floor)
     pooled = (f" (the {len(problem.experiments)} experiments pooled; `fit` quotes the worst "
               "single experiment)" if len(problem.experiments) > 1 else "")
@@ -364,7 +376,8 @@ def diagnose(
                       "(`rotorbayes multistart` with the fit's options; a better basin is "
                       "then the --p0 of a new fit). If it is the best there is, write a user "
                       "effect for it (docs/effects.md; examples/angle_friction.py is a worked "
-                      "example) and add it with --add FILE.py:NAME.")
+                      "example), test it with `rotorbayes diagnose` of this fit and --add "
+                      "FILE.py:NAME, and refit with the same --add.")
     return Diagnosis(
         adequate=adequate,
         verdict=verdict,
@@ -388,7 +401,9 @@ def _vetoes(foreign: TorqueMap | None, effect: str) -> bool:
     """Whether the map's clear dependence on a variable no catalogue effect produces
     (``foreign``) rules ``effect`` out: it beats every variable the effect could produce,
     on the same disc's map, by 0.2 in R² (or the effect produces none of them)."""
-    if foreign is None:
+    if foreign is None or effect not in _effects.CATALOGUE:
+        # A user's own effect is written for whatever the map shows: it is judged by its
+        # score test and its predicted fall alone.
         return False
     own = [r2 for var, r2 in foreign.ranking if var in EXPLAINS.get(effect, ())]
     return not own or foreign.strongest[1] >= max(own) + 0.2

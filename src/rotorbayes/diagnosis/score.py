@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -212,6 +212,7 @@ def score_tests(
     seed: int = 0,
     floor: dict[str, float] | None = None,
     context: dict | None = None,
+    extra: Mapping[str, Problem] | None = None,
 ) -> list[EffectScore]:
     """Score tests of every effect that is off (or of ``effects``), best first.
 
@@ -224,6 +225,11 @@ def score_tests(
     context : dict, optional
         Filled with ``robust_se`` (:func:`robust_standard_errors` of the free parameters
         by name), for judging the candidates' sizes.
+    extra : mapping, optional
+        Effects outside the catalogue (a user's own) to test as well: effect name -> the
+        problem with that effect switched on at its null (:meth:`Problem.with_effects`),
+        whose free set is ``problem``'s.  Their nuisance parameters are scanned over
+        eight points of their range.
     """
     r = problem.residuals(x)
     if not np.all(np.isfinite(r)):
@@ -242,9 +248,13 @@ def score_tests(
     floor = floor or {c: quantisation_floor(c) for c in problem.channels}
     rng = np.random.default_rng(seed)
     cands = list(effects) if effects is not None else candidates(problem)
+    extra = dict(extra or {})
+    for name, pe in extra.items():
+        cands += [e for e in pe.model.effects if e.name == name]
     out: list[EffectScore] = []
     for e in cands:
         e = _effects.resolve([e])[0] if isinstance(e, str) else e
+        pe = extra.get(e.name, problem)  # the problem that knows the effect's parameters
         names = _test_params(e, problem)
         one_sided = _one_sided(e)
         # A switch whose response is not differentiable at its null (a dead zone: nothing
@@ -259,6 +269,7 @@ def score_tests(
                 dict(zip([p.name for p in nuis], vals, strict=True))
                 for vals in itertools.product(
                     *[WS_GRID if p.name == "ws_l" else DELTA_GRID if p.name == "delta_l"
+                      else _user_grid(p) if e.name in extra
                       else (p.start,) for p in nuis]
                 )
             ]
@@ -268,7 +279,7 @@ def score_tests(
         per_grid = []
         for g in grids:
             try:
-                Jp, _ = problem.jacobian(x, names, r0=r, values=g or None, secant=secant)
+                Jp, _ = pe.jacobian(x, names, r0=r, values=g or None, secant=secant)
             except Exception:  # noqa: BLE001 - an unsimulable perturbation: skip the point
                 continue
             Jt = Jp - Q @ (Q.T @ Jp)
@@ -307,7 +318,7 @@ def score_tests(
         step = {}
         for n, d in zip(names, delta, strict=True):
             b, idx = local_name(n)
-            null = base_vals["Tc_l"] if b == "Ts_l" else problem.model.info[b].null
+            null = base_vals["Tc_l"] if b == "Ts_l" else pe.model.info[b].null
             step[n] = float(null + d)
         size = {n: float(d) for n, d in zip(names, delta, strict=True)}
         out.append(
@@ -315,7 +326,7 @@ def score_tests(
                 effect=e.name,
                 physics=e.physics,
                 parameters=names,
-                units=[problem.model.info[local_name(n)[0]].unit for n in names],
+                units=[pe.model.info[local_name(n)[0]].unit for n in names],
                 statistic=float(stat),
                 p_value=float(p),
                 one_sided=one_sided,
@@ -350,6 +361,20 @@ def score_tests(
 
     out.sort(key=key)
     return out
+
+
+def _user_grid(p) -> tuple[float, ...]:
+    """Eight values of a user effect's nuisance parameter (a phase, say) across its range,
+    its declared start among them: the score test takes the best, with a bootstrap for
+    the search, as it does for the Stribeck shape."""
+    lo, hi = float(p.lower), float(p.upper)
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return (p.start,)
+    pts = lo + (hi - lo) * np.arange(8) / 8.0
+    start = p.start if math.isfinite(p.start) else None
+    if start is not None and lo <= start <= hi:
+        pts = pts + (start - lo) % ((hi - lo) / 8.0)
+    return tuple(float(v) for v in pts)
 
 
 def _holm(scores: list[EffectScore]) -> None:
