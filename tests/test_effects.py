@@ -254,18 +254,26 @@ def test_jacobian_of_effects_that_are_off():
 
 
 # ---------------------------------------------------------------------- recovery
-@pytest.mark.slow
-def test_user_effect_fit_recovers_its_parameters(tmp_path, capsys):
-    """Recovery (the package's own simulator made the data), through the CLI."""
+def _angle_friction_data(tmp_path, a_fric, start):
+    """Coupled data with the example's angle friction (``a_fric``), quantised, 30 s at
+    200 Hz, in ``est.csv``; a start file with ``start`` = (J_l, k_alpha, Tc_l, b_l).
+    Returns the truth, the simulation and the start file."""
     t, u = rb.signals.estimation_signal(30.0, seed=11, rate=200.0)
     truth = dict(thesis_set("4.2", "P_ref"), J_l=0.05, k_alpha=0.06, Tc_l=0.03, b_l=0.012)
-    truth.update(a_fric=0.35, phi_fric=-1.1)
+    truth.update(a_fric=a_fric, phi_fric=-1.1)
     sim = rb.simulate(truth, u, dt=t[1] - t[0], config="coupled", effects=[USER],
                       quantize_angles=True)  # fmt: skip
     rb.save_experiment(sim.to_experiment(), tmp_path / "est.csv")
-    start = tmp_path / "p0.toml"
-    start.write_text('base = "thesis:4.2:P_ref"\nJ_l = 0.045\nk_alpha = 0.055\nTc_l = 0.033\n'
-                     "b_l = 0.011\n")  # fmt: skip
+    path = tmp_path / "p0.toml"
+    path.write_text('base = "thesis:4.2:P_ref"\n' + "".join(
+        f"{k} = {v!r}\n" for k, v in zip(("J_l", "k_alpha", "Tc_l", "b_l"), start, strict=True)))
+    return truth, sim, path
+
+
+@pytest.mark.slow
+def test_user_effect_fit_recovers_its_parameters(tmp_path, capsys):
+    """Recovery (the package's own simulator made the data), through the CLI."""
+    truth, sim, start = _angle_friction_data(tmp_path, 0.35, (0.045, 0.055, 0.033, 0.011))
     out = tmp_path / "fit"
     code = main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--p0", str(start),
                  "--add", USER, "--out", str(out)])  # fmt: skip
@@ -288,15 +296,7 @@ def test_diagnose_tests_a_user_effect_beside_the_catalogue(tmp_path, capsys):
     effect at the one-step estimate (recovery: the package's own simulator made the data)."""
     import json
 
-    t, u = rb.signals.estimation_signal(30.0, seed=11, rate=200.0)
-    truth = dict(thesis_set("4.2", "P_ref"), J_l=0.05, k_alpha=0.06, Tc_l=0.03, b_l=0.012)
-    truth.update(a_fric=0.08, phi_fric=-1.1)
-    sim = rb.simulate(truth, u, dt=t[1] - t[0], config="coupled", effects=[USER],
-                      quantize_angles=True)  # fmt: skip
-    rb.save_experiment(sim.to_experiment(), tmp_path / "est.csv")
-    start = tmp_path / "p0.toml"
-    start.write_text('base = "thesis:4.2:P_ref"\nJ_l = 0.05\nk_alpha = 0.06\nTc_l = 0.03\n'
-                     "b_l = 0.012\n")  # fmt: skip
+    _, _, start = _angle_friction_data(tmp_path, 0.08, (0.05, 0.06, 0.03, 0.012))
     f0 = tmp_path / "f0"
     assert main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--p0", str(start),
                  "--out", str(f0)]) == 0
