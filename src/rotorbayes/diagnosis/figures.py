@@ -14,6 +14,9 @@ _LABEL = {
     "torsion": "string torsion α [rad]", "torsion_rate": "twist rate dα/dt [rad/s]",
     "input": "input voltage [V]", "input_rate": "input rate [V/s]", "time": "time [s]",
 }
+#: Panel titles of the map's variables (the names in diagnosis.json are terse).
+_TITLE = {"angle_1": "angle, once per revolution", "angle_2": "angle, twice per revolution",
+          "torsion_rate": "twist rate", "input_rate": "input rate"}
 
 
 #: Colours of the top candidates' corrections (the residual is grey).
@@ -82,11 +85,24 @@ def plot_torque_map(diagnosis, *, top: int = 3):
                 continue
             var, r2 = m.ranking[j]
             xv = m.features[var]
-            ax.plot(xv, m.torque, ".", ms=1.5, alpha=0.4, color="tab:blue")
+            s = m.features.get("direction")
+            if s is not None and var != "direction":
+                # By direction of rotation: friction changes sign with it (mirrored
+                # bands), a load does not (one band).
+                for sign, colour, what in ((1.0, "tab:blue", "turning +"),
+                                           (-1.0, "tab:orange", "turning −")):
+                    k = s == sign
+                    if np.any(k):
+                        ax.plot(xv[k], m.torque[k], ".", ms=1.5, alpha=0.4, color=colour,
+                                label=what)
+                if j == 0:
+                    ax.legend(fontsize=7, markerscale=5, loc="upper right")
+            else:
+                ax.plot(xv, m.torque, ".", ms=1.5, alpha=0.4, color="tab:blue")
             ax.axhline(0, color="k", lw=0.6)
             ax.set_xlabel(_LABEL.get(var, var))
             ax.set_ylabel(f"{disc} disc missing torque [N m]")
-            ax.set_title(f"{disc}: {var} (adj. R² {r2:.2f})", fontsize=9)
+            ax.set_title(f"{disc}: {_TITLE.get(var, var)} (adj. R² {r2:.2f})", fontsize=9)
     fig.suptitle("missing torque (the data's balance minus the fit's own simulation, slip samples) "
                  "against candidate variables")
     return fig, axes
