@@ -49,7 +49,6 @@ def local_name(name: str) -> tuple[str, int | None]:
 UPPER_PARAMETERS = ("k_m", "J_u", "Tc_u", "dTc_u", "b_u", "db_u", "u_offset", "u_deadzone")
 
 
-
 def _filled(fill: tuple, x) -> tuple[np.ndarray, np.ndarray]:
     """Kernel vectors from a template of :meth:`Problem._make_fill`: its base vectors,
     copied, with the free values of ``x`` put in place."""
@@ -62,6 +61,7 @@ def _filled(fill: tuple, x) -> tuple[np.ndarray, np.ndarray]:
     if ts_follows or math.isnan(p[_layout.TS_L]):
         p[_layout.TS_L] = p[_layout.TC_L]
     return p, q
+
 
 def default_channels(config: str, prescribed_upper: bool, free: Sequence[str]) -> tuple:
     """The channels a fit uses unless told: the upper configuration has only theta_u;

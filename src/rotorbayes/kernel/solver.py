@@ -61,6 +61,7 @@ from .terms import (
     effect_state_ok,
     guards,
     has_kinks,
+    interp,
     modes_at_rest,
     next_kink,
     prescribed_velocity,
@@ -183,7 +184,11 @@ def _last_sample(k, lim, dt, inv_dt, n):
 
 @njit(cache=True, error_model="numpy")
 def _step_to(t, x, y, mu, ml, k1, m, src):
-    """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive."""
+    """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive.
+
+    :func:`_rk5` compiled as a function of its own, for the event location and the step
+    to an event: inlined there as well it would copy the six-stage step into every call
+    site of the rarely taken paths and lengthen the first compilation."""
     return _rk5(t, x, y, mu, ml, k1, m, src)
 
 
@@ -221,15 +226,6 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, src):
     return b
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _lin(u, x):
-    """The linearly interpolated input ``u`` at (fractional) sample ``x``."""
-    i = int(x)
-    if i >= u.shape[0] - 1:
-        return u[u.shape[0] - 1]
-    return u[i] + (x - i) * (u[i + 1] - u[i])
-
-
 @njit(cache=True, error_model="numpy")
 def _input_defect(u, k, m):
     """How far the Runge-Kutta stages of a step over samples ``k .. k + m`` misjudge the
@@ -256,7 +252,7 @@ def _input_defect(u, k, m):
     for j in range(5):
         w = (7.0, 32.0, 12.0, 32.0, 7.0)[j]
         x = (j - 2) * q
-        v = w * _lin(u, k + j * q)
+        v = w * interp(k + j * q, u, 1.0)[0]  # at a fractional sample
         s0 += v
         s1 += v * x
         s2 += v * x * x
