@@ -176,16 +176,20 @@ def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_ex
     unreadable (seen in CI). A whole copy taken between steps is put back by --resume;
     the run then ends with the chains of an uninterrupted run, bit for bit, and the damaged
     file is kept. Also checked: a run that ends normally leaves no copy behind."""
-    ref = reference(fitted, tmp_path, steps=300, ensembles=2, seed=7)
+    # 900 steps: with 300, in one full-suite run on a fast machine, the copy was gone here,
+    # most likely because the run had finished (and removed it) during the read of
+    # chain.h5 that saw 30 steps held (a read waits for the writer).
+    ref = reference(fitted, tmp_path, steps=900, ensembles=2, seed=7)
     assert not (tmp_path / "ref" / S.Snapshot.NAME).exists()
     out = tmp_path / "S"
-    p = cli(["sample", str(fitted), "--walkers", "10", "--steps", "300", "--ensembles", "2",
+    p = cli(["sample", str(fitted), "--walkers", "10", "--steps", "900", "--ensembles", "2",
              "--seed", "7", "--max-draws", "5", "--quiet", "--out", str(out)], tmp_path)
     copy = out / S.Snapshot.NAME
     while not copy.exists():  # the first step is saved and copied
         assert p.poll() is None, "the run ended before the kill was due"
         time.sleep(0.01)
     wait_until_held(out, 30, p)
+    assert p.poll() is None, "the run ended before the kill was due"
     assert copy.exists()
     p.send_signal(signal.SIGKILL)
     _, err = p.communicate(timeout=120)
@@ -205,7 +209,7 @@ def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_ex
     assert not copy.exists()  # finished: chain.h5 is whole, the copy is gone
     # With no copy to fall back on, a damaged file is refused as before.
     chain.write_bytes(bytes(b))
-    assert main(["sample", str(out), "--resume", "--quiet", "--steps", "310"]) == 2
+    assert main(["sample", str(out), "--resume", "--quiet", "--steps", "910"]) == 2
     assert "damaged" in capsys.readouterr().err
 
 

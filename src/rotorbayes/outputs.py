@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import glob
 import os
 import secrets
 import shutil
@@ -364,8 +365,29 @@ def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False
 
 
 def tmp_name(path: Path) -> Path:
-    """A hidden temporary name beside ``path`` (same folder, so a rename puts it in place)."""
+    """A hidden temporary name beside ``path`` (same folder, so a rename puts it in place).
+
+    Temporary files of ``path`` left by a process that no longer runs (a SIGKILL between
+    the write and the rename) are removed first."""
+    for old in path.parent.glob(f".{glob.escape(path.stem)}.*.tmp{glob.escape(path.suffix)}"):
+        pid = old.name[len(path.stem) + 2:].split(".", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            with contextlib.suppress(OSError):
+                old.unlink()
     return path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}")
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine (this one always does)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process, or not allowed to ask: keep its files
+        return True
+    return True
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
