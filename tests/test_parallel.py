@@ -189,12 +189,15 @@ def test_a_worker_killed_mid_job_changes_nothing(cluster):
     for i, r in P.run_tasks(_fit_start, list(starts), shared=shared, executor=cluster):
         got[i] = r
         if not killed:
+            # At the first result that finds a worker busy (on a fast machine the first
+            # result once came when the scheduler showed none: CI on 3.13).
             busy = {w: ks for w, ks in client.processing().items() if ks and w in pids}
-            assert busy, "no task was running when the kill was due: the test proves nothing"
-            w = next(iter(busy))
-            killed = {"worker": w, "pid": pids[w], "tasks": len(busy[w])}
-            os.kill(pids[w], signal.SIGKILL)
-    assert killed and len(got) == 16
+            if busy:
+                w = next(iter(busy))
+                killed = {"worker": w, "pid": pids[w], "tasks": len(busy[w])}
+                os.kill(pids[w], signal.SIGKILL)
+    assert killed, "no task was running at any result: the test proves nothing"
+    assert len(got) == 16
     same_fits([r for r, _ in ref], [got[i][0] for i in range(16)])
     # The killed process is gone; the nanny started another in its place.
     deadline = time.time() + 60
