@@ -175,7 +175,7 @@ def test_fast_transitions_stay_within_target_on_a_rig_unlike_the_thesis():
     """A 15 ms step of the fourth-order method saw a 30-50 ms transition at only three
     points: 8.1e-5 rad from the reference here (5x the target; 6.6e-4 on a 12 s trial
     record) before the step grid followed the input (1.3e-6 after; 8.2e-7 with the
-    fifth-order method's 25 ms steps).  The input
+    fifth-order method's 25 ms steps, 1.0e-6 with its 55 ms steps and Stribeck substeps).  The input
     between samples is linear in the model; the reference is run on that (the integrator's
     accuracy) and on the smooth input itself (what a rig whose amplifier follows a smooth
     command gives: the model's own hold adds its part)."""
@@ -190,7 +190,9 @@ def test_fast_transitions_stay_within_target_on_a_rig_unlike_the_thesis():
     for ref, tol in ((lin, TOL), (cont, TOL)):
         assert np.max(np.abs(sim.theta_u - ref["theta_u"])) < tol
         assert np.max(np.abs(sim.theta_l - ref["theta_l"])) < tol
-    # The grid is shortened only around the transitions: most steps keep the full length.
+    # The grid is shortened only around the transitions: full-length steps cover most of
+    # the record (95.7 % of it with 55 ms steps; 12 transitions in 10 s).
     grid = rb.Simulator(rb.Model("brake", eff), u, DT).grid
     strides = np.diff(grid)
-    assert np.mean(strides == strides.max()) > 0.8 and strides.min() <= strides.max() / 4
+    full = strides == strides.max()
+    assert strides[full].sum() / strides.sum() > 0.9 and strides.min() <= strides.max() / 4

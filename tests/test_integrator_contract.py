@@ -27,10 +27,13 @@ def _sse(sim, p, meas, name, value):
     return float(np.sum((thl - meas.theta_l) ** 2))
 
 
-@pytest.mark.parametrize("name,rel", [("Ts_l", 0.05), ("k_alpha", 0.05), ("b_l", 0.2)])
+@pytest.mark.parametrize(
+    "name,rel", [("Ts_l", 0.05), ("k_alpha", 0.05), ("b_l", 0.2), ("ws_l", 0.05)]
+)
 def test_sse_scan_has_no_jumps(brake_case, name, rel):
     """A fine 1-D scan of the SSE is smooth: second differences stay small compared with
-    the curvature scale, i.e. no jumps from step-size or band decisions."""
+    the curvature scale, i.e. no jumps from step-size or band decisions (``ws_l`` sets the
+    Stribeck substeps, see rotorbayes.kernel.terms.stribeck_step)."""
     p, meas, sim = brake_case
     grid = p[name] * (1 + np.linspace(-rel, rel, 201))
     f = np.array([_sse(sim, p, meas, name, v) for v in grid])
@@ -42,7 +45,7 @@ def test_sse_scan_has_no_jumps(brake_case, name, rel):
     assert abs(grid[np.argmin(f)] - p[name]) <= 2 * (grid[1] - grid[0])
 
 
-@pytest.mark.parametrize("name", ["Ts_l", "ws_l", "k_alpha", "Tc_u", "alpha0"])
+@pytest.mark.parametrize("name", ["Ts_l", "ws_l", "delta_l", "k_alpha", "Tc_u", "alpha0"])
 def test_finite_differences_agree_at_two_steps(brake_case, name):
     """Derivatives of the simulated angle by central differences at relative steps 1e-4
     and 1e-6 agree: the output is smooth well below the step (no solver jitter)."""

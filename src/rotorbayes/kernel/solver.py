@@ -18,11 +18,19 @@ delayed samples and the end of the held start are step points too.  A step ends 
 * a **kink** of the effective input (a dead-zone edge), found exactly by
   :func:`rotorbayes.kernel.terms.next_kink`; the
   step continues from there in the same mode, so every Runge-Kutta stage sees a smooth
-  right-hand side.
+  right-hand side;
+* a **Stribeck substep**: while the lower disc slips through the Stribeck band, a step is
+  no longer than :func:`rotorbayes.kernel.terms.stribeck_step` allows from the state at its
+  start (the friction there rises from Tc to Ts within a fraction of ws; at 55 ms steps
+  without substeps the worst accuracy case was 2e-5 rad).
+
+Events are located from a seed on the step's Hermite interpolant (:func:`_locate`), and
+the located step's own state is the event state.
 
 This is the limit of Leine's switch model as the stick band shrinks to zero.  Because the
-grid is fixed (moving only continuously with the delay) and every event or kink time is a
-root of a smooth function, the simulated angles are continuous (and piecewise smooth) in
+grid is fixed (moving only continuously with the delay), every event or kink time is a
+root of a smooth function and every substep a continuous function of the state, the
+simulated angles are continuous (and piecewise smooth) in
 the parameters: no step-size controller introduces jitter that least squares or a sampler
 would see as noise.
 
@@ -66,6 +74,7 @@ from .terms import (
     next_kink,
     prescribed_velocity,
     rhs,
+    stribeck_step,
     violations,
 )  # fmt: skip
 
@@ -186,44 +195,105 @@ def _last_sample(k, lim, dt, inv_dt, n):
 def _step_to(t, x, y, mu, ml, k1, m, src):
     """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive.
 
-    :func:`_rk5` compiled as a function of its own, for the event location and the step
-    to an event: inlined there as well it would copy the six-stage step into every call
-    site of the rarely taken paths and lengthen the first compilation."""
+    :func:`_rk5` compiled as a function of its own, for the event location: inlined there
+    as well it would copy the six-stage step into a rarely taken path and lengthen the
+    first compilation."""
     return _rk5(t, x, y, mu, ml, k1, m, src)
 
 
 @njit(cache=True, error_model="numpy")
-def _locate(t, h, g0, g1, disc, y, mu, ml, k1, m, src):
-    """Time ``tau`` in (0, h] at which the guard of ``disc`` crosses zero.
+def _guard_on_interpolant(sf, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src):
+    """The guard of ``disc`` at fraction ``sf`` of a step, on the step's Hermite
+    interpolant (coefficients from :func:`_quintic` and :func:`_cubic`): no Runge-Kutta
+    map, so a few dozen operations."""
+    d = drive(t + sf * h, m[0], m[1], src)
+    gu, gl = guards(_horner5(sf, cu), _horner(sf, cwu), _horner5(sf, cl), _horner(sf, cwl),
+                    mu, ml, d, m)  # fmt: skip
+    return gu if disc == 0 else gl
 
-    Illinois regula falsi on ``tau -> guard(Runge-Kutta step of size tau)``.  Returns the right
-    end of the final bracket, where the guard is already violated, so the new mode
-    starts on the correct side of the switching surface.
+
+@njit(cache=True, error_model="numpy")
+def _locate(t, h, g0, g1, disc, y, mu, ml, k1, y1, d1, k_end, m, src):
+    """Time ``tau`` in (0, h] at which the guard of ``disc`` crosses zero, with the state
+    and drive there: ``(tau, y(tau), d(tau))``.
+
+    The root is that of ``tau -> guard(Runge-Kutta step of size tau)``; the state returned
+    is that step's, where the guard is already violated (the right end of the final
+    bracket, at most ``1e-13 h`` from the root), so the new mode starts on the correct
+    side of the switching surface.  ``y1, d1, k_end`` are the full step's end, drive and
+    right-hand side there.
+
+    The search starts where the guard crosses zero on the full step's Hermite interpolant
+    (:func:`_guard_on_interpolant`; cheap) and goes on by secant steps on the map itself,
+    kept inside the bracket; once they stall, it closes the bracket with a last point
+    half a tolerance beyond.  Three to five maps per event on a 30 s brake run, against
+    fourteen from the bare bracket (Illinois regula falsi from both ends, kept as the
+    fallback whenever a step would leave the bracket).
     """
     a, fa = 0.0, g0
     b, fb = h, g1
+    yb, db = y1, d1
+    # 1. The seed: Illinois on the interpolant, to 1e-5 of the step.
+    cu = _quintic(h, y[0], k1[0], k1[1], y1[0], k_end[0], k_end[1])
+    cl = _quintic(h, y[2], k1[2], k1[3], y1[2], k_end[2], k_end[3])
+    cwu = _cubic(h, y[1], k1[1], y1[1], k_end[1])
+    cwl = _cubic(h, y[3], k1[3], y1[3], k_end[3])
+    sa, pa, sb, pb = 0.0, g0, 1.0, g1
     side = 0
-    tol = 1e-13 * h + 1e-16
-    for _ in range(100):
-        if b - a <= tol:
+    for _ in range(60):
+        if sb - sa <= 1e-5:
             break
-        x = b - fb * (b - a) / (fb - fa)
+        sx = sb - pb * (sb - sa) / (pb - pa)
+        if not (sa < sx < sb):
+            sx = 0.5 * (sa + sb)
+        px = _guard_on_interpolant(sx, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src)
+        if px < 0.0:
+            sb, pb = sx, px
+            if side == -1:
+                pa *= 0.5
+            side = -1
+        else:
+            sa, pa = sx, px
+            if side == 1:
+                pb *= 0.5
+            side = 1
+    seed = 0.5 * (sa + sb)
+    lo = max(seed - 1e-4, 0.0)
+    hi = min(seed + 1e-4, 1.0)
+    slope = (_guard_on_interpolant(hi, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src)
+             - _guard_on_interpolant(lo, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src)) / (
+        (hi - lo) * h)  # fmt: skip
+    # 2. Secant steps on the map from the seed, inside the bracket [a, b].
+    tol = 1e-13 * h + 1e-16
+    x = seed * h
+    xp = -1.0
+    fp = 0.0
+    for _ in range(100):
         if not (a < x < b):
-            x = 0.5 * (a + b)
+            x = b - fb * (b - a) / (fb - fa)
+            if not (a < x < b):
+                x = 0.5 * (a + b)
         yx, d = _step_to(t, x, y, mu, ml, k1, m, src)
         gu, gl = guards(yx[0], yx[1], yx[2], yx[3], mu, ml, d, m)
         fx = gu if disc == 0 else gl
         if fx < 0.0:
             b, fb = x, fx
-            if side == -1:
-                fa *= 0.5
-            side = -1
+            yb, db = yx, d
         else:
             a, fa = x, fx
-            if side == 1:
-                fb *= 0.5
-            side = 1
-    return b
+        if b - a <= tol:
+            break
+        if xp >= 0.0 and fx != fp:
+            xn = x - fx * (x - xp) / (fx - fp)
+        elif slope < 0.0:
+            xn = x - fx / slope
+        else:
+            xn = -1.0  # no usable slope: regula falsi on the bracket
+        xp, fp = x, fx
+        if abs(xn - x) <= 0.5 * tol:  # converged: close the bracket on the other side
+            xn = x + 0.5 * tol if fx >= 0.0 else x - 0.5 * tol
+        x = xn
+    return b, yb, db
 
 
 @njit(cache=True, error_model="numpy")
@@ -387,6 +457,9 @@ def _integrate(
         n_step_ev = 0
         while True:
             t_tgt = next_kink(t, t_end, c, u) if kinks else t_end
+            t_sub = t + stribeck_step(y[3], f[3], ml, c, cfg)
+            if t_sub < t_tgt:
+                t_tgt = t_sub  # a substep through the Stribeck band
             rem = t_tgt - t
             y1, d1 = _rk5(t, rem, y, mu, ml, f, m, src)
             gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
@@ -398,15 +471,19 @@ def _integrate(
                 # Locate the earliest event among the violated guards.
                 d0 = drive(t, c, cfg, src)
                 gu0, gl0 = guards(y[0], y[1], y[2], y[3], mu, ml, d0, m)
+                f1 = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
+                y_ev, d_ev = y1, d1
                 for dsc in range(2):
                     g1 = gu1 if dsc == 0 else gl1
                     if g1 < 0.0:
                         g0 = gu0 if dsc == 0 else gl0
-                        tl = _locate(t, rem, max(g0, 0.0), g1, dsc, y, mu, ml, f, m, src)
+                        tl, yl, dl = _locate(t, rem, max(g0, 0.0), g1, dsc, y, mu, ml, f,
+                                             y1, d1, f1, m, src)  # fmt: skip
                         if disc < 0 or tl < seg:
                             seg = tl
                             disc = dsc
-                y1, de = _step_to(t, seg, y, mu, ml, f, m, src)
+                            y_ev, d_ev = yl, dl
+                y1, de = y_ev, d_ev
             fe = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, de, m)
             t_seg = t + seg
             lim = t_seg + 1e-9 * dt

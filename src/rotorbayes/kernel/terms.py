@@ -378,6 +378,32 @@ def rhs(thu, wu, thl, wl, mu, ml, d, m):
     return dthu, dwu, dthl, dwl
 
 
+#: Stribeck substeps: inside the Stribeck band a slipping lower disc takes steps over which
+#: ``|omega_l| / ws`` changes by at most this fraction of ``1 + |omega_l| / ws`` at its
+#: present rate (see :func:`stribeck_step`).
+STRIBECK_STEP_FRACTION = 0.1
+
+
+@njit(cache=True, error_model="numpy")
+def stribeck_step(wl, al, ml, c, cfg):
+    """The longest Runge-Kutta step [s] the lower disc's Stribeck curve allows from a state
+    with lower-disc velocity ``wl``, acceleration ``al`` and mode ``ml``: ``inf`` unless the
+    disc slips with a Stribeck term (``Ts_l != Tc_l``), else
+
+        STRIBECK_STEP_FRACTION * (1 + |wl| / ws) / (|al| / ws)
+
+    -- the time in which ``x = |wl| / ws`` changes by a tenth of ``1 + x`` at its present
+    rate: a few milliseconds while the disc decelerates through the band (where the
+    friction rises from Tc to Ts within a fraction of ws), the full step far outside it.
+    A continuous function of the state, so the steps, and the angles, stay continuous in
+    the parameters.  Never below half a sample, which bounds the number of substeps.
+    """
+    if ml == 0 or cfg == CFG_UPPER or c[_DSL] == 0.0 or al == 0.0:
+        return math.inf
+    iws = c[_IWSL]
+    return max(STRIBECK_STEP_FRACTION * (1.0 + abs(wl) * iws) / (abs(al) * iws), 0.5 * c[_DT])
+
+
 @njit(cache=True, error_model="numpy")
 def guards(thu, wu, thl, wl, mu, ml, d, m):
     """Event functions of both discs; a mode stays valid while its guard is >= 0.

@@ -30,24 +30,28 @@ DEFAULT_STEP = None
 #: :func:`rotorbayes.kernel.solver.step_grid`): a step is shortened where the stages,
 #: reading the linearly interpolated input at five points, misjudge its integral or its
 #: first two moments over the step by more than this (a transition between two levels
-#: within a few tens of milliseconds).
-INPUT_TOLERANCE = 5e-7
+#: within a few tens of milliseconds, or the first milliseconds of one).  With 5e-7 a
+#: 43 ms step over the start of a transition misjudged the input by 3.8e-7 V s and left
+#: the upper disc 3e-6 rad/s off (k_m / J_u = 9 rad/s^2 per volt).
+INPUT_TOLERANCE = 1e-7
 
 
 def default_step(dt: float) -> float:
-    """The default largest Runge-Kutta step [s] for samples ``dt`` apart: 25 ms at 1 kHz
-    and faster, ``25 ms * sqrt(1 ms / dt)`` at slower rates (one sample at 200 Hz).
+    """The default largest Runge-Kutta step [s] for samples ``dt`` apart: 55 ms at 1 kHz
+    and faster, ``55 ms * sqrt(1 ms / dt)`` at slower rates (three samples at 200 Hz).
 
-    Measured against the event-driven reference (tests/reference.py) on the accuracy
-    suite's 28 cases (every configuration and catalogue effect, stick-slip, delays, fast
-    transitions): at 1 kHz the worst case, a brake with a voltage offset, is 4.8e-7,
-    6.3e-6 and 1.9e-5 rad with 15, 25 and 35 ms steps; the Stribeck drop after a
-    breakaway is what longer steps miss.  Verified by tests/test_integrator_accuracy.py,
-    test_effects.py and test_input_delay.py; use ``step=dt`` for rough, noisy inputs (a
-    sticking disc whose torque leaves its band and returns between two step points is not
-    seen).
+    The step grid shortens it over fast input transitions (:data:`INPUT_TOLERANCE`), and
+    the solver takes substeps where a slipping lower disc crosses the Stribeck band
+    (:func:`rotorbayes.kernel.terms.stribeck_step`).  Measured against the event-driven
+    reference (tests/reference.py) on the accuracy suite's 28 cases (every configuration
+    and catalogue effect, stick-slip, delays, fast transitions; benchmarks/
+    bench_step_accuracy.py): the worst case is 8.1e-7, 2.4e-6, 2.4e-6 and 1.9e-6 rad with
+    15, 25, 45 and 55 ms steps, 2.8e-6 at 65 ms and 9.3e-6 at 85 ms.  Verified by
+    tests/test_integrator_accuracy.py, test_effects.py and test_input_delay.py; use
+    ``step=dt`` for rough, noisy inputs (a sticking disc whose torque leaves its band and
+    returns between two step points is not seen).
     """
-    return 25e-3 * min(1.0, math.sqrt(1e-3 / dt))
+    return 55e-3 * min(1.0, math.sqrt(1e-3 / dt))
 
 
 def stride_of(step: float, dt: float) -> tuple[int, int]:
