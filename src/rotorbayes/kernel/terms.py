@@ -378,30 +378,43 @@ def rhs(thu, wu, thl, wl, mu, ml, d, m):
     return dthu, dwu, dthl, dwl
 
 
-#: Stribeck substeps: inside the Stribeck band a slipping lower disc takes steps over which
-#: ``|omega_l| / ws`` changes by at most this fraction of ``1 + |omega_l| / ws`` at its
-#: present rate (see :func:`stribeck_step`).
+#: Stribeck substeps (see :func:`stribeck_step`): at most this change of ``x = |omega_l| / ws``
+#: per step, as a fraction of ``1 + x`` (for ``delta_l`` above 2, of ``(1 + x) * 2 / delta``)
+#: ...
 STRIBECK_STEP_FRACTION = 0.1
+#: ... and at most ``STRIBECK_START + x``: from a reversal through zero velocity the steps
+#: grow geometrically, from about a hundredth of ws at the present acceleration.
+STRIBECK_START = 0.01
 
 
 @njit(cache=True, error_model="numpy")
 def stribeck_step(wl, al, ml, c, cfg):
     """The longest Runge-Kutta step [s] the lower disc's Stribeck curve allows from a state
-    with lower-disc velocity ``wl``, acceleration ``al`` and mode ``ml``: ``inf`` unless the
-    disc slips with a Stribeck term (``Ts_l != Tc_l``), else
+    with lower-disc velocity ``wl``, acceleration ``al`` and mode ``ml``.
 
-        STRIBECK_STEP_FRACTION * (1 + |wl| / ws) / (|al| / ws)
+    ``inf`` unless the disc slips with a Stribeck term (``Ts_l != Tc_l``); else the time
+    in which ``x = |wl| / ws`` changes, at its present rate ``|al| / ws``, by
 
-    -- the time in which ``x = |wl| / ws`` changes by a tenth of ``1 + x`` at its present
-    rate: a few milliseconds while the disc decelerates through the band (where the
-    friction rises from Tc to Ts within a fraction of ws), the full step far outside it.
-    A continuous function of the state, so the steps, and the angles, stay continuous in
-    the parameters.  Never below half a sample, which bounds the number of substeps.
+        min(STRIBECK_STEP_FRACTION * (1 + x) * min(1, 2 / delta_l), STRIBECK_START + x)
+
+    -- a few milliseconds while the disc passes through the band (where the friction
+    moves between Ts and Tc within a fraction of ws, the faster the larger ``delta_l``),
+    steps growing geometrically after a reversal (``exp(-x**delta)`` is not smooth at
+    ``x = 0`` unless ``delta`` is an even integer), the full step far outside the band.
+    Never below half a sample, which bounds the number of substeps.  A continuous function
+    of the state, so the steps, and the angles, stay continuous in the parameters (it
+    tends to ``inf`` as ``al`` tends to 0).
+
+    Measured against tests/reference.py at 55 ms steps: the accuracy suite's worst case
+    3.4e-5 rad without substeps, 1.6e-6 with; 24 random brake rigs (0.6-1.5x the thesis,
+    ``delta_l`` 0.8-3.0, multisines and staircases) at most 5.9e-6.
     """
     if ml == 0 or cfg == CFG_UPPER or c[_DSL] == 0.0 or al == 0.0:
         return math.inf
     iws = c[_IWSL]
-    return max(STRIBECK_STEP_FRACTION * (1.0 + abs(wl) * iws) / (abs(al) * iws), 0.5 * c[_DT])
+    x = abs(wl) * iws
+    dx = min(STRIBECK_STEP_FRACTION * (1.0 + x) * min(1.0, 2.0 / c[_DL]), STRIBECK_START + x)
+    return max(dx / (abs(al) * iws), 0.5 * c[_DT])
 
 
 @njit(cache=True, error_model="numpy")
