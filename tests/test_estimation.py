@@ -116,8 +116,11 @@ def test_channel_weights_and_both_channels(coupled_est):
                      weights={"theta_u": 0.5}, base=thesis_set("5.2", "P"))
     assert prob.n_residuals == 2 * coupled_est.n
     r = prob.residuals(prob.x_from(prob.base))
-    # theta_u residual carries the weight 0.5: its quantisation error is below half a count.
-    assert np.max(np.abs(r[coupled_est.n:])) <= 0.5 * np.pi / 54934.256 * 1.001
+    # theta_u residual carries the weight 0.5: its quantisation error (half a count) and
+    # the integrator's difference from the kernel that made the example (at most the
+    # accuracy target, 1.5e-5 rad; 3e-8 here) are halved.  Unweighted it is 5.7e-5.
+    count = 2 * np.pi / 54934.256
+    assert np.max(np.abs(r[coupled_est.n:])) <= 0.5 * (0.5 * count + 1.5e-5)
 
 
 def test_clear_errors(coupled_est):

@@ -60,6 +60,7 @@ from .layout import (
     OK,
     TOO_MANY_EVENTS,
 )  # fmt: skip
+from .numerics import fma
 from .terms import (
     HOOK_TYPE,
     delay_samples,
@@ -102,36 +103,38 @@ def _rk5(t, h, y, mu, ml, k1, m, src):
     d_3q = drive(t + 0.75 * h, c, cfg, src)
     d_1 = drive(t + h, c, cfg, src)
     q = 0.25 * h
-    b1, b2, b3, b4 = rhs(thu + q * a1, wu + q * a2, thl + q * a3, wl + q * a4, mu, ml, d_q, m)
+    b1, b2, b3, b4 = rhs(fma(q, a1, thu), fma(q, a2, wu), fma(q, a3, thl), fma(q, a4, wl),
+                         mu, ml, d_q, m)  # fmt: skip
     e = 0.125 * h
     c1, c2, c3, c4 = rhs(
-        thu + e * (a1 + b1), wu + e * (a2 + b2), thl + e * (a3 + b3), wl + e * (a4 + b4),
+        fma(e, a1 + b1, thu), fma(e, a2 + b2, wu), fma(e, a3 + b3, thl), fma(e, a4 + b4, wl),
         mu, ml, d_q, m,
     )  # fmt: skip
     hh = 0.5 * h
     e1, e2, e3, e4 = rhs(
-        thu + h * c1 - hh * b1, wu + h * c2 - hh * b2, thl + h * c3 - hh * b3,
-        wl + h * c4 - hh * b4, mu, ml, d_m, m,
+        fma(h, c1, fma(-hh, b1, thu)), fma(h, c2, fma(-hh, b2, wu)),
+        fma(h, c3, fma(-hh, b3, thl)), fma(h, c4, fma(-hh, b4, wl)), mu, ml, d_m, m,
     )  # fmt: skip
+    r = 0.1875 * h
+    z = 0.5625 * h
     f1, f2, f3, f4 = rhs(
-        thu + h * (0.1875 * a1 + 0.5625 * e1), wu + h * (0.1875 * a2 + 0.5625 * e2),
-        thl + h * (0.1875 * a3 + 0.5625 * e3), wl + h * (0.1875 * a4 + 0.5625 * e4),
-        mu, ml, d_3q, m,
+        fma(z, e1, fma(r, a1, thu)), fma(z, e2, fma(r, a2, wu)),
+        fma(z, e3, fma(r, a3, thl)), fma(z, e4, fma(r, a4, wl)), mu, ml, d_3q, m,
     )  # fmt: skip
     s = h / 7.0
     g1, g2, g3, g4 = rhs(
-        thu + s * (-3.0 * a1 + 2.0 * b1 + 12.0 * c1 - 12.0 * e1 + 8.0 * f1),
-        wu + s * (-3.0 * a2 + 2.0 * b2 + 12.0 * c2 - 12.0 * e2 + 8.0 * f2),
-        thl + s * (-3.0 * a3 + 2.0 * b3 + 12.0 * c3 - 12.0 * e3 + 8.0 * f3),
-        wl + s * (-3.0 * a4 + 2.0 * b4 + 12.0 * c4 - 12.0 * e4 + 8.0 * f4),
+        fma(s * 8.0, f1, fma(s, 2.0 * b1 + 12.0 * (c1 - e1) - 3.0 * a1, thu)),
+        fma(s * 8.0, f2, fma(s, 2.0 * b2 + 12.0 * (c2 - e2) - 3.0 * a2, wu)),
+        fma(s * 8.0, f3, fma(s, 2.0 * b3 + 12.0 * (c3 - e3) - 3.0 * a3, thl)),
+        fma(s * 8.0, f4, fma(s, 2.0 * b4 + 12.0 * (c4 - e4) - 3.0 * a4, wl)),
         mu, ml, d_1, m,
     )  # fmt: skip
     k = h / 90.0
     return (
-        thu + k * (7.0 * a1 + 32.0 * c1 + 12.0 * e1 + 32.0 * f1 + 7.0 * g1),
-        wu + k * (7.0 * a2 + 32.0 * c2 + 12.0 * e2 + 32.0 * f2 + 7.0 * g2),
-        thl + k * (7.0 * a3 + 32.0 * c3 + 12.0 * e3 + 32.0 * f3 + 7.0 * g3),
-        wl + k * (7.0 * a4 + 32.0 * c4 + 12.0 * e4 + 32.0 * f4 + 7.0 * g4),
+        fma(k * 7.0, g1, fma(k, 7.0 * a1 + 32.0 * (c1 + f1) + 12.0 * e1, thu)),
+        fma(k * 7.0, g2, fma(k, 7.0 * a2 + 32.0 * (c2 + f2) + 12.0 * e2, wu)),
+        fma(k * 7.0, g3, fma(k, 7.0 * a3 + 32.0 * (c3 + f3) + 12.0 * e3, thl)),
+        fma(k * 7.0, g4, fma(k, 7.0 * a4 + 32.0 * (c4 + f4) + 12.0 * e4, wl)),
     ), d_1
 
 
@@ -166,13 +169,13 @@ def _quintic(h, ya, va, aa, yb, vb, ab):
 @njit(cache=True, error_model="numpy", inline="always")
 def _horner5(s, c):
     """The quintic with coefficients ``c`` (from :func:`_quintic`) at fraction ``s``."""
-    return c[0] + s * (c[1] + s * (c[2] + s * (c[3] + s * (c[4] + s * c[5]))))
+    return fma(s, fma(s, fma(s, fma(s, fma(s, c[5], c[4]), c[3]), c[2]), c[1]), c[0])
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _horner(s, c):
     """The cubic with coefficients ``c`` (from :func:`_cubic`) at fraction ``s``."""
-    return c[0] + s * (c[1] + s * (c[2] + s * c[3]))
+    return fma(s, fma(s, fma(s, c[3], c[2]), c[1]), c[0])
 
 
 @njit(cache=True, error_model="numpy", inline="always")

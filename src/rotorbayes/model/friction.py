@@ -26,6 +26,8 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from ..kernel.numerics import fma
+
 SHAPE_EXP = 0
 SHAPE_RATIONAL = 1
 SHAPES = {"exp": SHAPE_EXP, "rational": SHAPE_RATIONAL}
@@ -116,7 +118,7 @@ def stribeck_g(v):
         k = int(f)
         s = f - k
         c0, c1, c2, c3 = _g_row(k)
-        return c0 + s * (c1 + s * (c2 + s * c3))
+        return fma(s, fma(s, fma(s, c3, c2), c1), c0)
     if f >= _G_N:  # beyond EXP_NEGLIGIBLE (the solver stops at x_cut before)
         return 0.0
     return v  # NaN stays NaN
@@ -143,9 +145,9 @@ def slip_torque(w, s, Tc, dTc, b, db, dS, inv_ws, delta, shape, x_cut):
     located; the law is continued smoothly there (``s*w`` in the viscous part,
     ``|w|`` in the Stribeck part) so the event function stays smooth in time.
     """
-    T = Tc + s * dTc + (b + s * db) * (s * w)
+    T = fma(b + s * db, s * w, Tc + s * dTc)
     if dS != 0.0:
-        T += dS * stribeck(abs(w) * inv_ws, delta, shape, x_cut)
+        T = fma(dS, stribeck(abs(w) * inv_ws, delta, shape, x_cut), T)
     return s * T
 
 
