@@ -19,10 +19,12 @@ delayed samples and the end of the held start are step points too.  A step ends 
   :func:`rotorbayes.kernel.terms.next_kink`; the
   step continues from there in the same mode, so every Runge-Kutta stage sees a smooth
   right-hand side;
-* a **Stribeck substep**: while the lower disc slips through the Stribeck band, a step is
-  no longer than :func:`rotorbayes.kernel.terms.stribeck_step` allows from the state at its
-  start (the friction there rises from Tc to Ts within a fraction of ws; at 55 ms steps
-  without substeps the worst accuracy case was 2e-5 rad).
+* a **substep**: while the lower disc slips through the Stribeck band, a step is no
+  longer than :func:`rotorbayes.kernel.terms.stribeck_step` allows from the state at its
+  start (the friction there moves between Tc and Ts within a fraction of ws; at 55 ms
+  steps without substeps the accuracy suite's worst case was 3.4e-5 rad), and while a
+  disc decelerates, no longer than :func:`rotorbayes.kernel.terms.approach_step` allows
+  (twice its time to stop: a stop between two step points was otherwise not seen).
 
 Events are located from a seed on the step's Hermite interpolant (:func:`_locate`), and
 the located step's own state is the event state.
@@ -63,6 +65,7 @@ from .layout import (
 from .numerics import fma
 from .terms import (
     HOOK_TYPE,
+    approach_step,
     delay_samples,
     derived,
     drive,
@@ -460,9 +463,10 @@ def _integrate(
         n_step_ev = 0
         while True:
             t_tgt = next_kink(t, t_end, c, u) if kinks else t_end
-            t_sub = t + stribeck_step(y[3], f[3], ml, c, cfg)
+            t_sub = t + min(stribeck_step(y[3], f[3], ml, c, cfg),
+                            approach_step(y, f, mu, ml, c, cfg, t_tgt - t))  # fmt: skip
             if t_sub < t_tgt:
-                t_tgt = t_sub  # a substep through the Stribeck band
+                t_tgt = t_sub  # a substep through the Stribeck band or towards an event
             rem = t_tgt - t
             y1, d1 = _rk5(t, rem, y, mu, ml, f, m, src)
             gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)

@@ -429,6 +429,42 @@ def stribeck_step(wl, al, ml, c, cfg):
     return max(weak * dx / (abs(al) * iws), 0.5 * c[_DT])
 
 
+#: Approach substeps (see :func:`approach_step`): a step is at most this multiple of the
+#: time a slipping disc's velocity needs to reach zero at its present deceleration.
+APPROACH_STEP_FACTOR = 2.0
+
+
+@njit(cache=True, error_model="numpy")
+def approach_step(y, f, mu, ml, c, cfg, room):
+    """The longest Runge-Kutta step [s] from state ``y`` (derivative ``f``) that goes at
+    most :data:`APPROACH_STEP_FACTOR` times as far as a slipping disc needs to stop at its
+    present deceleration; ``room`` (the step the grid allows) if that is shorter or no
+    disc decelerates.
+
+    Without it a velocity that dips to zero and back between two step points is not seen:
+    the disc slips on where it should have stuck or reversed.  A 6 Hz sine about 0.5 V
+    brought the upper disc's velocity to within 0.01 rad/s of zero each period; at 25 and
+    55 ms steps one such stop was missed (3.9e-2 rad from the reference; 2.6e-5 with
+    this).  With the factor 2 a step ends inside a parabolic dip below zero, or beyond one
+    that stays above it.  A continuous function of the state, so the angles stay
+    continuous in the parameters (it tends to ``room`` as the deceleration tends to 0).
+    Never below half a sample.
+
+    A sticking disc whose torque leaves its static band and returns between two step
+    points is still not seen: the same rule for the torque's approach to the band's edge
+    cost 10 % of a brake residual and changed no case measured.
+    """
+    k = APPROACH_STEP_FACTOR
+    best = room
+    # A limit k |w| / |a| binds where k |w| < |a| * best (no division otherwise: the
+    # step's length is on the solver's critical path).
+    if mu != 0 and cfg != CFG_PRESCRIBED and mu * f[1] < 0.0 and k * abs(y[1]) < -mu * f[1] * best:
+        best = k * abs(y[1]) / abs(f[1])
+    if ml != 0 and cfg != CFG_UPPER and ml * f[3] < 0.0 and k * abs(y[3]) < -ml * f[3] * best:
+        best = k * abs(y[3]) / abs(f[3])
+    return max(best, min(0.5 * c[_DT], room))
+
+
 @njit(cache=True, error_model="numpy")
 def guards(thu, wu, thl, wl, mu, ml, d, m):
     """Event functions of both discs; a mode stays valid while its guard is >= 0.
