@@ -45,11 +45,12 @@ def default_step(dt: float) -> float:
     (:func:`rotorbayes.kernel.terms.stribeck_step`).  Measured against the event-driven
     reference (tests/reference.py) on the accuracy suite's 28 cases (every configuration
     and catalogue effect, stick-slip, delays, fast transitions; benchmarks/
-    bench_step_accuracy.py): the worst case is 8.1e-7, 2.4e-6, 2.4e-6 and 1.9e-6 rad with
-    15, 25, 45 and 55 ms steps, 2.8e-6 at 65 ms and 9.3e-6 at 85 ms.  Verified by
-    tests/test_integrator_accuracy.py, test_effects.py and test_input_delay.py; use
-    ``step=dt`` for rough, noisy inputs (a sticking disc whose torque leaves its band and
-    returns between two step points is not seen).
+    bench_step_accuracy.py): the worst case is 2.5e-6, 1.6e-6 and 3.5e-6 rad with 25, 55
+    and 65 ms steps; on 16 random brake rigs (benchmarks/bench_random_rigs.py) 8.5e-7 at
+    25 ms and 5.9e-6 at 55.  Verified by tests/test_integrator_accuracy.py,
+    test_effects.py and test_input_delay.py; use ``step=dt`` for rough, noisy inputs (a
+    sticking disc whose torque leaves its band and returns between two step points is
+    not seen).
     """
     return 55e-3 * min(1.0, math.sqrt(1e-3 / dt))
 
