@@ -232,9 +232,9 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, y1, d1, k_end, m, src):
     The search starts where the guard crosses zero on the full step's Hermite interpolant
     (:func:`_guard_on_interpolant`; cheap) and goes on by secant steps on the map itself,
     kept inside the bracket; once they stall, it closes the bracket with a last point
-    half a tolerance beyond.  Three to five maps per event on a 30 s brake run, against
-    fourteen from the bare bracket (Illinois regula falsi from both ends, kept as the
-    fallback whenever a step would leave the bracket).
+    half a tolerance beyond; a secant step that would leave the bracket is replaced by
+    regula falsi on it.  Three to five maps per event on a 30 s brake run, against
+    fourteen for Illinois regula falsi from the bare bracket (the method before).
     """
     a, fa = 0.0, g0
     b, fb = h, g1
