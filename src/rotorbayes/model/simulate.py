@@ -268,10 +268,12 @@ class Simulator:
         out = [np.empty(n) for _ in range(4)] + [np.empty(n, np.int8) for _ in range(2)]
         ev = np.empty((max_events, 3))
         a = self._kernel_args()
-        status, n_ev = _solver.simulate_into(
-            np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(q, dtype=float),
-            *a, *out, ev,
-        )  # fmt: skip
+        p = np.ascontiguousarray(p, dtype=float)
+        q = np.ascontiguousarray(q, dtype=float)
+        if not a[7]:  # no user effects: the entry point without function arguments
+            status, n_ev = _solver.simulate_into_plain(p, q, *a[:7], *out, ev)
+        else:
+            status, n_ev = _solver.simulate_into(p, q, *a, *out, ev)
         return status, (*out, ev[: min(n_ev, max_events)], n_ev)
 
     def angles(self, kv):
@@ -292,7 +294,11 @@ class Simulator:
         thu = np.empty((m, self.n))
         thl = np.empty((m, self.n))
         st = np.empty(m, dtype=np.int64)
-        _solver.simulate_batch_into(P, Q, *self._kernel_args(), thu, thl, st)
+        a = self._kernel_args()
+        if not a[7]:  # no user effects: the entry point without function arguments
+            _solver.simulate_batch_into_plain(P, Q, *a[:7], thu, thl, st)
+        else:
+            _solver.simulate_batch_into(P, Q, *a, thu, thl, st)
         return st, thu, thl
 
     def residuals_into(self, kv, r, row, channels) -> int:
