@@ -702,6 +702,14 @@ _BATCH_SIGNATURE = types.void(
 )  # fmt: skip
 
 
+@njit(cache=True)
+def _batch_scratch(n):
+    """What one row of a batched simulation writes and nobody reads: velocities, modes
+    (``n`` samples each) and no events."""
+    return (np.empty(n), np.empty(n), np.empty(n, dtype=np.int8), np.empty(n, dtype=np.int8),
+            np.empty((0, 3)))  # fmt: skip
+
+
 @njit(_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
 def simulate_batch_into(
     P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
@@ -714,11 +722,7 @@ def simulate_batch_into(
     m = P.shape[0]
     n = u.shape[0]
     for i in prange(m):
-        wu = np.empty(n)
-        wl = np.empty(n)
-        mu = np.empty(n, dtype=np.int8)
-        ml = np.empty(n, dtype=np.int8)
-        ev = np.empty((0, 3))
+        wu, wl, mu, ml, ev = _batch_scratch(n)
         s, _ = simulate_into(
             P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
             hook_shift, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
@@ -740,11 +744,7 @@ def simulate_batch_into_plain(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, o
     m = P.shape[0]
     n = u.shape[0]
     for i in prange(m):
-        wu = np.empty(n)
-        wl = np.empty(n)
-        mu = np.empty(n, dtype=np.int8)
-        ml = np.empty(n, dtype=np.int8)
-        ev = np.empty((0, 3))
+        wu, wl, mu, ml, ev = _batch_scratch(n)
         s, _ = simulate_into_plain(
             P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, out_thu[i], wu, out_thl[i], wl,
             mu, ml, ev,
