@@ -42,7 +42,8 @@ def default_step(dt: float) -> float:
 
     The step grid shortens it over fast input transitions (:data:`INPUT_TOLERANCE`), and
     the solver takes substeps where a slipping lower disc crosses the Stribeck band
-    (:func:`rotorbayes.kernel.terms.stribeck_step`).  Measured against the event-driven
+    (:func:`rotorbayes.kernel.terms.stribeck_step`) and where a disc decelerates towards a
+    stop (:func:`rotorbayes.kernel.terms.approach_step`).  Measured against the event-driven
     reference (tests/reference.py) on the accuracy suite's 28 cases (every configuration
     and catalogue effect, stick-slip, delays, fast transitions; benchmarks/
     bench_step_accuracy.py): the worst case is 2.5e-6, 1.6e-6 and 3.5e-6 rad with 25, 55
@@ -244,6 +245,15 @@ class Simulator:
         return (self.u, self.dt, self.cfg, self.shape, self.grid, self.h0,
                 self.theta_u, use, ht, hs)  # fmt: skip
 
+    def _entry(self, name: str):
+        """``(kernel function, experiment arguments)`` for the kernel entry point ``name``:
+        without user effects its ``_plain`` twin, which takes no hooks (a function
+        argument costs 0.1-0.27 ms per call from Python to type and unbox)."""
+        a = self._kernel_args()
+        if not a[7]:
+            return getattr(_solver, name + "_plain"), a[:7]
+        return getattr(_solver, name), a
+
     @property
     def t(self) -> np.ndarray:
         """Sample times [s], starting at 0."""
@@ -267,13 +277,9 @@ class Simulator:
         n = self.n
         out = [np.empty(n) for _ in range(4)] + [np.empty(n, np.int8) for _ in range(2)]
         ev = np.empty((max_events, 3))
-        a = self._kernel_args()
-        p = np.ascontiguousarray(p, dtype=float)
-        q = np.ascontiguousarray(q, dtype=float)
-        if not a[7]:  # no user effects: the entry point without function arguments
-            status, n_ev = _solver.simulate_into_plain(p, q, *a[:7], *out, ev)
-        else:
-            status, n_ev = _solver.simulate_into(p, q, *a, *out, ev)
+        fn, a = self._entry("simulate_into")
+        status, n_ev = fn(np.ascontiguousarray(p, dtype=float),
+                          np.ascontiguousarray(q, dtype=float), *a, *out, ev)  # fmt: skip
         return status, (*out, ev[: min(n_ev, max_events)], n_ev)
 
     def angles(self, kv):
@@ -294,11 +300,8 @@ class Simulator:
         thu = np.empty((m, self.n))
         thl = np.empty((m, self.n))
         st = np.empty(m, dtype=np.int64)
-        a = self._kernel_args()
-        if not a[7]:  # no user effects: the entry point without function arguments
-            _solver.simulate_batch_into_plain(P, Q, *a[:7], thu, thl, st)
-        else:
-            _solver.simulate_batch_into(P, Q, *a, thu, thl, st)
+        fn, a = self._entry("simulate_batch_into")
+        fn(P, Q, *a, thu, thl, st)
         return st, thu, thl
 
     def residuals_into(self, kv, r, row, channels) -> int:
@@ -315,10 +318,8 @@ class Simulator:
         p = np.ascontiguousarray(p, dtype=float)
         q = np.ascontiguousarray(q, dtype=float)
         (mu, wu, cu), (ml, wl, cl) = _channel_args(channels)
-        a = self._kernel_args()
-        if not a[7]:  # no user effects: the entry point without function arguments
-            return int(_solver.residuals_into_plain(p, q, *a[:7], mu, ml, wu, wl, r, row, cu, cl))
-        return int(_solver.residuals_into(p, q, *a, mu, ml, wu, wl, r, row, cu, cl))
+        fn, a = self._entry("residuals_into")
+        return int(fn(p, q, *a, mu, ml, wu, wl, r, row, cu, cl))
 
     def residuals_batch_into(self, P, Q, R, channels) -> np.ndarray:
         """:meth:`residuals_into` for every row of ``P`` (``Q``) in parallel: row ``j`` of
@@ -330,11 +331,8 @@ class Simulator:
         Q = np.ascontiguousarray(np.reshape(Q, (m, -1)), dtype=float)
         (mu, wu, cu), (ml, wl, cl) = _channel_args(channels)
         st = np.empty(m, dtype=np.int64)
-        a = self._kernel_args()
-        if not a[7]:
-            _solver.residuals_batch_into_plain(P, Q, *a[:7], mu, ml, wu, wl, R, cu, cl, st)
-        else:
-            _solver.residuals_batch_into(P, Q, *a, mu, ml, wu, wl, R, cu, cl, st)
+        fn, a = self._entry("residuals_batch_into")
+        fn(P, Q, *a, mu, ml, wu, wl, R, cu, cl, st)
         return st
 
     def simulate(
