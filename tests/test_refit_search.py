@@ -111,6 +111,8 @@ def test_starts_cover_one_step_typical_spread_and_data():
     labels = [s.label for s in starts]
     assert labels[0] == "the diagnosis's one-step estimate"
     assert labels[1] == "the effect's typical start"
+    assert labels[2] == "the effect off (the parent fit itself)"
+    assert starts[2].x0[prob.names.index("Ts_l")] == prob.base["Tc_l"]
     assert sum(lb.startswith("spread: ws_l") for lb in labels) == 6
     j = prob.names.index("ws_l")
     assert starts[0].x0[j] == 3.0
@@ -128,7 +130,17 @@ def test_an_effect_without_a_shape_is_spread_over_its_size():
     starts = refit_starts(prob, x, {}, data_start=False)
     j = prob.names.index("c_alpha")
     sizes = sorted(s.x0[j] for s in starts)
-    assert len(sizes) == 3 and math.isclose(sizes[2] / sizes[1], 10.0)
+    # the parent itself (no damping), a tenth of the typical start, it, ten times it
+    assert len(sizes) == 4 and sizes[0] == 0.0
+    assert math.isclose(sizes[2] / sizes[1], 10.0) and math.isclose(sizes[3] / sizes[2], 10.0)
+
+
+def test_a_signed_effect_at_zero_is_spread_both_ways():
+    prob = _coupled_problem(["voltage_offset"])
+    x = prob.start_vector(prob.base)
+    starts = refit_starts(prob, x, {}, data_start=False)
+    j = prob.names.index("u_offset")
+    assert sorted(s.x0[j] for s in starts) == pytest.approx([-0.15, -0.05, 0.0, 0.05, 0.15])
 
 
 def test_a_start_outside_the_bounds_is_dropped_not_clipped_into_a_lie():

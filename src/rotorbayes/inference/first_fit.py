@@ -72,6 +72,16 @@ def _within_constraints(problem: Problem, x0: np.ndarray) -> np.ndarray:
             continue
         if abs(a) <= lv:
             continue
+        if asym == "dTc_u" and "u_offset" in problem.names and vals.get("k_m"):
+            # A motor voltage offset is exactly a change of dTc_u by -k_m*u_offset: an
+            # upper asymmetry beyond the level is an offset when the model has one.
+            j = problem.names.index("u_offset")
+            u_off = -a / vals["k_m"]
+            if problem.lower[j] <= u_off <= problem.upper[j]:
+                x[j] = u_off
+                x[problem.names.index(asym)] = 0.0
+                vals = problem.params_for(x, 0)
+                continue
         if asym in problem.names:
             x[problem.names.index(asym)] = math.copysign(0.9 * lv, a)
         elif level in problem.names:

@@ -159,6 +159,17 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
     if diagnosed:
         add("the diagnosis's one-step estimate", _put(problem, x_parent, diagnosed))
     add("the effect's typical start", x_parent)
+    # The parent itself (the effect at its null): the refit never ends above the parent.
+    nulls = {}
+    pv = problem.params_for(x_parent, 0)
+    for e in new:
+        for p in e.parameters:
+            if p.nuisance:
+                continue
+            v = pv.get("Tc_l") if p.name == "Ts_l" else p.null
+            nulls.update({n: v for n in names if local_name(n)[0] == p.name})
+    if nulls and all(v is not None and math.isfinite(v) for v in nulls.values()):
+        add("the effect off (the parent fit itself)", _put(problem, x_parent, nulls))
     # Spread over the nuisance shape parameters (no gradient at the null: the optimiser
     # keeps whatever it starts with unless the data pull hard).
     spread: list[dict[str, float]] = [{}]
@@ -186,12 +197,24 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
                 _put(problem, base, s))
     if not any(p.nuisance for e in new for p in e.parameters):
         # No shape to spread: the size of the effect itself, a decade either side of
-        # the typical start (an effect far from the floor can be larger or smaller).
+        # the typical start (an effect far from the floor can be larger or smaller); a
+        # signed parameter that starts at 0 (an offset, a torsion) both ways, at a tenth
+        # and a third of its range's half-width.
         for f in (0.1, 10.0):
             vals = {n: float(x_parent[problem.names.index(n)]) * f for n in names
                     if x_parent[problem.names.index(n)] != 0}
             if vals:
                 add(f"spread: the added parameters x{f:g}", _put(problem, x_parent, vals))
+        for f in (-0.3, -0.1, 0.1, 0.3):
+            vals = {}
+            for n in names:
+                j = problem.names.index(n)
+                lo, hi = problem.lower[j], problem.upper[j]
+                if x_parent[j] == 0 and lo < 0 < hi and math.isfinite(hi - lo):
+                    vals[n] = f * 0.5 * (hi - lo)
+            if vals:
+                add("spread: " + ", ".join(f"{n} {v:+.3g}" for n, v in vals.items()),
+                    _put(problem, x_parent, vals))
     if data_start:
         x = _data_start(problem, x_parent, names)
         if x is not None:
@@ -210,11 +233,12 @@ def _data_start(problem: Problem, x_parent: np.ndarray, names: list[str]):
         x = problem.x_from(ds.values)
     except Exception:  # noqa: BLE001 - a regression that fails is one start fewer
         return None
-    reached = [n for n in names if str(ds.source.get(local_name(n)[0], "")).startswith("data")]
-    if not reached:
-        return None
-    x = np.clip(x, problem.lower, problem.upper)
-    return _within_constraints(problem, x)
+    x = _within_constraints(problem, np.clip(x, problem.lower, problem.upper))
+    # Reached: estimated by the regression, or set from what it found (an upper
+    # asymmetry beyond its level is a voltage offset, see _within_constraints).
+    reached = [n for n in names if str(ds.source.get(local_name(n)[0], "")).startswith("data")
+               or x[problem.names.index(n)] != x_parent[problem.names.index(n)]]
+    return x if reached else None
 
 
 def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, float],
