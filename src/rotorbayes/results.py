@@ -22,7 +22,7 @@ import json
 import math
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,13 +37,51 @@ class ResultError(ValueError):
 
 @dataclass
 class LoadedFit:
-    """A fit read back from its folder."""
+    """A fit read back from its folder.
+
+    ``validation_alpha0`` holds, per validation experiment, the initial torsion the fit
+    decided for it (a :class:`~rotorbayes.inference.problem.ValidationTorsion`, from
+    fit.json's ``validation_alpha0``), or None where the fit recorded none (an older fit:
+    :meth:`~rotorbayes.inference.Problem.validation_params` decides it again, the same way).
+    """
 
     folder: Path
     doc: dict
     problem: object
     x: np.ndarray
     validation: list
+    validation_alpha0: list = field(default_factory=list)
+
+    def validation_quality(self) -> list[dict]:
+        """:func:`~rotorbayes.inference.quality` rows of the validation data, each run with
+        the alpha0 the fit decided for it: the figures ``fit`` printed."""
+        from .inference import quality
+
+        if not self.validation:
+            return []
+        return quality(self.problem, self.x, self.validation,
+                       validation_alpha0=self.validation_alpha0 or None)
+
+    def validation_summary(self) -> dict | None:
+        """The validation data's headline as ``fit`` gives it -- the worst fitted channel's
+        RMS over its noise floor, each run with the initial torsion the fit decided for it
+        -- with those records and a text to print; None without validation data."""
+        from .inference.assess import channel_rows
+
+        rows = self.validation_quality()
+        if not rows:
+            return None
+        floors, _ = self.problem.noise_floors()
+        ratios = [c["ratio"] for c in channel_rows(self.problem, rows, "validation", floors)
+                  if c["fitted"]]
+        v = max(ratios) if ratios else math.nan
+        recs = [r.get("validation_alpha0") for r in rows]
+        figure = f"{v:.3g}x" if v < 1000 else f"{v:.0f}x"
+        text = "\n".join([f"validation data: {figure} the floor (worst fitted channel; each "
+                          "run with its own initial torsion)"]
+                         + ["  " + t.words() for t in recs if t is not None])
+        return {"worst_ratio_to_floor": v, "text": text,
+                "alpha0": [None if t is None else t.as_dict() for t in recs]}
 
     @property
     def parent(self) -> Path | None:
@@ -223,7 +261,36 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
         raise ResultError(f"{path}: estimates lack a number for a free parameter ("
                           f"{type(exc).__name__}: {exc}): damaged, or written by another "
                           "rotorbayes; fit again") from None
-    return LoadedFit(path.parent, doc, prob, x, val)
+    return LoadedFit(path.parent, doc, prob, x, val, _validation_alpha0(doc, path, val))
+
+
+def _validation_alpha0(doc: dict, path: Path, val: list) -> list:
+    """fit.json's ``validation_alpha0``, checked: one record per validation file (or none
+    at all, from an older rotorbayes)."""
+    from .inference.problem import ValidationTorsion
+
+    recs = doc.get("validation_alpha0")
+    if recs is None or recs == []:
+        return []
+    if not isinstance(recs, list) or len(recs) != len(val):
+        raise ResultError(f"{path}: validation_alpha0 must hold one record per validation "
+                          f"file ({len(val)}): damaged, or not written by `rotorbayes fit`; "
+                          "fit again")
+    out = []
+    for r, ex in zip(recs, val, strict=True):
+        if r is None:
+            out.append(None)
+            continue
+        if not isinstance(r, dict):
+            raise ResultError(f"{path}: validation_alpha0 holds {r!r}, not a record: damaged, "
+                              "or not written by `rotorbayes fit`; fit again")
+        try:
+            out.append(ValidationTorsion.from_dict(r, experiment=str(ex.name or ex.path),
+                                                   file=str(ex.path)))
+        except ValueError as exc:
+            raise ResultError(f"{path}: {exc}: damaged, or not written by `rotorbayes fit`; "
+                              "fit again") from None
+    return out
 
 
 def _load(p: Path, config: str):

@@ -35,7 +35,7 @@ from .outputs import write_text_atomic
 #: Tables and keys the analysis file may hold (key -> expected type(s)).
 SCHEMA: dict[str, dict[str, tuple]] = {
     "analysis": {"name": (str,), "out": (str,), "config": (str,), "data": (list,),
-                 "validate": (list,), "seed": (int,)},
+                 "validate": (list,), "validate_alpha0": (list,), "seed": (int,)},
     "fit": {"p0": (str,), "free": (list,), "fixed": (list,), "effects": (list,),
             "channels": (list,), "max_nfev": (int,), "step": (int, float)},
     "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float)},
@@ -71,6 +71,8 @@ NON_EMPTY = {
     "config": "choose upper, coupled or brake",
     "data": "list at least one measurement file",
     "validate": "list validation files or leave the key out",
+    "validate_alpha0": "give one torsion [rad] or \"fit\" per validation file, or leave the "
+    "key out",
     "free": "list parameters or leave the key out (the configuration's default)",
     "fixed": "list parameters or leave the key out",
     "effects": "list effects or leave the key out",
@@ -120,6 +122,25 @@ def _err(path, key, text) -> AnalysisError:
     return AnalysisError(f"{path}: [{key}] {text}")
 
 
+def _check_validate_alpha0(p, an: dict) -> None:
+    """``validate_alpha0``: one initial torsion [rad] (or "fit") per validation file."""
+    given = an.get("validate_alpha0")
+    if given is None:
+        return
+    n = len(an.get("validate", []))
+    if len(given) != n:
+        raise _err(p, "analysis", f"validate_alpha0 has {len(given)} entries for {n} "
+                   "validation files; give one per file in the order of validate (a torsion "
+                   "in rad, or \"fit\" to fit it on that run alone)")
+    lo, hi = INFO["alpha0"].lower, INFO["alpha0"].upper
+    for v in given:
+        ok = v == "fit" or (isinstance(v, int | float) and not isinstance(v, bool)
+                            and math.isfinite(v) and lo <= v <= hi)
+        if not ok:
+            raise _err(p, "analysis", f"validate_alpha0: {v!r} is neither a torsion in rad "
+                       f"within [{lo:g}, {hi:g}] nor \"fit\"")
+
+
 def load_analysis(path: str | Path) -> Analysis:
     """Read and validate an analysis file (see the module docstring)."""
     from .examples import example_path
@@ -144,7 +165,8 @@ def load_analysis(path: str | Path) -> Analysis:
                                                      SCHEMA[t][k]):
                 want = " or ".join(x.__name__ for x in SCHEMA[t][k])
                 raise _err(p, t, f"{k} = {val!r} must be a {want}")
-            if isinstance(val, list) and not all(isinstance(x, str) for x in val):
+            if isinstance(val, list) and k != "validate_alpha0" and not all(
+                    isinstance(x, str) for x in val):
                 raise _err(p, t, f"{k} = {val!r} must be a list of strings (names in quotes)")
             if k in LIMITS.get(t, {}):
                 lo, hi = LIMITS[t][k]
@@ -177,6 +199,7 @@ def load_analysis(path: str | Path) -> Analysis:
             elif not Path(a.resolve(f)).exists():
                 raise _err(p, "analysis", f"{key}: file {f!r} not found (relative paths are "
                            f"relative to {a.base_dir})")
+    _check_validate_alpha0(p, an)
     fit = a.table("fit")
     for key in ("free", "fixed"):
         for n in fit.get(key, []):
@@ -503,6 +526,8 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
     fit_args: dict = {"model": an["config"], "data": list(data)}
     if val:
         fit_args["validate"] = list(val)
+    if an.get("validate_alpha0"):
+        fit_args["validate_alpha0"] = [str(v) for v in an["validate_alpha0"]]
     for k in ("free", "fixed", "channels"):
         if fit_t.get(k):
             fit_args[k] = ",".join(fit_t[k])
@@ -545,17 +570,22 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
                     added.pop()
                     fit = prev
                     break
-            eff = d.get("claimed_effect") or d.get("candidate_effect")
+            # Far from the floor the trial refits decide (diagnose ran one per candidate).
+            eff = d.get("refit_choice") or d.get("claimed_effect") or d.get("candidate_effect")
             if d["adequate"] or not eff or not dg.get("add_effects", True):
                 break
             if k > dg.get("max_steps", 3):
                 print(f"\nmax_steps = {dg.get('max_steps', 3)} reached; the model is still "
                       "inadequate", file=tee)
                 break
-            if not d.get("claimed_effect"):
+            if eff != d.get("claimed_effect"):
                 tried = (eff, worst, fit)
-                print(f"\nno effect claimed; trying {eff}, predicted to lower the worst "
-                      "RMS/floor materially (kept only if it does)", file=tee)
+                why = ("its trial refit lowered the worst RMS/floor most" if
+                       eff == d.get("refit_choice") else
+                       "predicted to lower the worst RMS/floor materially")
+                lead = ("no effect claimed" if not d.get("claimed_effect")
+                        else "the trial refits overrule the claim")
+                print(f"\n{lead}; trying {eff}, {why} (kept only if it does)", file=tee)
             added.append(eff)
             nxt = out / f"fit{k}"
             stage(f"fit{k}", nxt, digest(fit, "fit.json", "diagnosis.json") + base, "fit",

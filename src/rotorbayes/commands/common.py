@@ -48,18 +48,40 @@ def data_path(name: str) -> str:
     return name
 
 
-def load_experiments(paths: Sequence[str], config: str) -> list[Experiment]:
-    """The measurement files (or ``example:NAME``), checked; a file whose header names
-    another configuration gets a warning."""
+def load_experiments(paths: Sequence[str], config: str, *,
+                     keep_glitches: bool = False) -> list[Experiment]:
+    """The measurement files (or ``example:NAME``), checked, their glitches left out
+    (kept with ``keep_glitches``; :func:`rotorbayes.data.leave_out_glitches`); a file whose
+    header names another configuration gets a warning."""
     exps = []
     for p in paths:
-        ex = load_experiment(data_path(p), expect_lower=config != "upper")
+        ex = load_experiment(data_path(p), expect_lower=config != "upper",
+                             keep_glitches=keep_glitches)
         said = str((ex.meta or {}).get("config", "")).strip()
         if said in ("upper", "coupled", "brake") and said != config:
             print(f"warning: {p} says it holds {said}-configuration data (its header), but "
                   f"--model is {config}; check --model", file=sys.stderr)
         exps.append(ex)
     return exps
+
+
+def say_glitches(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()
+                 ) -> None:
+    """Print the glitches found in the data (each named; left out or kept), if any."""
+    from ..glitches import glitch_lines
+
+    for line in glitch_lines([("estimation", e) for e in estimation]
+                             + [("validation", e) for e in validation]):
+        print(line)
+
+
+def glitch_record(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()
+                  ) -> dict:
+    """The glitches found in the data, for a result document (fit.json's ``"glitches"``)."""
+    from ..glitches import glitch_record as record
+
+    return record([("estimation", e) for e in estimation]
+                  + [("validation", e) for e in validation])
 
 
 def fit_json(spec: str | None) -> dict | None:
@@ -130,6 +152,24 @@ def resolve_values(spec, model) -> dict[str, float]:
         out.update(user)
         return out
     return _params.resolve(raw, config=model.config)
+
+
+def run_values(spec: str | None) -> dict[str, float]:
+    """The per-experiment values of an earlier fit (``{"alpha0[1]": -0.2}``, from a fit.json
+    or fit folder's estimates): the next fit of the same experiments starts each one at its
+    own value (fit.json's ``params`` holds only ``alpha0[0]`` as ``alpha0``).  Empty for a
+    named set, a TOML file or a multistart folder."""
+    doc = fit_json(spec)
+    if doc is None:
+        return {}
+    out = {}
+    est = doc.get("estimates")
+    for n, e in (est.items() if isinstance(est, dict) else ()):
+        v = e.get("value") if isinstance(e, dict) else None
+        if "[" in n and n.split("[")[0] in _params.INFO and isinstance(v, int | float) \
+                and not isinstance(v, bool) and math.isfinite(v):
+            out[n] = float(v)
+    return out
 
 
 def csv_list(text: str | Sequence[str] | None, flag: str) -> list[str] | None:

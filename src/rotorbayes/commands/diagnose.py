@@ -9,7 +9,7 @@ from pathlib import Path
 from ..exitcodes import Interrupted, Refused
 from ..inference.assess import VALIDATION_NOTE
 from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
-from .common import Outcome, strict_json
+from .common import Outcome, say_glitches, strict_json
 from .options import add_trust_option, ranged
 
 HELP = ("is the remaining error noise? which effect is missing? (writes diagnosis.json and "
@@ -26,6 +26,9 @@ def add_arguments(g) -> None:
                    help="an effect of your own to test beside the catalogue's (repeatable): "
                    "a score test at the fit, a one-step estimate that `fit --p0` of this "
                    "folder starts from, a predicted fall (see docs/effects.md)")
+    g.add_argument("--no-trials", dest="trials", action="store_false",
+                   help="far above the floor, skip the trial refits (one refit of every "
+                   "candidate effect, its parameters searched, ranked by where it ends)")
     add_trust_option(g)
 
 
@@ -43,7 +46,7 @@ def _integration(result) -> dict:
 
 
 def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False,
-             add: list[str] | None = None) -> Outcome:
+             add: list[str] | None = None, trials: bool = True) -> Outcome:
     """Verdict, ranking of missing effects and missing-torque map of the fit folder ``fit``
     (written into it: diagnosis.json, diagnosis_candidates.png, missing_torque.png).
     ``noise`` is Gaussian measurement noise [rad] besides the encoders' rounding.
@@ -59,6 +62,7 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     print(f"diagnosing {result.folder}/ ({result.doc['config']} configuration, "
           f"{len(result.problem.names)} free parameters, effects: "
           f"{', '.join(result.problem.model.effect_names) or 'none'})")
+    say_glitches(result.problem.experiments, result.validation)  # as loaded here
     specs = {}
     for spec in add or []:
         if ":" not in spec or not spec.split(":", 1)[0].endswith(".py"):
@@ -80,10 +84,15 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     d.advice = _with_refit_command(d.advice, result.folder, result.doc, specs)
     print()
     print(d.text())
+    tried = _trials(result, d, specs) if trials else None
     integ = _integration(result)
     print(integ["line"])
     fa = result.doc.get("assessment") or {}
     v = fa.get("worst_ratio_to_floor_validation")
+    val = result.validation_summary()  # each run with the alpha0 the fit decided for it
+    if val is not None:
+        print(val["text"])
+        v = val["worst_ratio_to_floor"]
     sp = fa.get("validation_spread")
     if d.adequate and isinstance(v, (int, float)) and v > VALIDATION_NOTE:
         if isinstance(sp, dict) and sp.get("undetermined"):
@@ -108,7 +117,11 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
         print(f"warning: {integ['warning']}", file=sys.stderr)
     doc = d.as_dict()
     doc["integration"] = integ
+    doc["validation"] = None if val is None else {k: val[k] for k in (
+        "worst_ratio_to_floor", "alpha0")}
     doc["fit"] = str(result.folder)
+    doc["trials"] = tried
+    doc["refit_choice"] = (tried or {}).get("choice")
     # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
     with folder_lock(result.folder, flag="diagnose", other=None), InterruptGuard().start() as guard:
         figs = [(plot_candidates(result.problem, result.x, d)[0], "diagnosis_candidates.png"),
@@ -122,6 +135,69 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     print(f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
           f"missing_torque.png ({d.seconds:.1f} s)")
     return Outcome(folder=Path(fit), doc=doc)
+
+
+def _trials(result, d, specs: dict) -> dict | None:
+    """Far above the floor (and the model inadequate): refit every candidate effect with its
+    parameters searched (:mod:`rotorbayes.diagnosis.trials`), print the ranking and what
+    it decides against the score tests; None when not run."""
+    from ..diagnosis.diagnose import REFIT_TOKEN
+    from ..diagnosis.score import candidates
+    from ..diagnosis.trials import (
+        TIE,
+        TRIAL_ABOVE,
+        one_step_starts,
+        trial_choice,
+        trial_refits,
+        trial_table,
+    )
+
+    worst = max(d.rms_over_floor.values())
+    if d.adequate or not worst > TRIAL_ABOVE:
+        return None
+    prob = result.problem
+    names = [e.name for e in candidates(prob)] + list(specs.values())
+    print(f"\ntrial refits ({worst:.3g}x the floor: far from it the score tests are linear "
+          f"guesses, so each of the {len(names)} candidates is refitted, its parameters "
+          "searched from several starts; --no-trials skips this):", flush=True)
+    trials = trial_refits(prob, result.x, names, one_step_starts(d.ranking), verbose=True)
+    print(trial_table(trials, worst))
+    best = trial_choice(trials, worst, result.validation)
+    tied = [t for t in trials if math.isfinite(t.validation)]
+    if len(tied) > 1:
+        print(f"tied on the estimation data (within {100 * (TIE - 1):.0f} %): "
+              + ", ".join(f"{t.effect} {t.validation:.3g}x" for t in tied)
+              + " the floor on the validation data (each run with its own torsion)")
+    named = d.claimed or d.candidate
+    by_name = {t.effect: t for t in trials}
+    if best is None:
+        words = (f"no trial refit lowers the worst RMS/floor materially (the best, "
+                 f"{trials[0].effect}, ends at {trials[0].ratio:.3g}x): what is missing is "
+                 "not in the catalogue, or the fit is in a wrong basin; see the missing-"
+                 "torque map, try `rotorbayes multistart`, or write the effect yourself "
+                 "(docs/effects.md)")
+    elif best.effect == named or (specs.get(named or "") == best.effect):
+        words = (f"the trial refits agree with the diagnosis: {best.effect} lowers the worst "
+                 f"RMS/floor most, {worst:.3g}x -> {best.ratio:.3g}x")
+    else:
+        other = by_name.get(named or "")
+        than = (f"; the effect the score tests named, {named}, reaches {other.ratio:.3g}x"
+                if other is not None and not other.failed else "")
+        if other is not None and math.isfinite(best.validation) and math.isfinite(
+                other.validation):
+            than += (f" as well: the two are tied on the estimation data, and the "
+                     f"validation data decide ({best.validation:.3g}x against "
+                     f"{other.validation:.3g}x the floor)")
+        cmd = _with_refit_command(f"{REFIT_TOKEN} --add {best.effect}", result.folder,
+                                  result.doc, specs)
+        words = (f"the trial refits decide: {best.effect} lowers the worst RMS/floor to "
+                 f"{best.ratio:.3g}x (from {worst:.3g}x){than}. Add it and refit: {cmd}")
+    if best is not None and best.on_bound:
+        words += (f" (its {', '.join(best.on_bound)} ended on a bound: distrust the size)")
+    print(words)
+    return {"ran_above": TRIAL_ABOVE, "before": worst,
+            "choice": None if best is None else best.effect, "words": words,
+            "trials": [t.as_dict() for t in trials]}
 
 
 def _with_refit_command(advice: str, folder: Path, doc: dict,
@@ -147,6 +223,12 @@ def _with_refit_command(advice: str, folder: Path, doc: dict,
 
     files = " ".join(here(e) for e in doc.get("data_files") or []) or "DATA.csv"
     val = "".join(f" --validate {here(e)}" for e in doc.get("validation_files") or [])
+    # A validation run's torsion the user gave goes with it into the refit ('fit' for the
+    # runs whose torsion was fitted on that run alone).
+    given = [t if isinstance(t, dict) else {} for t in doc.get("validation_alpha0") or []]
+    if any(t.get("how") == "given" for t in given):
+        val += "".join(f" --validate-alpha0 {t['value']!r}" if t.get("how") == "given"
+                       else " --validate-alpha0 fit" for t in given)
     extra = " --prescribed-upper" if doc.get("prescribed_upper") else ""
     chans = doc.get("channels")
     if isinstance(chans, list) and chans and len(chans) == 1:

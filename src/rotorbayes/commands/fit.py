@@ -6,6 +6,7 @@ used by ``multistart``) turns the fit options into an estimation problem.
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 from pathlib import Path
@@ -19,7 +20,15 @@ from ..model import SimulationError
 from ..model import effects as _effects
 from ..model import parameters as _params
 from ..outputs import InterruptGuard, output_folder, save_figure_atomic
-from .common import Outcome, csv_list, fit_json, load_experiments, resolve_values, strict_json
+from .common import (
+    Outcome,
+    csv_list,
+    fit_json,
+    load_experiments,
+    resolve_values,
+    run_values,
+    strict_json,
+)
 from .options import add_fit_options, ranged
 
 HELP = "least squares from a start P0"
@@ -30,20 +39,47 @@ def add_arguments(f) -> None:
     f.add_argument("--validate", action="append", metavar="FILE",
                    help="a validation CSV file or example:NAME; repeat the option for several "
                    "(--validate a.csv --validate b.csv)")
+    f.add_argument("--validate-alpha0", action="append", metavar="RAD|fit",
+                   type=_validation_torsion,
+                   help="the initial string torsion [rad] of a validation run, once per "
+                   "--validate file in the same order ('fit': fitted on that run alone, the "
+                   "default whenever the model has a pre-wound string, as with several "
+                   "estimation files)")
     f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json "
                    "(default: a start computed from the data); a fit.json of an upper-"
                    "configuration fit also fixes the upper-disc parameters it estimated")
     f.add_argument("--restarts", type=ranged(int, ge=0), default=6,
                    help="without --p0: extra fits around the data start when the first one "
                    "ends above 3x the encoder floor")
+    f.add_argument("--no-search", dest="search", action="store_false",
+                   help="with --p0 and effects added: start their parameters at one point "
+                   "(the diagnosis's one-step estimate, else the effect's typical value) "
+                   "instead of fitting from several starts of them and keeping the best")
 
 
-def fit(data, *, model: str, out: str, validate=None, p0: str | None = None,
+def _validation_torsion(text):
+    """A ``--validate-alpha0`` value: a number [rad], or 'fit' (None: fitted on that run)."""
+    if text is None or (isinstance(text, str) and text.strip().lower() == "fit"):
+        return None
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a number; give the validation run's initial torsion in rad, "
+            "or 'fit' to fit it on that run alone") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r}: give a finite torsion in rad, or 'fit'")
+    return v
+
+
+def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
+        p0: str | None = None,
         restarts: int = 6, free=None, fixed=None, base: str | None = None, add=None,
         without=None, channels=None, weights: str | None = None,
         prescribed_upper: bool = False, max_nfev: int = 200, ftol: float = 1e-10,
         xtol: float = 1e-10, gtol: float = 1e-10, force: bool = False,
-        trust_effects: bool = False, step: float | None = None) -> Outcome:
+        trust_effects: bool = False, step: float | None = None,
+        search: bool = True, keep_glitches: bool = False) -> Outcome:
     """Fit the ``model`` configuration ("upper", "coupled" or "brake") to the measurement
     files ``data`` and write fit.json and figures into the folder ``out``.
 
@@ -51,7 +87,11 @@ def fit(data, *, model: str, out: str, validate=None, p0: str | None = None,
     or, without it, one computed from the data (with up to ``restarts`` restarts).  ``add``
     and ``without`` switch effects on and off; ``free``/``fixed``/``channels`` (lists or
     comma-separated names) and ``weights`` ("theta_l=1,theta_u=0.1") choose what is fitted;
-    ``validate`` names validation files.  The folder appears only when the fit has finished
+    ``validate`` names validation files; ``validate_alpha0`` gives each one's initial string
+    torsion [rad] ("fit" or None: fitted on that run alone, the default whenever the model
+    has a pre-wound string).  With ``p0`` and effects added, ``search``
+    fits from several starts of the added parameters (:mod:`rotorbayes.inference.refit`)
+    and keeps the best.  The folder appears only when the fit has finished
     (``force`` replaces an earlier one).  ``Outcome.doc`` is the fit.json document;
     ``exit_code`` is 1 when the fit did not converge.
     """
@@ -137,7 +177,8 @@ def build_problem(a, exps, start_spec=None):
     weights = _parse_weights(a.weights, a.model, channels, a.prescribed_upper) \
         if a.weights is not None else None
     prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
-                   fixed=fixed, step=getattr(a, "step", None))
+                   fixed=fixed, step=getattr(a, "step", None),
+                   run_starts=run_values(getattr(a, "p0", None)))
     return prob, from_upper
 
 
@@ -265,11 +306,16 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     from .. import inference as E
     from ..plots import plot_fit, plot_friction
     from ..results import data_record
+    from .common import glitch_record, say_glitches
 
-    exps = load_experiments(a.data, a.model)
-    val = load_experiments(a.validate, a.model) if a.validate else []
+    # Glitches (encoder spikes) are named and left out unless --keep-glitches.
+    exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches)
+    val = load_experiments(a.validate, a.model, keep_glitches=a.keep_glitches) \
+        if a.validate else []
+    say_glitches(exps, val)
     # The start set also fixes the values of the parameters that are not estimated.
     prob, fixed_from_upper = build_problem(a, exps, start_spec=a.p0)
+    val_alpha0 = _check_validation_torsion(a, prob, val)
     sources = _sources(a, prob, fixed_from_upper)
     print(f"model: {a.model} configuration with "
           f"{', '.join(prob.model.effect_names) or 'no effects'}")
@@ -279,6 +325,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         print(f"fixed from the upper-disc fit {a.p0}: {', '.join(fixed_from_upper)}")
     fit_kw = dict(max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol, gtol=a.gtol)
     start_source: dict[str, str] = {}
+    refit = None  # the search over an added effect's starts (--p0 with --add)
     if a.p0 and not fixed_from_upper:
         start = dict(prob.base)
         if a.base:
@@ -292,20 +339,40 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
             else "the effect's default" for n in prob.names}
         from ..results import diagnosis_starts
 
-        added_names = [e.name for e in prob.model.added]
-        for n, v in diagnosis_starts(a.p0, added_names).items():
-            if n in prob.names:
+        # The effects new to this fit: those --add names, and any whose parameters the
+        # --p0 fit did not have (their start is the effect's default).
+        add_names = {s.rpartition(":")[2] for s in (a.add or [])}
+        new_effects = [e for e in prob.model.added if e.name in add_names or any(
+            start_source.get(n) == "the effect's default" for n in e.names)]
+        diagnosed = {n: v for n, v in diagnosis_starts(
+            a.p0, [e.name for e in new_effects]).items() if n in prob.names}
+        print(f"start: --p0 {a.p0}")
+        from ..inference.refit import added_names as _searched
+
+        if a.search and _searched(prob, new_effects):
+            from ..inference.refit import refit_added
+
+            refit = refit_added(prob, x0, diagnosed, new_effects, verbose=True, **fit_kw)
+            res = refit.result
+            print(refit.table())
+            for note in refit.notes:
+                print("note: " + note)
+            for n in refit.searched:
+                start_source[n] = f"refit search: {refit.chose}"
+            chose = f"--p0 {a.p0}, added parameters from {refit.chose}"
+        else:
+            refit = None
+            for n, v in diagnosed.items():
                 j = prob.names.index(n)
                 if prob.lower[j] < v < prob.upper[j]:
                     x0[j] = v
                     start_source[n] = "the diagnosis of the --p0 fit (one-step estimate)"
-        if prob.model.added:
-            print("start of the added effects' parameters: " + ", ".join(
-                f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
-                for e in prob.model.added for n in e.names if n in prob.names))
-        print(f"start: --p0 {a.p0}")
-        res = E.fit(prob, x0, verbose=True, **fit_kw)
-        chose = f"--p0 {a.p0}"
+            if prob.model.added:
+                print("start of the added effects' parameters: " + ", ".join(
+                    f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
+                    for e in prob.model.added for n in e.names if n in prob.names))
+            res = E.fit(prob, x0, verbose=True, **fit_kw)
+            chose = f"--p0 {a.p0}"
     else:
         print("start: computed from the data (the equations of motion as a regression on "
               "smoothed derivatives of the measured angles; give --p0 to choose one)")
@@ -326,7 +393,8 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     print(f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
           f"{res.seconds:.1f} s)\n")
     q_est = E.quality(prob, res.x)
-    q_val = E.quality(prob, res.x, val) if val else []
+    q_val = E.quality(prob, res.x, val, validation_alpha0=val_alpha0) if val else []
+    torsion = [r["validation_alpha0"] for r in q_val]
     assessment = E.assess(res, q_est, q_val, sources=sources, val_experiments=val or ())
     print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound,
                       assessment.near_bound))
@@ -339,10 +407,15 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     if q_val:
         print()
         print(_quality_table(q_val, "validation data"))
+        for t in torsion:
+            if t is not None:
+                print(t.words())
     print("\nresidual RMS against the encoder quantisation floor (resolution/sqrt(12)):")
     print(assessment.table())
     print(f"verdict: {assessment.verdict}")
     print(assessment.integration_line())
+    if refit is not None:
+        _refit_words(refit, assessment, a)
     w, V = res.sloppy_directions()
     sloppy = {n: float(c) for n, c in zip(res.names, V[:, 0], strict=True)}
     ratio = float(w[-1] / max(w[0], 1e-300))
@@ -384,6 +457,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         # Absolute paths (a fit folder works from any working folder), paths relative to the
         # fit folder (a project moved whole) and hashes; effect files' hashes (they are code).
         "data": [str(Path(e.path).absolute()) for e in exps],
+        "glitches": glitch_record(exps, val),
         "validation": [str(Path(e.path).absolute()) for e in val],
         "data_files": data_record([e.path for e in exps], Path(a.out)),
         "validation_files": data_record([e.path for e in val], Path(a.out)),
@@ -397,6 +471,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         "step": prob.step,  # the largest Runge-Kutta step [s]; None: the default
         "weights": dict(prob.weights),
         "parent": _parent_of(a.p0),
+        "refit": refit.as_dict() if refit is not None else None,
         "assessment": assessment.as_dict(),
         "parameters": parameters,
         "estimates": {n: {"value": float(v), "stderr": float(s), "stderr_iid": float(si),
@@ -405,9 +480,14 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
                                                  res.x0, strict=True)},
         "uncertainty": res.uncertainty.as_dict() if res.uncertainty is not None else None,
         "params": res.params,
+        # Each validation run's own initial torsion and how it was chosen: every later
+        # command (compare, diagnose, the report, run) evaluates validation data with it.
+        "validation_alpha0": [None if t is None else t.as_dict() for t in torsion]
+        if prob.config != "upper" else [],
         "quality": {"estimation": [{k: v for k, v in r.items() if k != "simulation"}
                                    for r in q_est],
-                    "validation": [{k: v for k, v in r.items() if k != "simulation"}
+                    "validation": [{k: v for k, v in r.items()
+                                    if k not in ("simulation", "validation_alpha0")}
                                    for r in q_val]},
         "fisher": {"eigenvalues_log": [float(v) for v in w], "sloppiest_direction": sloppy},
         "correlation": res.correlation().tolist(),
@@ -436,6 +516,68 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     for wtxt in assessment.warnings:
         print(f"warning: {wtxt}", file=sys.stderr)
     return doc
+
+
+def _refit_words(refit, assessment, a) -> None:
+    """Where the refit ended against what the diagnosis beside the --p0 fit predicted for
+    the added effect; a warning (printed and kept in fit.json) when it ended above it."""
+    import json
+
+    from ..inference.refit import diagnosis_prediction, prediction_note
+
+    folder = Path(a.p0) if Path(a.p0).is_dir() else Path(a.p0).parent
+    try:
+        diag = json.loads((folder / "diagnosis.json").read_text())
+    except (OSError, ValueError):
+        diag = None
+    effects = [e.name for e in refit.result.problem.model.added
+               if any(n.split("[")[0] in e.names for n in refit.searched)]
+    pred = diagnosis_prediction(diag, effects)
+    ratio = assessment.worst_ratio
+    if pred is not None:
+        where = "below" if ratio < pred else "at" if ratio <= pred * 1.1 else "above"
+        print(f"the diagnosis of {a.p0} predicted {pred:.3g}x the floor for adding "
+              f"{' and '.join(effects)}; the refit ended at {ratio:.3g}x ({where} it)")
+    adds = "".join(f" --add {e.name if e.source == 'catalogue' else f'{e.source}:{e.name}'}"
+                   for e in refit.result.problem.model.added)
+    note = prediction_note(ratio, pred, effects,
+                           f"rotorbayes multistart --model {a.model} {' '.join(a.data)}"
+                           f"{adds} --around {a.out}/ --out {a.out.rstrip('/')}_ms/")
+    if note:
+        assessment.warnings.append(note)
+
+
+def _check_validation_torsion(a, prob, val) -> list | None:
+    """``--validate-alpha0``, checked before any work: one value per validation file, each
+    one the model can take (:meth:`~rotorbayes.inference.Problem.validation_params`).
+    Returns the values (None: fitted on that run alone) or None when none were given."""
+    given = a.validate_alpha0
+    if given is None:
+        return None
+    given = [given] if isinstance(given, int | float | str) else list(given)
+    try:
+        given = [_validation_torsion(v) for v in given]
+    except argparse.ArgumentTypeError as exc:
+        raise Refused(f"--validate-alpha0: {exc}") from None
+    if not val:
+        raise Refused("--validate-alpha0 gives the initial torsion of validation runs, but "
+                      "there is no --validate file; add --validate FILE or leave it out")
+    if len(given) != len(val):
+        raise Refused(f"--validate-alpha0 is given {len(given)} times for {len(val)} "
+                      "--validate files; give it once per validation file, in the same order "
+                      "('fit' for a run whose torsion is fitted on that run alone)")
+    if prob.config == "upper" and any(v is not None for v in given):
+        raise Refused("--validate-alpha0: the upper configuration has no string, so no "
+                      "initial torsion; leave the option out")
+    x = prob.x_from(prob.base)  # any point: the check is on the values alone
+    for v, ex in zip(given, val, strict=True):
+        if v is None:
+            continue
+        try:
+            prob.validation_params(x, ex, v)
+        except _params.ParameterError as exc:
+            raise Refused(f"--validate-alpha0 {v:g}: {exc}") from None
+    return given
 
 
 def _parent_of(p0: str | None) -> str | None:

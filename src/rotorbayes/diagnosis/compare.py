@@ -24,7 +24,7 @@ an improvement that is not one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
@@ -33,6 +33,7 @@ from .. import metrics as _metrics
 from ..data import quantisation_floor
 from ..inference.assess import NEAR_FLOOR
 from ..inference.least_squares import quality
+from ..inference.problem import ValidationTorsion
 from ..inference.starts import derivatives
 from .diagnose import LEVEL, MATERIAL_FLOOR_UNITS, MATERIAL_FRACTION, is_material
 
@@ -101,11 +102,18 @@ class FitSummary:
     bic: float
     rho: float
     residual: np.ndarray
+    #: The validation runs' alpha0 records (:class:`~rotorbayes.inference.problem.
+    #: ValidationTorsion`); empty on estimation data.
+    validation_alpha0: list = field(default_factory=list)
 
 
-def summarise(label: str, problem, x, experiments=None, data: str = "estimation"):
-    """:class:`FitSummary` of ``problem`` at ``x`` on its data or on ``experiments``."""
-    rows = quality(problem, x, experiments)
+def summarise(label: str, problem, x, experiments=None, data: str = "estimation", *,
+              validation_alpha0=None):
+    """:class:`FitSummary` of ``problem`` at ``x`` on its data or on ``experiments``
+    (validation data: each run with the alpha0 ``validation_alpha0`` holds -- the fit's
+    stored records -- or, without it, decided by
+    :meth:`~rotorbayes.inference.Problem.validation_params`, as the fit decided it)."""
+    rows = quality(problem, x, experiments, validation_alpha0=validation_alpha0)
     res, rms, fit, mx = [], {}, {}, {}
     ssr = n = 0
     for r in rows:
@@ -126,13 +134,19 @@ def summarise(label: str, problem, x, experiments=None, data: str = "estimation"
             res.append(meas - sim)
     k = len(problem.names)
     resid = np.concatenate(res)
+    floors, _ = problem.noise_floors()
     return FitSummary(
         label=label, data=data, k=k, n=n, ssr=ssr,
-        rms_over_floor={c: math.sqrt(np.mean(v)) / quantisation_floor(c) for c, v in rms.items()},
+        # The problem's noise floors, as fit and diagnose divide by (the encoders' rounding,
+        # or the data's own jitter where it is larger): one figure in every command.
+        rms_over_floor={c: math.sqrt(np.mean(v)) / floors.get(c, quantisation_floor(c))
+                        for c, v in rms.items()},
         nrmse_fit={c: float(np.mean(v)) for c, v in fit.items()},
         max_error={c: float(np.max(v)) for c, v in mx.items()},
         aicc=_metrics.aicc(ssr, n, k), bic=_metrics.bic(ssr, n, k),
         rho=lag1(resid), residual=resid,
+        validation_alpha0=[r.get("validation_alpha0") for r in rows] if experiments is not None
+        else [],
     )
 
 
@@ -212,13 +226,17 @@ def compare_fits(fits) -> dict:
         for data, exps in (("estimation", None), ("validation", f.validation or None)):
             if data == "validation" and exps is None:
                 continue
-            s = summarise(label, f.problem, f.x, exps, data)
+            given = (f.validation_alpha0 or None) if data == "validation" else None
+            s = summarise(label, f.problem, f.x, exps, data, validation_alpha0=given)
             if s is None:
                 continue
             cur[data] = s
             entry[data] = {"ssr": s.ssr, "rms_over_floor": s.rms_over_floor,
                            "nrmse_fit_percent": s.nrmse_fit, "max_error_rad": s.max_error,
                            "aicc": s.aicc, "bic": s.bic, "lag1_autocorrelation": s.rho}
+            if data == "validation" and s.validation_alpha0:
+                entry["validation_alpha0"] = [t.as_dict() for t in s.validation_alpha0
+                                              if t is not None]
         out["fits"].append(entry)
         if prev:
             nested = (f.problem.config == prev["config"]
@@ -263,6 +281,9 @@ def table(doc: dict) -> str:
             mx = max(d["max_error_rad"].values())
             lines.append(f"{f['label']:<{w}} {data:<10} {f['k']:3d} {d['ssr']:11.4g} "
                          f"{rms:>22} {fit:>14} {mx:9.3g} {d['aicc']:11.5g} {d['bic']:11.5g}")
+    for f in doc["fits"]:
+        for t in f.get("validation_alpha0") or []:
+            lines.append(f"  {f['label']}: " + ValidationTorsion.from_dict(t).words())
     if doc["steps"]:
         lines.append("")
         lines.append("step by step:")

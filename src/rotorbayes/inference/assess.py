@@ -233,14 +233,19 @@ def integration_warning(problem, ratio: float) -> str | None:
 
 
 def validation_spread(result, experiments, floors: dict, *, draws: int = 40,
-                      seed: int = 0) -> dict | None:
+                      seed: int = 0, validation_alpha0=None) -> dict | None:
     """The worst fitted channel's RMS/floor that ``experiments`` (validation data) would
     show if the model were right and the truth were a draw from the fit's honest
     covariance: per draw ``sqrt(floor² + mean((sim(draw) - sim(fit))²)) / floor``, the worst
     channel over the experiments; its 10 %, 50 % and 90 % points over ``draws`` draws
     (fixed seed). ``{"undetermined": names}`` when the covariance is not finite there (the
     data do not determine those parameters); None when fewer than half the draws
-    simulate."""
+    simulate.
+
+    Each validation run keeps the ``alpha0`` of the figure it explains
+    (:meth:`~rotorbayes.inference.Problem.validation_params` at the fit; ``validation_alpha0``
+    gives the records or values decided there, one per experiment, else they are decided
+    here) in every draw."""
     prob = result.problem
     cov = np.asarray(result.honest_covariance(), float)
     if not experiments or cov.size == 0:
@@ -255,19 +260,25 @@ def validation_spread(result, experiments, floors: dict, *, draws: int = 40,
     except (np.linalg.LinAlgError, ValueError):
         return None
     lo, hi = prob.lower, prob.upper
+    x_fit = np.asarray(result.x, float)
+    given = list(validation_alpha0) if validation_alpha0 is not None else [None] * len(
+        experiments)
+    torsion = [prob.validation_params(x_fit, ex, g)[1] for ex, g in zip(
+        experiments, given, strict=True)]
 
-    def angles(x, sim):
-        s = sim.simulate(prob.params_for_other(x), raise_on_failure=False)
+    def angles(x, ex, sim, rec):
+        s = sim.simulate(prob.validation_params(x, ex, rec)[0], raise_on_failure=False)
         return {"theta_u": s.theta_u, "theta_l": s.theta_l}
 
     sims = [prob.simulator_for(ex) for ex in experiments]
-    at_fit = [angles(np.asarray(result.x, float), sim) for sim in sims]
+    runs = list(zip(experiments, sims, torsion, strict=True))
+    at_fit = [angles(x_fit, ex, sim, rec) for ex, sim, rec in runs]
     worst = []
     for z in Z:
         z = np.clip(z, lo, hi)
         w = 0.0
-        for sim, ref in zip(sims, at_fit, strict=True):
-            got = angles(z, sim)
+        for (ex, sim, rec), ref in zip(runs, at_fit, strict=True):
+            got = angles(z, ex, sim, rec)
             for c in prob.channels:
                 d = got[c] - ref[c] if got[c] is not None and ref[c] is not None else None
                 if d is None or not np.all(np.isfinite(d)):
@@ -299,7 +310,11 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None,
         prob, q_val, "validation", floors))
     v = a.worst_ratio_validation
     if val_experiments and math.isfinite(v) and v > VALIDATION_NOTE and a.worst_ratio <= NEAR_FLOOR:
-        a.spread = validation_spread(result, list(val_experiments), floors)
+        # The runs' alpha0 as the figure had them (quality's rows carry the records).
+        recs = [r.get("validation_alpha0") for r in q_val]
+        a.spread = validation_spread(result, list(val_experiments), floors,
+                                     validation_alpha0=recs if len(recs) == len(
+                                         val_experiments) else None)
     a.warnings.extend(notes)
     a.jitter_floor = bool(notes)
     sources = sources or {}

@@ -434,21 +434,34 @@ def quality(
     experiments: Sequence[Experiment] | None = None,
     *,
     k: int | None = None,
+    validation_alpha0: Sequence | None = None,
 ) -> list[dict]:
     """Per experiment and channel (theta_l, theta_u, alpha as in the thesis): R², NRMSE
     fit %, max ``|error|``, SSR, plus AICc and BIC of the fitted channels, and the
     integrator's own error there (:func:`integration_error`).
 
     ``experiments`` default to the problem's own (estimation data); pass validation
-    experiments to evaluate the same parameters on other inputs (``alpha0`` of a
-    validation experiment is taken from ``problem.base``).
+    experiments to evaluate the same parameters on other inputs.  A validation run's
+    ``alpha0`` is its own, decided by :meth:`Problem.validation_params`: ``validation_alpha0``
+    gives one entry per experiment (a number [rad] the user gave, a stored
+    :class:`~rotorbayes.inference.problem.ValidationTorsion` or its dict, or None: decide
+    -- fitted on that run alone when the model has a pre-wound string); each validation row
+    carries the record as ``"validation_alpha0"``.
     """
     exps = problem.experiments if experiments is None else experiments
     k = len(problem.names) if k is None else k
+    given = list(validation_alpha0) if validation_alpha0 is not None else [None] * len(exps)
+    if experiments is not None and len(given) != len(exps):
+        raise ValueError(f"validation_alpha0 has {len(given)} entries for {len(exps)} "
+                         "validation experiments; give one per experiment (None: decide)")
     rows = []
     for i, ex in enumerate(exps):
         own = experiments is None
-        p = problem.params_for(x, i) if own else problem.params_for_other(x)
+        torsion = None
+        if own:
+            p = problem.params_for(x, i)
+        else:
+            p, torsion = problem.validation_params(x, ex, given[i])
         sim = problem.sims[i] if own else problem.simulator_for(ex)
         s = sim.simulate(p, raise_on_failure=False)
         chans = {"theta_u": (ex.theta_u, s.theta_u)}
@@ -475,6 +488,8 @@ def quality(
                 "simulation": s,
             }
         )
+        if not own:
+            rows[-1]["validation_alpha0"] = torsion
     return rows
 
 

@@ -13,7 +13,10 @@ A :class:`Problem` maps a free-parameter vector ``x`` to
 
 The residual is ``r = concat over experiments e and channels c of w_c (y_ec - yhat_ec)``
 (thesis eqs. 4.4, 4.10, 5.19).  ``alpha0`` takes one value per experiment
-(``alpha0[0]``, ``alpha0[1]``, ...; thesis §5.3.2).
+(``alpha0[0]``, ``alpha0[1]``, ...; thesis §5.3.2).  A validation experiment has its own
+torsion too: :meth:`Problem.validation_params` decides it (fitted on that run alone, given,
+or the model's fixed value), and every command that evaluates validation data goes through
+it or through the value it stored.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +36,16 @@ from ..model.parameters import INFO, ParameterError, resolve, unknown_name_messa
 from ..model.simulate import DEFAULT_STEP, Simulation, Simulator
 
 CHANNELS = ("theta_u", "theta_l")
+
+#: How a validation experiment's initial torsion was chosen (:attr:`ValidationTorsion.how`).
+FITTED_ALONE = "fitted on that run alone"
+GIVEN = "given"
+FIXED = "fixed"
+#: Points of the scan that starts the nuisance fit of a validation run's alpha0.
+VALIDATION_SCAN = 41
+#: Residual [rad] for a parameter set the integrator rejects during that nuisance fit (as
+#: ``least_squares.FAIL_RESIDUAL`` in a fit: a finite number the optimiser can leave).
+_FAILED = 1e3
 
 
 def local_name(name: str) -> tuple[str, int | None]:
@@ -94,6 +108,48 @@ class Evaluation:
         ]
 
 
+@dataclass(frozen=True)
+class ValidationTorsion:
+    """How a validation experiment's initial string torsion ``alpha0`` [rad] was chosen
+    (:meth:`Problem.validation_params`): ``how`` is :data:`FITTED_ALONE`, :data:`GIVEN` or
+    :data:`FIXED`."""
+
+    experiment: str
+    value: float
+    how: str
+    file: str | None = None
+
+    def words(self) -> str:
+        """One line a user reads under the fit."""
+        if self.how == FITTED_ALONE:
+            return (f"validation {self.experiment}: its initial torsion alpha0 fitted on that "
+                    f"run alone (a nuisance parameter, every other parameter at the fit): "
+                    f"{self.value:.4g} rad")
+        if self.how == GIVEN:
+            return (f"validation {self.experiment}: its initial torsion alpha0 = "
+                    f"{self.value:.6g} rad, given")
+        return (f"validation {self.experiment}: alpha0 = {self.value:g} rad, the model's fixed "
+                "value (initial_torsion is off: no pre-wound string)")
+
+    def as_dict(self) -> dict:
+        return {"experiment": self.experiment, "file": self.file, "value": self.value,
+                "how": self.how}
+
+    @classmethod
+    def from_dict(cls, d: Mapping, *, experiment: str = "validation data",
+                  file: str | None = None) -> ValidationTorsion:
+        """A record as :meth:`as_dict` wrote it (fit.json's ``validation_alpha0``);
+        ``ValueError`` naming what is wrong when it is not one."""
+        v, how = d.get("value"), d.get("how")
+        if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+            raise ValueError(f"validation alpha0 record {dict(d)!r}: value is not a number")
+        if how not in (FITTED_ALONE, GIVEN, FIXED):
+            raise ValueError(f"validation alpha0 record {dict(d)!r}: how must be "
+                             f"{FITTED_ALONE!r}, {GIVEN!r} or {FIXED!r}")
+        return cls(str(d.get("experiment") or experiment), float(v), how,
+                   d.get("file") if isinstance(d.get("file"), str) else file)
+
+
 @dataclass
 class Problem:
     """A least-squares / likelihood problem over one or more experiments.
@@ -122,6 +178,11 @@ class Problem:
         Drive the lower disc with the measured upper angle instead of the motor model.
     fixed : sequence of str
         Parameters removed from the default free set.
+    run_starts : mapping, optional
+        Start values of per-experiment parameters (``{"alpha0[1]": -0.2}``), e.g. an
+        earlier fit's estimates of the same experiments: :meth:`start_vector` takes
+        ``alpha0[i]`` from here before it falls back to the shared ``alpha0``.  Names of
+        experiments this problem does not have are dropped.
     """
 
     model: Model | str
@@ -135,6 +196,7 @@ class Problem:
     shape: str = "exp"
     step: float | None = DEFAULT_STEP
     fixed: Sequence[str] = ()
+    run_starts: Mapping[str, float] | None = None
     names: list[str] = field(init=False)
 
     def __post_init__(self):
@@ -176,6 +238,7 @@ class Problem:
                     f"configuration file; use --model upper, not {self.config!r}"
                 )
         self.names = self._free_names()
+        self.run_starts = self._checked_run_starts(self.run_starts)
         if self.channels is None:
             self.channels = default_channels(self.config, self.prescribed_upper, self.names)
         self.channels = tuple(self.channels)
@@ -277,6 +340,18 @@ class Problem:
             raise ParameterError(f"a free parameter is listed twice: {names}")
         return names
 
+    def _checked_run_starts(self, given) -> dict[str, float]:
+        """``run_starts`` kept for this problem's experiments, every name checked."""
+        out: dict[str, float] = {}
+        for n, v in dict(given or {}).items():
+            b, idx = local_name(n)
+            if idx is None or b not in self.model.info:
+                raise ParameterError(
+                    f"run_starts: {n!r} is not a per-experiment name such as 'alpha0[1]'")
+            if idx < len(self.experiments):
+                out[n] = float(v)
+        return out
+
     def _tighten_bounds(self) -> None:
         """A validity constraint ``a >= |b|`` with one of the two fixed is a box bound on
         the other: make it one, so the optimiser meets a bound, not a penalty wall."""
@@ -297,13 +372,17 @@ class Problem:
         """The noise floor [rad RMS] of every fitted channel, and notes in words.
 
         ``noise_std`` given: ``sqrt(q²/12 + noise_std²)``.  Otherwise the encoder
-        quantisation floor ``q/√12``, unless the measured angles jitter clearly more than
-        that (:func:`rotorbayes.data.jitter_rms` above 1.3× the quantisation floor): then
-        the data carry other noise, and the jitter is the floor (said in the notes, so a
-        verdict is never "far from the floor" only because the encoder is not the only
-        noise).
+        quantisation floor ``q/√12``, raised only for broad-band jitter: where the measured
+        angles jitter clearly more than that (above
+        :data:`~rotorbayes.data.JITTER_FACTOR` x the quantisation floor) through most of
+        the record (:meth:`rotorbayes.data.Jitter.broadband`), the data carry other noise
+        and its typical jitter is the floor.  The notes say so with the evidence (how many
+        stretches and samples, which band), so a verdict is never "far from the floor"
+        only because the encoder is not the only noise.  Glitches (single samples far off,
+        :mod:`rotorbayes.glitches`) never raise the floor: the loader leaves them out, and
+        those kept with ``--keep-glitches`` raise a few stretches only.
         """
-        from ..data import jitter_rms, quantisation_floor
+        from ..data import jitter_evidence, quantisation_floor
 
         cache = self.__dict__.setdefault("_floors_cache", {})
         if noise_std in cache:  # the data do not change: compute the jitter once
@@ -315,17 +394,17 @@ class Problem:
             if noise_std is not None:
                 floors[c] = math.hypot(q, noise_std)
                 continue
-            j = max(
-                (jitter_rms(ex.theta_u if c == "theta_u" else ex.theta_l)
-                 for ex in self.experiments),
-                default=math.nan,
-            )
-            if math.isfinite(j) and j > 1.3 * q:
-                floors[c] = j
+            broad = [j for ex in self.experiments if (j := jitter_evidence(
+                ex.theta_u if c == "theta_u" else ex.theta_l, ex.dt, c)) is not None
+                and j.broadband]
+            if broad:
+                j = max(broad, key=lambda e: e.rms)
+                floors[c] = j.rms
+                where = (f" ({len(broad)} of {len(self.experiments)} experiments; the "
+                         "largest)") if len(self.experiments) > 1 else ""
                 notes.append(
-                    f"the measured {c} jitters at {j:.2g} rad RMS from sample to sample, "
-                    f"above the encoder quantisation ({q:.2g} rad): the data carry other "
-                    f"noise, and {j:.2g} rad is used as the floor (give --noise to set it)"
+                    f"{j.words()}{where}: broad-band noise besides the encoder's rounding, "
+                    f"so {j.rms:.2g} rad is used as the floor (give --noise to set it)"
                 )
             else:
                 floors[c] = q
@@ -369,7 +448,8 @@ class Problem:
         carried over in one place, not at every call site."""
         kw = {"model": self.model, "experiments": self.experiments,
               "free": list(self.names_base()), "base": self.base, "channels": self.channels,
-              "weights": self.weights, "shape": self.shape, "step": self.step}  # fmt: skip
+              "weights": self.weights, "shape": self.shape, "step": self.step,
+              "run_starts": self.run_starts}  # fmt: skip
         unknown = sorted(set(changes) - set(kw))
         if unknown:
             raise TypeError(f"Problem.like: no setting {', '.join(unknown)}")
@@ -407,24 +487,113 @@ class Problem:
                 p[base] = float(v)
         return p
 
-    def params_for_other(self, x: np.ndarray) -> dict[str, float]:
+    def validation_params(self, x: np.ndarray, ex: Experiment,
+                          given=None) -> tuple[dict[str, float], ValidationTorsion | None]:
         """The full parameter set at ``x`` for an experiment outside the problem
-        (validation data): experiment 0's values, with ``alpha0`` from :attr:`base` unless
-        it is a shared free parameter (each experiment starts with its own torsion)."""
+        (validation data), and how its initial string torsion ``alpha0`` was chosen.
+
+        Every parameter but ``alpha0`` is the fit's (experiment 0's values; they are the
+        same in every experiment).  A validation run starts with its own torsion, so its
+        ``alpha0`` is never another experiment's:
+
+        * ``given`` a number [rad]: that value (the user knows the run's torsion);
+        * ``given`` a :class:`ValidationTorsion` (or its :meth:`~ValidationTorsion.as_dict`,
+          as fit.json stores it): its value, as decided before (every later command gives
+          the same figure as the fit);
+        * otherwise, when the model has a pre-wound string (``initial_torsion`` on: always
+          with several estimation experiments), ``alpha0`` is fitted on that run alone,
+          every other parameter at ``x`` -- a one-parameter nuisance fit of the run's fitted
+          channels (a scan, fine over the torsion the lower disc's static friction can
+          hold at rest and geometric out to alpha0's bounds, then least squares between
+          the best point's neighbours);
+        * without ``initial_torsion`` the model has no pre-wound string: the fit's fixed
+          value (the null, 0).
+
+        Returns ``(params, record)``; ``record`` is None for the upper configuration (no
+        string).  Raises :class:`ParameterError` for a given value outside alpha0's bounds,
+        or a non-zero one where the model has no pre-wound string.
+        """
         p = self.params_for(x, 0)
-        if "alpha0" not in self.names:
-            p["alpha0"] = self.base["alpha0"]
-        return p
+        if self.config == "upper":
+            return p, None
+        name = str(ex.name or ex.path or "validation data")
+        file = str(Path(ex.path).absolute()) if ex.path else None
+        info = self.model.info["alpha0"]
+        if isinstance(given, Mapping):
+            given = ValidationTorsion.from_dict(given, experiment=name, file=file)
+        if isinstance(given, ValidationTorsion):
+            rec = given
+        elif given is not None:
+            v = float(given)
+            if not (math.isfinite(v) and info.lower <= v <= info.upper):
+                raise ParameterError(
+                    f"validation {name}: alpha0 = {v:g} rad lies outside alpha0's bounds "
+                    f"[{info.lower:g}, {info.upper:g}]; give the run's initial torsion in rad")
+            rec = ValidationTorsion(name, v, GIVEN, file)
+        elif "alpha0" in self.model.active:
+            rec = ValidationTorsion(name, self._fit_validation_alpha0(p, ex), FITTED_ALONE,
+                                    file)
+        else:
+            rec = ValidationTorsion(name, float(self.base["alpha0"]), FIXED, file)
+        if rec.value != 0.0 and "alpha0" not in self.model.active:
+            raise ParameterError(
+                f"validation {name}: alpha0 = {rec.value:g} rad, but this {self.config} model "
+                "has no pre-wound string (initial_torsion is off), so no run can start with "
+                "torsion; add the effect (--add initial_torsion) or leave the value out")
+        p["alpha0"] = rec.value
+        return p, rec
+
+    def _fit_validation_alpha0(self, p: Mapping[str, float], ex: Experiment) -> float:
+        """``alpha0`` of experiment ``ex`` fitted on its fitted channels alone, every other
+        parameter at ``p``: see :meth:`validation_params`."""
+        from scipy.optimize import least_squares
+
+        sub = self.like(experiments=[ex], free=["alpha0"], base=dict(p), run_starts=None)
+        info = self.model.info["alpha0"]
+        lo, hi = info.lower, info.upper
+        # A run that starts at rest holds |k_alpha alpha0| inside the lower disc's static
+        # band: scan it finely, half as far again beyond it, and out to the bounds on a
+        # geometric grid (a run may start moving: the data decide, not this guess).
+        static = max(p.get("Tc_l", math.nan), p.get("Ts_l", math.nan)) + abs(
+            p.get("dTc_l", 0.0))
+        k = p.get("k_alpha", math.nan)
+        reach = 1.5 * static / k if (math.isfinite(static) and math.isfinite(k) and k > 0
+                                     and static > 0) else 1.0
+        reach = min(reach, hi, -lo)
+        far = np.geomspace(reach, max(hi, -lo), VALIDATION_SCAN // 2)
+        grid = np.unique(np.clip(np.r_[np.linspace(-reach, reach, VALIDATION_SCAN), far, -far,
+                                       0.0], lo, hi))
+        R = sub.residuals_batch(grid[:, None], penalty=_FAILED)
+        ok = ~np.any(R == _FAILED, axis=1)
+        if not ok.any():  # no torsion lets the run be simulated: leave it unwound
+            return 0.0
+        ssr = np.where(ok, np.einsum("ij,ij->i", R, R), np.inf)
+        j = int(np.argmin(ssr))
+        a, b = grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]
+        if a == b:
+            return float(grid[j])
+        res = least_squares(lambda z: sub.residuals(z, penalty=_FAILED), [grid[j]],
+                            bounds=([a], [b]), x_scale=[b - a], method="trf",
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100)
+        best = float(res.x[0])
+        r = sub.residuals(np.array([best]), penalty=_FAILED)
+        return best if float(r @ r) <= float(R[j] @ R[j]) else float(grid[j])
 
     def start_vector(self, values: Mapping[str, float]) -> np.ndarray:
         """Start vector from ``values``; a free parameter of an added effect that sits at
         its null value starts at the effect's typical value instead (see
-        :func:`rotorbayes.model.effects.typical_start`), so the fit can move it."""
+        :func:`rotorbayes.model.effects.typical_start`), so the fit can move it.  A
+        per-experiment name (``alpha0[1]``) missing from ``values`` starts at its value in
+        :attr:`run_starts` (an earlier fit's estimate for that experiment), before the
+        shared ``alpha0``."""
         vals = dict(values)
         for e in self.model.added:
             for n, v in _effects.typical_start(e, vals).items():
                 if any(local_name(f)[0] == n for f in self.names):
                     vals[n] = v
+        for n, v in (self.run_starts or {}).items():
+            if n in self.names and n not in vals:
+                vals[n] = v
         return self.x_from(vals)
 
     def values(self, x: np.ndarray) -> dict[str, float]:

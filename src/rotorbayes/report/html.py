@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..inference.identify import profile_interval
+from ..inference.problem import ValidationTorsion
 from ..outputs import write_text_atomic
 from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
@@ -430,6 +431,10 @@ def _fit(f: Found) -> Raw | None:
             numeric=(3, 4, 5),
             row_cls=lambda k: _ratio_cls(chan[k].get("ratio")) if chan[k].get("fitted")
             else "muted"))
+    torsion = _validation_torsion(d)
+    if torsion:
+        out.append(Raw('<p class="note">Each validation run starts with its own string '
+                       "torsion: " + "; ".join(esc(w) for w in torsion) + ".</p>"))
     q = d.get("quality") or {}
     qrows = []
     for data in ("estimation", "validation"):
@@ -484,6 +489,19 @@ def _fit(f: Found) -> Raw | None:
     figs.append((fit.folder / "friction.png", "fitted friction curves"))
     out.append(_figs(*figs))
     return Raw("".join(out))
+
+
+def _validation_torsion(doc: dict) -> list[str]:
+    """How each validation run's alpha0 was chosen, in words (fit.json's
+    ``validation_alpha0``; nothing for an older fit or a damaged record)."""
+    out = []
+    for t in doc.get("validation_alpha0") or []:
+        if isinstance(t, dict):
+            try:
+                out.append(ValidationTorsion.from_dict(t).words())
+            except ValueError:
+                continue
+    return out
 
 
 def _compare(f: Found) -> Raw | None:
