@@ -31,6 +31,19 @@ A UTF-8 CSV file in SI units (s, V, rad), uniformly sampled::
 :func:`load_experiment` checks all of this and raises :class:`DataFileError` naming the file,
 the line (1-based, counting every line of the file, comments included), the bad value and what
 to do about it.
+
+Glitches
+--------
+Encoder lines pick up spikes: a sample (or a burst of up to three within 13 samples) that
+reads tens to hundreds of counts off while its neighbours read right. :func:`load_experiment`
+finds them (:mod:`rotorbayes.glitches`), names each in :attr:`Experiment.glitches` (channel,
+time, sample, size in counts, the measured value) and leaves it out: the sample then holds
+the cubic through its neighbours, so it carries no weight of its own and every figure
+computed from the data stays consistent. ``keep_glitches=True`` (``--keep-glitches`` of
+``fit`` and ``multistart``) keeps the measured values; either way ``fit`` prints each glitch
+and records it in fit.json under ``"glitches"``. :func:`save_experiment` writes the measured
+values back. Glitches never raise the noise floor: only jitter through most of the record
+does (:func:`jitter_evidence`).
 """
 
 import array
@@ -44,11 +57,17 @@ from pathlib import Path
 
 import numpy as np
 
+from . import glitches as _glitches
+from .glitches import Glitch
+
 __all__ = [
     "UPPER_COUNTS_PER_REV",
     "LOWER_COUNTS_PER_REV",
     "quantisation_floor",
     "jitter_rms",
+    "JITTER_FACTOR",
+    "Jitter",
+    "jitter_evidence",
     "COLUMNS",
     "UPPER_COLUMNS",
     "MAX_ANGULAR_RATE",
@@ -57,6 +76,8 @@ __all__ = [
     "DataFileError",
     "DataWarning",
     "Experiment",
+    "Glitch",
+    "leave_out_glitches",
     "load_experiment",
     "save_experiment",
     "quantize",
@@ -105,6 +126,104 @@ def jitter_rms(theta: np.ndarray, window: int = 11) -> float:
     c0 = float(savgol_coeffs(window, 3)[window // 2])
     r = theta - savgol_filter(theta, window, 3)
     return float(np.sqrt(np.mean(r**2) / (1.0 - c0)))
+
+
+#: A channel's jitter above this multiple of its quantisation floor, through most of the
+#: record, is broad-band noise that the noise floor must include.
+JITTER_FACTOR = 1.3
+
+
+@dataclass(frozen=True)
+class Jitter:
+    """How much a measured angle jitters from sample to sample, and where: the evidence for
+    raising a noise floor above the encoder's (see :func:`jitter_evidence`).
+
+    Attributes
+    ----------
+    channel : str
+    rms : float
+        Typical jitter [rad RMS]: the median over the stretches of the local cubic's
+        residual, corrected for its leverage (as :func:`jitter_rms`).
+    quantisation : float
+        The channel's quantisation floor [rad RMS].
+    n_samples, n_beyond : int
+        Samples judged, and those further from the local cubic than rounding to counts can
+        put them (none for a disc whose only noise is the encoder's rounding).
+    stretches, stretches_above : int
+        Equal stretches of the record, and those whose jitter exceeds
+        :data:`JITTER_FACTOR` x the quantisation floor.
+    stretch_seconds : float
+        Length of a stretch [s].
+    band : tuple of float
+        The frequencies [Hz] the local cubic's residual passes (above its -3 dB point, up
+        to half the sampling rate): the band of the jitter.
+    """
+
+    channel: str
+    rms: float
+    quantisation: float
+    n_samples: int
+    n_beyond: int
+    stretches: int
+    stretches_above: int
+    stretch_seconds: float
+    band: tuple[float, float]
+
+    @property
+    def broadband(self) -> bool:
+        """Whether the jitter is noise through most of the record, above the encoder's
+        rounding: more than half the stretches (so the median) above
+        :data:`JITTER_FACTOR` x the quantisation floor.  A few spikes, a short burst of
+        vibration or glitches that were kept raise some stretches only."""
+        return bool(math.isfinite(self.rms) and self.rms > JITTER_FACTOR * self.quantisation
+                    and 2 * self.stretches_above > self.stretches)
+
+    def words(self) -> str:
+        """The evidence in a sentence."""
+        lo, hi = self.band
+        return (f"the measured {self.channel} jitters at {self.rms:.2g} rad RMS from sample "
+                f"to sample ({self.rms / self.quantisation:.2g}x the encoder quantisation, "
+                f"{self.quantisation:.2g} rad) in {self.stretches_above} of {self.stretches} "
+                f"stretches of {self.stretch_seconds:.3g} s, in the band {lo:.3g}-{hi:.3g} "
+                f"Hz; {self.n_beyond} of {self.n_samples} samples lie further from the "
+                f"local cubic than rounding to counts can put them")
+
+
+def jitter_evidence(theta: np.ndarray, dt: float, channel: str, window: int = 11
+                    ) -> Jitter | None:
+    """The jitter of a measured angle, stretch by stretch (see :class:`Jitter`); ``None``
+    for records too short to judge (fewer than 3 ``window``-sample stretches' worth).
+
+    The record is cut into about one stretch per second (4 to 60 stretches, each at least
+    3 ``window`` samples); each stretch's jitter is the RMS of the residual of a local
+    cubic (Savitzky-Golay, ``window`` samples) corrected for the fit's leverage.
+    """
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    theta = np.asarray(theta, float)
+    n = theta.size
+    if n < 3 * window or not dt > 0:
+        return None
+    coeffs = savgol_coeffs(window, 3)
+    c0 = float(coeffs[window // 2])
+    r = theta - savgol_filter(theta, window, 3)
+    h = -coeffs
+    h[window // 2] += 1.0  # the residual filter
+    q = quantisation_floor(channel)
+    step = q * math.sqrt(12.0)  # one count [rad]
+    bound = 0.5 * step * float(np.sum(np.abs(h)))
+    n_beyond = int(np.count_nonzero(np.abs(r) > bound * (1.0 + 1e-9)))
+    duration = n * dt
+    k = int(min(60, max(4, round(duration)), n // (3 * window)))
+    k = max(k, 1)
+    parts = np.array_split(r, k)
+    per = np.array([math.sqrt(float(np.mean(p**2)) / (1.0 - c0)) for p in parts])
+    freqs = np.linspace(0.0, 0.5, 2001)
+    gain = np.abs(np.exp(-2j * np.pi * np.outer(freqs, np.arange(window) - window // 2)) @ h)
+    f3 = float(freqs[int(np.argmax(gain >= 1.0 / math.sqrt(2.0)))])
+    return Jitter(channel, float(np.median(per)), q, n, n_beyond, k,
+                  int(np.count_nonzero(per > JITTER_FACTOR * q)), duration / k,
+                  (f3 / dt, 0.5 / dt))
 
 
 #: Column names of a file with the lower disc, in the order :func:`save_experiment` writes them.
@@ -207,6 +326,12 @@ class Experiment:
         File the experiment was loaded from, if any.
     meta : dict of str to str
         Free-form metadata, written as ``# key: value`` comment lines.
+    glitches : tuple of Glitch or None
+        The glitches found in the angles (:mod:`rotorbayes.glitches`): samples that jump
+        against their neighbours by far more than the discs can move.  Each says whether
+        it was left out (the arrays hold the cubic through its neighbours there) or kept
+        (the arrays hold the measured value).  ``None``: not looked for (an experiment
+        made in Python; :func:`leave_out_glitches` looks); ``()``: none found.
     """
 
     t: np.ndarray
@@ -216,6 +341,7 @@ class Experiment:
     name: str = ""
     path: str | None = None
     meta: dict[str, str] = field(default_factory=dict)
+    glitches: tuple[Glitch, ...] | None = None
 
     def __post_init__(self) -> None:
         arrays = {"t": self.t, "u": self.u, "theta_u": self.theta_u}
@@ -244,6 +370,8 @@ class Experiment:
         object.__setattr__(self, "meta", {str(k): str(v) for k, v in dict(self.meta).items()})
         if self.path is not None:
             object.__setattr__(self, "path", str(self.path))
+        if self.glitches is not None:
+            object.__setattr__(self, "glitches", tuple(self.glitches))
 
     @property
     def n(self) -> int:
@@ -504,8 +632,9 @@ def load_experiment(
     *,
     expect_lower: bool | None = None,
     max_abs_u: float = 5.0,
+    keep_glitches: bool = False,
 ) -> Experiment:
-    """Load and validate a measurement file.
+    """Load and validate a measurement file, and leave out its glitches.
 
     Parameters
     ----------
@@ -517,11 +646,15 @@ def load_experiment(
     max_abs_u : float, optional
         Voltage (V) above which ``|u|`` triggers a :class:`DataWarning`. The rig's amplifier
         limits the input to ±5 V, so larger values suggest a scaling error. Default 5 V.
+    keep_glitches : bool, optional
+        Keep the glitches found in the angles as measured. Default ``False``: each is left
+        out (:func:`leave_out_glitches`). Either way :attr:`Experiment.glitches` names them.
 
     Returns
     -------
     Experiment
-        With ``name`` the file stem, ``path`` the file and ``meta`` from the comment lines.
+        With ``name`` the file stem, ``path`` the file, ``meta`` from the comment lines and
+        ``glitches`` the glitches found (see :mod:`rotorbayes.glitches`).
 
     Raises
     ------
@@ -721,7 +854,7 @@ def load_experiment(
             stacklevel=2,
         )
 
-    return Experiment(
+    exp = Experiment(
         t=cols["t"],
         u=cols["u"],
         theta_u=cols["theta_u"],
@@ -730,6 +863,54 @@ def load_experiment(
         path=str(path),
         meta=meta,
     )
+    return leave_out_glitches(exp, keep=keep_glitches)
+
+
+def leave_out_glitches(exp: Experiment, *, keep: bool = False) -> Experiment:
+    """The experiment with its glitches found and left out (or kept, with ``keep``).
+
+    A glitch is a sample, or a burst of up to three within 13 samples, that jumps against
+    its neighbours by far more than the discs can move (encoder lines pick up such spikes;
+    :mod:`rotorbayes.glitches` says how they are found). Left out, a glitch's sample holds
+    the cubic through its neighbours (rounded to whole encoder counts for count data), so
+    it carries no information of its own and every figure computed from the data stays
+    consistent; the measured value stays in the :class:`Glitch` record.
+
+    Parameters
+    ----------
+    exp : Experiment
+        The experiment. If its glitches were looked for already (``exp.glitches`` is not
+        None), those records are used as they are: calling this again with the other
+        ``keep`` puts the measured values back, or leaves them out again.
+    keep : bool, optional
+        Keep the glitches' measured values (their records say ``left_out=False``).
+
+    Returns
+    -------
+    Experiment
+        A new experiment with ``glitches`` set (``()`` when none were found), or ``exp``
+        itself when nothing changes.
+    """
+    if exp.glitches is None:
+        found = []
+        for key in ("theta_u", "theta_l"):
+            theta = getattr(exp, key)
+            if theta is not None:
+                found += _glitches.find_glitches(exp.t, theta, key, _COUNTS_PER_REV[key])
+        found.sort(key=lambda g: (g.index, g.channel))
+    else:
+        found = list(exp.glitches)
+        if all(g.left_out == (not keep) for g in found):
+            return exp
+    records = tuple(Glitch(**{**g.as_dict(), "left_out": not keep}) for g in found)
+    angles = {}
+    for key in ("theta_u", "theta_l"):
+        theta = getattr(exp, key)
+        if theta is not None:
+            mine = [g for g in records if g.channel == key]
+            angles[key] = _glitches.repaired(theta, mine, keep=keep) if mine else theta
+    return Experiment(exp.t, exp.u, angles["theta_u"], angles.get("theta_l"), name=exp.name,
+                      path=exp.path, meta=exp.meta, glitches=records)
 
 
 # --------------------------------------------------------------------------------------------
@@ -769,7 +950,9 @@ def save_experiment(
     """Write an experiment as a measurement file that :func:`load_experiment` reads back exactly.
 
     Numbers are written with Python's shortest round-trip representation (``repr``), so every
-    value, including encoder-quantised angles, is recovered bit for bit. The file is written to
+    value, including encoder-quantised angles, is recovered bit for bit. Glitches that were
+    left out (:func:`leave_out_glitches`) are written as measured: a file holds the
+    measurement, and loading it finds and leaves them out again. The file is written to
     a temporary file in the same directory and then moved into place, so a crash never leaves
     a half-written measurement under ``path``.
 
@@ -804,6 +987,10 @@ def save_experiment(
     """
     path = Path(path)
     merged = _clean_meta({**exp.meta, **(meta or {})})
+    # A file holds what was measured: glitches left out go back in (a later load finds
+    # them again).
+    if exp.glitches and any(g.left_out for g in exp.glitches):
+        exp = leave_out_glitches(exp, keep=True)
     cols = exp.columns()
     first_data_line = len(merged) + 2
     try:

@@ -12,7 +12,15 @@ from .. import exitcodes as EXIT
 from ..exitcodes import Interrupted
 from ..model import parameters as _params
 from ..outputs import InterruptGuard, output_folder, save_figure_atomic
-from .common import Outcome, executor, json_default, load_experiments, param_spec
+from .common import (
+    Outcome,
+    executor,
+    glitch_record,
+    json_default,
+    load_experiments,
+    param_spec,
+    say_glitches,
+)
 from .fit import build_problem
 from .options import add_fit_options, add_parallel_options, ranged
 
@@ -39,12 +47,14 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
                max_nfev: int = 200, ftol: float = 1e-10, xtol: float = 1e-10,
                gtol: float = 1e-10, backend: str | None = None, workers: int | None = None,
                scheduler: str | None = None, force: bool = False,
-               trust_effects: bool = False, step: float | None = None) -> Outcome:
+               trust_effects: bool = False, step: float | None = None,
+               keep_glitches: bool = False) -> Outcome:
     """``starts`` fits of the ``model`` configuration to ``data`` from spread starts (a
     Latin hypercube over the bounds, or a log-normal ``spread`` around the set ``around``);
     writes multistart.json, summary.txt and the waterfall and spread figures into ``out``.
 
-    The fit options are those of :func:`rotorbayes.commands.fit.fit`; ``backend``,
+    The fit options are those of :func:`rotorbayes.commands.fit.fit` (glitches in the data
+    are named and left out unless ``keep_glitches``); ``backend``,
     ``workers`` and ``scheduler`` choose where the fits run.  ``Outcome.doc`` is
     multistart.json's document.
     """
@@ -56,7 +66,8 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
 
     guard = InterruptGuard()
     with guard, output_folder(a.out, a.force) as out:
-        exps = load_experiments(a.data, a.model)
+        exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches)
+        say_glitches(exps)
         prob, _ = build_problem(a, exps)
         around = None
         if a.around:
@@ -85,6 +96,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
         doc = {"config": a.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
                "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters,
                "summary": summary, "data": [str(e.path) for e in exps],
+               "glitches": glitch_record(exps),
                "n_requested": a.starts, "n_finished": n_done, "interrupted": ms.interrupted,
                "start_index": ms.start_index, "failed": {str(k): v for k, v in
                                                          ms.failed.items()}}

@@ -97,6 +97,10 @@ def add_fit_options(p) -> None:
                    help="largest Runge-Kutta step of the simulation (default: 25 ms at 1 kHz, "
                    "shorter over fast input transitions); give it when the fit's integration "
                    "check says the integrator's own error is material; kept in fit.json")
+    p.add_argument("--keep-glitches", action="store_true",
+                   help="fit samples that jump against their neighbours by far more than "
+                   "the discs can move (encoder spikes) as measured; by default each is "
+                   "named and left out (replaced by the cubic through its neighbours)")
     p.add_argument("--force", action="store_true",
                    help="replace the results in --out (only once the new run has succeeded)")
     add_trust_option(p)
