@@ -53,7 +53,7 @@ from ..inference.assess import AT_FLOOR, NEAR_FLOOR
 from ..inference.problem import Problem, local_name
 from ..model import effects as _effects
 from .score import EffectScore, score_tests
-from .torque import TorqueMap, missing_torque
+from .torque import SHORT, TESTED_BY, TorqueMap, apart, missing_torque
 
 #: Significance level of the ranking (after Holm's correction).
 LEVEL = 0.01
@@ -67,7 +67,9 @@ TRY_LEVEL = 0.2
 MATERIAL_FRACTION = 0.05
 #: ... and by at least this many floor units.
 MATERIAL_FLOOR_UNITS = 0.1
-#: Missing-torque variables each catalogue effect can produce.
+#: Missing-torque variables each catalogue effect can produce (a superset of what
+#: :data:`rotorbayes.diagnosis.torque.TESTED_BY` says the effect tests: an effect named
+#: there for a variable produces it).
 EXPLAINS = {
     "upper_asymmetric_coulomb": {"direction", "velocity"},
     "upper_asymmetric_viscous": {"direction", "velocity"},
@@ -118,6 +120,14 @@ class Diagnosis:
     #: Far above the floor with nothing claimed: the effect to try first (material,
     #: resolvable, not significant; see :data:`TRY_LEVEL`).
     candidate: str | None = None
+    #: Per disc: where a map's words and the score tests disagree, the sentence that says
+    #: so (:func:`map_agreement`); absent where they agree or there is nothing to weigh.
+    map_notes: dict[str, str] = field(default_factory=dict)
+
+    def map_words(self, m: TorqueMap) -> str:
+        """A map's words with what the score tests say against them, if anything."""
+        note = self.map_notes.get(m.disc)
+        return m.words() + (f"; but {note}" if note else "")
 
     def as_dict(self) -> dict:
         ranking = []
@@ -142,7 +152,9 @@ class Diagnosis:
             "noise_std_rad": self.noise_std,
             "ssr": self.ssr,
             "ranking": ranking,
-            "missing_torque": [m.as_dict() for m in self.maps],
+            "missing_torque": [dict(m.as_dict(), words=self.map_words(m),
+                                    agreement=self.map_notes.get(m.disc))
+                               for m in self.maps],
             "level": LEVEL,
             "seconds": self.seconds,
         }
@@ -183,7 +195,7 @@ class Diagnosis:
         lines.append("")
         lines.append("missing-torque map (measured angles, slip samples):")
         for m in self.maps:
-            lines.append("  " + m.words())
+            lines.append("  " + self.map_words(m))
         if not self.maps:
             lines.append("  none: fewer than 50 samples in clear slip (at rest, friction "
                          "balances any torque, so a map has nothing to show)")
@@ -267,13 +279,39 @@ def diagnose(
             strongest.strongest[1] > 0.5:
         foreign = strongest
     claimed = None
+    notes: dict[str, str] = {}
     n_imm = (f"; {len(immaterial)} detectable but immaterial, listed below"
              if immaterial else "")
+    # Material but without the tests' support, largest predicted fall first.
+    unsupported = sorted(
+        (s for s in ranking if judgements[s.effect]["material"]
+         and not judgements[s.effect]["significant"] and not s.equivalent_to_free),
+        key=lambda s: judgements[s.effect]["predicted_worst_rms_over_floor"])
     if adequate:
-        verdict = (f"the remaining error is consistent with measurement noise (worst channel "
-                   f"{worst:.2f}x the floor; no catalogue effect would change the fit "
-                   f"materially{n_imm})")
-        advice = "Nothing to add: the model explains these data to the encoders' resolution."
+        notes = _notes(maps, ranking, judgements, None)
+        if unsupported:
+            # "No effect would change the fit materially" would contradict the table:
+            # one would, by the one-step prediction, but its test does not support it.
+            u = unsupported[0]
+            w, pr = apart(worst, judgements[u.effect]["predicted_worst_rms_over_floor"])
+            verdict = (f"the remaining error is consistent with measurement noise (worst "
+                       f"channel {worst:.2f}x the floor; no catalogue effect is both supported "
+                       f"by its test and material: {u.effect} is predicted to lower it from "
+                       f"{w}x to {pr}x, but its test gives p {u.p_adjusted:.2g} after "
+                       f"correction{n_imm})")
+            advice = ("Nothing the tests support to add: the model explains these data to the "
+                      f"encoders' resolution. {u.effect} would lower the worst RMS/floor from "
+                      f"{w}x to {pr}x by its one-step prediction, but its score test does not "
+                      f"support it (p {u.p_adjusted:.2g} after correction, a claim needs "
+                      f"{LEVEL:g}); a longer record, or a refit with --add {u.effect} judged "
+                      "by `rotorbayes compare` on validation data, would tell whether it is "
+                      "there.")
+        else:
+            verdict = (f"the remaining error is consistent with measurement noise (worst "
+                       f"channel {worst:.2f}x the floor; no catalogue effect would change the "
+                       f"fit materially{n_imm})")
+            advice = ("Nothing to add: the model explains these data to the encoders' "
+                      "resolution.")
         if immaterial:
             advice += (" What the tests detect is far too small to matter (see 'detectable "
                        "but immaterial'); adding it would not change the fit materially.")
@@ -283,11 +321,6 @@ def diagnose(
         # the residuals, which the missing physics dominates): an effect predicted to lower
         # the error materially, and of a size the data resolve, is then named as the one to
         # try -- not claimed -- rather than left out.
-        # Material but without the tests' support, largest predicted fall first.
-        unsupported = sorted(
-            (s for s in ranking if judgements[s.effect]["material"]
-             and not judgements[s.effect]["significant"] and not s.equivalent_to_free),
-            key=lambda s: judgements[s.effect]["predicted_worst_rms_over_floor"])
         untested = next((s for s in unsupported if judgements[s.effect]["resolvable"]
                          and s.p_adjusted < TRY_LEVEL and worst > NEAR_FLOOR),
                         None) if top is None else None
@@ -315,27 +348,25 @@ def diagnose(
                        f"{vetoed.effect} would lower it to "
                        f"{judgements[vetoed.effect]['predicted_worst_rms_over_floor']:.3g}x but "
                        "cannot produce the dependence the missing-torque map shows (below)")
+        elif unsupported:
+            # Material but without the tests' support: say so, not "immaterial".
+            u = unsupported[0]
+            j = judgements[u.effect]
+            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and "
+                       "no catalogue effect is supported by the tests (the largest "
+                       f"predicted fall, {u.effect} to "
+                       f"{j['predicted_worst_rms_over_floor']:.3g}x, has p "
+                       f"{u.p_adjusted:.2g} after correction"
+                       + ("" if j["resolvable"] else ", and a size below what the data "
+                          "resolve") + ")")
         else:
-            best = significant[0] if significant else None
-            if unsupported:
-                # Material but without the tests' support: say so, not "immaterial".
-                u = unsupported[0]
-                j = judgements[u.effect]
-                verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and "
-                           "no catalogue effect is supported by the tests (the largest "
-                           f"predicted fall, {u.effect} to "
-                           f"{j['predicted_worst_rms_over_floor']:.3g}x, has p "
-                           f"{u.p_adjusted:.2g} after correction"
-                           + ("" if j["resolvable"] else ", and a size below what the data "
-                              "resolve") + ")")
-            else:
-                verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and "
-                           "no catalogue effect would lower it materially"
-                           + (f" (the best detectable, {best.effect}, is predicted to reach "
-                              f"{judgements[best.effect]['predicted_worst_rms_over_floor']:.3g}"
-                              "x)" if best is not None else ""))
+            verdict = ("the error is not noise: "
+                       + nothing_material_words(worst, ranking, judgements))
         if top is not None and foreign is None:
             claimed = top.effect
+        named = claimed or (untested.effect if untested is not None else None)
+        notes = _notes(maps, ranking, judgements, named)
+        if claimed is not None:
             tie = [s.effect for s in significant[1:] if s.effect in top.alike]
             est = _estimate_words(top)
             advice = (f"Most likely missing: {top.effect} — {top.physics.rstrip('.')} "
@@ -352,7 +383,7 @@ def diagnose(
             advice += (f"\nAdd it and refit: {REFIT_TOKEN} --add "
                        f"{top.effect}; then diagnose the new fit (one effect at a time).")
         elif untested is not None:
-            where = _map_words(None, strongest, maps)
+            where = _map_words(None, strongest, maps, notes)
             est = _estimate_words(untested)
             advice = (f"Worth trying first: {untested.effect} — "
                       f"{untested.physics.rstrip('.')} (one-step "
@@ -367,7 +398,7 @@ def diagnose(
                       "If it does not help, make sure the fit is not a local minimum "
                       "(`rotorbayes multistart`).")
         else:
-            where = _map_words(foreign, strongest, maps)
+            where = _map_words(foreign, strongest, maps, notes)
             best = top if top is not None else vetoed
             advice = ("No catalogue effect explains the residual"
                       + (f" (the best, {best.effect}, is material but cannot produce the "
@@ -394,6 +425,7 @@ def diagnose(
         judgements=judgements,
         immaterial=immaterial,
         candidate=untested.effect if not adequate and untested is not None else None,
+        map_notes=notes,
     )
 
 
@@ -415,13 +447,163 @@ def _estimate_words(s: EffectScore) -> str:
                      zip(s.step.items(), s.units, strict=True))
 
 
-def _map_words(foreign: TorqueMap | None, strongest: TorqueMap | None, maps) -> str:
+def _map_words(foreign: TorqueMap | None, strongest: TorqueMap | None, maps,
+               notes: dict[str, str] | None = None) -> str:
     """The missing-torque map to quote: a foreign dependence, else the map standing
-    highest above its noise, else every map."""
+    highest above its noise, else every map (with what the tests say against it)."""
+    notes = notes or {}
+
+    def words(x: TorqueMap) -> str:
+        return x.words() + (f"; but {notes[x.disc]}" if notes.get(x.disc) else "")
+
     m = foreign or strongest
     if m is not None:
-        return m.words()
-    return "; ".join(x.words() for x in maps) or "no missing-torque map could be made"
+        return words(m)
+    return "; ".join(words(x) for x in maps) or "no missing-torque map could be made"
+
+
+def nothing_material_words(worst: float, ranking: Sequence[EffectScore],
+                           judgements: dict[str, dict]) -> str:
+    """The verdict's words when no catalogue effect is material and none is material
+    without the tests' support: "worst channel W x the floor, and ...".
+
+    A prediction is quoted as the best only when it is below the current figure ``worst``;
+    when every one-step prediction is at or above it, the words say that no catalogue
+    effect is predicted to lower the error (a rise is never "the best")."""
+    head = f"worst channel {worst:.3g}x the floor, and "
+    preds = [(judgements[s.effect]["predicted_worst_rms_over_floor"], i, s)
+             for i, s in enumerate(ranking) if not s.equivalent_to_free
+             and s.effect in judgements]
+    lower = sorted(x for x in preds if x[0] < worst)
+    if not lower:
+        return head + ("no catalogue effect is predicted to lower it (every one-step "
+                       f"prediction is at or above {worst:.3g}x)")
+    detectable = [x for x in lower if judgements[x[2].effect]["significant"]]
+    pred, _, s = (detectable or lower)[0]
+    j = judgements[s.effect]
+    w, pr = apart(worst, pred)
+    if detectable and j["material"]:
+        # significant and material, yet not claimable: its size is below what the data
+        # resolve
+        return head + (f"no catalogue effect passes the claim rule (the best detectable, "
+                       f"{s.effect}, is predicted to lower it from {w}x to {pr}x, but its "
+                       "size is below what the data resolve)")
+    if detectable:
+        return head + (f"no catalogue effect would lower it materially (the best "
+                       f"detectable, {s.effect}, is predicted to lower it only from {w}x "
+                       f"to {pr}x)")
+    return head + (f"no catalogue effect would lower it materially (the largest predicted "
+                   f"fall, {s.effect}, from {w}x to {pr}x, is immaterial and its test not "
+                   "significant)")
+
+
+def effect_discs(effect: str) -> set[str]:
+    """The discs ("l", "u") whose balance a catalogue effect's torque enters directly."""
+    if effect.startswith("lower_"):
+        return {"l"}
+    e = _effects.CATALOGUE.get(effect)
+    if e is not None and e.motor:
+        return {"u"}
+    return {"l", "u"}
+
+
+def _or_list(names: Sequence[str]) -> str:
+    names = list(names)
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " or " + names[-1]
+
+
+def _produces(effect: str) -> str:
+    """What a catalogue effect's torque would vary with, in the map's words."""
+    own = EXPLAINS.get(effect, set())
+    return _or_list([SHORT[k] for k in SHORT if k in own]) or "none of the map's variables"
+
+
+def map_agreement(tmap: TorqueMap, ranking: Sequence[EffectScore],
+                  judgements: dict[str, dict], named: str | None = None) -> str:
+    """Whether a map's named dependence and the score tests agree: ``""`` when they do
+    (or the map names no dependence), else a sentence that says which contradicts which,
+    with the numbers, and what else it could be.
+
+    * The map names a dependence (``tmap.supports_words``) whose usual cause the catalogue
+      holds (:data:`rotorbayes.diagnosis.torque.TESTED_BY`), but no such effect is claimable
+      or ``named``: the tests of the catalogue's version do not support the map's cause.
+    * The tests name an effect (``named``: the claimed one, or the one worth trying) whose
+      torque enters this disc but would not vary with the map's variable
+      (:data:`EXPLAINS`): one of the two findings is a side effect of the other.
+
+    Parameters
+    ----------
+    ranking, judgements : the score tests and their judgements (:func:`diagnose`).
+    named : the effect the advice names (claimed or worth trying), if any.
+    """
+    if not tmap.supports_words:
+        return ""
+    var = tmap.strongest[0]
+    scores = {s.effect: s for s in ranking}
+    by_disc, otherwise = TESTED_BY.get(var, ({}, ""))
+    family = [scores[e] for e in by_disc.get(tmap.disc, ()) if e in scores]
+
+    def backed(s: EffectScore) -> bool:
+        j = judgements.get(s.effect, {})
+        return s.effect == named or bool(j.get("claimable"))
+
+    def fall(s: EffectScore) -> str:
+        j = judgements[s.effect]
+        w, pr = apart(j["rms_over_floor"], j["predicted_worst_rms_over_floor"])
+        return f"predicted {w}x -> {pr}x"
+
+    if family and not any(backed(s) for s in family):
+        parts = []
+        for s in family:
+            j = judgements.get(s.effect, {})
+            if s.equivalent_to_free:
+                parts.append(f"{s.effect} cannot be told from the free parameters")
+            elif j.get("significant"):
+                parts.append(f"{s.effect} p {s.p_adjusted:.2g} after correction but not "
+                             f"claimable, {fall(s)}")
+            else:
+                parts.append(f"{s.effect} p {s.p_adjusted:.2g} after correction")
+        if all(s.equivalent_to_free for s in family):
+            lead = ("the catalogue's version of that cause cannot be tested on these data "
+                    f"({'; '.join(parts)})")
+        else:
+            lead = ("the score test of the catalogue's version of that cause does not "
+                    f"support it ({'; '.join(parts)})")
+        mine = {s.effect for s in family}
+        others = sorted((s for s in ranking if backed(s) and s.effect not in mine),
+                        key=lambda s: s.effect != named)
+        if not others:
+            return (f"{lead}: it may be {otherwise}, or a side effect of a torque missing "
+                    "elsewhere (a fit that lacks a torque bends its parameters to take part "
+                    "of it)")
+        o = others[0]
+        how = ("can vary with " + SHORT[var] + " too" if var in EXPLAINS.get(o.effect, ())
+               else f"would vary with {_produces(o.effect)}, not with {SHORT[var]}")
+        return (f"{lead}; the tests point at {o.effect} instead (p {o.p_adjusted:.2g} after "
+                f"correction, {fall(o)}), whose torque {how}: the map's dependence may be a "
+                "side effect of it (a fit that lacks a torque bends its parameters, on both "
+                f"discs, to take part of it), or {otherwise}")
+    if named is None or named not in _effects.CATALOGUE or named not in scores:
+        return ""
+    if tmap.disc not in effect_discs(named) or var in EXPLAINS.get(named, ()) \
+            or any(s.effect == named for s in family):
+        return ""
+    s = scores[named]
+    what = "claim" if judgements.get(named, {}).get("claimable") else "name as worth trying"
+    return (f"the score tests {what} {named} (p {s.p_adjusted:.2g} after correction, "
+            f"{fall(s)}), whose torque would vary with {_produces(named)}, not with "
+            f"{SHORT[var]}: one of the two findings is a side effect of the other; refit with "
+            f"{named} and diagnose again")
+
+
+def _notes(maps, ranking, judgements, named) -> dict[str, str]:
+    """:func:`map_agreement` of every map, where it has something to say."""
+    out = {}
+    for m in maps:
+        note = map_agreement(m, ranking, judgements, named)
+        if note:
+            out[m.disc] = note
+    return out
 
 
 def _rms_speeds(problem: Problem, x: np.ndarray) -> dict[str, float]:
@@ -487,8 +669,11 @@ def _judge(s: EffectScore, problem: Problem, x: np.ndarray, worst: float,
         why.append("equivalent to the free parameters" if s.equivalent_to_free else
                    f"not significant (a claim needs p < {LEVEL:g} after correction)")
     if not material:
-        why.append(f"predicted worst RMS/floor {worst:.4g} -> {pred:.4g}, a fall of "
-                   f"{fall:.2g} ({100 * fall / worst if worst else 0:.2g} %): immaterial")
+        w, pr = apart(worst, pred, 4)
+        change = (f"a fall of {fall:.2g} ({100 * fall / worst if worst else 0:.2g} %)"
+                  if fall > 0 else "no fall" if fall == 0 else
+                  f"a rise of {-fall:.2g} ({-100 * fall / worst if worst else 0:.2g} %)")
+        why.append(f"predicted worst RMS/floor {w} -> {pr}, {change}: immaterial")
     if not out["resolvable"]:
         if res.kind == "sample":
             why.append(f"size {size:.2g} s is below the resolution "

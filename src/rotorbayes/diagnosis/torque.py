@@ -19,12 +19,19 @@ same balance computed on the fit's own simulation, rounded like the encoders, is
 either.  So the map is the data's balance *minus* the simulation's (sample by sample, on
 the same slip samples), which removes what the derivatives and the model share, and its
 **noise level** is what rounding alone does to a balance (the RMS difference of the
-simulation's balance with and without rounding).  The words claim a missing torque
-only when its RMS is at least :data:`NOISE_FACTOR` times that noise, and name a dependence
-only when the explained part (``sqrt(R²) * RMS``) is too, ``R²`` is at least
-:data:`MIN_R2`, and it beats every other variable clearly (by :data:`DISTINCT_R2` in R², or
-leaving at most half of the next best's unexplained part); variables that move together
-in the data — speed, direction, input — are otherwise named together, as such.
+simulation's balance with and without rounding).  A map whose RMS is within that noise
+(at most :data:`WITHIN_NOISE` times it) shows no missing torque; above it, the words report
+a missing torque with its ratio to the noise.  They name a dependence only when the
+torque's RMS is at least :data:`NOISE_FACTOR` times the noise, the explained part
+(``sqrt(R²) * RMS``) is too, ``R²`` is at least :data:`MIN_R2`, and it beats every other
+variable clearly (by :data:`DISTINCT_R2` in R², or leaving at most half of the next best's
+unexplained part); variables that move together in the data — speed, direction, input —
+are otherwise named together, as such.  A missing torque that no variable explains is
+said to be so, naming the variables.
+
+What the catalogue can test of a named dependence is :data:`TESTED_BY`: the diagnosis
+weighs the map's words against those effects' score tests in one place
+(:func:`rotorbayes.diagnosis.diagnose.map_agreement`).
 """
 
 from __future__ import annotations
@@ -67,8 +74,39 @@ SHORT = {"velocity": "its speed", "direction": "the direction of rotation",
          "torsion_rate": "the twist rate",
          "input": "the input voltage", "input_rate": "the input's rate", "time": "time"}
 
+#: The catalogue's version of each dependence's usual cause: per disc, the effects whose
+#: score tests test what :data:`WORDS` names, and what else the dependence can be when
+#: none of those tests supports it.  Angle and time have none (no catalogue effect
+#: produces them).  :func:`rotorbayes.diagnosis.diagnose.map_agreement` is the one place
+#: that weighs a map's words against these tests.
+TESTED_BY: dict[str, tuple[dict[str, tuple[str, ...]], str]] = {
+    "velocity": ({"l": ("lower_stribeck", "lower_asymmetric_viscous",
+                        "lower_asymmetric_coulomb"),
+                  "u": ("upper_asymmetric_viscous", "upper_asymmetric_coulomb")},
+                 "a friction law of another shape than the catalogue's"),
+    "direction": ({"l": ("lower_asymmetric_coulomb", "lower_asymmetric_viscous"),
+                   "u": ("upper_asymmetric_coulomb", "upper_asymmetric_viscous")},
+                  "another torque that changes sign with the motion"),
+    "torsion": ({"l": ("string_damping",), "u": ("string_damping",)},
+                "a string stiffness that is not linear (not in the catalogue)"),
+    "torsion_rate": ({"l": ("string_damping",), "u": ("string_damping",)},
+                     "damping of another form than the catalogue's"),
+    "input": ({"l": ("voltage_offset", "motor_deadzone"),
+               "u": ("voltage_offset", "motor_deadzone")},
+              "a motor nonlinearity the catalogue does not hold"),
+    "input_rate": ({"l": ("input_delay",), "u": ("input_delay",)},
+                   "dynamics between the command and the motor torque other than a pure "
+                   "delay (not in the catalogue)"),
+}
+
+#: A map whose RMS is at most this many times its noise shows no missing torque.  The
+#: noise is what rounding alone does to a balance; a fit at the floor leaves less than
+#: that (0.24-0.43x on the reference's controls, upper, coupled and brake), so a map above
+#: it lacks a torque, however small.  (A map below :data:`NOISE_FACTOR` times its noise
+#: used to read "no missing torque": one 2.4x its noise, at 318x the floor, did.)
+WITHIN_NOISE = 1.0
 #: The missing torque, and the part a dependence explains, must be this many times the
-#: map's own noise before the words claim anything.
+#: map's own noise before the words name what it depends on.
 NOISE_FACTOR = 3.0
 #: A dependence on a disc's angle within a revolution is looked for only if the disc
 #: turned through at least this many revolutions (else the angle is just a slow trend).
@@ -110,8 +148,20 @@ class TorqueMap:
         return self.ranking[0] if self.ranking else None
 
     @property
+    def rms_over_noise(self) -> float:
+        """The missing torque's RMS as a multiple of the map's noise."""
+        return self.rms / self.noise_rms if self.noise_rms > 0 else math.inf
+
+    @property
+    def exceeds_noise(self) -> bool:
+        """The map shows a missing torque: its RMS is above :data:`WITHIN_NOISE` times the
+        map's noise (at or below it, rounding alone could make it)."""
+        return self.rms > WITHIN_NOISE * self.noise_rms
+
+    @property
     def above_noise(self) -> bool:
-        """The missing torque is clearly larger than the map's own noise."""
+        """The missing torque is large enough (:data:`NOISE_FACTOR` times the map's
+        noise) for the map to name what it depends on."""
         return self.rms >= NOISE_FACTOR * self.noise_rms
 
     @property
@@ -141,16 +191,34 @@ class TorqueMap:
                     and math.sqrt(max(s[1], 0.0)) * self.rms >= self.bar(s[0])
                     and len(self.together) == 1)
 
+    def variables(self) -> str:
+        """The map's candidate variables in words: "its speed, ... or time"."""
+        keys = [k for k in SHORT if k in self.features] or \
+            [k for k in SHORT if k in dict(self.ranking)]
+        names = []
+        for k in keys:
+            name = "its angle within a revolution" if k.startswith("angle_") else SHORT[k]
+            if name not in names:
+                names.append(name)
+        if len(names) < 2:
+            return "".join(names) or "the candidate variables"
+        return ", ".join(names[:-1]) + " or " + names[-1]
+
     def words(self) -> str:
         disc = "upper" if self.disc == "u" else "lower"
         noise = f"the map's noise {self.noise_rms:.2g} N m"
-        if not self.above_noise:
-            return (f"the {disc} disc's map shows no missing torque above its noise (RMS "
-                    f"{self.rms:.2g} N m against {noise})")
+        ratio = _times(self.rms_over_noise, WITHIN_NOISE)
+        if not self.exceeds_noise:
+            return (f"the {disc} disc's map shows no missing torque beyond its noise (RMS "
+                    f"{self.rms:.2g} N m, {ratio}x {noise}: within it)")
+        head = (f"the {disc} disc lacks a torque {ratio}x the map's noise (RMS "
+                f"{self.rms:.2g} N m, {noise})")
         s = self.strongest
         if s is None or s[1] < MIN_R2:
-            return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) with no "
-                    "clear dependence on the candidate variables")
+            best = f"; the best, {SHORT[s[0]]}, at {s[1]:.2f}" if s is not None else ""
+            return (f"{head} that none of {self.variables()} explains (no clear dependence: "
+                    f"no adjusted R² reaches {MIN_R2:g}{best}): a torque these variables do "
+                    "not describe, or several missing torques at once")
         explained = math.sqrt(max(s[1], 0.0)) * self.rms
         if explained < self.bar(s[0]):
             # The best candidate is worth a look, but its part is not clearly above what
@@ -158,23 +226,26 @@ class TorqueMap:
             best = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
             what = ("the map's noise" if s[0] not in self.null else
                     "what rounding noise alone seems to explain")
-            return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}); the "
-                    f"best candidate, {best}, explains {explained:.2g} N m of it, below "
-                    f"{NOISE_FACTOR:g}x {what}: a hint to look at in "
+            return (f"{head}; the best candidate, {best}, explains {explained:.2g} N m of "
+                    f"it, below {NOISE_FACTOR:g}x {what}: a hint to look at in "
                     "missing_torque.png, not a finding")
+        if not self.above_noise:
+            best = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
+            return (f"{head}; the best candidate, {best}, explains {explained:.2g} N m of "
+                    f"it, but the torque is below {NOISE_FACTOR:g}x the map's noise, the bar "
+                    "for naming what it depends on: a hint to look at in missing_torque.png, "
+                    "not a finding")
         if len(self.together) > 1:
             names = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
-            return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) that "
-                    f"varies with several variables alike: {names}; they move together in "
-                    "these data, so the map cannot tell which")
+            return (f"{head} that varies with several variables alike: {names}; they move "
+                    "together in these data, so the map cannot tell which")
         what, cause = WORDS[s[0]]
         also = [k for k, v in self.ranking[1:] if v >= MIN_R2 and k not in dict(self.together)
                 and self.shared.get(k, 1.0) < SHARED
                 and math.sqrt(v) * self.rms >= self.bar(k)]
         more = (f"; apart from it, also with {', '.join(SHORT[k] for k in also)} (each "
                 "explains a part of its own)" if also else "")
-        return (f"the {disc} disc lacks a torque (RMS {self.rms:.2g} N m, {noise}) that "
-                f"{what} (explains {100 * s[1]:.0f} % of it): {cause}"
+        return (f"{head} that {what} (explains {100 * s[1]:.0f} % of it): {cause}"
                 f"{self._angle_words(s[0])}{more}")
 
     def angle_terms(self, variable: str) -> dict | None:
@@ -225,6 +296,7 @@ class TorqueMap:
     def as_dict(self) -> dict:
         terms = {k: self.angle_terms(k) for k, _ in self.ranking if k.startswith("angle_")}
         return {"disc": self.disc, "rms_N_m": self.rms, "noise_rms_N_m": self.noise_rms,
+                "rms_over_noise": self.rms_over_noise, "exceeds_noise": self.exceeds_noise,
                 "angle_terms": {k: v for k, v in terms.items() if v},
                 "above_noise": self.above_noise, "supports_words": self.supports_words,
                 "ranking": [{"variable": k, "adjusted_r2": v,
@@ -232,6 +304,24 @@ class TorqueMap:
                              "shared_with_strongest": self.shared.get(k)}
                             for k, v in self.ranking],
                 "words": self.words()}
+
+
+def apart(a: float, b: float, digits: int = 3) -> tuple[str, str]:
+    """``a`` and ``b`` in the fewest significant digits (at least ``digits``) that keep
+    their order: 17.09 and 17.2 read "17.1" and "17.2", 17.09 and 17.1 "17.09" and "17.1"
+    (never two equal numbers for two different values)."""
+    for d in range(digits, 12):
+        sa, sb = f"{a:.{d}g}", f"{b:.{d}g}"
+        fa, fb = float(sa), float(sb)
+        if (fa < fb) == (a < b) and (fa > fb) == (a > b):
+            return sa, sb
+    return repr(a), repr(b)
+
+
+def _times(ratio: float, threshold: float) -> str:
+    """``ratio`` in two significant digits, or more where two would put it on the other
+    side of ``threshold`` (1.004 reads "1.004", not "1")."""
+    return apart(ratio, threshold, 2)[0] if math.isfinite(ratio) else "inf"
 
 
 def _adj_r2(y: np.ndarray, X: np.ndarray) -> float:
