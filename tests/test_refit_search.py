@@ -161,3 +161,57 @@ def test_words_when_the_refit_ends_above_its_prediction():
     assert diagnosis_prediction(doc, ["lower_stribeck"]) == 385.0
     assert diagnosis_prediction(doc, ["string_damping"]) is None
     assert diagnosis_prediction(doc, ["lower_stribeck", "string_damping"]) is None
+
+
+# ------------------------------------------- trial refits: far from the floor, refits decide
+def _loop_files(tmp, params, duration, *, alpha0_est=None):
+    for label, seed in (("est", 3), ("val", 4)):
+        ex = make_experiment("coupled", params, duration=duration, signal="steps",
+                             hold="continuous", seed=seed,
+                             alpha0=alpha0_est if label == "est" else None)
+        save_experiment(ex, tmp / f"{label}.csv")
+    return [str(tmp / "est.csv"), "--validate", str(tmp / "val.csv")]
+
+
+@pytest.mark.slow
+def test_trial_refits_find_a_dead_zone_the_score_tests_miss(tmp_path, capsys):
+    """A 0.3 V motor dead zone (30 s): the first fit ends hundreds of times the floor, the
+    score tests there name another effect; the trial refits name the dead zone, and the
+    printed refit reaches the floor."""
+    params = dict(SETS["coupled"][0], u_deadzone=0.3)
+    data = _loop_files(tmp_path, params, 30.0)
+    main(["fit", "--model", "coupled", *data, "--out", str(tmp_path / "fit0")])
+    assert main(["diagnose", str(tmp_path / "fit0")]) in (0, 1)
+    out = capsys.readouterr().out
+    d = json.loads((tmp_path / "fit0" / "diagnosis.json").read_text())
+    named = d.get("claimed_effect") or d.get("candidate_effect")
+    assert named != "motor_deadzone", "the score tests found it: the case is not hard"
+    assert d["refit_choice"] == "motor_deadzone"
+    assert "the trial refits decide: motor_deadzone" in out
+    cmd = next(line for line in out.splitlines() if "the trial refits decide" in line)
+    assert "--add motor_deadzone" in cmd
+    assert main(["fit", "--model", "coupled", *data, "--p0", str(tmp_path / "fit0"),
+                 "--add", "motor_deadzone", "--out", str(tmp_path / "fit1")]) == 0
+    doc = _doc(tmp_path / "fit1")
+    assert doc["assessment"]["worst_ratio_to_floor"] <= 1.5
+    e = doc["estimates"]["u_deadzone"]
+    assert abs(e["value"] - 0.3) <= 4 * e["stderr"], e
+
+
+@pytest.mark.slow
+def test_a_tie_on_one_run_is_decided_by_the_validation_run(tmp_path, capsys):
+    """A pre-wound string (0.25 rad) in the one estimation run, the validation run unwound:
+    on the estimation data initial_torsion and lower_asymmetric_coulomb fit alike (an exact
+    tie); the validation run, its torsion fitted on it alone, tells them apart."""
+    data = _loop_files(tmp_path, dict(SETS["coupled"][0]), 10.0, alpha0_est=0.25)
+    main(["fit", "--model", "coupled", *data, "--out", str(tmp_path / "fit0")])
+    assert main(["diagnose", str(tmp_path / "fit0")]) in (0, 1)
+    out = capsys.readouterr().out
+    d = json.loads((tmp_path / "fit0" / "diagnosis.json").read_text())
+    assert d["refit_choice"] == "initial_torsion", d["trials"]
+    trials = {t["effect"]: t for t in d["trials"]["trials"]}
+    est = [trials[n]["rms_over_floor"] for n in ("initial_torsion", "lower_asymmetric_coulomb")]
+    assert est[0] <= 1.5 and est[1] <= 1.5  # tied, both at the floor on estimation data
+    assert trials["lower_asymmetric_coulomb"]["validation_rms_over_floor"] > 100
+    assert trials["initial_torsion"]["validation_rms_over_floor"] < 20
+    assert "validation data decide" in out

@@ -232,9 +232,11 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
     added = check_effect_files(doc, path, trust_effects)
     model = Model(config, added, without=without,
                   prescribed_upper=bool(doc.get("prescribed_upper", False)))
-    exps = [_load(data_path(p, doc, i, "data", path), config)
+    # A fit made with --keep-glitches is read back with them kept (the same data).
+    keep = bool((doc.get("glitches") or {}).get("kept"))
+    exps = [_load(data_path(p, doc, i, "data", path), config, keep)
             for i, p in enumerate(doc["data"])]
-    val = [_load(data_path(p, doc, i, "validation", path), config)
+    val = [_load(data_path(p, doc, i, "validation", path), config, keep)
            for i, p in enumerate(doc.get("validation", []))]
     try:
         base = {k: (math.nan if v is None else float(v)) for k, v in doc["params"].items()}
@@ -293,8 +295,8 @@ def _validation_alpha0(doc: dict, path: Path, val: list) -> list:
     return out
 
 
-def _load(p: Path, config: str):
-    return load_experiment(p, expect_lower=config != "upper")
+def _load(p: Path, config: str, keep_glitches: bool = False):
+    return load_experiment(p, expect_lower=config != "upper", keep_glitches=keep_glitches)
 
 
 def diagnosis_starts(spec: str | Path | None, effects) -> dict[str, float]:

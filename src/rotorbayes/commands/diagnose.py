@@ -192,6 +192,19 @@ def _trials(result, d, specs: dict) -> dict | None:
                                   result.doc, specs)
         words = (f"the trial refits decide: {best.effect} lowers the worst RMS/floor to "
                  f"{best.ratio:.3g}x (from {worst:.3g}x){than}. Add it and refit: {cmd}")
+    if best is not None:
+        # Still tied after the validation data (or with none to ask): say so.
+        alike = [t.effect for t in trials if t is not best and not t.failed
+                 and t.ratio <= TIE * best.ratio
+                 and (not math.isfinite(best.validation)
+                      or t.validation <= TIE * best.validation)]
+        if alike:
+            words += (f". Tied with {', '.join(alike)}: "
+                      + ("the estimation and validation data" if math.isfinite(
+                          best.validation) else "these data")
+                      + " cannot tell them apart; an experiment that separates them "
+                      "(`rotorbayes design --separate`) or one more run with a different "
+                      "initial torsion would")
     if best is not None and best.on_bound:
         words += (f" (its {', '.join(best.on_bound)} ended on a bound: distrust the size)")
     print(words)

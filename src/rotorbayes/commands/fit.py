@@ -334,8 +334,10 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         # A parameter the --p0 fit did not have (its effect was off there, or it is a user
         # effect's) starts at its effect's default, not at a value of that fit.
         p0_params = (fit_json(a.p0) or {}).get("parameters") or {}
+        # (alpha0[1] of a --p0 fit of one run: that fit's alpha0, not a default.)
         start_source = {n: f"--p0 {a.p0}" if not p0_params or (
-            (p0_params.get(n) or {"status": "off"}).get("status") != "off")
+            (p0_params.get(n) or p0_params.get(E.local_name(n)[0])
+             or {"status": "off"}).get("status") != "off")
             else "the effect's default" for n in prob.names}
         from ..results import diagnosis_starts
 
