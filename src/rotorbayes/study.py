@@ -37,8 +37,10 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "analysis": {"name": (str,), "out": (str,), "config": (str,), "data": (list,),
                  "validate": (list,), "validate_alpha0": (list,), "seed": (int,)},
     "fit": {"p0": (str,), "free": (list,), "fixed": (list,), "effects": (list,),
-            "channels": (list,), "max_nfev": (int,), "step": (int, float)},
-    "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float)},
+            "channels": (list,), "max_nfev": (int,), "step": (int, float),
+            "keep_glitches": (bool,), "search": (bool,)},
+    "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float),
+                 "trials": (bool,)},
     "sample": {"walkers": (int,), "steps": (int,), "ensembles": (int,), "noise": (str,),
                "ar1": (bool,), "moves": (str,)},
     "priors": {},
@@ -535,6 +537,8 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
         fit_args["max_nfev"] = fit_t["max_nfev"]
     if fit_t.get("step") is not None:
         fit_args["step"] = float(fit_t["step"])
+    if fit_t.get("keep_glitches"):
+        fit_args["keep_glitches"] = True
     if fit_t.get("effects"):
         fit_args["add"] = [a.resolve(e) if ".py:" in e else e for e in fit_t["effects"]]
     first = out / "fit0"
@@ -553,7 +557,9 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
         tried = None  # (effect, worst RMS/floor before it, the fit before it): a candidate
         for k in range(1, dg.get("max_steps", 3) + 2):
             stage(f"diagnose{k - 1}", fit, digest(fit, "fit.json") + json.dumps(dg),
-                  "diagnose", {"fit": str(fit), **noise}, "diagnosis.json")
+                  "diagnose", {"fit": str(fit), **noise,
+                               **({"trials": False} if dg.get("trials") is False else {})},
+                  "diagnosis.json")
             d = json.loads((fit / "diagnosis.json").read_text())
             worst = max(d["rms_over_floor"].values())
             if tried is not None:
@@ -590,6 +596,7 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
             nxt = out / f"fit{k}"
             stage(f"fit{k}", nxt, digest(fit, "fit.json", "diagnosis.json") + base, "fit",
                   {**fit_args, "p0": str(fit), "add": [*fit_args.get("add", []), eff],
+                   **({"search": False} if fit_t.get("search") is False else {}),
                    "out": str(nxt), "force": True}, "fit.json")
             fit = nxt
         stage("compare", out / "compare", digest(fit, "fit.json"), "compare",

@@ -242,8 +242,8 @@ def diagnose(
     ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor,
                           context=context, extra=extra)
     maps = missing_torque(problem, x, floors=floor)
-    pooled = (f" (the {len(problem.experiments)} experiments pooled; `fit` quotes the worst "
-              "single experiment)" if len(problem.experiments) > 1 else "")
+    pooled = (f" (the worst of the {len(problem.experiments)} experiments, as `fit` "
+              "quotes it)" if len(problem.experiments) > 1 else "")
     evidence = notes + [
         "residual RMS / noise floor: "
         + ", ".join(f"{c} {v:.2f} (floor {floor[c]:.2g} rad)" for c, v in ratios.items())

@@ -412,18 +412,18 @@ class Problem:
         return floors, notes
 
     def rms_over_floor(self, r: np.ndarray, floors: Mapping | None = None) -> dict:
-        """Residual RMS over the noise floor per fitted channel (experiments pooled) of a
-        residual vector ``r`` laid out as :meth:`residuals` lays it out."""
+        """Residual RMS over the noise floor per fitted channel of a residual vector ``r``
+        laid out as :meth:`residuals` lays it out: the worst experiment's, as ``fit``'s
+        headline takes it (a run far off is not averaged away by a good one)."""
         floors = floors if floors is not None else self.noise_floors()[0]
-        acc = {c: [0.0, 0] for c in self.channels}
+        worst = dict.fromkeys(self.channels, 0.0)
         off = 0
         for ex in self.experiments:
             for c in self.channels:
                 seg = r[off : off + ex.n] / self.weights[c]
-                acc[c][0] += float(seg @ seg)
-                acc[c][1] += ex.n
+                worst[c] = max(worst[c], float(seg @ seg) / ex.n)
                 off += ex.n
-        return {c: math.sqrt(s / n) / floors[c] for c, (s, n) in acc.items()}
+        return {c: math.sqrt(v) / floors[c] for c, v in worst.items()}
 
     def info(self, name: str):
         """Metadata of a (possibly per-experiment) parameter name."""
