@@ -186,6 +186,46 @@ class MultisineInput:
         return v * fade
 
 
+class LaggedInput:
+    """The input ``f`` through a first-order lag of time constant ``tau`` [s] (the drive's
+    electrical dynamics: the applied voltage follows the command late and smoothly),
+    ``y' = (f(t) - y) / tau``, ``y(0) = f(0)`` (at rest before).
+
+    Solved exactly on a grid of ``h`` seconds for ``f`` linear between grid points (the
+    lag's own recurrence), and evaluated between them by the cubic Hermite interpolant
+    with the exact slope ``(f - y) / tau``: its error is far below the encoders'
+    resolution for the smooth step transitions used here.
+    """
+
+    def __init__(self, f, tau: float, duration: float, h: float = 1e-4):
+        from scipy.signal import lfilter
+
+        n = int(math.ceil(duration / h)) + 2
+        self.h, self.tau, self.f = h, float(tau), f
+        self.tg = np.arange(n) * h
+        fg = np.asarray(f(self.tg), float)
+        a = math.exp(-h / tau)
+        slope = np.diff(fg) / h
+        b = fg[1:] - slope * tau - a * fg[:-1] + a * slope * tau
+        rest, _ = lfilter([1.0], [1.0, -a], b, zi=[a * fg[0]])
+        self.y = np.concatenate([[fg[0]], rest])
+        self.dy = (fg - self.y) / tau
+        self.breaks = getattr(f, "breaks", np.array([]))
+
+    def __call__(self, t):
+        scalar = np.ndim(t) == 0
+        t = np.atleast_1d(np.asarray(t, float))
+        k = np.clip((t // self.h).astype(int), 0, self.tg.size - 2)
+        s = (t - self.tg[k]) / self.h
+        y0, y1 = self.y[k], self.y[k + 1]
+        d0, d1 = self.dy[k] * self.h, self.dy[k + 1] * self.h
+        h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+        h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+        v = h00 * y0 + h10 * d0 + h01 * y1 + h11 * d1
+        v = np.where(t <= 0, self.y[0], v)
+        return float(v[0]) if scalar else v
+
+
 def make_input(signal: str, duration: float, seed: int, *, amplitude: float = 5.0):
     """A continuous input of ``duration`` seconds.
 
@@ -299,12 +339,27 @@ def simulate_reference(
     t = np.arange(n) / rate
     f = make_input(signal, duration, seed)
     u = np.asarray(f(t), float)
+    # Physics outside rotorbayes's catalogue, as the reference's friction_shift: both
+    # discs' friction levels drifting linearly in time (oil warming) [N m/s].
+    params = dict(params)
+    drift_u, drift_l = params.pop("drift_Tc_u", 0.0), params.pop("drift_Tc_l", 0.0)
+    lag = params.pop("drive_lag", 0.0)
+    drive = f
+    if lag:
+        if hold != "continuous":
+            raise ValueError("drive_lag needs hold='continuous' (the lagged input function)")
+        drive = LaggedInput(f, lag, duration + 1.0)
+    shift = None
+    if drift_u or drift_l:
+        def shift(t_, *_):
+            return drift_u * t_, drift_l * t_
     t0 = time.perf_counter()
     if hold == "continuous":
-        res = reference_simulate(params, t, None, config, u_func=f, u_breaks=f.breaks,
-                                 rtol=rtol, atol=atol)
+        res = reference_simulate(params, t, None, config, u_func=drive, u_breaks=f.breaks,
+                                 rtol=rtol, atol=atol, friction_shift=shift)
     else:
-        res = reference_simulate(params, t, u, config, rtol=rtol, atol=atol)
+        res = reference_simulate(params, t, u, config, rtol=rtol, atol=atol,
+                                 friction_shift=shift)
     secs = time.perf_counter() - t0
     thl = res["theta_l"]
     stick = float(np.mean(res["mode_l"] == 0)) if thl is not None else math.nan
@@ -346,7 +401,10 @@ def make_experiment(
     params : dict
         The reference's parameters (rotorbayes's names, SI units); any effect the
         reference knows may be on (``c_alpha``, ``u_offset``, ``t_delay``, ``u_deadzone``,
-        ``dTc_*``, ``db_*``, ``Ts_l``/``ws_l``/``delta_l``, ``alpha0``).
+        ``dTc_*``, ``db_*``, ``Ts_l``/``ws_l``/``delta_l``, ``alpha0``), and physics the
+        catalogue lacks: ``drift_Tc_u``/``drift_Tc_l``, a friction level rising linearly in
+        time [N m/s]; ``drive_lag``, a first-order lag [s] between the file's input (the
+        command) and the voltage that drives the motor (:class:`LaggedInput`).
     duration, rate : length [s] and sampling rate [Hz]; ``duration * rate + 1`` samples.
     signal : {'steps', 'multisine'}
         The input function (:func:`make_input`), drawn with ``seed``.

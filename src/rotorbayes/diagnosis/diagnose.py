@@ -79,7 +79,7 @@ EXPLAINS = {
     "initial_torsion": {"torsion", "direction", "velocity"},
     "string_damping": {"torsion_rate", "torsion", "velocity"},
     "voltage_offset": {"input", "direction"},
-    "input_delay": {"input_rate", "input"},
+    "input_delay": {"input_rate", "input", "input_history"},
     "motor_deadzone": {"input", "velocity"},
 }
 #: Variables no catalogue effect produces: a strong dependence on them rules a claim out.

@@ -13,10 +13,12 @@ _LABEL = {
     "angle_1": "angle within a revolution [rad]", "angle_2": "angle within a revolution [rad]",
     "torsion": "string torsion α [rad]", "torsion_rate": "twist rate dα/dt [rad/s]",
     "input": "input voltage [V]", "input_rate": "input rate [V/s]", "time": "time [s]",
+    "input_history": "the fitted mix of filtered input minus input [N m]",
 }
 #: Panel titles of the map's variables (the names in diagnosis.json are terse).
 _TITLE = {"angle_1": "angle, once per revolution", "angle_2": "angle, twice per revolution",
-          "torsion_rate": "twist rate", "input_rate": "input rate"}
+          "torsion_rate": "twist rate", "input_rate": "input rate",
+          "input_history": "input's recent history"}
 
 
 #: Colours of the top candidates' corrections (the residual is grey).
@@ -85,6 +87,12 @@ def plot_torque_map(diagnosis, *, top: int = 3):
                 continue
             var, r2 = m.ranking[j]
             xv = m.features[var]
+            if np.ndim(xv) == 2:
+                # Several columns (the filtered inputs): the torque against the part of
+                # it their least-squares mix explains.
+                X = np.column_stack([np.ones(len(xv)), xv])
+                beta, *_ = np.linalg.lstsq(X, m.torque, rcond=None)
+                xv = X[:, 1:] @ beta[1:]
             s = m.features.get("direction")
             if s is not None and var != "direction":
                 # By direction of rotation: friction changes sign with it (mirrored

@@ -64,15 +64,27 @@ WORDS = {
               "unlike the model's"),
     "input_rate": ("follows changes of the input", "a delay or dynamics between the "
                    "command and the motor torque"),
-    "time": ("drifts with time", "slow changes: temperature, wear, or a drifting sensor"),
+    "input_history": ("follows the input's recent history (the input low-pass filtered "
+                      "over 10-200 ms, against the input itself)",
+                      "a lag between the command and the motor torque (the amplifier's "
+                      "and the motor's electrical dynamics), not a pure delay"),
+    "time": ("drifts with time within the run", "slow changes: a friction level that "
+             "warms up or wears (it changes sign with the motion), or a drifting load or "
+             "sensor"),
 }
+
+#: Time constants [s] of the low-pass filtered inputs the map's input-history variable
+#: uses: a lag of the drive between them is a combination of their differences from the
+#: input.
+HISTORY_TAUS = (0.01, 0.04, 0.16)
 
 #: Short names of the variables, for a list.
 SHORT = {"velocity": "its speed", "direction": "the direction of rotation",
          "angle_1": "its angle (once per revolution)",
          "angle_2": "its angle (twice per revolution)", "torsion": "the string's torsion",
          "torsion_rate": "the twist rate",
-         "input": "the input voltage", "input_rate": "the input's rate", "time": "time"}
+         "input": "the input voltage", "input_rate": "the input's rate",
+         "input_history": "the input's recent history", "time": "time"}
 
 #: The catalogue's version of each dependence's usual cause: per disc, the effects whose
 #: score tests test what :data:`WORDS` names, and what else the dependence can be when
@@ -97,6 +109,9 @@ TESTED_BY: dict[str, tuple[dict[str, tuple[str, ...]], str]] = {
     "input_rate": ({"l": ("input_delay",), "u": ("input_delay",)},
                    "dynamics between the command and the motor torque other than a pure "
                    "delay (not in the catalogue)"),
+    "input_history": ({"l": ("input_delay",), "u": ("input_delay",)},
+                      "a lag of the drive (first-order dynamics between command and "
+                      "torque), which the catalogue does not hold"),
 }
 
 #: A map whose RMS is at most this many times its noise shows no missing torque.  The
@@ -348,7 +363,7 @@ def _binned(x: np.ndarray, n_bins: int = 16) -> np.ndarray:
 def _design(k: str, feats: dict[str, np.ndarray]) -> np.ndarray | None:
     """The regression columns of a dependence on variable ``k`` (None: it never varies)."""
     v = feats[k]
-    one = np.ones((v.size, 1))
+    one = np.ones((len(v), 1))
     if k == "direction":
         return np.column_stack([one, v])
     if k.startswith("angle_"):
@@ -359,9 +374,16 @@ def _design(k: str, feats: dict[str, np.ndarray]) -> np.ndarray | None:
         return np.column_stack([one, s, np.sin(h * v), np.cos(h * v), s * np.sin(h * v),
                                 s * np.cos(h * v)])
     if k == "time":
-        # A drift is a trend, not any function of time (which would explain everything).
+        # A drift is a trend, not any function of time (which would explain everything):
+        # of a load (the same in both directions) or of a friction level (against the
+        # motion, so with the direction's sign).  No column of the direction alone: a
+        # constant asymmetry is the direction's, not a drift.
         tt = (v - v.mean()) / max(np.ptp(v), 1e-12)
-        return np.column_stack([one, tt, tt**2])
+        s = feats["direction"]
+        return np.column_stack([one, tt, tt**2, s * tt, s * tt**2])
+    if k == "input_history":
+        # The filtered inputs' differences from the input (columns), linear: a lag.
+        return np.column_stack([one, v])
     if np.ptp(v) == 0:
         return None
     return _binned(v)
@@ -493,7 +515,7 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             extra_u[k], extra_l[k] = a_u, a_l
             shift_u[k], shift_l[k] = s_u, s_l
     du = np.gradient(u, dt)
-    common = {"input": v, "input_rate": du, "time": t}
+    common = {"input": v, "input_rate": du, "input_history": _history(v, dt), "time": t}
     out = {}
     if has_l and m.configuration.has_lower:
         fl = np.nan_to_num(friction_curve(wl, _complete(p), "l", shape=problem.shape))
@@ -514,6 +536,19 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             feats["torsion_rate"] = dalpha
         out["u"] = (t, Mu, feats, slip_mask(wu, n, 0.02))
     return out
+
+
+def _history(v: np.ndarray, dt: float) -> np.ndarray:
+    """Columns: the input low-pass filtered at each of :data:`HISTORY_TAUS` (first order,
+    exact for a held sample, starting from the held first value), minus the input."""
+    from scipy.signal import lfilter
+
+    cols = []
+    for tau in HISTORY_TAUS:
+        a = math.exp(-dt / tau)
+        y, _ = lfilter([1.0 - a], [1.0, -a], v, zi=[a * v[0]])
+        cols.append(y - v)
+    return np.column_stack(cols)
 
 
 def _complete(p: dict) -> dict:

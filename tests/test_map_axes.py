@@ -1,0 +1,68 @@
+"""The missing-torque map's axes for physics beyond the catalogue (issue 32, point 3).
+
+Data from the independent reference (``tests/reference.py`` through ``tests/refdata.py``:
+coupled, 10 s at 1 kHz, quantised, the continuous step-like input, parameters unlike the
+thesis) with physics no catalogue effect holds:
+
+* the lower friction level rising in time (oil warming), 0.0015 N m/s (44 % of Tc_l over
+  the run): the lower map's strongest variable is time;
+* a first-order lag of 20 ms between the command in the file and the voltage that drives
+  the motor: the upper map names the input's recent history (the input low-pass filtered
+  at a few time constants);
+* a control with nothing missing: neither axis is named.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from refdata import SETS, LaggedInput, make_experiment, make_input
+
+from rotorbayes import inference as E
+from rotorbayes.diagnosis.torque import missing_torque
+from rotorbayes.inference.assess import floor_ratio
+
+
+def _maps(extra: dict):
+    params = dict(SETS["coupled"][0], **extra)
+    ex = make_experiment("coupled", params, duration=10.0, signal="steps",
+                         hold="continuous", seed=3)
+    prob = E.Problem("coupled", [ex])
+    res = E.fit_from_data(prob, restarts=2).result
+    return {m.disc: m for m in missing_torque(prob, res.x)}, floor_ratio(prob, res.x)
+
+
+def test_the_lag_of_the_test_data_is_exact():
+    f = make_input("steps", 5.0, 3)
+    lag = LaggedInput(f, 0.02, 6.0)
+    from scipy.integrate import solve_ivp
+
+    sol = solve_ivp(lambda t, y: [(f(t) - y[0]) / 0.02], (0.0, 5.0), [f(0.0)], rtol=1e-11,
+                    atol=1e-12, max_step=1e-3, dense_output=True)
+    t = np.linspace(0.0, 5.0, 5001)
+    assert np.max(np.abs(sol.sol(t)[0] - lag(t))) < 1e-6  # V; the encoders see 1e-4 V
+
+
+def test_a_friction_drift_in_time_is_the_lower_maps_strongest_variable():
+    maps, ratio = _maps({"drift_Tc_l": 0.0015})
+    assert ratio > 20  # the model lacks it
+    lower = maps["l"]
+    assert lower.exceeds_noise
+    assert lower.strongest[0] == "time", lower.ranking
+    assert "time" in lower.words()
+
+
+def test_a_drive_lag_is_named_as_the_inputs_history():
+    maps, ratio = _maps({"drive_lag": 0.02})
+    assert ratio > 20
+    upper = maps["u"]
+    assert upper.supports_words, upper.words()
+    assert upper.strongest[0] == "input_history"
+    assert "the input's recent history" in upper.words() and "lag" in upper.words()
+
+
+def test_a_control_names_neither_time_nor_the_inputs_history():
+    maps, ratio = _maps({})
+    assert ratio < 1.5
+    for m in maps.values():
+        named = [k for k, _ in m.together] if m.supports_words else []
+        assert "time" not in named and "input_history" not in named, m.words()
