@@ -215,3 +215,28 @@ def test_a_tie_on_one_run_is_decided_by_the_validation_run(tmp_path, capsys):
     assert trials["lower_asymmetric_coulomb"]["validation_rms_over_floor"] > 100
     assert trials["initial_torsion"]["validation_rms_over_floor"] < 20
     assert "validation data decide" in out
+
+
+def test_long_data_screen_the_starts_and_finish_the_best(monkeypatch, capsys):
+    """Above LONG_RESIDUALS every start gets a few evaluations and only the best is fitted
+    to the end; on the bundled hidden-effect data (made lowering the limit) it lands where
+    the full search lands."""
+    import rotorbayes.inference.refit as R
+    from rotorbayes import inference as E
+    from rotorbayes.data import load_experiment
+    from rotorbayes.examples import example_path
+
+    ex = load_experiment(example_path("coupled_hidden_est"))
+    prob = E.Problem("coupled", [ex])
+    parent = E.fit_from_data(prob, restarts=0).result
+    child = prob.like(model=prob.model.with_effects(["lower_asymmetric_coulomb"]),
+                      free=[*prob.names, "dTc_l"])
+    x0 = child.start_vector({**child.base, **prob.values(parent.x)})
+    full = R.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"], uncertainty=False)
+    monkeypatch.setattr(R, "LONG_RESIDUALS", 0)
+    screened = R.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"], verbose=True,
+                             uncertainty=False)
+    assert "screened" in capsys.readouterr().out
+    assert screened.chose.endswith("(screened, then fitted to the end)")
+    assert screened.result.ssr <= full.result.ssr * 1.01
+    assert np.array_equal(screened.result.x0, screened.starts[screened.kept].x0)

@@ -41,6 +41,11 @@ from .problem import Problem, local_name
 #: score test's grid: three decades of velocity, a smooth and a sharp shape).
 WS_STARTS = (0.2, 1.0, 5.0)
 DELTA_STARTS = (1.0, 2.0)
+#: Above this many residuals (long data: 100 s of both channels at 1 kHz) the starts are
+#: screened with :data:`SCREEN_NFEV` evaluations each and only the best is fitted to the
+#: end.
+LONG_RESIDUALS = 200_000
+SCREEN_NFEV = 25
 #: Two end points whose worst RMS/floor differ by more than this factor "disagree".
 DISAGREE = 1.25
 #: A refit ending above the diagnosis's prediction by more than this factor says so.
@@ -260,6 +265,15 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
             executor if executor is not None else current_executor(),
             ThreadPoolExecutor | type(None)):
         executor, workers = SerialExecutor(), 1  # long data: one fit's Jacobian at a time
+    # Long data: every start screened with a few evaluations, the best one finished
+    # (nine full fits of 4 x 600 s would take the better part of an hour).
+    screen = problem.n_residuals > LONG_RESIDUALS and len(starts) > 1
+    if screen:
+        kw["max_nfev"] = min(SCREEN_NFEV, int(kw.get("max_nfev", 200)))
+        if verbose:
+            print(f"  long data ({problem.n_residuals} residuals): each start screened with "
+                  f"at most {kw['max_nfev']} evaluations, the best one then fitted to the "
+                  "end", flush=True)
     tasks = run_tasks(_fit_start, [s.x0 for s in starts], shared=(problem, kw),
                       executor=executor, workers=workers)
     results: dict[int, FitResult] = {}
@@ -280,6 +294,15 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
     # In start order on ties: the choice does not depend on who finished first.
     kept = min(results, key=lambda j: (results[j].ssr, j))
     best = results[kept]
+    if screen:
+        from .least_squares import fit as _fit
+
+        best = _fit(problem, best.x, **{**fit_kw, "uncertainty": False})
+        s = starts[kept]
+        best.x0 = s.x0  # where the search began, as the start column says
+        s.ssr, s.success, s.ratio = float(best.ssr), bool(best.success), floor_ratio(
+            problem, best.x)
+        s.label += " (screened, then fitted to the end)"
     _complete(best, fit_kw)
     out = Refit(best, starts, kept, names)
     if out.disagreed():
