@@ -639,6 +639,32 @@ def _one_diagnosis(x: FitInfo, open_: bool) -> Raw:
                          caption="catalogue effects that are off, best first: score tests at "
                          f"the fit (level {level if level is not None else '?'}); the claimed "
                          "effect is highlighted"))
+    tr = d.get("trials") or {}
+    if tr.get("trials"):
+        # Far from the floor: one refit per candidate decided (diagnosis.trials).
+        out.append(Raw("<h4>Trial refits</h4>"))
+        rows = []
+        for t in tr["trials"]:
+            vals = ", ".join(f"{n} = {_plain(v)}" for n, v in (t.get("values") or {}).items())
+            notes = []
+            if t.get("on_bound"):
+                notes.append("on a bound: " + ", ".join(t["on_bound"]))
+            if t.get("validation_rms_over_floor") is not None:
+                v = float(t["validation_rms_over_floor"])
+                notes.append(f"validation {v:.3g}x" if v < 1000 else f"validation {v:.0f}x")
+            if t.get("failed"):
+                notes.append("failed: " + str(t["failed"]))
+            rows.append([Raw(f"<code>{esc(t.get('effect'))}</code>"),
+                         num(t.get("rms_over_floor"), 3), vals, "; ".join(notes)])
+        out.append(table(["effect added", "worst RMS/floor after the refit", "its parameters",
+                          "notes"], rows, numeric=(1,),
+                         row_cls=lambda k: "good" if (tr["trials"][k].get("effect")
+                                                      == tr.get("choice")) else "",
+                         caption="each candidate refitted, its parameters searched (from "
+                         f"{tr.get('before', math.nan):.3g}x the floor); the choice is "
+                         "highlighted"))
+        if tr.get("words"):
+            out.append(Raw(f'<div class="advice">{esc(tr["words"])}</div>'))
     maps = d.get("missing_torque") or []
     if maps:
         out.append(Raw("<h4>Missing-torque map</h4>"))
