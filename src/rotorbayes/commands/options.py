@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from ..model.simulate import default_step
+
 #: Sampling rates a simulated measurement may have (Hz). Below 100 Hz the samples cannot
 #: follow the rig: the inputs have content up to 5 Hz, the stick-slip switches of the lower
 #: disc last milliseconds and the encoders' steps (1e-4 rad) are crossed many times per
@@ -94,7 +96,8 @@ def add_fit_options(p) -> None:
                        default=1e-10, help=f"{tol} of scipy.optimize.least_squares")
     p.add_argument("--step", type=ranged(gt=0, why=" (seconds)"), default=None,
                    metavar="SECONDS",
-                   help="largest Runge-Kutta step of the simulation (default: 25 ms at 1 kHz, "
+                   help="largest Runge-Kutta step of the simulation (default: "
+                   f"{1e3 * default_step(1e-3):.0f} ms at 1 kHz, "
                    "shorter over fast input transitions); give it when the fit's integration "
                    "check says the integrator's own error is material; kept in fit.json")
     p.add_argument("--keep-glitches", action="store_true",
