@@ -189,7 +189,9 @@ def test_fit_table_without_title_and_nan():
     f = channel_fit("flat", np.ones(3), np.zeros(3))
     text = fit_table([f])
     assert text.splitlines()[0].startswith("channel")
-    assert "nan" in text
+    # A constant measurement has no R² or fit %: said in words, never "nan".
+    assert "nan" not in text and "n/a" in text
+    assert "the measured signal is constant" in text.splitlines()[-1]
 
 
 def test_fit_table_refusals():

@@ -361,13 +361,19 @@ def channel_fit(name: str, y: ArrayLike, yhat: ArrayLike) -> ChannelFit:
 _HEADERS = ("channel", "R²", "fit %", "max |e| [rad]", "RMSE [rad]", "SSR [rad²]")
 
 
+#: What the table prints for R² and fit % of a constant measurement (and the note under it).
+NO_SCALE = "n/a"
+NO_SCALE_NOTE = (f"{NO_SCALE}: the measured signal is constant, so R² and fit % have no "
+                 "reference scale (judge the fit by its errors in rad)")
+
+
 def _row(f: ChannelFit) -> tuple[str, ...]:
     # R² with 4 decimals as in the thesis's figures and table 5.5, so the numbers can be
     # compared with it directly; errors span decades, hence scientific notation.
     return (
         f.name,
-        f"{f.r2:.4f}",
-        f"{f.nrmse_fit:.2f}",
+        NO_SCALE if math.isnan(f.r2) else f"{f.r2:.4f}",
+        NO_SCALE if math.isnan(f.nrmse_fit) else f"{f.nrmse_fit:.2f}",
         f"{f.max_abs_error:.3e}",
         f"{f.rmse:.3e}",
         f"{f.ssr:.3e}",
@@ -379,7 +385,9 @@ def fit_table(fits: Sequence[ChannelFit], *, title: str = "") -> str:
 
     Columns: channel | R² | fit % | max |e| [rad] | RMSE [rad] | SSR [rad²]. R² is printed
     with 4 decimals (as in the thesis), the fit with 2 decimals, the errors in scientific
-    notation. The channel column is left-aligned, the numbers right-aligned.
+    notation. The channel column is left-aligned, the numbers right-aligned.  R² and fit %
+    of a constant measurement (no reference scale) are printed as ``n/a``, with a note
+    under the table that says why.
 
     Parameters
     ----------
@@ -421,4 +429,6 @@ def fit_table(fits: Sequence[ChannelFit], *, title: str = "") -> str:
     out.append(line(_HEADERS))
     out.append("-+-".join("-" * w for w in widths))
     out.extend(line(r) for r in rows)
+    if any(NO_SCALE in r[1:3] for r in rows):
+        out.append(NO_SCALE_NOTE)
     return "\n".join(out)

@@ -18,7 +18,6 @@ parent fit it started from.  :func:`load_fit` rebuilds it; ``diagnose``, ``compa
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import sys
@@ -193,6 +192,98 @@ def data_record(paths: list, fit_folder: Path) -> list[dict]:
     return out
 
 
+FIX_OR_REFIT = ("the file was edited or damaged: correct the value in it, or fit again (a "
+                "fit writes only values inside the bounds)")
+
+
+def read_fit_json(path: str | Path) -> dict:
+    """The JSON object in a fit.json (or a file given as one), its nesting checked before
+    it is parsed (:func:`rotorbayes.tomlfile.check_nesting`); :class:`ResultError` naming
+    the file for anything else."""
+    from .tomlfile import loads_json
+
+    path = Path(path)
+    try:
+        doc = loads_json(path.read_text(encoding="utf-8"), path, ResultError, "fit.json")
+    except OSError as exc:
+        raise ResultError(f"{path}: cannot read it ({exc})") from None
+    except ValueError as exc:
+        if isinstance(exc, ResultError):
+            raise
+        what = "a data file" if path.suffix.lower() in (".csv", ".txt", ".mat") else "not JSON"
+        raise ResultError(f"{path}: not a fit ({what}); give the folder `rotorbayes fit --out` "
+                          "wrote, or its fit.json") from None
+    if not isinstance(doc, dict):
+        raise ResultError(f"{path}: not a fit written by `rotorbayes fit` (not a JSON object)")
+    return doc
+
+
+def _checked_value(v, name: str, info, path: Path, where: str) -> float | None:
+    """One number of a fit.json, checked: finite and inside its parameter's bounds (``info``;
+    None: finite only).  ``None`` (JSON's null) and NaN stand for "no value" and are
+    accepted only where the parameter's null value is NaN (``Ts_l``: no Stribeck peak)."""
+    unit = f" {info.unit}" if info is not None and info.unit != "-" else ""
+    bounds = (f" ({info.description}: between {info.lower:g} and {info.upper:g}{unit})"
+              if info is not None else "")
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        if info is not None and math.isnan(info.null) and name == "Ts_l":
+            return None
+        shown = "null" if v is None else "NaN"
+        raise ResultError(f"{path}: {name} = {shown} ({where}) is not a number{bounds}; "
+                          f"{FIX_OR_REFIT}")
+    if not isinstance(v, int | float) or isinstance(v, bool):
+        raise ResultError(f"{path}: {name} = {v!r} ({where}) is not a number{bounds}; "
+                          f"{FIX_OR_REFIT}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise ResultError(f"{path}: {name} = {v!r} ({where}) is not a finite number{bounds}; "
+                          f"{FIX_OR_REFIT}")
+    if info is not None and not info.lower <= v <= info.upper:
+        raise ResultError(f"{path}: {name} = {v:g}{unit} ({where}) lies outside its "
+                          f"bounds{bounds}; {FIX_OR_REFIT}")
+    return v
+
+
+def fit_values(doc: dict, path: str | Path, info=None) -> dict[str, float | None]:
+    """fit.json's ``params`` (every parameter's value at the fit), each checked: a finite
+    number inside its parameter's bounds (``info``: the model's parameter metadata; the
+    built-in parameters' when None, a user effect's parameters then only finite), ``None``
+    for ``Ts_l`` without a Stribeck peak.  :class:`ResultError` names the file, the
+    parameter and the value, and says what to do."""
+    from .model.parameters import INFO
+
+    path = Path(path)
+    params = doc.get("params")
+    if not isinstance(params, dict):
+        raise ResultError(f"{path}: params is not a table of parameter values: damaged, or "
+                          "not written by `rotorbayes fit`; fit again")
+    info = INFO if info is None else info
+    return {str(k): _checked_value(v, str(k), info.get(k), path, "its value in params")
+            for k, v in params.items()}
+
+
+def fit_estimates(doc: dict, path: str | Path, names, info=None) -> list[float]:
+    """The estimates of the free parameters ``names`` (``alpha0[1]`` included) from
+    fit.json's ``estimates``, checked as :func:`fit_values` checks values."""
+    from .model.parameters import INFO
+
+    path = Path(path)
+    est = doc.get("estimates")
+    info = INFO if info is None else info
+    out = []
+    for n in names:
+        rec = est.get(n) if isinstance(est, dict) else None
+        if not isinstance(rec, dict) or "value" not in rec:
+            raise ResultError(f"{path}: estimates lack a value for the free parameter {n}: "
+                              "damaged, or written by another rotorbayes; fit again")
+        v = _checked_value(rec["value"], n, info.get(n.split("[")[0]), path, "its estimate")
+        if v is None:
+            raise ResultError(f"{path}: {n} = null (its estimate) is not a number; "
+                              f"{FIX_OR_REFIT}")
+        out.append(v)
+    return out
+
+
 def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
     """Rebuild the problem and the fitted point of a fit folder (or its fit.json).
 
@@ -201,16 +292,7 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
     from .inference import Problem
 
     path = fit_json_path(spec)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ResultError(f"{path}: cannot read it ({exc})") from None
-    except ValueError:
-        what = "a data file" if path.suffix.lower() in (".csv", ".txt", ".mat") else "not JSON"
-        raise ResultError(f"{path}: not a fit ({what}); give the folder `rotorbayes fit --out` "
-                          "wrote, or its fit.json") from None
-    if not isinstance(doc, dict):
-        raise ResultError(f"{path}: not a fit written by `rotorbayes fit` (not a JSON object)")
+    doc = read_fit_json(path)
     need = ("config", "data", "free", "params", "estimates", "channels")
     missing = [k for k in need if k not in doc]
     if missing:
@@ -232,17 +314,18 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
     added = check_effect_files(doc, path, trust_effects)
     model = Model(config, added, without=without,
                   prescribed_upper=bool(doc.get("prescribed_upper", False)))
+    # Every number is checked before any data are read (a hand-edited NaN, -5 or 1e300
+    # is named here, not met later as a simulation that fails).
+    base = {k: (math.nan if v is None else float(v))
+            for k, v in fit_values(doc, path, model.info).items()}
+    estimates = dict(zip(doc["free"], fit_estimates(doc, path, doc["free"], model.info),
+                         strict=True))
     # A fit made with --keep-glitches is read back with them kept (the same data).
     keep = bool((doc.get("glitches") or {}).get("kept"))
     exps = [_load(data_path(p, doc, i, "data", path), config, keep)
             for i, p in enumerate(doc["data"])]
     val = [_load(data_path(p, doc, i, "validation", path), config, keep)
            for i, p in enumerate(doc.get("validation", []))]
-    try:
-        base = {k: (math.nan if v is None else float(v)) for k, v in doc["params"].items()}
-    except (TypeError, ValueError) as exc:
-        raise ResultError(f"{path}: params holds a value that is not a number ({exc}): "
-                          "damaged, or not written by `rotorbayes fit`; fit again") from None
     try:
         names_base: list[str] = []
         for n in doc["free"]:
@@ -257,12 +340,13 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
         raise ResultError(f"{path}: cannot rebuild the fit from it ({type(exc).__name__}: "
                           f"{exc}): damaged, or written by another rotorbayes; fit again"
                           ) from None
-    try:
-        x = np.array([float(doc["estimates"][n]["value"]) for n in prob.names])
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise ResultError(f"{path}: estimates lack a number for a free parameter ("
-                          f"{type(exc).__name__}: {exc}): damaged, or written by another "
-                          "rotorbayes; fit again") from None
+    except ValueError as exc:  # a value the problem refuses (a step, a weight, a channel)
+        raise ResultError(f"{path}: {exc}") from None
+    missing = [n for n in prob.names if n not in estimates]
+    if missing:
+        raise ResultError(f"{path}: estimates lack a value for the free parameter "
+                          f"{missing[0]}: damaged, or written by another rotorbayes; fit again")
+    x = np.array([estimates[n] for n in prob.names])
     return LoadedFit(path.parent, doc, prob, x, val, _validation_alpha0(doc, path, val))
 
 
@@ -310,9 +394,13 @@ def diagnosis_starts(spec: str | Path | None, effects) -> dict[str, float]:
     path = folder / "diagnosis.json"
     if not path.exists():
         return {}
+    from .tomlfile import loads_json
+
     try:
-        doc = json.loads(path.read_text())
-    except (OSError, ValueError):
+        doc = loads_json(path.read_text(), path, ResultError, "diagnosis.json")
+    except (OSError, ValueError):  # unreadable: the refit starts without its estimates
+        return {}
+    if not isinstance(doc, dict):
         return {}
     wanted = set(effects)
     out: dict[str, float] = {}

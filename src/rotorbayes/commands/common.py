@@ -18,6 +18,7 @@ from ..data import Experiment, load_experiment
 from ..examples import example_path
 from ..exitcodes import Refused
 from ..model import parameters as _params
+from ..tomlfile import loads_json
 
 
 @dataclass
@@ -94,10 +95,27 @@ def fit_json(spec: str | None) -> dict | None:
     if p.suffix != ".json":
         return None
     try:
-        return json.loads(p.read_text())
+        return loads_json(p.read_text(), p, Refused, "fit.json")
+    except Refused:
+        raise
     except (OSError, ValueError) as exc:
         raise Refused(f"{p}: cannot read it ({exc}); give a fit.json written by "
                       "`rotorbayes fit`, a TOML file or a named set") from None
+
+
+def fit_effects(spec: str | None, config: str | None, trust: bool = False) -> list[str]:
+    """The effects switched on in the fit a ``--p0``/``--params``/``--around`` value
+    ``spec`` points to (a fit folder or its fit.json) -- catalogue names and user effect
+    files, the files checked before any import (:func:`rotorbayes.results.check_effect_files`:
+    gone, changed or unrecorded files are refused unless ``trust``) -- when it is a fit of
+    ``config``; empty for anything else (a named set, a TOML file, another configuration)."""
+    doc = fit_json(spec)
+    if doc is None or not isinstance(doc, dict) or doc.get("config") != config:
+        return []
+    from ..results import check_effect_files
+
+    where = Path(spec) / "fit.json" if Path(spec).is_dir() else Path(spec)
+    return check_effect_files(doc, where, trust)
 
 
 def param_spec(spec: str | None):
@@ -106,18 +124,30 @@ def param_spec(spec: str | None):
     if spec is None:
         return None
     if spec.endswith(".json"):
+        from ..results import ResultError, fit_values
+
         p = Path(spec)
         if p.is_dir():
             p = p / "fit.json"
         try:
-            data = json.loads(p.read_text())
-            if isinstance(data, dict) and "params" not in data:
-                data = {"params": data}  # a flat {name: value} mapping
-            return {k: float(v) for k, v in data["params"].items() if v is not None and not (
-                isinstance(v, float) and math.isnan(v))}
-        except (OSError, KeyError, ValueError) as exc:
+            data = loads_json(p.read_text(), p, Refused, "fit.json")
+        except Refused:
+            raise
+        except (OSError, ValueError) as exc:
             raise Refused(f"{p}: cannot read parameters from it ({exc}); give a fit.json "
                           "written by `rotorbayes fit`, a TOML file or a named set") from None
+        if isinstance(data, dict) and "params" not in data:
+            data = {"params": data}  # a flat {name: value} mapping
+        if not isinstance(data, dict):
+            raise Refused(f"{p}: holds no parameter values (not a JSON object); give a "
+                          "fit.json written by `rotorbayes fit`, a TOML file or a named set")
+        # Every value checked (finite, inside its bounds): the message names the file, the
+        # parameter and the value.
+        try:
+            values = fit_values(data, p)
+        except ResultError as exc:
+            raise Refused(str(exc)) from None
+        return {k: v for k, v in values.items() if v is not None}
     if Path(spec).is_dir() and (Path(spec) / "fit.json").exists():
         return param_spec(str(Path(spec) / "fit.json"))
     if Path(spec).is_dir() and (Path(spec) / "multistart.json").exists():
@@ -129,7 +159,7 @@ def _best_of_multistart(path: Path) -> dict[str, float]:
     """The end point of a multistart's best fit (smallest SSR) as parameter values: a
     multistart folder works as ``--p0``."""
     try:
-        d = json.loads(path.read_text())
+        d = loads_json(path.read_text(), path, Refused, "multistart.json")
         ok = [i for i, (s, e) in enumerate(zip(d["ssr"], d["ends"], strict=True))
               if s is not None and math.isfinite(s) and e is not None]
         if not ok:
@@ -137,6 +167,8 @@ def _best_of_multistart(path: Path) -> dict[str, float]:
                           "start (a fit folder, a TOML file or a named set)")
         best = min(ok, key=lambda i: d["ssr"][i])
         return {n: float(v) for n, v in zip(d["names"], d["ends"][best], strict=True)}
+    except Refused:
+        raise
     except (OSError, KeyError, TypeError, ValueError) as exc:
         raise Refused(f"{path}: cannot read the best start from it ({exc}); give a fit "
                       "folder, a TOML file or a named set") from None

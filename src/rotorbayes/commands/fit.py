@@ -23,13 +23,14 @@ from ..outputs import InterruptGuard, output_folder, save_figure_atomic
 from .common import (
     Outcome,
     csv_list,
+    fit_effects,
     fit_json,
     load_experiments,
     resolve_values,
     run_values,
     strict_json,
 )
-from .options import add_fit_options, ranged
+from .options import MAX_RESTARTS, add_fit_options, ranged
 
 HELP = "least squares from a start P0"
 
@@ -48,7 +49,7 @@ def add_arguments(f) -> None:
     f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json "
                    "(default: a start computed from the data); a fit.json of an upper-"
                    "configuration fit also fixes the upper-disc parameters it estimated")
-    f.add_argument("--restarts", type=ranged(int, ge=0), default=6,
+    f.add_argument("--restarts", type=ranged(int, ge=0, le=MAX_RESTARTS), default=6,
                    help="without --p0: extra fits around the data start when the first one "
                    "ends above 3x the encoder floor")
     f.add_argument("--no-search", dest="search", action="store_false",
@@ -122,34 +123,40 @@ def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
 
 def build_model(a, n_experiments: int):
     """The model: configuration, base effects minus --without, effects inherited from a
-    --p0 fit.json, plus --add."""
+    --p0 fit.json (multistart: the --around fit.json), plus --add."""
     from ..model import Model
 
     added = list(a.add or [])
-    inherited: list[str] = []
-    doc = fit_json(getattr(a, "p0", None))
-    if doc is not None and doc.get("config") == a.model:
-        from ..results import check_effect_files
-
-        where = Path(a.p0) / "fit.json" if Path(a.p0).is_dir() else Path(a.p0)
-        specs = check_effect_files(doc, where, getattr(a, "trust_effects", False))
-        inherited = [e for e in specs if e not in added]
+    carrier = getattr(a, "p0", None) or getattr(a, "around", None)
+    specs = fit_effects(carrier, a.model, getattr(a, "trust_effects", False))
+    inherited = [e for e in specs if e not in added]
     if (n_experiments > 1 and a.model != "upper" and "initial_torsion" not in added
             and "initial_torsion" not in inherited):
         added.append("initial_torsion")
     model = Model(a.model, [*inherited, *added], without=a.without or (),
                   prescribed_upper=a.prescribed_upper)
     if inherited:
-        print(f"effects carried over from {a.p0}: {', '.join(inherited)}")
+        print(f"effects carried over from {carrier}: {', '.join(inherited)}")
     return model, added
 
 
-def build_problem(a, exps, start_spec=None):
+def build_problem(a, exps, start_spec=None, also=()):
     """The estimation problem of the fit/multistart arguments.
 
-    ``--add`` frees the effect's parameters, also when ``--free`` is given.
+    ``--add`` frees the effect's parameters, also when ``--free`` is given.  ``--step`` is
+    checked against every data file, the validation files ``also`` included; a problem
+    with nothing to fit, or a file too short to fit, is refused.
     """
     from ..inference import Problem
+    from ..inference.least_squares import check_fittable
+    from ..model.simulate import check_step
+
+    for ex in [*exps, *also]:
+        try:
+            check_step(getattr(a, "step", None), ex.dt, ex.n, what="--step",
+                       where=str(ex.path or ex.name))
+        except _params.ParameterError as exc:
+            raise Refused(str(exc)) from None
 
     model, added = build_model(a, len(exps))
     free = csv_list(a.free, "--free")
@@ -179,11 +186,23 @@ def build_problem(a, exps, start_spec=None):
     prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
                    fixed=fixed, step=getattr(a, "step", None),
                    run_starts=run_values(getattr(a, "p0", None)))
+    if not prob.names:
+        given = a.fixed if isinstance(a.fixed, str) else ",".join(a.fixed or ())
+        why, how = ((f"--fixed {given}: that is every free parameter of this fit",
+                     "leave it out of --fixed") if given else
+                    ("this fit has no free parameter", "name it with --free"))
+        raise Refused(f"{why}, so nothing is left to fit; free at least one ({how})")
+    try:
+        check_fittable(prob)
+    except _params.ParameterError as exc:
+        raise Refused(str(exc)) from None
     return prob, from_upper
 
 
 def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> dict:
     """``--weights theta_l=1,theta_u=0.1``: channel names and positive finite weights."""
+    from ..inference.problem import MAX_WEIGHT, MIN_WEIGHT
+
     if config == "upper":
         valid = ("theta_u",)
     elif prescribed_upper:
@@ -223,6 +242,12 @@ def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> 
             raise Refused(f"--weights: the weight of {name} is {value}; it must be a finite "
                           "number > 0 (a channel you do not want to fit is left out with "
                           "--channels instead)")
+        if not MIN_WEIGHT <= w <= MAX_WEIGHT:
+            raise Refused(f"--weights: the weight of {name} is {value}; give a weight between "
+                          f"{MIN_WEIGHT:g} and {MAX_WEIGHT:g} (weights set how much one "
+                          "channel counts against the other; beyond that a channel is ignored "
+                          "in effect, or its squared residuals overflow; a channel you do not "
+                          "want to fit is left out with --channels instead)")
         weights[name] = w
     return weights
 
@@ -260,11 +285,18 @@ def _uncertainty_words(res) -> str:
             f"ones independent noise at the floor would give; the rounding alone leaves "
             f"the information of about {u.n_eff:.3g} independent samples of {u.n_samples}")
     sh = u.shares()
-    tot = {k: np.nanmean([v[k] for v in sh.values()]) for k in ("noise", "model_error",
-                                                                   "input_hold")}
-    lines.append(f"  variance, mean over parameters: noise {100 * tot['noise']:.0f} %, model "
-                 f"error {100 * tot['model_error']:.0f} %, input between samples "
-                 f"{100 * tot['input_hold']:.0f} %")
+    keys = ("noise", "model_error", "input_hold")
+    # Parameters without a finite standard error have no shares: left out of the mean,
+    # and said in words when no parameter has one (never "nan %").
+    finite = [v for v in sh.values() if all(math.isfinite(v[k]) for k in keys)]
+    if finite:
+        tot = {k: float(np.mean([v[k] for v in finite])) for k in keys}
+        lines.append(f"  variance, mean over parameters: noise {100 * tot['noise']:.0f} %, "
+                     f"model error {100 * tot['model_error']:.0f} %, input between samples "
+                     f"{100 * tot['input_hold']:.0f} %")
+    else:
+        lines.append("  no parameter has a finite standard error: the data do not determine "
+                     "them (see the warnings below)")
     if u.warning():
         lines.append("  warning: " + u.warning())
     return "\n".join(lines)
@@ -314,7 +346,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         if a.validate else []
     say_glitches(exps, val)
     # The start set also fixes the values of the parameters that are not estimated.
-    prob, fixed_from_upper = build_problem(a, exps, start_spec=a.p0)
+    prob, fixed_from_upper = build_problem(a, exps, start_spec=a.p0, also=val)
     val_alpha0 = _check_validation_torsion(a, prob, val)
     sources = _sources(a, prob, fixed_from_upper)
     print(f"model: {a.model} configuration with "

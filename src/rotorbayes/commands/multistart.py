@@ -10,7 +10,6 @@ import numpy as np
 
 from .. import exitcodes as EXIT
 from ..exitcodes import Interrupted
-from ..model import parameters as _params
 from ..outputs import InterruptGuard, output_folder, save_figure_atomic
 from .common import (
     Outcome,
@@ -18,18 +17,19 @@ from .common import (
     glitch_record,
     json_default,
     load_experiments,
-    param_spec,
+    resolve_values,
     say_glitches,
 )
 from .fit import build_problem
-from .options import add_fit_options, add_parallel_options, ranged
+from .options import MAX_STARTS, add_fit_options, add_parallel_options, ranged
 
 HELP = "many fits from spread starts; waterfall and spread"
 
 
 def add_arguments(m) -> None:
     add_fit_options(m)
-    m.add_argument("--starts", type=ranged(int, ge=1, why=" (one fit per start)"),
+    m.add_argument("--starts", type=ranged(int, ge=1, le=MAX_STARTS,
+                                            why=" (one fit per start)"),
                    default=32, metavar="N", help="number of fits from different starts")
     m.add_argument("--around", help="spread starts around this set (named set, TOML or "
                    "fit.json) instead of over the bounds")
@@ -71,7 +71,9 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
         prob, _ = build_problem(a, exps)
         around = None
         if a.around:
-            around = _params.resolve(param_spec(a.around), config=a.model)
+            # A fit folder's values, user effects' too (their effects are on: build_model
+            # carries them over from --around as fit does from --p0).
+            around = resolve_values(a.around, prob.model)
         how = (f"log-normal spread {a.spread:.2f} around {a.around}" if around
                else "Latin hypercube over the bounds")
         print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")

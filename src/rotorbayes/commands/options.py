@@ -15,6 +15,14 @@ from ..model.simulate import default_step
 MIN_RATE, MAX_RATE = 100.0, 1e5
 #: Upper limits of sample's sizes: beyond them a run would not end or fit on a disk.
 MAX_WALKERS, MAX_STEPS = 10_000, 10_000_000
+#: Most residual evaluations of one fit (as an analysis file's [fit] max_nfev), most
+#: restarts of a fit from the data and most starts of a multistart: beyond them a run
+#: would not end.
+MAX_NFEV, MAX_RESTARTS, MAX_STARTS = 1_000_000, 100, 100_000
+#: Range of the convergence tolerances (relative changes): below 1e-15 a tolerance is
+#: under the machine's precision (scipy disables it, and refuses when all three are), above
+#: 0.1 a fit stops before it has moved.
+MIN_TOL, MAX_TOL = 1e-15, 0.1
 #: The rig's configurations (``--model``).
 CONFIGS = ["upper", "coupled", "brake"]
 
@@ -89,16 +97,20 @@ def add_fit_options(p) -> None:
                    help="channel weights (> 0), e.g. theta_l=1,theta_u=0.1 (default: 1 each)")
     p.add_argument("--prescribed-upper", action="store_true",
                    help="drive the lower disc with the measured theta_u")
-    p.add_argument("--max-nfev", type=ranged(int, ge=1, why=" (residual evaluations)"),
+    p.add_argument("--max-nfev", type=ranged(int, ge=1, le=MAX_NFEV,
+                                              why=" (residual evaluations)"),
                    default=200, metavar="N", help="evaluation budget per fit")
     for tol in ("ftol", "xtol", "gtol"):
-        p.add_argument(f"--{tol}", type=ranged(gt=0, why=" (a convergence tolerance)"),
+        p.add_argument(f"--{tol}", type=ranged(ge=MIN_TOL, le=MAX_TOL, why=" (a relative "
+                       "convergence tolerance: below 1e-15 it is under the machine's "
+                       "precision, above 0.1 the fit stops before it has moved)"),
                        default=1e-10, help=f"{tol} of scipy.optimize.least_squares")
     p.add_argument("--step", type=ranged(gt=0, why=" (seconds)"), default=None,
                    metavar="SECONDS",
                    help="largest Runge-Kutta step of the simulation (default: "
                    f"{1e3 * default_step(1e-3):.0f} ms at 1 kHz, "
-                   "shorter over fast input transitions); give it when the fit's integration "
+                   "shorter over fast input transitions), from a hundredth of the sample "
+                   "interval to the record's length; give it when the fit's integration "
                    "check says the integrator's own error is material; kept in fit.json")
     p.add_argument("--keep-glitches", action="store_true",
                    help="fit samples that jump against their neighbours by far more than "

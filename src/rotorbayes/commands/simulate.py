@@ -13,8 +13,8 @@ from ..exitcodes import Refused
 from ..model import SimulationError
 from ..model import parameters as _params
 from ..outputs import check_output_file
-from .common import Outcome, resolve_values
-from .options import CONFIGS, MAX_RATE, MIN_RATE, ranged
+from .common import Outcome, fit_effects, resolve_values
+from .options import CONFIGS, MAX_RATE, MIN_RATE, add_trust_option, ranged
 from .options import rate as rate_type
 
 HELP = "simulate an experiment and write a measurement CSV"
@@ -36,7 +36,8 @@ def add_arguments(s) -> None:
     s.add_argument("--seed", type=ranged(int, ge=0), default=0,
                    help="seed of the input and the noise")
     s.add_argument("--params", help="named set (thesis:4.3:P_ref), TOML file or fit.json "
-                   "(default: the configuration's P_ref)")
+                   "(default: the configuration's P_ref); a fit of the same --model also "
+                   "switches on the effects it ran with, user effect files included")
     s.add_argument("--alpha0", type=ranged(ge=-10, le=10, why=" rad (the bounds of alpha0)"),
                    help="initial string torsion [rad] (default: from --params)")
     s.add_argument("--add", action="append", metavar="EFFECT",
@@ -49,6 +50,7 @@ def add_arguments(s) -> None:
     s.add_argument("--plot", help="also save a figure (.png, .pdf, .svg, ...; its folder "
                    "must exist)")
     s.add_argument("--force", action="store_true", help="overwrite --out and --plot")
+    add_trust_option(s)
 
 
 def read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
@@ -158,13 +160,15 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
              rate: float | None = None, seed: int = 0, params: str | None = None,
              alpha0: float | None = None, add: list[str] | None = None,
              quantize: bool = False, noise: float = 0.0, plot: str | None = None,
-             force: bool = False) -> Outcome:
+             force: bool = False, trust_effects: bool = False) -> Outcome:
     """Simulate one experiment of the ``model`` configuration and write it to the CSV file
     ``out`` (a measurement file whose header records how to make it again).
 
     The input is generated (``input`` "est" or "val", ``duration`` s at ``rate`` Hz,
     ``seed``) or read from ``input_file`` (columns t,u).  ``params`` is a named set, TOML
-    file or fit.json (default: the configuration's P_ref); ``add`` switches effects on;
+    file or fit.json (default: the configuration's P_ref; a fit of the same configuration
+    brings the effects it ran with, its user effect files checked as every command checks
+    them: ``trust_effects`` imports one that changed since); ``add`` switches effects on;
     ``quantize`` rounds to encoder counts, ``noise`` adds Gaussian noise [rad]; ``plot``
     also saves a figure.  ``Outcome.doc`` holds the file's header.
     """
@@ -190,7 +194,11 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
         check_plot_format(fig_path)
         if fig_path.resolve() == out.resolve():
             raise Refused(f"--plot {fig_path} is the --out file; give the figure another name")
-    m = Model(model, add or ())
+    # A fit's effects travel with its values (as with fit --p0): without them its user
+    # effect's parameters would be dropped and the simulation would not be the fit's.
+    inherited = [e for e in fit_effects(params, model, trust_effects) if e not in (add or ())]
+    effects = [*inherited, *(add or ())]
+    m = Model(model, effects)
     try:
         values = resolve_values(params, m)
     except _params.ParameterError as exc:
@@ -209,7 +217,7 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
     t0 = time.perf_counter()
     try:
         sim = run_simulation(values, u, dt=dt, config=model, alpha0=alpha0,
-                             effects=add or (), quantize_angles=quantize,
+                             effects=effects, quantize_angles=quantize,
                              noise_std=noise, seed=seed)
     except SimulationError as exc:
         where = f"the values of --params {params}" if params else "these parameter values"
@@ -220,7 +228,7 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
             "input": source, "rate_hz": f"{1 / dt:.10g}", "duration_s": f"{t[-1]:.10g}",
             "params": params or f"default ({_params.DEFAULT_SET[model]})",
             "effects": ", ".join(m.effect_names) or "none",
-            "added_effects": ", ".join(add or ()) or "none",
+            "added_effects": ", ".join(effects) or "none",
             "alpha0": sim.params["alpha0"], "quantized": quantize, "noise_std": noise,
             "seed": seed}
     meta.update({f"param.{n}": repr(float(v)) for n, v in sim.params.items()})
@@ -247,6 +255,8 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
     finally:
         if fig_tmp is not None and fig_tmp.exists():
             fig_tmp.unlink()
+    if inherited:
+        print(f"effects carried over from {params}: {', '.join(inherited)}")
     n_stick = int(np.sum(sim.events[:, 2] == 0)) if sim.events.size else 0
     print(f"simulated {model} configuration, {sim.t[-1]:.1f} s at {1 / dt:.0f} Hz in "
           f"{1e3 * el:.1f} ms; {len(sim.events)} stick/slip switches ({n_stick} stick onsets)")

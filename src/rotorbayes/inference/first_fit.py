@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .assess import NEAR_FLOOR, floor_ratio
-from .least_squares import FitResult, attach_uncertainty, fit
+from .least_squares import FitResult, attach_uncertainty, check_fittable, fit
 from .multistart import (
     _fit_from_record,
     _fit_record,
@@ -119,6 +119,7 @@ def fit_from_data(
         problem, settings and start is read instead of fitted again (a re-run after a kill
         ends as an uninterrupted run).
     """
+    check_fittable(problem)  # nothing free, or too few samples: said before any work
     ds = data_start(problem)
     x0 = problem.x_from(ds.values)
     x0 = _within_constraints(problem, np.clip(x0, problem.lower, problem.upper))

@@ -20,6 +20,7 @@ from scipy.optimize import least_squares
 
 from .. import metrics as _metrics
 from ..data import Experiment
+from ..model.parameters import ParameterError
 from ..model.simulate import SimulationError, Simulator
 from .problem import Problem
 from .uncertainty import Uncertainty, col_norms, fit_uncertainty
@@ -204,6 +205,32 @@ def compress(J: np.ndarray, r: np.ndarray) -> np.ndarray:
     return C
 
 
+#: Fewest samples an experiment must have to be fitted.  Fewer cannot hold a stick and a
+#: slip phase of the lower disc or a reversal of the upper one, the standard errors' time
+#: blocks (:mod:`.uncertainty`) need more than that, and a record of a few samples that
+#: never moves is "at the floor" whatever the parameters.  The rig's experiments last
+#: seconds to minutes (thousands of samples or more).
+MIN_FIT_SAMPLES = 100
+
+
+def check_fittable(problem: Problem) -> None:
+    """Raise :class:`ParameterError` when ``problem`` cannot be fitted: no free parameter
+    (nothing left to fit), or an experiment with fewer than :data:`MIN_FIT_SAMPLES`
+    samples (named, with its length)."""
+    if not problem.names:
+        raise ParameterError(
+            "the problem has no free parameters: nothing left to fit; free at least one "
+            "(name it in free=[...], or leave it out of fixed)")
+    for i, ex in enumerate(problem.experiments):
+        if ex.n < MIN_FIT_SAMPLES:
+            where = ex.path or ex.name or f"experiment {i}"
+            raise ParameterError(
+                f"{where}: only {ex.n} samples ({(ex.n - 1) * ex.dt:.3g} s); a fit needs at "
+                f"least {MIN_FIT_SAMPLES} per experiment (its angles must show the discs "
+                "moving and sticking, and the standard errors need stretches of data to "
+                "compare): record or simulate a longer run")
+
+
 def _scale(problem: Problem, x0: np.ndarray) -> np.ndarray:
     """Typical magnitudes of the free parameters (for the optimiser's variables)."""
     width = problem.upper - problem.lower
@@ -258,11 +285,12 @@ def fit(
     FitResult
         Also when the optimiser did not converge (``success`` False; ``message`` why).
     """
+    check_fittable(problem)
     if x0 is None:
         x0 = problem.x_from(problem.base)
     elif isinstance(x0, Mapping):
         x0 = problem.x_from({**problem.base, **x0})
-    x0 = np.asarray(x0, float)
+    x0 = problem.point(x0)
     problem.check_start(x0)
     ev0 = problem.evaluate(x0)
     if not ev0.ok:

@@ -14,7 +14,7 @@ from scipy.stats import qmc
 
 from ..model.parameters import ParameterError
 from .assess import NEAR_FLOOR, floor_ratio
-from .least_squares import COMPRESS_BYTES, FitResult, fit
+from .least_squares import COMPRESS_BYTES, FitResult, check_fittable, fit
 from .parallel import run_tasks
 from .problem import Problem
 
@@ -265,6 +265,7 @@ def multistart(
         vector are read instead of fitted again (a re-run after a kill gives the result of
         an uninterrupted run).
     """
+    check_fittable(problem)  # nothing free, or too few samples: said before any work
     rng = np.random.default_rng(seed)
     if isinstance(around, Mapping):
         around = problem.x_from({**problem.base, **around})

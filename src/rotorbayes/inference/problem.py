@@ -33,7 +33,7 @@ from ..kernel import layout as _layout
 from ..model import effects as _effects
 from ..model.configurations import Model
 from ..model.parameters import INFO, ParameterError, resolve, unknown_name_message
-from ..model.simulate import DEFAULT_STEP, Simulation, Simulator
+from ..model.simulate import DEFAULT_STEP, Simulation, Simulator, check_step
 
 CHANNELS = ("theta_u", "theta_l")
 
@@ -43,6 +43,11 @@ GIVEN = "given"
 FIXED = "fixed"
 #: Points of the scan that starts the nuisance fit of a validation run's alpha0.
 VALIDATION_SCAN = 41
+#: Range of a channel's weight.  Weights set how much one channel counts against the other
+#: (the thesis weighs theta_u by 0.1); beyond a factor 1e4 either way a channel is ignored
+#: in effect, or its squared residuals overflow (1e308) or vanish (1e-308) in the numbers
+#: of the fit and its standard errors.  To leave a channel out, fit without it (channels).
+MIN_WEIGHT, MAX_WEIGHT = 1e-4, 1e4
 #: Residual [rad] for a parameter set the integrator rejects during that nuisance fit (as
 #: ``least_squares.FAIL_RESIDUAL`` in a fit: a finite number the optimiser can leave).
 _FAILED = 1e3
@@ -75,6 +80,33 @@ def _filled(fill: tuple, x) -> tuple[np.ndarray, np.ndarray]:
     if ts_follows or math.isnan(p[_layout.TS_L]):
         p[_layout.TS_L] = p[_layout.TC_L]
     return p, q
+
+
+def checked_experiments(experiments) -> list[Experiment]:
+    """``experiments`` as a list of :class:`~rotorbayes.Experiment`; :class:`ValueError`
+    naming the bad entry otherwise (a path is a file still to load)."""
+    hint = "load each file with rotorbayes.load_experiment(path) first"
+    if isinstance(experiments, Experiment):
+        return [experiments]
+    if isinstance(experiments, str | Path):
+        raise ValueError(f"experiments is the path {str(experiments)!r}, not an Experiment; "
+                         f"{hint}: [rotorbayes.load_experiment({str(experiments)!r})]")
+    if experiments is None or isinstance(experiments, Mapping):
+        raise ValueError(f"experiments is {experiments!r}; give a list of Experiment "
+                         f"objects ({hint})")
+    try:
+        out = list(experiments)
+    except TypeError:
+        raise ValueError(f"experiments is a {type(experiments).__name__}; give a list of "
+                         f"Experiment objects ({hint})") from None
+    for i, ex in enumerate(out):
+        if isinstance(ex, str | Path):
+            raise ValueError(f"experiments[{i}] is the path {str(ex)!r}, not an Experiment; "
+                             f"{hint}: rotorbayes.load_experiment({str(ex)!r})")
+        if not isinstance(ex, Experiment):
+            raise ValueError(f"experiments[{i}] is a {type(ex).__name__}, not an Experiment; "
+                             f"{hint}")
+    return out
 
 
 def default_channels(config: str, prescribed_upper: bool, free: Sequence[str]) -> tuple:
@@ -160,6 +192,8 @@ class Problem:
         The model, or a configuration name (then ``effects`` and ``prescribed_upper``
         build the model).
     experiments : sequence of Experiment
+        Measurements loaded with :func:`rotorbayes.load_experiment` (a path, or a list
+        of paths, is refused with that advice).
     free : sequence of str, optional
         Parameters to estimate.  Default: the configuration's fitted parameters plus
         those of every added effect (``alpha0`` per experiment when ``initial_torsion``
@@ -173,7 +207,7 @@ class Problem:
         Fitted channels, ``'theta_u'`` and/or ``'theta_l'``.  Default ``theta_u`` for the
         upper configuration, ``theta_l`` otherwise (thesis eqs. 4.4, 4.10).
     weights : mapping, optional
-        Weight per channel (default 1).
+        Weight per channel (default 1), between :data:`MIN_WEIGHT` and :data:`MAX_WEIGHT`.
     prescribed_upper : bool
         Drive the lower disc with the measured upper angle instead of the motor model.
     fixed : sequence of str
@@ -200,8 +234,13 @@ class Problem:
     names: list[str] = field(init=False)
 
     def __post_init__(self):
-        if isinstance(self.experiments, Experiment):
-            self.experiments = [self.experiments]
+        self.experiments = checked_experiments(self.experiments)
+        for name in ("free", "fixed", "channels"):
+            v = getattr(self, name)
+            if isinstance(v, str):
+                names = [n.strip() for n in v.split(",") if n.strip()]
+                raise ParameterError(f"{name} = {v!r}: give a list of names, e.g. "
+                                     f"{name}={names!r}")
         if not isinstance(self.model, Model):
             effects = list(self.effects)
             # Several experiments on the lower disc: each starts with its own string
@@ -252,10 +291,10 @@ class Problem:
                 "with the measured theta_u as input, theta_u cannot also be fitted; "
                 "use channels=('theta_l',)"
             )
-        self.weights = {c: float((self.weights or {}).get(c, 1.0)) for c in self.channels}
-        for c, w in self.weights.items():
-            if not (w > 0 and math.isfinite(w)):
-                raise ValueError(f"the weight of channel {c} is {w}; it must be > 0")
+        self.weights = self._checked_weights(self.weights)
+        for i, ex in enumerate(self.experiments):
+            check_step(self.step, ex.dt, ex.n, where=str(ex.path or ex.name or
+                                                          f"experiment {i}"))
         self.sims = [self.simulator_for(ex) for ex in self.experiments]
         self.lower = np.array([self.info(n).lower for n in self.names])
         self.upper = np.array([self.info(n).upper for n in self.names])
@@ -265,9 +304,44 @@ class Problem:
         self._columns: dict[int, tuple] = {}
 
     # ---------------------------------------------------------------- construction
+    def _checked_weights(self, given) -> dict[str, float]:
+        """The weight of every fitted channel (default 1), each a number within
+        [:data:`MIN_WEIGHT`, :data:`MAX_WEIGHT`]; a weight for a channel that does not
+        exist is refused."""
+        if given is not None and not isinstance(given, Mapping):
+            raise ValueError(f"weights = {given!r}: give a mapping of channel to weight, "
+                             "e.g. {'theta_u': 0.1, 'theta_l': 1.0}")
+        given = dict(given or {})
+        for c in given:
+            if c not in CHANNELS:
+                raise ValueError(f"weights: unknown channel {c!r}; choose from "
+                                 f"{', '.join(CHANNELS)}")
+        out = {}
+        for c in self.channels:
+            w = given.get(c, 1.0)
+            if isinstance(w, bool) or not isinstance(w, int | float | np.number):
+                raise ValueError(f"the weight of channel {c} is {w!r}, not a number; give a "
+                                 f"number between {MIN_WEIGHT:g} and {MAX_WEIGHT:g}")
+            w = float(w)
+            if not (w > 0 and math.isfinite(w)):
+                raise ValueError(f"the weight of channel {c} is {w}; it must be > 0")
+            if not MIN_WEIGHT <= w <= MAX_WEIGHT:
+                raise ValueError(
+                    f"the weight of channel {c} is {w:g}; give a weight between "
+                    f"{MIN_WEIGHT:g} and {MAX_WEIGHT:g} (weights set how much one channel "
+                    "counts against the other; beyond that range a channel is ignored in "
+                    "effect or its squared residuals overflow; to leave a channel out, fit "
+                    "without it)")
+            out[c] = w
+        return out
+
     def _set_base(self, base) -> None:
         m = self.model
         if isinstance(base, Mapping):
+            for k, v in base.items():
+                if isinstance(v, bool) or not isinstance(v, int | float | np.number):
+                    raise ParameterError(f"base: {k} = {v!r} is not a number; give each "
+                                         "value as a number (in the parameter's unit)")
             builtin = {k: v for k, v in base.items() if k in INFO}
             user = {k: float(v) for k, v in base.items() if k not in INFO}
             for k in user:
@@ -478,8 +552,27 @@ class Problem:
             out.append(float(params[n] if n in params else params[base]))
         return np.array(out)
 
+    def point(self, x) -> np.ndarray:
+        """``x`` as a free-parameter vector of this problem: a 1-D float array with one
+        value per free parameter; :class:`ValueError` naming what is wrong otherwise."""
+        try:
+            out = np.asarray(x, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"x must hold one number per free parameter ({exc}); make it "
+                             "with problem.x_from(values) or problem.start_vector(values)"
+                             ) from None
+        k = len(self.names)
+        if out.shape != (k,):
+            what = (f"{out.size} value(s)" if out.ndim == 1 else f"shape {out.shape}")
+            raise ValueError(
+                f"x has {what}, but this problem has {k} free parameter(s) "
+                f"({', '.join(self.names) or 'none'}); make x with problem.x_from(values) or "
+                "problem.start_vector(values)")
+        return out
+
     def params_for(self, x: np.ndarray, i: int) -> dict[str, float]:
         """The full parameter set of experiment ``i`` at free vector ``x``."""
+        x = self.point(x)
         p = dict(self.base)
         for n, v in zip(self.names, x, strict=True):
             base, idx = local_name(n)
@@ -598,7 +691,7 @@ class Problem:
 
     def values(self, x: np.ndarray) -> dict[str, float]:
         """``{name: value}`` of the free parameters."""
-        return {n: float(v) for n, v in zip(self.names, x, strict=True)}
+        return {n: float(v) for n, v in zip(self.names, self.point(x), strict=True)}
 
     def check_start(self, x: np.ndarray) -> None:
         """Raise :class:`ParameterError` if a start value lies outside its bounds."""
@@ -635,6 +728,7 @@ class Problem:
         angles are kept); the numbers are those of :meth:`_channel_residual` applied to
         the simulated angles.
         """
+        x = self.point(x)
         R = np.empty((1, self.n_residuals))
         status = []
         off = 0
@@ -721,7 +815,13 @@ class Problem:
 
     def residuals_batch(self, X: np.ndarray, *, penalty: float | None = None) -> np.ndarray:
         """Residual vectors of many free vectors (rows), simulated in parallel."""
-        X = np.atleast_2d(X)
+        try:
+            X = np.atleast_2d(np.asarray(X, dtype=float))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"X must hold numbers, one row per point ({exc})") from None
+        if X.ndim != 2 or X.shape[1] != len(self.names):
+            raise ValueError(f"X has shape {np.shape(X)}, but this problem has "
+                             f"{len(self.names)} free parameter(s): give one row per point")
         sets = [[self.params_for(x, i) for i in range(len(self.experiments))] for x in X]
         R, _ = self._residuals_of_sets(sets)
         if penalty is not None:

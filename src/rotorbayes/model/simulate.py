@@ -11,6 +11,7 @@ modes and the event log.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
@@ -54,6 +55,53 @@ def default_step(dt: float) -> float:
     not seen).
     """
     return 55e-3 * min(1.0, math.sqrt(1e-3 / dt))
+
+
+#: The shortest largest step a user may choose, as a fraction of the sample interval: at
+#: dt/100 every sample holds 100 Runge-Kutta steps (30 s at 1 kHz: 3 million), far finer
+#: than any accuracy needs; shorter steps only cost memory and time (1e-12 s at 200 Hz
+#: would need a grid of 4e12 points, 29 TiB).
+MIN_STEP_FRACTION = 0.01
+#: Most points of a step grid (800 MB as float64).  The user's shortest step keeps three
+#: times this margin, for the integration check's finer grid (a third of the step).
+MAX_GRID_POINTS = 100_000_000
+
+
+def step_range(dt: float, n: int) -> tuple[float, float]:
+    """The largest Runge-Kutta steps [s] a user may choose for ``n`` samples ``dt`` apart:
+    from a hundredth of the sample interval (:data:`MIN_STEP_FRACTION`; longer on records
+    so long that the grid would not fit in :data:`MAX_GRID_POINTS`) to the record's
+    length."""
+    duration = (n - 1) * dt
+    return max(dt * MIN_STEP_FRACTION, 3.0 * duration / MAX_GRID_POINTS), duration
+
+
+def check_step(step, dt: float, n: int, *, what: str = "step", where: str = "") -> None:
+    """Raise :class:`ValueError` (a :class:`ParameterError`) unless ``step`` is ``None`` (the
+    default) or a number of seconds within :func:`step_range` of ``n`` samples ``dt``
+    apart; the message names ``what`` (``"--step"``), the value, the allowed range and
+    ``where`` (the data file)."""
+    if step is None:
+        return
+    if isinstance(step, bool) or not isinstance(step, numbers.Real):
+        raise ParameterError(f"{what} = {step!r}: give the largest Runge-Kutta step in "
+                             "seconds (a number), or None for the default")
+    lo, hi = step_range(dt, n)
+    of = f" of {where}" if where else ""
+    allowed = (f"give a step between {lo:.3g} s and {hi:.4g} s{' for ' + where if where else ''}"
+               f" (or leave it out: the default, {1e3 * default_step(dt):.3g} ms there, suits "
+               "most data)")
+    if not math.isfinite(step) or step <= 0:
+        raise ParameterError(f"{what} {step:g} s: not a positive number of seconds; {allowed}")
+    if step < lo:
+        points = (n - 1) * math.ceil(dt / step - 1e-9) + 1
+        raise ParameterError(
+            f"{what} {step:g} s is shorter than a hundredth of the sample interval "
+            f"({dt:g} s){of}: the simulation would take {points:.3g} Runge-Kutta steps "
+            f"({8 * points / 2**30:.3g} GiB for the step grid alone); {allowed}")
+    if step > hi:
+        raise ParameterError(f"{what} {step:g} s is longer than the record{of} ({hi:.4g} s); "
+                             f"{allowed}")
 
 
 def stride_of(step: float, dt: float) -> tuple[int, int]:
@@ -151,6 +199,28 @@ class Simulation:
         )
 
 
+def samples(a, name: str, what: str) -> np.ndarray:
+    """``a`` as the kernel takes a signal: a contiguous, writable 1-D float array.
+
+    A read-only array (``np.load(..., mmap_mode="r")``, a pandas column) is copied (the
+    compiled kernel takes writable arrays only); a string, or anything that is not numbers,
+    is a :class:`ValueError` that names the argument ``name`` and says ``what`` it holds.
+    """
+    if isinstance(a, str | bytes):
+        raise ValueError(f"{name} is the text {a[:40]!r}; give {what} at each sample as an "
+                         "array of numbers")
+    try:
+        out = np.ascontiguousarray(a, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must hold {what} at each sample as numbers ({exc}); "
+                         "convert it first, e.g. with np.asarray(..., dtype=float)") from None
+    if out.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array of samples, got shape {out.shape}")
+    if not out.flags.writeable:
+        out = out.copy()
+    return out
+
+
 class Simulator:
     """A model and one experiment's input, ready to simulate many parameter sets.
 
@@ -198,21 +268,23 @@ class Simulator:
             model = Model(model, effects, prescribed_upper=theta_u is not None)
         self.model = model
         self.config = model.config
-        self.u = np.ascontiguousarray(u, dtype=float)
-        if self.u.ndim != 1 or self.u.size < 2:
+        self.u = samples(u, "u", "the input voltage [V]")
+        if self.u.size < 2:
             raise ValueError(
                 f"u must be a 1-D array of at least 2 samples, got shape {self.u.shape}"
             )
         if not np.all(np.isfinite(self.u)):
             i = int(np.flatnonzero(~np.isfinite(self.u))[0])
             raise ValueError(f"u[{i}] = {self.u[i]} is not finite; the input must be finite")
-        if not (dt > 0 and math.isfinite(dt)):
-            raise ValueError(f"dt = {dt} must be a positive sample interval in seconds")
+        if isinstance(dt, bool) or not isinstance(dt, numbers.Real) or not (
+                dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt = {dt!r} must be a positive sample interval in seconds "
+                             "(a number)")
         self.dt = float(dt)
         self.n = self.u.size
         self.prescribed = theta_u is not None
         if self.prescribed:
-            self.theta_u = np.ascontiguousarray(theta_u, dtype=float)
+            self.theta_u = samples(theta_u, "theta_u", "the upper disc's angle [rad]")
             if self.theta_u.shape != self.u.shape:
                 raise ValueError(f"theta_u has {self.theta_u.size} samples but u has {self.n}")
         else:
@@ -221,10 +293,18 @@ class Simulator:
         self.shape = shape_code(shape)
         if step is None:
             step = default_step(self.dt)
-        if not (step > 0):
-            raise ValueError(f"step = {step} must be > 0 seconds")
+        if isinstance(step, bool) or not isinstance(step, numbers.Real) or not (
+                step > 0 and math.isfinite(step)):
+            raise ValueError(f"step = {step!r} must be a positive number of seconds")
         self.step = float(step)
         self.stride, self.substeps = stride_of(step, self.dt)
+        if (self.n - 1) * self.substeps + 1 > MAX_GRID_POINTS:
+            lo, hi = step_range(self.dt, self.n)
+            raise ValueError(
+                f"step = {step:g} s divides each of the {self.n} samples into "
+                f"{self.substeps:.3g} Runge-Kutta steps: a grid beyond {MAX_GRID_POINTS:.0e} "
+                f"points, more memory than a simulation may take; give a step between "
+                f"{lo:.3g} s and {hi:.4g} s")
         if self.substeps > 1:  # steps shorter than a sample: every sample alike
             k = np.arange((self.n - 1) * self.substeps + 1, dtype=float)
             self.grid = k / self.substeps
@@ -380,6 +460,15 @@ class Simulator:
         )
 
 
+def _check_number(v, name: str, what: str) -> None:
+    """:class:`ValueError` naming ``name`` unless ``v`` is a real number (NaN is the
+    simulation's own business: it names the parameter)."""
+    if isinstance(v, np.ndarray) and v.ndim == 0 and v.dtype.kind in "fiu":
+        return
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        raise ValueError(f"{name} = {v!r} is not a number; give {what} as a number")
+
+
 _NO_MEAS = np.empty(0)
 
 
@@ -391,7 +480,10 @@ def _channel_args(channels):
             out.append((_NO_MEAS, 1.0, -1))
         else:
             meas, w, col = ch
-            out.append((np.ascontiguousarray(meas, dtype=float), float(w), int(col)))
+            meas = np.ascontiguousarray(meas, dtype=float)
+            if not meas.flags.writeable:  # the kernel takes writable arrays only
+                meas = meas.copy()
+            out.append((meas, float(w), int(col)))
     return out
 
 
@@ -453,15 +545,30 @@ def simulate(
     ------
     SimulationError
         The parameters are physically invalid or the integration failed.
+    ValueError
+        An argument is not what it must be (text for ``u`` or a parameter value, a
+        2-D ``u``, a ``dt`` that is not a positive number); the message names it.
+        Read-only arrays (``np.load(..., mmap_mode="r")``, pandas columns) are accepted:
+        the compiled kernel gets a copy.
     """
     check_config(config)
     if isinstance(params, Mapping):
+        for k, v in params.items():
+            _check_number(v, f"params[{k!r}]", "its value")
         user = {k: v for k, v in params.items() if k not in NAMES}
         p = resolve({k: v for k, v in params.items() if k in NAMES}, config=config)
         p.update(user)
     else:
         p = resolve(params, config=config)
+    if isinstance(effects, str):
+        effects = [effects]  # one name, not its letters
     effects = list(effects)
+    for v, name, what in ((alpha0, "alpha0", "the initial string torsion [rad]"),
+                          (noise_std, "noise_std", "a standard deviation [rad], >= 0")):
+        if v is not None:
+            _check_number(v, name, what)
+    if noise_std is not None and not noise_std >= 0:
+        raise ValueError(f"noise_std = {noise_std!r}: give a standard deviation [rad], >= 0")
     if alpha0 is not None:
         p["alpha0"] = float(alpha0)
         if alpha0 != 0.0 and config != "upper" and "initial_torsion" not in effects:
@@ -471,7 +578,7 @@ def simulate(
             raise ValueError("give the input voltage u (or a prescribed theta_u)")
         u = np.zeros(len(theta_u))
     if t is not None:
-        t = np.asarray(t, dtype=float)
+        t = samples(t, "t", "the sample times [s]")
         steps = np.diff(t)
         if t.ndim != 1 or t.size != len(u) or np.any(steps <= 0):
             raise ValueError("t must be increasing and have as many samples as u")
