@@ -11,8 +11,9 @@ parent fit it started from.  :func:`load_fit` rebuilds it; ``diagnose``, ``compa
   (data and results together) still finds its data.
 * Effect files are code.  A fit records the SHA-256 of every user effect file it ran;
   opening the folder again (``compare``, ``diagnose``, ``sample``, ``identify``, ``fit
-  --p0``) refuses to import an effect file that is gone or has changed since, unless the
-  user says ``--trust-effects`` (:func:`check_effect_files`).
+  --p0``) refuses to import an effect file that is gone or has changed since, or one named
+  by a fit.json this user did not write here (another owner, writable by others, unpacked
+  from an archive), unless the user says ``--trust-effects`` (:func:`check_effect_files`).
 """
 
 from __future__ import annotations
@@ -120,19 +121,74 @@ def file_sha256(path: str | Path) -> str:
 TRUST_HINT = ("effect files are Python code that runs when a result is opened: read the file, "
               "and only if you trust it pass --trust-effects (or fit again)")
 
+#: Seconds by which a fit.json's modification time may precede its change time (the time
+#: its inode last changed) for it to count as written here: rotorbayes writes it and
+#: renames it into place within seconds; unpacking an archive or copying with the times
+#: kept (tar, unzip, cp -p, rsync -a) sets an older modification time.
+KEPT_TIMES_S = 120.0
+
+
+def foreign_reason(fit_json: Path) -> tuple[str, str] | None:
+    """Why ``fit_json`` may not be a result this user wrote here, and what to do; None when
+    it is (or where the system cannot tell: not POSIX, not found).
+
+    A fit.json records the SHA-256 of the effect files it ran; a forged one can record the
+    right SHA-256 of any file. It is taken as written by this user only when it belongs
+    to them (not to another user), no other user may change it (not writable by all, nor
+    by a group other than the user's own), and its modification time is not older than
+    the file itself by more than :data:`KEPT_TIMES_S` (not unpacked from an archive or
+    copied with its times kept).
+    """
+    if os.name != "posix":
+        return None
+    try:
+        st = fit_json.stat()
+    except OSError:
+        return None
+    if st.st_uid != os.geteuid():
+        try:
+            import pwd
+
+            owner = f"{pwd.getpwuid(st.st_uid).pw_name}, uid {st.st_uid}"
+        except (ImportError, KeyError):
+            owner = f"uid {st.st_uid}"
+        return (f"it belongs to another user ({owner})",
+                "pass --trust-effects (or fit again)")
+    if st.st_mode & 0o002 or (st.st_mode & 0o020 and st.st_gid != os.getegid()):
+        if st.st_mode & 0o002:
+            who = "every user"
+        else:
+            try:
+                import grp
+
+                who = f"the members of group {grp.getgrgid(st.st_gid).gr_name}"
+            except (ImportError, KeyError):
+                who = f"the members of group {st.st_gid}"
+        return (f"{who} may change it", f"if the folder is yours, `chmod go-w {fit_json}`; "
+                "else pass --trust-effects")
+    if st.st_ctime - st.st_mtime > KEPT_TIMES_S:
+        return ("its modification time is older than the file itself (unpacked from an "
+                "archive, or copied with its times kept)",
+                f"if the folder is yours, `touch {fit_json}` makes it count as yours again; "
+                "else pass --trust-effects")
+    return None
+
 
 def check_effect_files(doc: dict, where: Path, trust: bool = False) -> list[str]:
     """The ``added_effects`` of a fit.json, with user effect files checked before any import.
 
-    Each ``FILE.py:NAME`` must exist and have the SHA-256 the fit recorded; otherwise
-    :class:`ResultError` (a changed or unrecorded file is accepted with ``trust``, with a
-    warning on stderr). Relative paths of older results are tried from the working folder
-    and from the fit folder. Returns the specs to build the model from.
+    Each ``FILE.py:NAME`` must exist and have the SHA-256 the fit recorded, and the fit.json
+    ``where`` must be this user's own (:func:`foreign_reason`: a folder from another user,
+    or from an archive, may record the right SHA-256 of a file it brought along); otherwise
+    :class:`ResultError` naming the file and why (accepted with ``trust``, with a warning
+    on stderr). Relative paths of older results are tried from the working folder and from
+    the fit folder. Returns the specs to build the model from.
     """
     recorded = doc.get("effect_files") or {}
     if not isinstance(recorded, dict):
         recorded = {}
     out = []
+    foreign = None
     for spec in doc.get("added_effects", []):
         if not isinstance(spec, str):
             raise ResultError(f"{where}: added_effects holds {spec!r}, not an effect name")
@@ -156,6 +212,19 @@ def check_effect_files(doc: dict, where: Path, trust: bool = False) -> list[str]
                 raise ResultError(f"{where}: the effect file {p} {what}; {TRUST_HINT}")
             print(f"warning: {where}: the effect file {p} {what}; importing it because of "
                   "--trust-effects", file=sys.stderr)
+        else:
+            foreign = foreign or foreign_reason(Path(where))
+            if foreign is not None:
+                why, fix = foreign
+                if not trust:
+                    raise ResultError(
+                        f"{where}: it names the effect file {p} (Python code, run when it is "
+                        f"imported), but {Path(where).name} may not be a result you wrote "
+                        f"here: {why}. A result folder you did not write can record the "
+                        "SHA-256 of any file it brings along: read the effect file, and only "
+                        f"if you trust it and the folder, {fix}")
+                print(f"warning: {where}: {why}; importing its effect file {p} because of "
+                      "--trust-effects", file=sys.stderr)
         out.append(f"{p.resolve()}:{name}")
     return out
 

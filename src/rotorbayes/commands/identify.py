@@ -52,9 +52,7 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
                           f"free ones are {', '.join(prob.names)}")
     if points < 3:
         raise Refused(f"--points {points}: give at least 3 grid points")
-    if posterior and not (Path(posterior) / "posterior.nc").exists():
-        raise Refused(f"--posterior {posterior}: no posterior.nc there; give a folder "
-                      "written by `rotorbayes sample`")
+    a.idata = _posterior(posterior, prob, result.folder) if posterior else None
     if multistart and not (Path(multistart) / "multistart.json").exists():
         raise Refused(f"--multistart {multistart}: no multistart.json there; give a folder "
                       "written by `rotorbayes multistart`")
@@ -65,6 +63,31 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
     remove_store(out)  # complete: no profile point left to resume
     print(f"\nwrote {', '.join(written)} in {out}/")
     return Outcome(folder=Path(out), doc=doc)
+
+
+def _posterior(folder: str, prob, fit_folder: Path):
+    """The posterior of the sample folder ``folder``, read before anything is written; a
+    missing, damaged or foreign posterior.nc is refused with its name and what to do."""
+    from ..inference import arviz_compat as AZ
+
+    path = Path(folder) / "posterior.nc"
+    if not path.exists() and not path.is_symlink():
+        raise Refused(f"--posterior {folder}: no posterior.nc there; give a folder written "
+                      "by `rotorbayes sample`")
+    redo = (f"`rotorbayes sample {folder} --resume` writes it again from the chains in "
+            f"{folder}/chain.h5 (no new steps)" if (Path(folder) / "chain.h5").exists()
+            else "sample again")
+    try:
+        idata = AZ.load(path)
+    except AZ.PosteriorFileError as exc:
+        raise Refused(f"--posterior: {exc}; {redo}, or leave out --posterior") from None
+    have = set(AZ.group(idata, "posterior").data_vars)
+    lacking = [n for n in prob.names if n not in have]
+    if lacking:
+        raise Refused(f"--posterior: {path} holds no draws of {', '.join(lacking)}, free in "
+                      f"{fit_folder}/: it was sampled from another fit; give the sample "
+                      "folder of this fit, or leave out --posterior")
+    return idata
 
 
 def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
@@ -109,9 +132,7 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:
         save_figure_atomic(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
         written.append("profiles.png")
     if a.posterior:
-        from ..inference import arviz_compat as AZ
-
-        idata = AZ.load(Path(a.posterior) / "posterior.nc")
+        idata = a.idata
         overlay = None
         if a.multistart:
             ms = json.loads((Path(a.multistart) / "multistart.json").read_text())

@@ -13,7 +13,7 @@ import numpy as np
 
 from .. import exitcodes as EXIT
 from ..exitcodes import Interrupted, Refused
-from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
+from ..outputs import InterruptGuard
 from .common import Outcome
 from .options import MAX_STEPS, MAX_WALKERS, add_parallel_options, add_trust_option, ranged
 
@@ -186,17 +186,16 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             raise Refused(f"{where} give zero probability to the fit's point in "
                           f"{fit.folder}/ (a value outside a prior's lower..upper); widen "
                           "that prior or fit again (nothing was written)")
-    n_res = int(fit.doc.get("n_residuals") or 0)
-    # Room for posterior.nc (pointwise log-likelihood of the kept draws) and the figures.
-    from ..inference.posterior import LOGLIK_BYTES
-
-    outputs = min(8 * a.max_draws * settings["ensembles"] * settings["walkers"]
-                  * max(n_res, 1) // 4, 2 * LOGLIK_BYTES) + 2_000_000  # the group's cap
+    # Room for posterior.nc, the tables and the figures, file by file (held from before
+    # the first step until each is written: S.SummaryReserve).
+    sizes = summary_sizes(lp, settings["walkers"], settings["steps"], settings["ensembles"],
+                          a.max_draws)
+    outputs = sum(sizes.values())
     need = S.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
                          settings["ensembles"]) + outputs
     chain = out / "chain.h5"
-    # A reserve file left by a killed run is free space, not a result.
-    (out / ".chain.h5.reserve").unlink(missing_ok=True)
+    # Reserve files left by a killed run are free space, not results.
+    S.SummaryReserve.clear(out)
     if a.resume:
         held, restored = S.recover_checkpoint(chain, n_walkers=settings["walkers"],
                                               ndim=lp.ndim, n_ensembles=settings["ensembles"])
@@ -233,15 +232,17 @@ def _sample_locked(a, src: Path, out: Path) -> int:
           f"{'AR(1), sampled' if lp.ar1 else settings['noise']}; checkpoint {out}/chain.h5 "
           "(every step: a kill loses nothing, --resume continues)", flush=True)
     stale = [n for n in SAMPLE_OUTPUTS if (out / n).exists()]
+    reserve = None
     guard = InterruptGuard().start()  # Ctrl-C: stop between two steps, never inside one
     try:
+        reserve = S.SummaryReserve(out, sizes)
         try:
             with _ensemble_executor(a) as ex:
                 runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
                                 n_steps=settings["steps"], n_ensembles=settings["ensembles"],
                                 seed=settings["seed"],
                                 progress=not a.quiet and sys.stderr.isatty(),
-                                should_stop=lambda: guard.hit > 0, keep_free=outputs,
+                                should_stop=lambda: guard.hit > 0,
                                 moves=a.moves or settings.get("moves"), executor=ex)
         except RuntimeError as exc:
             if "cannot place the walkers" not in str(exc):
@@ -263,18 +264,34 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             if EXIT.is_disk_full(exc) and not isinstance(exc, EXIT.EnvironmentFailure):
                 _die_disk_full(out, exc)
             raise
-        try:
-            written = _write_sample_outputs(a, out, lp, fit, runs, guard)
-        except OSError as exc:
-            if not EXIT.is_disk_full(exc):
-                raise
-            raise EXIT.EnvironmentFailure(
-                f"{out}/: the disk filled up while the summary files were written; the chains "
-                f"are complete in {out}/chain.h5. Free some space and run `rotorbayes sample "
-                f"{out} --resume` to write them (no new steps)") from None
+        written = _write_sample_outputs(a, out, lp, fit, runs, guard, reserve)
     finally:
         guard.stop()
+        if reserve is not None:
+            reserve.close()
     return written
+
+
+def summary_sizes(lp, walkers: int, steps: int, ensembles: int, max_draws: int
+                  ) -> dict[str, int]:
+    """Generous bounds on the size of every file written after the chains [bytes], known
+    before the first step: posterior.nc from the kept draws and the data
+    (:func:`~rotorbayes.inference.posterior.file_bytes`), each figure one byte per pixel of
+    its canvas at 100 dpi (a PNG of these plots takes 0.1-0.2), the tables and warnings 64
+    KiB plus a line per coordinate."""
+    from ..inference.posterior import file_bytes
+
+    k, chans = lp.ndim, len(lp.channels)
+    rows = ensembles * min(max_draws, walkers * steps)
+    corner = 2.1 * k + 1.3  # corner.py: 2 in per panel, 5 % gaps, margins [in]
+    inches = {"corner.png": corner * corner, "trace.png": 10 * (1.5 * k + 0.8),
+              "predictive.png": 10 * (5.7 * chans + 0.8),
+              "correlation.png": (1.0 + 0.6 * k) * (0.8 + 0.6 * k)}
+    text = 65_536 + 1_024 * k
+    sizes = {"posterior.nc": file_bytes(lp, rows), "summary.md": text, "summary.csv": text,
+             "warnings.txt": text + 256 * k * ensembles}
+    sizes.update({n: int(v * 100 * 100) + 65_536 for n, v in inches.items()})
+    return {n: sizes[n] for n in SAMPLE_OUTPUTS}
 
 
 @contextlib.contextmanager
@@ -311,25 +328,33 @@ def _die_disk_full(out: Path, exc: BaseException) -> None:
     os._exit(EXIT.ENVIRONMENT)
 
 
-def _write_sample_outputs(a, out: Path, lp, fit, runs, guard) -> int:
-    """The summary, InferenceData and figures from finished chains; Ctrl-C between two
-    files stops with a true account of what is on disk."""
+def _write_sample_outputs(a, out: Path, lp, fit, runs, guard, reserve=None) -> int:
+    """The summary, InferenceData and figures from finished chains, each made in memory
+    and then written into the room reserved for it (``reserve``, a
+    :class:`~rotorbayes.inference.sampling.SummaryReserve`); Ctrl-C between two files
+    stops with a true account of what is on disk, and so does a write that fails (exit
+    code 3: the chains are complete, ``--resume`` writes the rest)."""
     from .. import posterior_figures as PF
     from ..inference import arviz_compat as AZ
     from ..inference import posterior as PO
     from ..inference import sampling as S
 
+    if reserve is None:
+        reserve = S.SummaryReserve(out, {})
     names = lp.coord_names
     done: list[str] = []
 
+    def written_so_far() -> str:
+        left = [n for n in SAMPLE_OUTPUTS if n not in done]
+        return ((f"; written: {', '.join(done)}" if done else "; none of the summary "
+                 "files was written") + (f"; not written: {', '.join(left)}" if left else ""))
+
     def checkpoint() -> None:
         if guard.hit:
-            left = [n for n in SAMPLE_OUTPUTS if n not in done]
             raise Interrupted(
                 f"interrupted (Ctrl-C) after the sampling had finished; the chains are "
-                f"complete in {out}/chain.h5"
-                + (f"; written: {', '.join(done)}" if done else "")
-                + f"; not yet rewritten: {', '.join(left)}. `rotorbayes sample {out} "
+                f"complete in {out}/chain.h5" + written_so_far().replace(
+                    "not written", "not yet rewritten") + f". `rotorbayes sample {out} "
                 "--resume` writes them from the chains (no new steps)")
 
     warnings = S.convergence(runs, names)
@@ -355,27 +380,27 @@ def _write_sample_outputs(a, out: Path, lp, fit, runs, guard) -> int:
                         "default, --noise robust, widens them to what the errors support)")
     md = PO.table_markdown(rows, assumptions=unc.assumptions() if unc is not None else None)
     print("\n" + md)
-    checkpoint()
-    tmp = out / ".posterior.nc.tmp"
-    try:
-        AZ.save(idata, tmp)
-        tmp.replace(out / "posterior.nc")
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-    done.append("posterior.nc")
-    for name, write in (
-            ("summary.md", lambda p: write_text_atomic(p, md + "\n")),
-            ("summary.csv", lambda p: write_text_atomic(p, PO.table_csv(rows))),
-            ("corner.png", lambda p: save_figure_atomic(PF.plot_corner(idata, fit.problem), p)),
-            ("trace.png", lambda p: save_figure_atomic(PF.plot_trace(runs, names)[0], p)),
-            ("predictive.png",
-             lambda p: save_figure_atomic(PF.plot_predictive(idata, fit.problem)[0], p)),
-            ("correlation.png",
-             lambda p: save_figure_atomic(PF.plot_correlation(idata, fit.problem)[0], p)),
-            ("warnings.txt", lambda p: write_text_atomic(p, "\n".join(warnings) + "\n"))):
+    for name, make in (
+            ("posterior.nc", lambda: AZ.to_bytes(idata)),
+            ("summary.md", lambda: (md + "\n").encode()),
+            ("summary.csv", lambda: PO.table_csv(rows).encode()),
+            ("corner.png", lambda: _png(PF.plot_corner(idata, fit.problem))),
+            ("trace.png", lambda: _png(PF.plot_trace(runs, names)[0])),
+            ("predictive.png", lambda: _png(PF.plot_predictive(idata, fit.problem)[0])),
+            ("correlation.png", lambda: _png(PF.plot_correlation(idata, fit.problem)[0])),
+            ("warnings.txt", lambda: ("\n".join(warnings) + "\n").encode())):
         checkpoint()
-        write(out / name)
+        data = make()
+        try:
+            reserve.write(name, data)
+        except OSError as exc:
+            kept = (f"{out}/{name} could not be written: "
+                    + ("the disk is full (no space left on the device)"
+                       if EXIT.is_disk_full(exc) else EXIT.describe_environment(exc, ""))
+                    + f"; the chains are complete in {out}/chain.h5" + written_so_far())
+            raise EXIT.EnvironmentFailure(
+                f"{kept}. Free some space (or fix the folder) and run `rotorbayes sample "
+                f"{out} --resume` to write them (no new steps)") from None
         done.append(name)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -385,3 +410,17 @@ def _write_sample_outputs(a, out: Path, lp, fit, runs, guard) -> int:
         raise Interrupted(f"interrupted (Ctrl-C) as the last file was written; the results "
                           f"were kept, complete, in {out}/")
     return EXIT.DONE
+
+
+def _png(fig) -> memoryview:
+    """``fig`` as PNG bytes at 100 dpi (the figures of every command), the figure closed."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, dpi=100, format="png")
+    finally:
+        plt.close(fig)
+    return buf.getbuffer()

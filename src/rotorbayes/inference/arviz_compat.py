@@ -9,13 +9,16 @@ arviz group, written with h5netcdf) and the same summary columns:
 
 * :func:`from_groups` builds the container from plain arrays, one xarray Dataset per group;
 * :func:`group` returns a group as an :class:`xarray.Dataset`, :func:`group_names` their names;
-* :func:`save` and :func:`load` write and read ``posterior.nc`` (read fully into memory);
+* :func:`to_bytes` makes ``posterior.nc``'s content in memory, :func:`save` writes it and
+  :func:`load` reads it (fully into memory; a file that cannot be read as a posterior raises
+  :class:`PosteriorFileError`, never the HDF5 library's own error);
 * :func:`summary` gives mean, sd, HDI (``hdi_low``/``hdi_high``), bulk and tail ESS, R-hat
   and the Monte-Carlo standard errors under the same column names on both lines.
 """
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from pathlib import Path
 
@@ -131,16 +134,95 @@ def group(idata, name: str):
     return getattr(idata, name)
 
 
+class PosteriorFileError(ValueError):
+    """A posterior file cannot be read: damaged (truncated, overwritten), empty, or not a
+    ``posterior.nc`` written by rotorbayes.  The message names the file and what failed."""
+
+
+def _compressible(dtype) -> bool:
+    return np.dtype(dtype).kind in "biufc"
+
+
+def to_bytes(idata) -> memoryview:
+    """``posterior.nc``'s content, made in memory: one netCDF group per arviz group
+    (zlib-compressed numbers), the same file on both lines.
+
+    Made in memory so that the disk is touched only by plain writes of these bytes (into
+    room reserved beforehand, in ``rotorbayes sample``): a disk that fills up can then end
+    a write with an ordinary error, never inside the HDF5 library with files half open.
+    """
+    import io
+
+    buf = io.BytesIO()
+    mode = "w"
+    for name in group_names(idata):
+        ds = group(idata, name)
+        enc = {v: {"zlib": True} for v, x in ds.variables.items() if _compressible(x.dtype)}
+        ds.to_netcdf(buf, mode=mode, group=name, engine=ENGINE, encoding=enc)
+        mode = "a"
+    return buf.getbuffer()
+
+
 def save(idata, path: str | Path) -> None:
-    """Write ``idata`` to a netCDF file with one group per arviz group (both lines'
-    containers have ``to_netcdf``)."""
-    idata.to_netcdf(str(path), engine=ENGINE)
+    """Write ``idata`` to a netCDF file with one group per arviz group (:func:`to_bytes`)."""
+    data = to_bytes(idata)
+    with open(path, "wb") as fh:
+        fh.write(data)
 
 
 def load(path: str | Path):
     """Read a posterior file written by :func:`save` (by either arviz line) into memory;
-    the file is closed on return."""
+    the file is closed on return.
+
+    A file that is missing, empty, truncated, overwritten or holds no ``posterior`` group
+    raises :class:`PosteriorFileError` naming it and what failed.
+    """
     path = Path(path)
+    failure = None
+    with _quiet_teardown():
+        try:
+            if path.is_dir():
+                raise IsADirectoryError(f"{path} is a folder")
+            if path.exists() and path.stat().st_size == 0:
+                raise ValueError("the file is empty (0 bytes)")
+            idata = _load(path)
+        except Exception as exc:  # noqa: BLE001 - h5py, h5netcdf, xarray: OSError, KeyError...
+            failure = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+    if failure is not None:  # raised here, without the library's frames (and open objects)
+        raise PosteriorFileError(
+            f"{path}: cannot be read as a posterior ({failure}): damaged (truncated or "
+            "overwritten?), or not a posterior.nc written by `rotorbayes sample`")
+    if "posterior" not in group_names(idata):
+        raise PosteriorFileError(f"{path}: holds no posterior group (it has "
+                                 f"{', '.join(group_names(idata)) or 'no group'}): not a "
+                                 "posterior.nc written by `rotorbayes sample`")
+    return idata
+
+
+@contextlib.contextmanager
+def _quiet_teardown():
+    """The block's half-opened netCDF objects go quietly: h5netcdf's ``File.__del__`` of a
+    file that failed to open raises, which Python prints as "Exception ignored in ..." with a
+    traceback; the damaged file is reported in words instead."""
+    import gc
+    import sys
+
+    old = sys.unraisablehook
+
+    def hook(unraisable) -> None:
+        where = getattr(unraisable.object, "__module__", None) or ""
+        if not where.startswith(("h5netcdf", "h5py", "xarray")):
+            old(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+        gc.collect()
+    finally:
+        sys.unraisablehook = old
+
+
+def _load(path: Path):
     if is_datatree_line():
         import xarray as xr
 

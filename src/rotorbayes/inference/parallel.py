@@ -66,6 +66,10 @@ SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 CONNECT_TIMEOUT = 15.0
 TIMEOUT_ENV = "ROTORBAYES_DASK_TIMEOUT"
 
+#: Seconds past the wait after which a Client that has not registered is given up (a peer
+#: that passed :func:`probe_scheduler` but never answers the client).
+CLIENT_GRACE = 10.0
+
 #: Thread counts every worker runs with: one task per worker, each single-threaded.
 WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
               "MKL_NUM_THREADS": "1"}
@@ -327,7 +331,7 @@ def connect_timeout() -> float:
 @contextlib.contextmanager
 def _dask_client(spec: ExecutorSpec):
     try:
-        from distributed import Client, LocalCluster
+        from distributed import LocalCluster
     except ImportError as exc:  # pragma: no cover - a declared dependency
         raise ClusterError("the Dask back-end needs dask[distributed]: pip install "
                            "'dask[distributed]'") from exc
@@ -336,20 +340,11 @@ def _dask_client(spec: ExecutorSpec):
     quiet = _quiet_dask_logs()
     try:
         if spec.scheduler:
-            try:
-                client = Client(spec.scheduler, timeout=wait,
-                                set_as_default=False)
-            except (OSError, TimeoutError) as exc:
-                raise ClusterError(
-                    f"no Dask scheduler answered at {spec.scheduler} (from {spec.source}) "
-                    f"within {wait:g} s: {exc}. Start one with `dask scheduler` "
-                    f"and workers with `dask worker {spec.scheduler}`, or drop the address "
-                    "to run locally") from None
+            client = _connect(spec.scheduler, spec.source, wait)
             try:  # a scheduler without workers would take the tasks and never run them
                 client.wait_for_workers(1, timeout=wait)
-            except (OSError, TimeoutError):
-                with contextlib.suppress(Exception):
-                    client.close(timeout=5)
+            except Exception:  # noqa: BLE001 - TimeoutError, OSError, a scheduler gone
+                _give_up(client)
                 raise ClusterError(
                     f"the Dask scheduler at {spec.scheduler} (from {spec.source}) has no "
                     f"workers (none joined within {wait:g} s); start some with "
@@ -360,18 +355,271 @@ def _dask_client(spec: ExecutorSpec):
                 cluster = LocalCluster(n_workers=spec.n_workers(), threads_per_worker=1,
                                        processes=True, dashboard_address=None,
                                        env=WORKER_ENV)
-            client = Client(cluster, set_as_default=False)
+            client = _client_class()(cluster, set_as_default=False)
         try:
             client.register_plugin(_worker_plugin(), name=_WarmUp.name)
             yield client
         finally:
-            with contextlib.suppress(Exception):
-                client.close(timeout=5)
+            _close(client)
     finally:
         if cluster is not None:
             with contextlib.suppress(Exception):
                 cluster.close(timeout=10)
         quiet()
+
+
+#: Dask's port when an address gives none.
+DEFAULT_PORT = 8786
+
+#: The largest first message a scheduler's handshake can be (it is about 60 bytes: the
+#: compression, Python version and pickle protocol); a longer one is not Dask.
+_HANDSHAKE_MAX = 1 << 16
+
+
+def _start_help(address: str) -> str:
+    return (f"Start one with `dask scheduler` and workers with `dask worker {address}`, or "
+            "drop the address to run locally")
+
+
+def probe_scheduler(address: str, source: str, wait: float) -> bool:
+    """Check within ``wait`` seconds that a Dask scheduler answers at ``address`` (from
+    ``source``), speaking Dask's protocol, before a Client is made; :class:`ClusterError`
+    naming the address otherwise.
+
+    Dask's own client waits for the first message of a peer without a time limit, so a
+    program that accepts the connection and never answers would hang it, and one that
+    answers with other bytes (a web server: an HTTP status line) makes it read the first
+    8 bytes as a message length (exabytes).  Here the exchange is a plain socket with a
+    deadline: the handshake both sides of a Dask connection send first (this one, then the
+    peer's: its compression, Python version and pickle protocol), checked for its form.  A
+    closed port is tried again until ``wait`` has passed (a scheduler still starting).
+    Only ``tcp://`` addresses (and those without a protocol) are checked here (True
+    returned); TLS and websocket connections end in Dask's own connect timeout (False).
+    """
+    import socket
+    import struct
+    import time
+
+    m = _ADDRESS.match(address.strip())
+    scheme = address.split("://", 1)[0] if "://" in address else "tcp"
+    if not m or scheme != "tcp":
+        return False
+    host = m.group(1).strip("[]")
+    port = int(m.group(2) or DEFAULT_PORT)
+    end = time.monotonic() + wait
+    where = f"{address} (from {source})"
+
+    def left() -> float:
+        return end - time.monotonic()
+
+    last: OSError | None = None
+    sock = None
+    while sock is None:
+        if left() <= 0:
+            why = f": {last}" if last is not None else ""
+            raise ClusterError(f"no Dask scheduler answered at {where} within {wait:g} s"
+                               f"{why}. {_start_help(address)}")
+        try:
+            sock = socket.create_connection((host, port), timeout=max(0.05, left()))
+        except OSError as exc:  # refused, unreachable, a name not found: a scheduler may
+            last = exc          # still be starting, as Dask's own connect assumes
+            time.sleep(max(0.0, min(0.25, left())))
+    try:
+        with sock:
+            sock.settimeout(max(0.05, left()))
+            sock.sendall(_handshake_bytes())
+            first = _recv_exact(sock, 8, left)
+            (n,) = struct.unpack("<Q", first)
+            if not 16 <= n <= _HANDSHAKE_MAX:
+                raise _NotDask(first + _recv_some(sock, 72))
+            body = _recv_exact(sock, n, left)
+            if not _is_handshake(body):
+                raise _NotDask(first + body[:72])
+    except _NotDask as exc:
+        said = exc.args[0].split(b"\r\n")[0].split(b"\n")[0][:72]
+        text = said.decode("ascii", "replace")
+        kind = " (a web server: is it the dashboard's address?)" \
+            if said.startswith(b"HTTP/") else ""
+        raise ClusterError(
+            f"{where} answered, but not as a Dask scheduler: it sent {text!r}{kind}. Give "
+            "the address `dask scheduler` prints after \"Scheduler at:\" (tcp://HOST:8786), "
+            "not its dashboard's (http://HOST:8787)") from None
+    except TimeoutError:
+        raise ClusterError(
+            f"{where} accepted the connection but did not answer as a Dask scheduler within "
+            f"{wait:g} s (another program at that port, or a scheduler that is stopped or "
+            f"overloaded?). {_start_help(address)}") from None
+    except OSError as exc:  # closed or reset by the peer
+        raise ClusterError(
+            f"{where} accepted the connection and closed it without answering as a Dask "
+            f"scheduler ({exc}). {_start_help(address)}") from None
+    return True
+
+
+class _NotDask(Exception):
+    """The peer's first bytes (in ``args[0]``) are not a Dask handshake."""
+
+
+def _handshake_bytes() -> bytes:
+    """The first message of a Dask TCP connection: one msgpack frame holding this side's
+    compression (none), Python version and pickle protocol, behind the frame count, the
+    frame's length and the whole message's length (little-endian 64-bit)."""
+    import pickle
+    import struct
+    import sys
+
+    import msgpack
+
+    frame = msgpack.dumps({"compression": None, "python": list(sys.version_info[:3]),
+                           "pickle-protocol": pickle.HIGHEST_PROTOCOL})
+    body = struct.pack("<QQ", 1, len(frame)) + frame
+    return struct.pack("<Q", len(body)) + body
+
+
+def _is_handshake(body: bytes) -> bool:
+    """Whether ``body`` is a Dask handshake: frames (a count, their lengths, the frames)
+    whose first is a msgpack map with the pickle protocol Dask's connections agree on."""
+    import struct
+
+    import msgpack
+
+    try:
+        (k,) = struct.unpack_from("<Q", body)
+        if not 1 <= k <= 16:
+            return False
+        lengths = struct.unpack_from(f"<{k}Q", body, 8)
+        if 8 * (1 + k) + sum(lengths) != len(body):
+            return False
+        start = 8 * (1 + k)
+        info = msgpack.loads(body[start:start + lengths[0]])
+    except Exception:  # noqa: BLE001 - any malformed content: not Dask
+        return False
+    return isinstance(info, dict) and "pickle-protocol" in info
+
+
+def _recv_exact(sock, n: int, left: Callable[[], float]) -> bytes:
+    got = bytearray()
+    while len(got) < n:
+        if left() <= 0:
+            raise TimeoutError("timed out")
+        sock.settimeout(max(0.05, left()))
+        chunk = sock.recv(n - len(got))
+        if not chunk:
+            if got:
+                raise _NotDask(bytes(got))
+            raise ConnectionResetError("the connection was closed")
+        got += chunk
+    return bytes(got)
+
+
+def _recv_some(sock, n: int) -> bytes:
+    """Up to ``n`` more bytes if they come within half a second (for the message)."""
+    try:
+        sock.settimeout(0.5)
+        return sock.recv(n)
+    except OSError:
+        return b""
+
+
+_CLIENT_CLASS = None
+
+
+def _client_class():
+    """Dask's Client, failing quietly: a Client whose start failed is closed at once with a
+    short wait (otherwise its ``__del__`` tries again at exit, waits twice the connect
+    timeout and prints a traceback), and a Client is never closed with an exception."""
+    global _CLIENT_CLASS
+    if _CLIENT_CLASS is None:
+        from distributed import Client
+
+        class QuietClient(Client):
+            def __init__(self, *args, **kwargs):
+                try:
+                    super().__init__(*args, **kwargs)
+                except BaseException:
+                    _give_up(self)
+                    raise
+
+            def __del__(self):
+                with contextlib.suppress(BaseException):
+                    super().__del__()
+
+        _CLIENT_CLASS = QuietClient
+    return _CLIENT_CLASS
+
+
+def _give_up(client) -> None:
+    """Close ``client`` within 2 s whatever state it is in, and mark it closed (so nothing
+    tries again at exit)."""
+    with contextlib.suppress(BaseException):
+        if client.status not in ("closed", "newly-created"):
+            client.close(timeout=2)
+    with contextlib.suppress(BaseException):
+        client.status = "closed"
+    with contextlib.suppress(BaseException):
+        client._loop_runner.stop()
+
+
+def _close(client) -> None:
+    try:
+        client.close(timeout=5)
+    except BaseException:  # noqa: BLE001 - a scheduler already gone: close what is ours
+        _give_up(client)
+
+
+def _connect(address: str, source: str, wait: float):
+    """A Client of the scheduler at ``address``, or :class:`ClusterError` within about
+    ``wait`` seconds (:func:`probe_scheduler` first; the Client is made in a helper thread,
+    so that a peer that speaks Dask's protocol but never registers the client cannot hang
+    the command)."""
+    import threading
+    import time
+
+    probed = probe_scheduler(address, source, wait)
+    box: dict[str, Any] = {}
+    lock = threading.Lock()
+
+    def make() -> None:
+        try:
+            c = _client_class()(address, timeout=wait, set_as_default=False)
+        except BaseException as exc:  # noqa: BLE001 - handed to the command's thread
+            box["error"] = exc
+            return
+        with lock:
+            if box.get("abandoned"):
+                _give_up(c)
+            else:
+                box["client"] = c
+
+    th = threading.Thread(target=make, name="rotorbayes-dask-connect", daemon=True)
+    t0 = time.monotonic()
+    th.start()
+    try:
+        th.join(wait + CLIENT_GRACE)
+    finally:
+        with lock:
+            if "client" not in box:
+                box["abandoned"] = True
+    if "client" in box:
+        return box["client"]
+    where = f"{address} (from {source})"
+    exc = box.get("error")
+    if exc is None or (probed and isinstance(exc, OSError | TimeoutError)):
+        why = f" ({str(exc).splitlines()[0][:160]})" if exc is not None and str(exc) else ""
+        raise ClusterError(
+            f"{where} speaks Dask's protocol but did not take this client within "
+            f"{time.monotonic() - t0:.0f} s{why} (an overloaded scheduler, or another Dask "
+            f"process than a scheduler?). {_start_help(address)}")
+    if isinstance(exc, OSError | TimeoutError):
+        raise ClusterError(f"no Dask scheduler answered at {where} within {wait:g} s: "
+                           f"{exc}. {_start_help(address)}") from None
+    if isinstance(exc, KeyboardInterrupt):
+        raise exc
+    first = str(exc).splitlines()[0][:160] if str(exc) else ""
+    raise ClusterError(
+        f"{where} speaks Dask's protocol but is not a scheduler that takes clients "
+        f"({type(exc).__name__}: {first}): a worker's address? Give the address `dask "
+        "scheduler` prints after \"Scheduler at:\"") from None
 
 
 def _quiet_dask_logs() -> Callable[[], None]:

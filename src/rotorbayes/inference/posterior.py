@@ -137,6 +137,23 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
     return AZ.from_groups(groups, dims=group_dims, coords=coords, attrs=attrs)
 
 
+def file_bytes(logpost: LogPosterior, n_rows: int) -> int:
+    """A generous bound on the size of posterior.nc [bytes] for ``n_rows`` kept draws (all
+    ensembles together), before any draw exists: the pointwise log-likelihood (float32;
+    in blocks beyond :data:`LOGLIK_BYTES`), the posterior predictive (float32, at most
+    :data:`PREDICTIVE_POINTS` + 1 per experiment and channel), the data with their time
+    axes, the draws and sample statistics (float64), a quarter on top and 1 MB for the
+    file's own structure. Compression makes the file smaller, never larger."""
+    prob = logpost.problem
+    n_res = prob.n_residuals
+    block = loglik_block(n_rows, n_res)
+    ll = 4 * n_rows * sum(math.ceil((b - a) / block) for _, a, b in logpost.segments)
+    pp = 4 * n_rows * sum(min(b - a, PREDICTIVE_POINTS + 1) for _, a, b in logpost.segments)
+    data = 16 * n_res + 32 * sum(ex.n for ex in prob.experiments)
+    draws_ = 8 * n_rows * (logpost.ndim + 4)
+    return int(1.25 * (ll + pp + data + draws_)) + 1_000_000
+
+
 def _exp_index(prob):
     out = []
     for i, _ in enumerate(prob.experiments):

@@ -466,6 +466,79 @@ class DiskReserve:
             pass
 
 
+class SummaryReserve:
+    """Disk room held, file by file, for what is written after the chains (posterior.nc, the
+    tables, the figures), from before the first step until each file is written.
+
+    Each file ``NAME`` has a hidden ``.NAME.reserve`` beside it that owns the disk blocks of
+    the file's estimated size (``posix_fallocate``). :meth:`write` puts the file's bytes into
+    those blocks, gives back the rest and renames the reserve to ``NAME``: no new room is
+    needed for the bytes within the estimate, so a disk that another program fills in the
+    meantime cannot starve the file (only bytes beyond the estimate need new room). Where
+    the room cannot be held (no ``posix_fallocate``, no room), :meth:`write` writes the
+    file through the same hidden name and a rename, as any other file.
+    """
+
+    SUFFIX = ".reserve"
+
+    def __init__(self, folder: Path, sizes: dict[str, int]):
+        self.folder = Path(folder)
+        self.held: dict[str, int] = {}
+        for name, nbytes in sizes.items():
+            if nbytes > 0 and self._hold(self.path(name), int(nbytes)):
+                self.held[name] = int(nbytes)
+
+    def path(self, name: str) -> Path:
+        """The hidden reserve of ``name``."""
+        return self.folder / f".{name}{self.SUFFIX}"
+
+    @staticmethod
+    def _hold(path: Path, nbytes: int) -> bool:
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+        except OSError:
+            return False
+        try:
+            os.posix_fallocate(fd, 0, nbytes)
+            return True
+        except (OSError, AttributeError):
+            _unlink(path)  # no room (or no fallocate): this file goes without a reserve
+            return False
+        finally:
+            os.close(fd)
+
+    def write(self, name: str, data) -> Path:
+        """Write the bytes ``data`` as ``folder/NAME``: into its reserve (a rename puts it in
+        place, so a failed write never leaves a half file under the name)."""
+        res = self.path(name)
+        target = self.folder / name
+        self.held.pop(name, None)
+        mode = "r+b" if res.exists() else "wb"
+        try:
+            with open(res, mode) as fh:
+                fh.write(data)
+                fh.truncate()
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(res, target)
+        except BaseException:
+            _unlink(res)
+            raise
+        return target
+
+    def close(self) -> None:
+        """Give back the room of every file not written."""
+        for name in list(self.held):
+            _unlink(self.path(name))
+        self.held.clear()
+
+    @classmethod
+    def clear(cls, folder: Path) -> None:
+        """Remove the reserves a killed run left in ``folder`` (free space, not results)."""
+        for p in Path(folder).glob(f".*{cls.SUFFIX}"):
+            _unlink(p)
+
+
 class Snapshot:
     """A copy of ``chain.h5`` as it stood after a saved step, kept beside it as
     ``.chain.h5.good`` while a run is under way.
