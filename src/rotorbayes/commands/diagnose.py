@@ -183,15 +183,20 @@ def _trials(result, d, specs: dict) -> dict | None:
         other = by_name.get(named or "")
         than = (f"; the effect the score tests named, {named}, reaches {other.ratio:.3g}x"
                 if other is not None and not other.failed else "")
-        if other is not None and math.isfinite(best.validation) and math.isfinite(
-                other.validation):
-            than += (f" as well: the two are tied on the estimation data, and the "
-                     f"validation data decide ({best.validation:.3g}x against "
-                     f"{other.validation:.3g}x the floor)")
         cmd = _with_refit_command(f"{REFIT_TOKEN} --add {best.effect}", result.folder,
                                   result.doc, specs)
         words = (f"the trial refits decide: {best.effect} lowers the worst RMS/floor to "
                  f"{best.ratio:.3g}x (from {worst:.3g}x){than}. Add it and refit: {cmd}")
+    if best is not None and math.isfinite(best.validation):
+        # Tied on the estimation data; the validation runs chose (whichever branch above).
+        beaten = [t for t in trials if t is not best and math.isfinite(t.validation)
+                  and t.validation > TIE * best.validation]
+        if beaten:
+            words += (f". {best.effect} and " + ", ".join(t.effect for t in beaten)
+                      + " are tied on the estimation data; the validation data decide ("
+                      + ", ".join([f"{best.effect} {best.validation:.3g}x"]
+                                  + [f"{t.effect} {t.validation:.3g}x" for t in beaten])
+                      + " the floor, each run with its own torsion)")
     if best is not None:
         # Still tied after the validation data (or with none to ask): say so.
         alike = [t.effect for t in trials if t is not best and not t.failed
