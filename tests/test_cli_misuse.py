@@ -18,6 +18,7 @@ import pytest
 import rotorbayes as rb
 from rotorbayes.cli import build_parser, main
 from rotorbayes.outputs import (
+    MARKER,
     OutputError,
     output_folder,
     save_figure_atomic,
@@ -204,9 +205,15 @@ def test_out_pointing_at_a_file(here, capsys):
 
 def test_out_holding_results_needs_force(here, capsys):
     (here / "o").mkdir()
-    (here / "o" / "old.txt").write_text("old")
-    refused(capsys, [*UPPER, "--out", "o"], "o/ already holds results", "--force")
-    assert listing(here / "o") == ["old.txt"]
+    (here / "o" / "fit.json").write_text("{}")
+    refused(capsys, [*UPPER, "--out", "o"], "o/ already holds results (fit.json)", "--force")
+    assert listing(here / "o") == ["fit.json"]
+    # A folder of other files is no result: --force does not replace it either.
+    (here / "p").mkdir()
+    (here / "p" / "old.txt").write_text("old")
+    for force in ([], ["--force"]):
+        refused(capsys, [*UPPER, "--out", "p", *force], "rotorbayes did not write (old.txt)")
+    assert listing(here / "p") == ["old.txt"]
 
 
 # ------------------------------------------------------ 6. nothing left behind
@@ -236,13 +243,15 @@ def test_output_folder_moves_into_place_only_on_success(tmp_path):
     with output_folder(out) as tmp:
         (tmp / "a.txt").write_text("a")
         assert not out.exists()
-    assert listing(out) == ["a.txt"] and listing(out.parent) == ["res"]
+    # The marker that makes it a result folder (which a later --force may replace).
+    assert listing(out) == [MARKER, "a.txt"] and listing(out.parent) == ["res"]
     with pytest.raises(OutputError, match="already holds results"), output_folder(out):
         pass
     with output_folder(out, force=True) as tmp:
         (tmp / "b.txt").write_text("b")
-        assert listing(out) == ["a.txt"]  # the old results stay until the new are complete
-    assert listing(out) == ["b.txt"] and listing(out.parent) == ["res"]
+        # the old results stay until the new are complete
+        assert listing(out) == [MARKER, "a.txt"]
+    assert listing(out) == [MARKER, "b.txt"] and listing(out.parent) == ["res"]
     (tmp_path / "f").write_text("")
     with pytest.raises(OutputError, match="is a file, not a folder"), output_folder(
             tmp_path / "f"):

@@ -710,11 +710,11 @@ def test_stale_partial_folders_are_removed_and_said(tmp_path, capsys):
     # A kill between the two renames of --force: the earlier result is put back.
     old = tmp_path / ".res2.old-abcd"
     old.mkdir()
-    (old / "keep.txt").write_text("earlier")
+    (old / "fit.json").write_text("earlier")
     with output_folder(tmp_path / "other"):
         pass
     with output_folder(tmp_path / "res2", force=True) as tmp:
-        assert (tmp_path / "res2" / "keep.txt").read_text() == "earlier"
+        assert (tmp_path / "res2" / "fit.json").read_text() == "earlier"
         (tmp / "y.txt").write_text("new")
     assert "restored" in capsys.readouterr().err
 

@@ -47,9 +47,13 @@ does (:func:`jitter_evidence`).
 """
 
 import array
+import codecs
+import hashlib
+import io
 import math
 import os
 import secrets
+import stat
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -73,12 +77,18 @@ __all__ = [
     "MAX_ANGULAR_RATE",
     "MAX_SAMPLE_INTERVAL",
     "MAX_DURATION",
+    "MAX_DATA_BYTES",
+    "MAX_DATA_ROWS",
+    "MAX_BYTES_ENV",
+    "MAX_ROWS_ENV",
     "DataFileError",
     "DataWarning",
     "Experiment",
     "Glitch",
     "leave_out_glitches",
     "load_experiment",
+    "measurement_sha256",
+    "check_data_file",
     "save_experiment",
     "quantize",
     "add_noise",
@@ -262,6 +272,26 @@ _MIN_RATE = 10.0
 _MAX_RATE = 1e5
 # Longest line text quoted in a message.
 _MAX_QUOTE = 80
+#: Largest measurement file read (bytes), checked before a byte is read: the rig's longest
+#: record, 2 h at 1 kHz, takes about 600 MB (a row of four shortest round-trip numbers
+#: is about 80 characters). ``ROTORBAYES_MAX_DATA_MB`` (:data:`MAX_BYTES_ENV`) raises it.
+MAX_DATA_BYTES = 1_000_000_000
+#: Most data rows read (2 h at 1 kHz are 7.2 million); reading stops at the first row
+#: beyond. ``ROTORBAYES_MAX_DATA_ROWS`` (:data:`MAX_ROWS_ENV`) raises it.
+MAX_DATA_ROWS = 10_000_000
+#: Environment variables that set the two limits (a size in MB; a number of rows).
+MAX_BYTES_ENV = "ROTORBAYES_MAX_DATA_MB"
+MAX_ROWS_ENV = "ROTORBAYES_MAX_DATA_ROWS"
+# Longest line read (characters): a data row has a few dozen, a comment line a few hundred;
+# a longer one (a binary or sparse file without line breaks) is refused as soon as it is met.
+_MAX_LINE = 65_536
+# What a file that is not a regular file is, by its type (stat.S_IFMT).
+_FILE_KINDS = {
+    stat.S_IFIFO: "a pipe (a named pipe, or a stream such as <(...) or /dev/stdin)",
+    stat.S_IFCHR: "a character device (such as /dev/zero or /dev/urandom)",
+    stat.S_IFBLK: "a block device (a disk)",
+    stat.S_IFSOCK: "a socket",
+}
 # Angular rates are measured over about 10 ms rather than one sample so that measurement
 # noise at high sampling rates cannot fake a speed above MAX_ANGULAR_RATE.
 _RATE_BASELINE = 0.01
@@ -332,6 +362,9 @@ class Experiment:
         it was left out (the arrays hold the cubic through its neighbours there) or kept
         (the arrays hold the measured value).  ``None``: not looked for (an experiment
         made in Python; :func:`leave_out_glitches` looks); ``()``: none found.
+    sha256 : str or None
+        SHA-256 (hex) of the bytes read from ``path`` (:func:`load_experiment`), so that a
+        result can record exactly what it was made from; None when not read from a file.
     """
 
     t: np.ndarray
@@ -342,6 +375,7 @@ class Experiment:
     path: str | None = None
     meta: dict[str, str] = field(default_factory=dict)
     glitches: tuple[Glitch, ...] | None = None
+    sha256: str | None = None
 
     def __post_init__(self) -> None:
         arrays = {"t": self.t, "u": self.u, "theta_u": self.theta_u}
@@ -627,19 +661,229 @@ def _parse_comment(line: str, meta: dict[str, str]) -> None:
         meta[key] = value.strip()
 
 
+def _limit(path: Path, given: int | None, env: str, default: int, scale: int, what: str) -> int:
+    """A reading limit: ``given``, else the environment variable ``env`` (in units of
+    ``scale``), else ``default``."""
+    if given is not None:
+        if not (isinstance(given, int | float) and given > 0):
+            raise ValueError(f"{what} must be a positive number, got {given!r}")
+        return int(given)
+    text = os.environ.get(env, "").strip()
+    if not text:
+        return default
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v > 0):
+        raise DataFileError(path, None, f"the environment variable {env}={text!r} is not a "
+                            f"positive number; set it to the {what} to allow (or unset it "
+                            "for the default)")
+    return int(v * scale)
+
+
+def _open_measurement(path: Path, max_bytes: int) -> int:
+    """Open ``path`` for reading after checking, before a byte is read, that it is a
+    regular file of at most ``max_bytes``; its file descriptor."""
+    try:
+        # stat() first: a pipe or device is refused without being opened (opening a pipe
+        # waits for a writer; a device may do anything).
+        st = os.stat(path)
+        _check_kind(path, st, max_bytes)
+        # O_NONBLOCK: should the path have become a pipe since, the open does not wait.
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise DataFileError(
+            path,
+            None,
+            f"file not found (looked in {path.resolve().parent}); check the path",
+        ) from None
+    except OSError as exc:
+        raise DataFileError(
+            path, None, f"cannot be read ({exc.strerror}); check the permissions"
+        ) from None
+    try:
+        _check_kind(path, os.fstat(fd), max_bytes)  # the file opened is the file checked
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _check_kind(path: Path, st: os.stat_result, max_bytes: int) -> None:
+    if stat.S_ISDIR(st.st_mode):
+        raise DataFileError(path, None, "is a directory; pass the CSV file inside it")
+    if not stat.S_ISREG(st.st_mode):
+        mode = stat.S_IFMT(st.st_mode)
+        kind = _FILE_KINDS.get(mode, "not a regular file")
+        why = (
+            "a stream can be read only once, and a measurement is read again (the fit "
+            "records its SHA-256, later commands read it again)"
+            if mode == stat.S_IFIFO
+            else "it holds no measurement"
+        )
+        raise DataFileError(
+            path,
+            None,
+            f"is {kind}, not a regular file: {why}; give a regular file (a measurement "
+            "CSV) -- to read a stream, save it first (e.g. `command > data.csv`); nothing "
+            "was read",
+        )
+    if st.st_size > max_bytes:
+        raise DataFileError(
+            path,
+            None,
+            f"is {_size(st.st_size)}, more than the {_size(max_bytes)} a "
+            "measurement file may have (2 h at 1 kHz, the rig's longest record, take about "
+            "600 MB); nothing was read. If it is a measurement, raise the limit: "
+            f"{MAX_BYTES_ENV}={math.ceil(st.st_size / 1e6)} (a size in MB)",
+        )
+
+
+def _size(n: int) -> str:
+    """A file size in words: "1,074 MB", or "800 bytes" below a megabyte."""
+    return f"{n / 1e6:,.0f} MB" if n >= 1_000_000 else f"{n:,} bytes"
+
+
+class _HashingReader(io.RawIOBase):
+    """A file read once: the bytes pass through SHA-256 on their way to the parser."""
+
+    def __init__(self, fd: int) -> None:
+        super().__init__()
+        self._file = io.FileIO(fd, "rb", closefd=True)
+        self.sha256 = hashlib.sha256()
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        n = self._file.readinto(buffer)
+        if n:
+            self.sha256.update(memoryview(buffer)[:n])
+        return n
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
+
+
+def check_data_file(path: str | os.PathLike, *, max_bytes: int | None = None) -> None:
+    """Refuse (:class:`DataFileError`), before it is opened, a data file that is missing,
+    a folder, not a regular file (a pipe, ``<(...)``, a device) or larger than the size
+    limit (``max_bytes``, else ``ROTORBAYES_MAX_DATA_MB``, else :data:`MAX_DATA_BYTES`):
+    the checks :func:`load_experiment` makes, for readers of other CSV files."""
+    path = Path(path)
+    limit = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
+                   "largest file size in MB")
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise DataFileError(
+            path,
+            None,
+            f"file not found (looked in {path.resolve().parent}); check the path",
+        ) from None
+    except OSError as exc:
+        raise DataFileError(
+            path, None, f"cannot be read ({exc.strerror}); check the permissions"
+        ) from None
+    _check_kind(path, st, limit)
+
+
+def measurement_sha256(path: str | os.PathLike, *, max_bytes: int | None = None) -> str:
+    """SHA-256 (hex) of the file ``path``, read in blocks after the checks
+    :func:`load_experiment` makes before reading (a regular file, at most ``max_bytes``);
+    :class:`DataFileError` otherwise (a pipe is never opened, a device never read)."""
+    path = Path(path)
+    limit = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
+                   "largest file size in MB")
+    raw = _HashingReader(_open_measurement(path, limit))
+    try:
+        with raw:
+            buf = bytearray(1 << 20)
+            while raw.readinto(buf):
+                pass
+    except OSError as exc:
+        raise DataFileError(
+            path, None, f"cannot be read ({exc.strerror or exc}); check the permissions"
+        ) from None
+    return raw.sha256.hexdigest()
+
+
+def _bad_utf8_offset(path: Path) -> int | str:
+    """The byte offset of the first byte that is not UTF-8 in ``path`` ("?" if unknown)."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    done = 0
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 16), b""):
+                try:
+                    decoder.decode(block)
+                except UnicodeDecodeError as exc:
+                    return done - len(exc.object) + len(block) + exc.start
+                done += len(block)
+            decoder.decode(b"", final=True)
+    except UnicodeDecodeError as exc:
+        return done - len(exc.object) + exc.start
+    except OSError:
+        pass
+    return "?"
+
+
+def _numbered_lines(fh, path: Path):
+    """``(line number, line)`` of a text file, each line with its line break; a line with
+    NUL characters or longer than :data:`_MAX_LINE` is refused when it is met (a binary or
+    sparse file is never read whole)."""
+    lineno = 0
+    while True:
+        line = fh.readline(_MAX_LINE + 1)
+        if not line:
+            return
+        lineno += 1
+        if "\0" in line:
+            raise DataFileError(
+                path,
+                lineno,
+                "holds NUL bytes (binary data, or a sparse or preallocated file that was "
+                "never written): not a measurement file; export the measurement as "
+                "plain-text CSV",
+            )
+        if len(line) > _MAX_LINE and not line.endswith("\n"):
+            raise DataFileError(
+                path,
+                lineno,
+                f"longer than {_MAX_LINE} characters (a data row has a few dozen): not a "
+                "measurement file; export the measurement as plain-text CSV, one sample a "
+                "line",
+            )
+        yield lineno, line
+
+
+def _rest_is_blank(lines) -> bool:
+    """Whether every line left in ``lines`` is blank (the line before was the last)."""
+    try:
+        return not any(line.strip() for _, line in lines)
+    except DataFileError:
+        return False
+
+
 def load_experiment(
     path: str | os.PathLike,
     *,
     expect_lower: bool | None = None,
     max_abs_u: float = 5.0,
     keep_glitches: bool = False,
+    max_bytes: int | None = None,
+    max_rows: int | None = None,
 ) -> Experiment:
     """Load and validate a measurement file, and leave out its glitches.
 
     Parameters
     ----------
     path : str or os.PathLike
-        CSV file in the format described in the module docstring.
+        CSV file in the format described in the module docstring: a regular file (a pipe,
+        a device or a stream such as ``<(...)`` is refused before it is opened).
     expect_lower : bool or None, optional
         ``True`` requires a ``theta_l`` column (coupled or brake configuration), ``False``
         forbids it (upper configuration), ``None`` accepts either. Default ``None``.
@@ -649,23 +893,31 @@ def load_experiment(
     keep_glitches : bool, optional
         Keep the glitches found in the angles as measured. Default ``False``: each is left
         out (:func:`leave_out_glitches`). Either way :attr:`Experiment.glitches` names them.
+    max_bytes, max_rows : int, optional
+        The largest file (bytes; checked before reading) and the most data rows (checked
+        while reading) accepted. Default: the environment variables
+        ``ROTORBAYES_MAX_DATA_MB`` (MB) and ``ROTORBAYES_MAX_DATA_ROWS``, else
+        :data:`MAX_DATA_BYTES` (1 GB) and :data:`MAX_DATA_ROWS` (10 million).
 
     Returns
     -------
     Experiment
-        With ``name`` the file stem, ``path`` the file, ``meta`` from the comment lines and
-        ``glitches`` the glitches found (see :mod:`rotorbayes.glitches`).
+        With ``name`` the file stem, ``path`` the file, ``meta`` from the comment lines,
+        ``glitches`` the glitches found (see :mod:`rotorbayes.glitches`) and ``sha256`` the
+        SHA-256 of the bytes read (the file is read once).
 
     Raises
     ------
     DataFileError
-        If the file is missing or unreadable, empty, has no or a wrong header, a row with the
-        wrong number of fields, a non-numeric, NaN or infinite value, a last line without a
-        line break (a truncated file), fewer than 3 data rows, time not strictly increasing,
-        not in seconds (a step of :data:`MAX_SAMPLE_INTERVAL` or more, or a record longer than
-        :data:`MAX_DURATION`) or not uniformly sampled, angles that look like degrees or
-        encoder counts or that do not start at zero, or a configuration that contradicts
-        ``expect_lower``. The message names the file, the line and the fix.
+        If the file is missing or unreadable, not a regular file, larger than the limits,
+        binary (NUL bytes, lines without end), empty, has no or a wrong header, a row with
+        the wrong number of fields, a non-numeric, NaN or infinite value, a last line
+        without a line break (a truncated file), fewer than 3 data rows, time not strictly
+        increasing, not in seconds (a step of :data:`MAX_SAMPLE_INTERVAL` or more, or a
+        record longer than :data:`MAX_DURATION`) or not uniformly sampled, angles that look
+        like degrees or encoder counts or that do not start at zero, or a configuration
+        that contradicts ``expect_lower``. The message names the file, the line and the
+        fix.
 
     Warns
     -----
@@ -675,163 +927,45 @@ def load_experiment(
     if not max_abs_u > 0:
         raise ValueError(f"max_abs_u must be a positive voltage, got {max_abs_u!r}")
     path = Path(path)
+    limit_bytes = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
+                         "largest file size in MB")
+    limit_rows = _limit(path, max_rows, MAX_ROWS_ENV, MAX_DATA_ROWS, 1, "most data rows")
+    raw = _HashingReader(_open_measurement(path, limit_bytes))
+    meta: dict[str, str] = {}
     try:
         # utf-8-sig drops the byte-order mark that spreadsheet programs put in front of CSVs;
-        # universal newlines make CRLF files count lines exactly like LF files.
-        with open(path, encoding="utf-8-sig", newline=None) as fh:
-            lines = fh.read().split("\n")
-    except FileNotFoundError:
+        # universal newlines make CRLF files count lines exactly like LF files. The file is
+        # read line by line: the memory taken is the values' (8 bytes each), not the text's.
+        with io.TextIOWrapper(io.BufferedReader(raw, 1 << 16), encoding="utf-8-sig",
+                              newline=None) as fh:
+            names, header_lineno, values = _read_table(fh, path, meta, expect_lower,
+                                                       limit_rows)
+    except UnicodeDecodeError:
         raise DataFileError(
             path,
             None,
-            f"file not found (looked in {path.resolve().parent}); check the path",
-        ) from None
-    except IsADirectoryError:
-        raise DataFileError(path, None, "is a directory; pass the CSV file inside it") from None
-    except UnicodeDecodeError as exc:
-        raise DataFileError(
-            path,
-            None,
-            f"not a UTF-8 text file (undecodable byte at offset {exc.start}); export the "
-            "measurement as plain-text CSV",
+            f"not a UTF-8 text file (undecodable byte at offset {_bad_utf8_offset(path)}); "
+            "export the measurement as plain-text CSV",
         ) from None
     except OSError as exc:
         raise DataFileError(
-            path, None, f"cannot be read ({exc.strerror}); check the permissions"
+            path, None, f"cannot be read ({exc.strerror or exc}); check the permissions"
         ) from None
+    sha256 = raw.sha256.hexdigest()
 
-    if not any(line.strip() for line in lines):
-        raise DataFileError(
-            path,
-            None,
-            f"the file is empty; it must contain the header '{','.join(COLUMNS)}' and data rows",
-        )
-
-    meta: dict[str, str] = {}
-    header_index = None
-    for index, line in enumerate(lines):
-        stripped = line.strip()
-        if stripped.startswith("#"):
-            _parse_comment(stripped, meta)
-        elif stripped:
-            header_index = index
-            break
-    if header_index is None:
-        raise DataFileError(
-            path,
-            None,
-            f"no header: the file has only comment lines; add the header line "
-            f"'{','.join(COLUMNS)}' and the data rows after the comments",
-        )
-    names = _parse_header(
-        [f.strip() for f in lines[header_index].split(",")], path, header_index + 1
-    )
-    has_lower = "theta_l" in names
-    if expect_lower is True and not has_lower:
-        raise DataFileError(
-            path,
-            header_index + 1,
-            f"no theta_l column (header {','.join(names)!r}): this looks like an "
-            "upper-configuration file (string removed), but the lower disc's angle was "
-            "expected; use --model upper for it (in Python: expect_lower=False), or load "
-            "the coupled/brake measurement",
-        )
-    if expect_lower is False and has_lower:
-        raise DataFileError(
-            path,
-            header_index + 1,
-            f"the file has a theta_l column (header {','.join(names)!r}), but an "
-            "upper-configuration file without the lower disc was expected; load the "
-            "upper-configuration measurement, or use --model coupled or brake for this file "
-            "(in Python: expect_lower=True)",
-        )
-
-    # Trailing blank lines (an editor's final newline) are harmless; blank lines *inside* the
-    # data usually mean two files were pasted together, so those are reported.
-    last = len(lines)
-    while last > header_index + 1 and not lines[last - 1].strip():
-        last -= 1
     ncols = len(names)
-    # The values, row after row, as packed doubles (8 bytes each): a list of row lists
-    # would cost about 190 bytes a row, 1.9 GB for 10 million rows.  Data rows are
-    # contiguous (a gap or comment inside them is refused), so row k is on line
-    # header_index + 2 + k.
-    values = array.array("d")
-    for index in range(header_index + 1, last):
-        lineno = index + 1
-        line = lines[index]
-        truncated = (
-            " -- it is the last line, so the file looks truncated (cut while being written or "
-            "copied); re-export it or delete the incomplete line"
-            if index == last - 1
-            else ""
-        )
-        if not line.strip():
-            raise DataFileError(
-                path,
-                lineno,
-                "empty line inside the data; delete it (only comment lines may "
-                "precede the header, and data rows must be contiguous)",
-            )
-        if line.lstrip().startswith("#"):
-            raise DataFileError(
-                path,
-                lineno,
-                f"comment line {line.strip()!r} after the header; comment lines are "
-                "only allowed before the header -- move it there or delete it",
-            )
-        fields = line.split(",")
-        if len(fields) != ncols:
-            raise DataFileError(
-                path,
-                lineno,
-                f"{len(fields)} field(s) {line.strip()!r} but the header "
-                f"{','.join(names)!r} has {ncols}{truncated or '; fix or delete this row'}",
-            )
-        try:
-            values.extend([float(f) for f in fields])
-        except ValueError:
-            for name, text in zip(names, fields, strict=True):
-                if not _is_number(text):
-                    shown = repr(text.strip()) if text.strip() else "empty"
-                    raise DataFileError(
-                        path,
-                        lineno,
-                        f"value {shown} in column {name} is not a number"
-                        f"{truncated or '; write plain decimal numbers (e.g. 0.25 or 2.5e-1)'}",
-                    ) from None
-            raise  # pragma: no cover -- float() failed, so one field must be non-numeric
-
-    # A complete file ends with a line break (every writer, save_experiment included, ends each
-    # row with one). Without it the last row was probably cut while the file was written or
-    # copied, and a cut number such as "0.0123" from "0.012345" still parses -- so refuse it.
-    # Only a data row is judged here; a file ending in its header fails the row count below.
-    if lines[-1].strip() and last - 1 > header_index:
-        shown = lines[-1].strip()
-        if len(shown) > _MAX_QUOTE:
-            shown = shown[:_MAX_QUOTE] + "..."
-        raise DataFileError(
-            path,
-            last,
-            f"the last line {shown!r} does not end with a line break: the file looks truncated "
-            "(cut while being written or copied), so its last number may be incomplete; "
-            "re-export or copy the file again, or delete this last line (if you have checked "
-            "that the line is complete, end it with a line break)",
-        )
-
     n_rows = len(values) // ncols
-    del lines
     if n_rows < _MIN_ROWS:
         raise DataFileError(
             path,
             None,
-            f"only {n_rows} data row(s) after the header on line {header_index + 1}; at "
+            f"only {n_rows} data row(s) after the header on line {header_lineno}; at "
             f"least {_MIN_ROWS} are needed to check the sampling",
         )
     table = np.frombuffer(values, dtype=np.float64).reshape(n_rows, ncols)
 
     def linenos(row: int) -> int:
-        return header_index + 2 + int(row)
+        return header_lineno + 1 + int(row)
 
     cols = {name: np.ascontiguousarray(table[:, j]) for j, name in enumerate(names)}
     try:
@@ -862,8 +996,156 @@ def load_experiment(
         name=path.stem,
         path=str(path),
         meta=meta,
+        sha256=sha256,
     )
     return leave_out_glitches(exp, keep=keep_glitches)
+
+
+def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
+                max_rows: int) -> tuple[list[str], int, array.array]:
+    """Read the comment lines (into ``meta``), the header and the data rows of the text
+    file ``fh``: the column names, the header's line number and the values row by row."""
+    lines = _numbered_lines(fh, path)
+    seen_text = False
+    header = None
+    for lineno, line in lines:
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            seen_text = True
+            _parse_comment(stripped, meta)
+        elif stripped:
+            header = (lineno, line)
+            break
+    if header is None:
+        if not seen_text:
+            raise DataFileError(
+                path,
+                None,
+                f"the file is empty; it must contain the header '{','.join(COLUMNS)}' and "
+                "data rows",
+            )
+        raise DataFileError(
+            path,
+            None,
+            f"no header: the file has only comment lines; add the header line "
+            f"'{','.join(COLUMNS)}' and the data rows after the comments",
+        )
+    header_lineno, header_line = header
+    names = _parse_header(
+        [f.strip() for f in header_line.rstrip("\n").split(",")], path, header_lineno
+    )
+    has_lower = "theta_l" in names
+    if expect_lower is True and not has_lower:
+        raise DataFileError(
+            path,
+            header_lineno,
+            f"no theta_l column (header {','.join(names)!r}): this looks like an "
+            "upper-configuration file (string removed), but the lower disc's angle was "
+            "expected; use --model upper for it (in Python: expect_lower=False), or load "
+            "the coupled/brake measurement",
+        )
+    if expect_lower is False and has_lower:
+        raise DataFileError(
+            path,
+            header_lineno,
+            f"the file has a theta_l column (header {','.join(names)!r}), but an "
+            "upper-configuration file without the lower disc was expected; load the "
+            "upper-configuration measurement, or use --model coupled or brake for this file "
+            "(in Python: expect_lower=True)",
+        )
+
+    ncols = len(names)
+    # The values, row after row, as packed doubles (8 bytes each): a list of row lists
+    # would cost about 190 bytes a row, 1.9 GB for 10 million rows.  Data rows are
+    # contiguous (a gap or comment inside them is refused), so row k is on line
+    # header_lineno + 1 + k.
+    values = array.array("d")
+    n_rows = 0
+    # Blank lines after the data (an editor's final newline) are harmless; a blank line
+    # *inside* the data usually means two files were pasted together: it is reported when
+    # a line that is not blank follows it.
+    blank = None
+    last = None  # the last data line read, with its line break (or without: truncated)
+    for lineno, line in lines:
+        if not line.strip():
+            blank = blank or lineno
+            continue
+        if blank is not None:
+            raise DataFileError(
+                path,
+                blank,
+                "empty line inside the data; delete it (only comment lines may "
+                "precede the header, and data rows must be contiguous)",
+            )
+        if line.lstrip().startswith("#"):
+            raise DataFileError(
+                path,
+                lineno,
+                f"comment line {line.strip()!r} after the header; comment lines are "
+                "only allowed before the header -- move it there or delete it",
+            )
+        body = line[:-1] if line.endswith("\n") else line
+        fields = body.split(",")
+        values_of_row = None
+        if len(fields) == ncols:
+            try:
+                values_of_row = [float(f) for f in fields]
+            except ValueError:
+                pass
+        if values_of_row is None:
+            truncated = (
+                " -- it is the last line, so the file looks truncated (cut while being "
+                "written or copied); re-export it or delete the incomplete line"
+                if _rest_is_blank(lines)
+                else ""
+            )
+            if len(fields) != ncols:
+                raise DataFileError(
+                    path,
+                    lineno,
+                    f"{len(fields)} field(s) {body.strip()!r} but the header "
+                    f"{','.join(names)!r} has {ncols}{truncated or '; fix or delete this row'}",
+                )
+            for name, text in zip(names, fields, strict=True):
+                if not _is_number(text):
+                    shown = repr(text.strip()) if text.strip() else "empty"
+                    raise DataFileError(
+                        path,
+                        lineno,
+                        f"value {shown} in column {name} is not a number"
+                        f"{truncated or '; write plain decimal numbers (e.g. 0.25 or 2.5e-1)'}",
+                    )
+            # float() failed, so one field must be non-numeric
+            raise AssertionError(body)  # pragma: no cover
+        n_rows += 1
+        if n_rows > max_rows:
+            raise DataFileError(
+                path,
+                lineno,
+                f"more than {max_rows:,} data rows, the most a measurement file may have (2 h "
+                "at 1 kHz, the rig's longest record, are 7.2 million); reading stopped here. "
+                f"If it is a measurement, raise the limit: {MAX_ROWS_ENV}=N (rows)",
+            )
+        values.extend(values_of_row)
+        last = (lineno, line)
+
+    # A complete file ends with a line break (every writer, save_experiment included, ends each
+    # row with one). Without it the last row was probably cut while the file was written or
+    # copied, and a cut number such as "0.0123" from "0.012345" still parses -- so refuse it.
+    # Only a data row is judged here; a file ending in its header fails the row count.
+    if last is not None and not last[1].endswith("\n"):
+        shown = last[1].strip()
+        if len(shown) > _MAX_QUOTE:
+            shown = shown[:_MAX_QUOTE] + "..."
+        raise DataFileError(
+            path,
+            last[0],
+            f"the last line {shown!r} does not end with a line break: the file looks truncated "
+            "(cut while being written or copied), so its last number may be incomplete; "
+            "re-export or copy the file again, or delete this last line (if you have checked "
+            "that the line is complete, end it with a line break)",
+        )
+    return names, header_lineno, values
 
 
 def leave_out_glitches(exp: Experiment, *, keep: bool = False) -> Experiment:
@@ -910,7 +1192,7 @@ def leave_out_glitches(exp: Experiment, *, keep: bool = False) -> Experiment:
             mine = [g for g in records if g.channel == key]
             angles[key] = _glitches.repaired(theta, mine, keep=keep) if mine else theta
     return Experiment(exp.t, exp.u, angles["theta_u"], angles.get("theta_l"), name=exp.name,
-                      path=exp.path, meta=exp.meta, glitches=records)
+                      path=exp.path, meta=exp.meta, glitches=records, sha256=exp.sha256)
 
 
 # --------------------------------------------------------------------------------------------

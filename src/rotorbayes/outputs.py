@@ -5,6 +5,12 @@
   without an exception; with ``force`` an earlier folder of that name is replaced only then.
   A failed or interrupted run leaves neither an empty nor a half-written folder behind (nor
   the parent folders it had to create).
+* ``force`` replaces only what rotorbayes wrote (:func:`check_replaceable`): an empty folder,
+  or a result folder, recognised by the :data:`MARKER` file every result folder gets, or
+  (from earlier versions) by one of :data:`RESULT_FILES`. A folder of the user's own files,
+  the working folder or a folder above it, and a folder holding one of the command's
+  inputs are refused, with or without ``force``. A symbolic link given as the folder is
+  followed: the folder it points to is written (or replaced), never the link.
 * :func:`write_text_atomic` and :func:`save_figure_atomic` write one file through a
   temporary file in the same folder and :func:`os.replace`, so a reader never sees half a
   file and a failure leaves the old file (or none) in place.
@@ -51,6 +57,11 @@ __all__ = [
     "InterruptGuard",
     "check_free_space",
     "MIN_FREE_BYTES",
+    "MARKER",
+    "RESULT_FILES",
+    "result_mark",
+    "check_replaceable",
+    "follow_link",
 ]
 
 #: Part of the name of the temporary folder a result is built in (``.NAME.partial-XXXX``).
@@ -73,17 +84,149 @@ def _missing_parents(path: Path) -> list[Path]:
     return missing[::-1]
 
 
-def _check_folder_target(out: Path, force: bool, flag: str) -> None:
+#: The file every result folder gets (:func:`output_folder` writes it first): ``--force``
+#: replaces a folder that holds it.
+MARKER = ".rotorbayes"
+MARKER_TEXT = ("A result folder written by rotorbayes: `--force` may replace this folder "
+               "whole.\n")
+#: The documents that mark a result folder from a version that wrote no :data:`MARKER`
+#: (each command's main document, a study's record, a posterior's chain and samples).
+RESULT_FILES = ("fit.json", "multistart.json", "diagnosis.json", "compare.json",
+                "identify.json", "design.json", "run.json", "chain.h5", "posterior.nc")
+#: Entries of a folder named in a message (then "... N entries").
+_SHOWN = 4
+
+
+def result_mark(folder: str | os.PathLike) -> str | None:
+    """The file that marks ``folder`` as a result rotorbayes wrote (:data:`MARKER`, one of
+    :data:`RESULT_FILES`, or a sample's ``settings.json``), "empty" for an empty folder,
+    None for a folder of anything else (a missing folder: None)."""
+    folder = Path(folder)
+    try:
+        if not any(folder.iterdir()):
+            return "empty"
+    except OSError:
+        return None
+    for name in (MARKER, *RESULT_FILES):
+        if (folder / name).is_file():
+            return name
+    if _is_sample_settings(folder / "settings.json"):
+        return "settings.json"
+    return None
+
+
+def _is_sample_settings(path: Path) -> bool:
+    """Whether ``path`` is the settings.json of ``rotorbayes sample`` (a small JSON object
+    naming the fit, the walkers and the steps): a sample stopped before its first step
+    holds nothing else."""
+    import json
+
+    try:
+        if not path.is_file() or path.stat().st_size > 1_000_000:
+            return False
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and {"fit", "walkers", "steps"} <= set(doc)
+
+
+def _contents(folder: Path) -> str:
+    """The first few entries of ``folder`` for a message: "thesis.tex, chapters/, ..."."""
+    try:
+        names = sorted(p.name + ("/" if p.is_dir() else "") for p in folder.iterdir())
+    except OSError:
+        return "unreadable entries"
+    more = f", ... ({len(names)} entries)" if len(names) > _SHOWN else ""
+    return ", ".join(names[:_SHOWN]) + more
+
+
+def _input_paths(inputs) -> list[Path]:
+    """The files and folders among a command's ``inputs`` (option values: paths, lists of
+    them, ``FILE.py:NAME`` effects, named sets and ``example:NAME`` that are no file)."""
+    out: list[Path] = []
+    for spec in inputs or ():
+        if spec is None:
+            continue
+        if isinstance(spec, list | tuple | set):
+            out += _input_paths(spec)
+            continue
+        text = os.fspath(spec)
+        if not isinstance(text, str) or text.startswith("example:"):
+            continue
+        p = Path(text)
+        if not os.path.lexists(p) and ":" in text:  # an effect: FILE.py:NAME
+            p = Path(text.rsplit(":", 1)[0])
+        if os.path.lexists(p):
+            out.append(p)
+    return out
+
+
+def check_replaceable(out: str | os.PathLike, force: bool, *, flag: str = "--out",
+                      inputs=()) -> None:
+    """Refuse (:class:`OutputError`, exit code 2), before any work, a result folder ``out``
+    that must not be written or replaced.
+
+    Refused with or without ``force``: the working folder or a folder above it; a folder
+    that holds one of the command's ``inputs`` (paths, or lists of them: the data files,
+    ``--p0``, a fit folder read...), or is one; a folder of anything but a result
+    (:func:`result_mark` is None: the user's own files). Without ``force`` also a result
+    folder that is not empty. A missing or empty folder is fine.
+    """
+    out = Path(out)
+    target = Path(os.path.realpath(out))
+    try:
+        here = Path.cwd().resolve()
+    except OSError:  # the working folder was removed: nothing of it to protect
+        here = None
+    if here is not None and (target == here or target in here.parents):
+        where = "the working folder" if target == here else "a folder above the working folder"
+        raise OutputError(
+            f"{flag} {out}: is {where} ({target}); results go into a folder of their own, "
+            f"which --force may later replace whole -- give a new folder name (e.g. {flag} "
+            "results); nothing was changed")
+    for p in _input_paths(inputs):
+        rp = Path(os.path.realpath(p))
+        if rp == target or target in rp.parents:
+            what = "is" if rp == target else "holds"
+            raise OutputError(
+                f"{flag} {out}: {what} {p}, an input of this command; the results would "
+                f"replace it -- write them into another folder (give another {flag}); "
+                "nothing was changed")
+    if not out.is_dir():
+        return
+    mark = result_mark(out)
+    if mark == "empty":
+        return
+    if mark is None:
+        raise OutputError(
+            f"{flag} {out}: the folder holds files rotorbayes did not write ("
+            f"{_contents(out)}); --force replaces only a result folder rotorbayes wrote (or "
+            f"an empty one) -- give a new folder name for the results; nothing was changed")
+    if not force:
+        raise OutputError(
+            f"{out}/ already holds results ({mark}); choose another {flag} or pass --force "
+            "to replace them")
+
+
+def follow_link(out: Path, flag: str) -> Path:
+    """``out``, or the folder it links to (a link is followed, never replaced)."""
+    if not out.is_symlink():
+        return out
+    target = Path(os.path.realpath(out))
+    if not target.parent.is_dir():
+        raise OutputError(f"{flag} {out}: is a link to {target}, whose folder "
+                          f"{target.parent}/ does not exist; create it, or give another "
+                          f"{flag}")
+    return target
+
+
+def _check_folder_target(out: Path, force: bool, flag: str, inputs=()) -> None:
     if out.exists() and not out.is_dir():
         raise OutputError(
             f"{flag} {out}: is a file, not a folder; results are written into a folder -- "
             f"give a new folder name (e.g. {flag} {out.with_suffix('')}_out)"
         )
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise OutputError(
-            f"{out}/ already holds results; choose another {flag} or pass --force to "
-            "replace them"
-        )
+    check_replaceable(out, force, flag=flag, inputs=inputs)
     for p in (out.parent, *out.parents):
         if p.exists():
             if not p.is_dir():
@@ -94,7 +237,7 @@ def _check_folder_target(out: Path, force: bool, flag: str) -> None:
 
 @contextlib.contextmanager
 def output_folder(path: str | os.PathLike, force: bool = False, *,
-                  flag: str = "--out") -> Iterator[Path]:
+                  flag: str = "--out", inputs=()) -> Iterator[Path]:
     """Build a result folder in a temporary sibling and move it to ``path`` on success.
 
     Parameters
@@ -104,9 +247,13 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
         again if the run fails).
     force : bool
         Replace an existing folder that holds results (at the end, after success). Without it
-        such a folder is an error, raised before any work is done.
+        such a folder is an error, raised before any work is done. Only a result folder is
+        replaced (:func:`check_replaceable`): a folder of other files is refused either way.
     flag : str
         The option named in messages.
+    inputs : sequence
+        The command's inputs (paths, or lists of them; values that are no file are
+        skipped): a folder that holds one is refused.
 
     Yields
     ------
@@ -116,7 +263,9 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
     Raises
     ------
     OutputError
-        If ``path`` is a file, or holds results and ``force`` is false, or a parent is a file.
+        If ``path`` is a file, or holds results and ``force`` is false, or holds anything
+        but results, or is the working folder (or above it), or holds an input, or a parent
+        is a file.
 
     Notes
     -----
@@ -125,8 +274,8 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
     the finished starts of a multistart) catches the interrupt inside the block, writes what
     it has and leaves the block normally.
     """
-    out = Path(path)
-    _check_folder_target(out, force, flag)
+    out = follow_link(Path(path), flag)
+    _check_folder_target(out, force, flag, inputs)
     created = _missing_parents(out)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -137,7 +286,8 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
                                  ) from None
     try:
         with folder_lock(out, flag=flag, other=flag):
-            _check_folder_target(out, force, flag)  # again: another run may have finished
+            # Again, under the lock: another run may have finished meanwhile.
+            _check_folder_target(out, force, flag, inputs)
             clean_stale(out)
             check_free_space(out.parent, MIN_FREE_BYTES, what=f"{flag} {out}")
             try:
@@ -154,6 +304,8 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
                 os.umask(umask)
                 os.chmod(tmp, 0o777 & ~umask)
             try:
+                # The mark that lets a later --force replace this folder (and nothing else).
+                (tmp / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
                 yield tmp
                 _move_into_place(tmp, out, force, flag)
             except BaseException:
@@ -314,7 +466,12 @@ class InterruptGuard:
 def _move_into_place(tmp: Path, out: Path, force: bool, flag: str) -> None:
     old = None
     if out.is_dir():
-        if any(out.iterdir()) and not force:  # appeared while we worked
+        mark = result_mark(out)
+        if mark is None:  # files put there while we worked
+            raise OutputError(f"{flag} {out}: the folder now holds files rotorbayes did not "
+                              f"write ({_contents(out)}), put there while this run worked; "
+                              f"they were left as they are -- run again with another {flag}")
+        if mark != "empty" and not force:  # appeared while we worked
             raise OutputError(f"{out}/ already holds results (written while this run "
                               f"worked); choose another {flag} or pass --force")
         old = out.with_name(f".{out.name}.old-{secrets.token_hex(4)}")

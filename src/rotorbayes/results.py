@@ -8,7 +8,10 @@ parent fit it started from.  :func:`load_fit` rebuilds it; ``diagnose``, ``compa
 
 * Data files are recorded by absolute path, by a path relative to the fit folder and by
   SHA-256, so a fit folder works from any working folder, and a project folder moved whole
-  (data and results together) still finds its data.
+  (data and results together) still finds its data.  A data file whose SHA-256 no longer
+  matches (edited, re-exported or replaced since the fit) is refused by every command that
+  reads the fit again, naming the file and both hashes, unless the user says
+  ``--accept-changed-data`` (:data:`CHANGED_DATA_OPTION`).
 * Effect files are code.  A fit records the SHA-256 of every user effect file it ran;
   opening the folder again (``compare``, ``diagnose``, ``sample``, ``identify``, ``fit
   --p0``) refuses to import an effect file that is gone or has changed since, or one named
@@ -27,12 +30,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import load_experiment
+from .data import DataFileError, load_experiment, measurement_sha256
 from .model.configurations import CONFIGURATIONS, Model
 
 
 class ResultError(ValueError):
     """A result folder is missing, incomplete or from an incompatible version."""
+
+
+#: The one option of every command that reads a fit again (diagnose, compare, sample,
+#: identify, design) that lets it use data files changed since the fit.
+CHANGED_DATA_OPTION = "--accept-changed-data"
 
 
 @dataclass
@@ -51,6 +59,9 @@ class LoadedFit:
     x: np.ndarray
     validation: list
     validation_alpha0: list = field(default_factory=list)
+    #: The data files used although their SHA-256 changed since the fit (with
+    #: ``accept_changed_data``): ``{"file", "recorded", "now"}`` each.
+    changed_data: list = field(default_factory=list)
 
     def validation_quality(self) -> list[dict]:
         """:func:`~rotorbayes.inference.quality` rows of the validation data, each run with
@@ -88,14 +99,16 @@ class LoadedFit:
         p = self.doc.get("parent")
         return Path(p) if p else None
 
-    def chain(self, *, trust_effects: bool = False) -> list[LoadedFit]:
+    def chain(self, *, trust_effects: bool = False,
+              accept_changed_data: bool = False) -> list[LoadedFit]:
         """This fit and its ancestors (``--p0`` fit folders), oldest first."""
         out, seen, cur = [self], {self.folder.resolve()}, self
         while cur.parent is not None and (cur.parent / "fit.json").exists():
             if cur.parent.resolve() in seen:
                 break
             seen.add(cur.parent.resolve())
-            cur = load_fit(cur.parent, trust_effects=trust_effects)
+            cur = load_fit(cur.parent, trust_effects=trust_effects,
+                           accept_changed_data=accept_changed_data)
             out.append(cur)
         return out[::-1]
 
@@ -243,7 +256,9 @@ def data_path(spec: str, doc: dict, index: int, key: str, fit_json: Path) -> Pat
     if not Path(spec).is_absolute():
         tried.append(fit_json.parent / spec)
     for p in tried:
-        if p.is_file():
+        # Any kind of file: a pipe or a device is then refused by load_experiment, by
+        # name, without being opened.
+        if os.path.exists(p) and not p.is_dir():
             return p
     places = ", ".join(dict.fromkeys(str(p) for p in tried))
     raise ResultError(f"{fit_json}: its data file {spec} is gone (looked for {places}); "
@@ -252,13 +267,65 @@ def data_path(spec: str, doc: dict, index: int, key: str, fit_json: Path) -> Pat
 
 def data_record(paths: list, fit_folder: Path) -> list[dict]:
     """What a fit records of its data files: absolute path, path relative to the fit
-    folder, SHA-256."""
+    folder, SHA-256.  ``paths`` holds paths or the experiments read from them
+    (:class:`~rotorbayes.data.Experiment`): then the SHA-256 is that of the bytes that were
+    read and fitted, not of the file as it may be now."""
     out = []
     for p in paths:
-        ap = Path(p).absolute()
+        sha = getattr(p, "sha256", None)
+        ap = Path(getattr(p, "path", p)).absolute()
         out.append({"path": str(ap), "relative": os.path.relpath(ap, fit_folder.absolute()),
-                    "sha256": file_sha256(ap)})
+                    "sha256": sha or file_sha256(ap)})
     return out
+
+
+def _recorded_sha256(doc: dict, key: str, index: int) -> str | None:
+    """The SHA-256 fit.json recorded for data file ``index`` of ``key`` ("data" or
+    "validation"); None where it recorded none (an older rotorbayes)."""
+    recs = doc.get(f"{key}_files")
+    rec = recs[index] if isinstance(recs, list) and index < len(recs) else None
+    sha = rec.get("sha256") if isinstance(rec, dict) else None
+    return sha.lower() if isinstance(sha, str) and len(sha) == 64 else None
+
+
+def _changed_words(fit_json: Path, p: Path, recorded: str, now: str) -> str:
+    return (f"{fit_json}: its data file {p} has changed since the fit (SHA-256 recorded "
+            f"{recorded}, now {now}): the fit's estimates and figures describe the file as "
+            "it was")
+
+
+def _load_recorded(doc: dict, key: str, index: int, fit_json: Path, config: str,
+                   keep: bool, accept_changed: bool, changed: list):
+    """Data file ``index`` of ``key`` of a fit, checked against the SHA-256 the fit
+    recorded: a changed file is refused (:class:`ResultError`) unless ``accept_changed``,
+    then named on stderr and in ``changed``."""
+    spec = doc[key][index]
+    p = data_path(spec, doc, index, key, fit_json)
+    recorded = _recorded_sha256(doc, key, index)
+    fix = (f"restore the file the fit was made from, fit the changed file again, or pass "
+           f"{CHANGED_DATA_OPTION} to use it with this fit anyway")
+    try:
+        ex = _load(p, config, keep)
+    except DataFileError as exc:
+        # Say first that the file is not the one fitted (when it is a file we may read).
+        if recorded and not accept_changed:
+            try:
+                now = measurement_sha256(p)
+            except DataFileError:  # not a file we read: its own message says why
+                now = recorded
+            if now != recorded:
+                raise ResultError(f"{_changed_words(fit_json, p, recorded, now)}, and it no "
+                                  f"longer reads as a measurement ({exc.problem}); restore "
+                                  "the file the fit was made from, or fit again") from None
+        raise ResultError(f"{fit_json}: its data file {exc}") from None
+    if recorded and ex.sha256 != recorded:
+        if not accept_changed:
+            raise ResultError(f"{_changed_words(fit_json, p, recorded, ex.sha256)}; {fix} "
+                              "(nothing was written)")
+        print(f"warning: {_changed_words(fit_json, p, recorded, ex.sha256)}; using it "
+              f"because of {CHANGED_DATA_OPTION}", file=sys.stderr)
+        changed.append({"file": str(p), "recorded": recorded, "now": ex.sha256})
+    return ex
 
 
 FIX_OR_REFIT = ("the file was edited or damaged: correct the value in it, or fit again (a "
@@ -353,10 +420,15 @@ def fit_estimates(doc: dict, path: str | Path, names, info=None) -> list[float]:
     return out
 
 
-def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
+def load_fit(spec: str | Path, *, trust_effects: bool = False,
+             accept_changed_data: bool = False) -> LoadedFit:
     """Rebuild the problem and the fitted point of a fit folder (or its fit.json).
 
-    User effect files are checked first (:func:`check_effect_files`).
+    User effect files are checked first (:func:`check_effect_files`).  Every data file is
+    read once and its SHA-256 compared with the one the fit recorded: a file changed since
+    the fit is refused (:class:`ResultError` naming it and both hashes) unless
+    ``accept_changed_data`` (then it is used, said on stderr and listed in
+    :attr:`LoadedFit.changed_data`).
     """
     from .inference import Problem
 
@@ -391,10 +463,12 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
                          strict=True))
     # A fit made with --keep-glitches is read back with them kept (the same data).
     keep = bool((doc.get("glitches") or {}).get("kept"))
-    exps = [_load(data_path(p, doc, i, "data", path), config, keep)
-            for i, p in enumerate(doc["data"])]
-    val = [_load(data_path(p, doc, i, "validation", path), config, keep)
-           for i, p in enumerate(doc.get("validation", []))]
+    changed: list[dict] = []
+    exps = [_load_recorded(doc, "data", i, path, config, keep, accept_changed_data, changed)
+            for i in range(len(doc["data"]))]
+    val = [_load_recorded(doc, "validation", i, path, config, keep, accept_changed_data,
+                          changed)
+           for i in range(len(doc.get("validation", [])))]
     try:
         names_base: list[str] = []
         for n in doc["free"]:
@@ -416,7 +490,8 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False) -> LoadedFit:
         raise ResultError(f"{path}: estimates lack a value for the free parameter "
                           f"{missing[0]}: damaged, or written by another rotorbayes; fit again")
     x = np.array([estimates[n] for n in prob.names])
-    return LoadedFit(path.parent, doc, prob, x, val, _validation_alpha0(doc, path, val))
+    return LoadedFit(path.parent, doc, prob, x, val, _validation_alpha0(doc, path, val),
+                     changed)
 
 
 def _validation_alpha0(doc: dict, path: Path, val: list) -> list:

@@ -319,10 +319,12 @@ def _sha(data: bytes) -> str:
 
 
 def _file_sha(spec: str) -> str:
+    from .data import measurement_sha256
     from .examples import example_path
 
     path = example_path(spec) if spec.startswith("example:") else Path(spec)
-    return _sha(Path(path).read_bytes())
+    # Read in blocks, a regular file only (a pipe or /dev/zero is refused by name).
+    return measurement_sha256(path)
 
 
 def _versions() -> dict:
@@ -419,6 +421,11 @@ def _check_out(a: Analysis, out: Path, force: bool) -> None:
 
 
 def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool) -> dict:
+    an = a.table("analysis")
+    data = [a.resolve(f) for f in an["data"]]
+    val = [a.resolve(f) for f in an.get("validate", [])]
+    # Hashed first: a data file refused (a pipe, a device, too large) leaves no folder.
+    data_hashes = [{"path": f, "sha256": _file_sha(f)} for f in data + val]
     out.mkdir(exist_ok=True)
     record_path = out / "run.json"
     old = {}
@@ -427,10 +434,6 @@ def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool) -> di
             old = {s["name"]: s for s in json.loads(record_path.read_text()).get("stages", [])}
         except Exception:  # noqa: BLE001 - an unreadable record: every stage runs again
             old = {}
-    an = a.table("analysis")
-    data = [a.resolve(f) for f in an["data"]]
-    val = [a.resolve(f) for f in an.get("validate", [])]
-    data_hashes = [{"path": f, "sha256": _file_sha(f)} for f in data + val]
     seed = an.get("seed", 0)
     record = {
         "analysis_file": str(Path(path).resolve()), "analysis_text": a.text,

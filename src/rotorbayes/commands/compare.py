@@ -8,7 +8,7 @@ import numpy as np
 
 from ..outputs import output_folder, save_figure_atomic, write_text_atomic
 from .common import Outcome, strict_json
-from .options import add_trust_option
+from .options import add_changed_data_option, add_trust_option
 
 HELP = ("where the model fails (error against the state, residual correlation) and, for "
         "several fits or a chain, how the error fell")
@@ -19,10 +19,11 @@ def add_arguments(c) -> None:
     c.add_argument("--out", help="output folder (default: FIT/compare/ of the last fit)")
     c.add_argument("--force", action="store_true", help="overwrite results in --out")
     add_trust_option(c)
+    add_changed_data_option(c)
 
 
 def compare(fits, *, out: str | None = None, force: bool = False,
-            trust_effects: bool = False) -> Outcome:
+            trust_effects: bool = False, accept_changed_data: bool = False) -> Outcome:
     """Where the model fails (one fit) and how the error fell (several fit folders, or
     the chain of --p0 parents of one): compare.json and figures in ``out`` (default: the
     last fit's compare/ folder, made again each time).  ``Outcome.doc`` is compare.json's
@@ -33,15 +34,17 @@ def compare(fits, *, out: str | None = None, force: bool = False,
 
     fits = [fits] if isinstance(fits, str) else list(fits)
     given = fits
-    fits = [load_fit(f, trust_effects=trust_effects) for f in given]
+    fits = [load_fit(f, trust_effects=trust_effects, accept_changed_data=accept_changed_data)
+            for f in given]
     if len(fits) == 1:
-        fits = fits[0].chain(trust_effects=trust_effects)
+        fits = fits[0].chain(trust_effects=trust_effects,
+                             accept_changed_data=accept_changed_data)
         if len(fits) > 1:
             print(f"comparing the chain of {len(fits)} fits that led to {given[0]}")
     last = fits[-1]
     folder = Path(out) if out else last.folder / "compare"
     # FIT/compare (the default) is derived from the fits: it is simply made again.
-    with output_folder(folder, force or not out) as tmp:
+    with output_folder(folder, force or not out, inputs=given) as tmp:
         written, doc = _compare_into(fits, last, tmp, C, F)
     print(f"\nwrote {', '.join(written)} in {folder}/")
     return Outcome(folder=Path(out) if out else Path(given[-1]) / "compare", doc=doc)

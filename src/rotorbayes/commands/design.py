@@ -17,7 +17,7 @@ from ..design.core import DEFAULT_EVALS, NO_INPUT
 from ..design.inputs import FAMILIES, MAX_BAND_HZ
 from ..signals import MAX_VOLTAGE
 from .common import Outcome, csv_list, executor
-from .options import add_parallel_options, add_trust_option, ranged
+from .options import add_changed_data_option, add_parallel_options, add_trust_option, ranged
 
 HELP = ("design the next experiment: the input that pins the fit's sloppiest direction (or "
         "--params), or that separates two or more --separate effects, checked by "
@@ -63,6 +63,7 @@ def add_arguments(p) -> None:
                    help="replace the results in --out (only once the new design is done)")
     add_parallel_options(p, "optimisation starts")
     add_trust_option(p)
+    add_changed_data_option(p)
 
 
 def design(fit: str, *, out: str, separate: str | None = None, params: str | None = None,
@@ -71,7 +72,8 @@ def design(fit: str, *, out: str, separate: str | None = None, params: str | Non
            family: str = "steps", starts: int = 4, max_evals: int = DEFAULT_EVALS,
            seed: int = 0, no_check: bool = False, force: bool = False,
            backend: str | None = None, workers: int | None = None,
-           scheduler: str | None = None, trust_effects: bool = False) -> Outcome:
+           scheduler: str | None = None, trust_effects: bool = False,
+           accept_changed_data: bool = False) -> Outcome:
     """Design the next experiment for the fit folder ``fit`` and write ``out``
     (:func:`rotorbayes.design.design_input`, :func:`rotorbayes.design.write_into`).
     ``Outcome.doc`` is design.json."""
@@ -81,14 +83,14 @@ def design(fit: str, *, out: str, separate: str | None = None, params: str | Non
     for name, v in (("--duration", duration), ("--rate", rate)):
         if v is not None and not (math.isfinite(v) and v > 0):
             raise ValueError(f"{name} {v}: give a positive number")
-    with output_folder(out, force) as tmp:
+    with output_folder(out, force, inputs=[fit]) as tmp:
         with executor(backend, workers, scheduler):
             res = design_input(
                 fit, params=csv_list(params, "--params"),
                 separate=csv_list(separate, "--separate"), duration=duration, rate=rate,
                 max_volts=max_volts, band_hz=band_hz, family=family, starts=int(starts),
                 seed=seed, max_evals=int(max_evals), check=not no_check,
-                trust_effects=trust_effects)
+                trust_effects=trust_effects, accept_changed_data=accept_changed_data)
         print(res.text())
         write_into(res, tmp, command="rotorbayes design " + str(fit))
     print(f"wrote u.csv, design.json, design.txt, design.png in {out}/")

@@ -10,7 +10,7 @@ from ..exitcodes import Interrupted, Refused
 from ..inference.assess import VALIDATION_NOTE
 from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
 from .common import Outcome, say_glitches, strict_json
-from .options import add_trust_option, ranged
+from .options import add_changed_data_option, add_trust_option, ranged
 
 HELP = ("is the remaining error noise? which effect is missing? (writes diagnosis.json and "
         "figures into the fit folder)")
@@ -30,6 +30,7 @@ def add_arguments(g) -> None:
                    help="far above the floor, skip the trial refits (one refit of every "
                    "candidate effect, its parameters searched, ranked by where it ends)")
     add_trust_option(g)
+    add_changed_data_option(g)
 
 
 def _integration(result) -> dict:
@@ -46,17 +47,21 @@ def _integration(result) -> dict:
 
 
 def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False,
-             add: list[str] | None = None, trials: bool = True) -> Outcome:
+             add: list[str] | None = None, trials: bool = True,
+             accept_changed_data: bool = False) -> Outcome:
     """Verdict, ranking of missing effects and missing-torque map of the fit folder ``fit``
     (written into it: diagnosis.json, diagnosis_candidates.png, missing_torque.png).
-    ``noise`` is Gaussian measurement noise [rad] besides the encoders' rounding.
-    ``Outcome.doc`` is diagnosis.json's document."""
+    ``noise`` is Gaussian measurement noise [rad] besides the encoders' rounding.  A data
+    file changed since the fit is refused unless ``accept_changed_data`` (then
+    diagnosis.json names it under ``data_changed``).  ``Outcome.doc`` is diagnosis.json's
+    document."""
     from ..diagnosis import diagnose as run_diagnosis
     from ..diagnosis.figures import plot_candidates, plot_torque_map
     from ..outputs import folder_lock
     from ..results import load_fit
 
-    result = load_fit(fit, trust_effects=trust_effects)
+    result = load_fit(fit, trust_effects=trust_effects,
+                      accept_changed_data=accept_changed_data)
     if noise is not None and not (noise >= 0 and math.isfinite(noise)):
         raise Refused(f"--noise {noise}: give the Gaussian noise std in rad (>= 0)")
     print(f"diagnosing {result.folder}/ ({result.doc['config']} configuration, "
@@ -122,6 +127,8 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     doc["fit"] = str(result.folder)
     doc["trials"] = tried
     doc["refit_choice"] = (tried or {}).get("choice")
+    if result.changed_data:  # diagnosed on data the fit was not made from
+        doc["data_changed"] = result.changed_data
     # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
     with folder_lock(result.folder, flag="diagnose", other=None), InterruptGuard().start() as guard:
         figs = [(plot_candidates(result.problem, result.x, d)[0], "diagnosis_candidates.png"),

@@ -100,7 +100,8 @@ def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
     a.data = [data] if isinstance(data, str) else list(data)
     guard = InterruptGuard()
     try:
-        with output_folder(a.out, a.force) as folder:
+        with output_folder(a.out, a.force, inputs=[a.data, a.validate, a.p0, a.base,
+                                                   a.add]) as folder:
             doc = _run(a, folder, guard)
         from ..inference.taskstore import remove_store
 
@@ -493,8 +494,8 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         "data": [str(Path(e.path).absolute()) for e in exps],
         "glitches": glitch_record(exps, val),
         "validation": [str(Path(e.path).absolute()) for e in val],
-        "data_files": data_record([e.path for e in exps], Path(a.out)),
-        "validation_files": data_record([e.path for e in val], Path(a.out)),
+        "data_files": data_record(exps, Path(a.out)),  # the SHA-256 of the bytes fitted
+        "validation_files": data_record(val, Path(a.out)),
         "effect_files": {e.source: _effects.file_sha256(e.source) for e in prob.model.added
                          if e.source != "catalogue"},
         "success": res.success, "message": res.message, "nfev": res.nfev,

@@ -12,7 +12,7 @@ import numpy as np
 from ..exitcodes import Refused
 from ..outputs import output_folder, save_figure_atomic, write_text_atomic
 from .common import Outcome, csv_list, executor, strict_json
-from .options import add_parallel_options, add_trust_option, ranged
+from .options import add_changed_data_option, add_parallel_options, add_trust_option, ranged
 
 HELP = "which parameter combinations the data fix: Fisher directions in words, profile likelihoods"
 
@@ -28,13 +28,14 @@ def add_arguments(i) -> None:
     i.add_argument("--multistart", help="a multistart folder: its end points on the corner")
     i.add_argument("--force", action="store_true", help="overwrite results in --out")
     add_trust_option(i)
+    add_changed_data_option(i)
 
 
 def identify(fit: str, *, out: str, profiles=None, points: int = 11,
              posterior: str | None = None, multistart: str | None = None,
              backend: str | None = None, workers: int | None = None,
              scheduler: str | None = None, force: bool = False,
-             trust_effects: bool = False) -> Outcome:
+             trust_effects: bool = False, accept_changed_data: bool = False) -> Outcome:
     """Fisher eigen-analysis of the fit folder ``fit`` in words, profile likelihoods of the
     free parameters ``profiles`` (a list or comma-separated names; ``points`` grid points
     each, run where ``backend``/``workers``/``scheduler`` say), and with ``posterior`` (a
@@ -43,7 +44,8 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
     from ..results import load_fit
 
     a = SimpleNamespace(**locals())  # the steps below read the options by name
-    result = load_fit(fit, trust_effects=trust_effects)
+    result = load_fit(fit, trust_effects=trust_effects,
+                      accept_changed_data=accept_changed_data)
     prob = result.problem
     names = csv_list(profiles, "--profiles") or []
     for n in names:
@@ -56,7 +58,7 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
     if multistart and not (Path(multistart) / "multistart.json").exists():
         raise Refused(f"--multistart {multistart}: no multistart.json there; give a folder "
                       "written by `rotorbayes multistart`")
-    with output_folder(out, force) as folder:
+    with output_folder(out, force, inputs=[fit, posterior, multistart]) as folder:
         written, doc = _identify_into(a, result, prob, names, folder)
     from ..inference.taskstore import remove_store
 

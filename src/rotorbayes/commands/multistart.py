@@ -65,7 +65,8 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     from ..plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
     guard = InterruptGuard()
-    with guard, output_folder(a.out, a.force) as out:
+    with guard, output_folder(a.out, a.force,
+                              inputs=[a.data, a.around, a.base, a.add]) as out:
         exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches)
         say_glitches(exps)
         prob, _ = build_problem(a, exps)

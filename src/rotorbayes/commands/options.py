@@ -140,6 +140,14 @@ def add_parallel_options(p, what: str, backend_help: str | None = None) -> None:
                    f"default ${SCHEDULER_ENV} if set); see the README on starting one")
 
 
+def add_changed_data_option(p) -> None:
+    """``--accept-changed-data``: for commands that read a fit's data files again."""
+    p.add_argument("--accept-changed-data", action="store_true",
+                   help="use the fit's data files even where one changed since the fit (its "
+                   "SHA-256 no longer matches the one fit.json recorded; without this such a "
+                   "file is refused, naming it and both hashes)")
+
+
 def add_trust_option(p) -> None:
     """``--trust-effects``: for commands that read results naming user effect files."""
     p.add_argument("--trust-effects", action="store_true",

@@ -15,7 +15,14 @@ from .. import exitcodes as EXIT
 from ..exitcodes import Interrupted, Refused
 from ..outputs import InterruptGuard
 from .common import Outcome
-from .options import MAX_STEPS, MAX_WALKERS, add_parallel_options, add_trust_option, ranged
+from .options import (
+    MAX_STEPS,
+    MAX_WALKERS,
+    add_changed_data_option,
+    add_parallel_options,
+    add_trust_option,
+    ranged,
+)
 
 HELP = "posterior sampling with emcee from a fit (checkpointed; --resume continues)"
 
@@ -58,6 +65,7 @@ def add_arguments(sp) -> None:
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
     sp.add_argument("--force", action="store_true", help="overwrite results in --out")
     add_trust_option(sp)
+    add_changed_data_option(sp)
     add_parallel_options(
         sp, "ensembles",
         backend_help=("where the independent ensembles run, concurrently, in segments of "
@@ -104,7 +112,8 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
            ar1: bool = False, moves: str | None = None, priors: str | None = None,
            max_draws: int = 100, quiet: bool = False, force: bool = False,
            trust_effects: bool = False, backend: str | None = None,
-           workers: int | None = None, scheduler: str | None = None) -> Outcome:
+           workers: int | None = None, scheduler: str | None = None,
+           accept_changed_data: bool = False) -> Outcome:
     """emcee from the fit folder ``source`` into the folder ``out``, checkpointed at every
     step (chain.h5); with ``resume`` (``source`` then a sample folder) the same chains go on
     to ``steps`` in total.
@@ -121,7 +130,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
     for bit; without them they run one after the other in this process, as before.
     """
     a = SimpleNamespace(**locals())  # the steps below read the options by name
-    from ..outputs import clean_stale, folder_lock
+    from ..outputs import clean_stale, folder_lock, follow_link
 
     src = Path(a.source)
     if a.resume:
@@ -133,7 +142,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
             a.steps = 2000
         if not a.out:
             raise Refused("give --out FOLDER for the posterior (or --resume FOLDER)")
-        out = Path(a.out)
+        out = follow_link(Path(a.out), "--out")  # a link is followed, never replaced
         if out.exists() and not out.is_dir():
             raise Refused(f"--out {out}: is a file, not a folder; give a new folder name")
         if not out.parent.is_dir():
@@ -148,7 +157,14 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
 
 
 def _check_sample_target(a, out: Path) -> None:
-    if not a.resume and out.is_dir() and any(out.iterdir()) and not a.force:
+    if a.resume:
+        return
+    from ..outputs import check_replaceable
+
+    # Never the working folder, a folder of the user's own files or one holding an input,
+    # --force or not (without --force, a result folder is refused below, with its hint).
+    check_replaceable(out, True, inputs=[a.source, a.priors])
+    if out.is_dir() and any(out.iterdir()) and not a.force:
         raise Refused(f"{out}/ already holds results; continue them with "
                       f"`rotorbayes sample {out} --resume --steps N`, choose another "
                       "--out or pass --force")
@@ -171,7 +187,8 @@ def _sample_locked(a, src: Path, out: Path) -> int:
                     "steps": a.steps, "ensembles": a.ensembles, "seed": a.seed,
                     "noise": a.noise, "ar1": a.ar1, "moves": a.moves or S.DEFAULT_MOVES,
                     "priors": str(Path(a.priors).resolve()) if a.priors else None}
-    fit = load_fit(settings["fit"], trust_effects=a.trust_effects)
+    fit = load_fit(settings["fit"], trust_effects=a.trust_effects,
+                   accept_changed_data=a.accept_changed_data)
     priors = load_priors(settings["priors"], fit.problem) if settings.get("priors") else None
     lp = LogPosterior(fit.problem, fit.x, priors=priors, noise=settings["noise"],
                       ar1=settings["ar1"])

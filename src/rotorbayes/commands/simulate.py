@@ -61,9 +61,16 @@ def read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
     or more, or a record longer than ``MAX_DURATION``, is refused), and a last line without
     its line break (a truncated file) is refused; messages name the file and the line.
     """
-    from ..data import MAX_ABS_INPUT, RowProblem, check_time_unit
+    from ..data import MAX_ABS_INPUT, DataFileError, RowProblem, check_data_file, check_time_unit
 
     p = Path(path)
+    try:
+        # A regular file within the size limit, before it is opened (a pipe would wait
+        # for a writer, /dev/zero never end); a folder is named below.
+        if not p.is_dir():
+            check_data_file(p)
+    except DataFileError as exc:
+        raise Refused(f"--input-file {exc}") from None
     try:
         with open(p, encoding="utf-8-sig", newline=None) as fh:
             lines = fh.read().split("\n")

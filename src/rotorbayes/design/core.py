@@ -101,11 +101,13 @@ class DesignResult:
 
 
 # ------------------------------------------------------------------------------ inputs
-def _as_fit(fit, trust_effects: bool = False) -> tuple[Problem, np.ndarray, str]:
+def _as_fit(fit, trust_effects: bool = False,
+            accept_changed_data: bool = False) -> tuple[Problem, np.ndarray, str]:
     from ..results import LoadedFit, load_fit
 
     if isinstance(fit, (str, Path)):
-        lf = load_fit(fit, trust_effects=trust_effects)
+        lf = load_fit(fit, trust_effects=trust_effects,
+                      accept_changed_data=accept_changed_data)
         return lf.problem, lf.x, str(lf.folder)
     if isinstance(fit, LoadedFit):
         return fit.problem, fit.x, str(fit.folder)
@@ -366,6 +368,7 @@ def design_input(
     executor=None,
     workers: int = 2,
     trust_effects: bool = False,
+    accept_changed_data: bool = False,
 ) -> DesignResult:
     """Design the next experiment's input for a fit (see the module docstring).
 
@@ -392,6 +395,8 @@ def design_input(
     check : simulate the designed experiment, refit and measure the achieved gain.
     executor, workers : where the starts run (default: the current executor, else
         ``workers`` local threads; serial for one).
+    trust_effects, accept_changed_data : for a fit folder, as
+        :func:`rotorbayes.results.load_fit` (its effect files, its changed data files).
 
     Returns
     -------
@@ -423,7 +428,7 @@ def design_input(
                 _effects.resolve([s])
             except _effects.EffectError as exc:
                 raise DesignError(f"--separate: {exc}") from None
-    problem, x, source = _as_fit(fit, trust_effects)
+    problem, x, source = _as_fit(fit, trust_effects, accept_changed_data)
     duration, rate = _grid_defaults(problem, duration, rate)
     fam = make_family(family, duration, rate, max_volts, band_hz)
     t = fam.t
