@@ -343,12 +343,25 @@ def simulate_reference(
     # discs' friction levels drifting linearly in time (oil warming) [N m/s].
     params = dict(params)
     drift_u, drift_l = params.pop("drift_Tc_u", 0.0), params.pop("drift_Tc_l", 0.0)
-    lag = params.pop("drive_lag", 0.0)
+    # The drive's lag (the catalogue's tau_drive; drive_lag is its older name here): the
+    # command -- the input function, or with hold='linear' the linear interpolant of its
+    # samples -- through a first-order lag, before delay, offset and dead zone.
+    lag = params.pop("drive_lag", 0.0) or params.pop("tau_drive", 0.0)
+    params.pop("tau_drive", None)
     drive = f
     if lag:
-        if hold != "continuous":
-            raise ValueError("drive_lag needs hold='continuous' (the lagged input function)")
-        drive = LaggedInput(f, lag, duration + 1.0)
+        if hold == "linear":
+            u_s = np.asarray(f(t), float)
+
+            def f_lin(tq, _t=t, _u=u_s):
+                return np.interp(tq, _t, _u)
+
+            f_lin.breaks = t
+            drive = LaggedInput(f_lin, lag, duration + 1.0)
+            hold = "continuous"  # the lagged interpolant is the input function
+            f = f_lin
+        else:
+            drive = LaggedInput(f, lag, duration + 1.0)
     shift = None
     if drift_u or drift_l:
         def shift(t_, *_):

@@ -91,6 +91,12 @@ def _resolve_params(params: dict, config: str) -> dict:
     if has_upper:
         for key in ("k_m", "J_u", "Tc_u", "b_u"):
             p[key] = _get(params, key, required=True)
+        # Stribeck friction of the upper disc: its static level Tc_u + dTs_u
+        p["dTs_u"] = _get(params, "dTs_u", 0.0)
+        p["ws_u"] = _get(params, "ws_u", 1.0)
+        p["delta_u"] = _get(params, "delta_u", 2.0)
+        if p["ws_u"] <= 0.0 or p["dTs_u"] < 0.0:
+            raise ValueError("ws_u must be positive and dTs_u non-negative")
     if has_lower:
         for key in ("J_l", "k_alpha", "Tc_l", "b_l"):
             p[key] = _get(params, key, required=True)
@@ -304,11 +310,24 @@ def _make_friction_lower(p: dict, shape: str):
     return fric
 
 
-def _make_friction_upper(p: dict):
+def _make_friction_upper(p: dict, shape: str = "exp"):
     Tc, dTc, b, db = p["Tc_u"], p["dTc_u"], p["b_u"], p["db_u"]
+    dS, ws, delta = p["dTs_u"], p["ws_u"], p["delta_u"]
+    if dS == 0.0:
+
+        def fric(w: float, s: int) -> float:
+            return s * Tc + dTc + (b + s * db) * w
+
+        return fric
+    exp = math.exp
+
+    def S(x: float) -> float:
+        pw = x**delta if x >= 0.0 else -((-x) ** delta)
+        return exp(-pw) if shape == "exp" else 1.0 / (1.0 + pw)
 
     def fric(w: float, s: int) -> float:
-        return s * Tc + dTc + (b + s * db) * w
+        # the upper disc's static friction above its Coulomb level: Tc_u + dTs_u at rest
+        return s * Tc + dTc + (b + s * db) * w + s * dS * S(s * w / ws)
 
     return fric
 
@@ -356,7 +375,7 @@ def reference_simulate(
         including T_u / T_l leaves the static band.
     friction_shift : optional ``g(t, theta_u, omega_u, theta_l, omega_l, v) -> (dT_u, dT_l)``,
         additive change [N m] of each disc's friction levels: added to the Coulomb level
-        Tc and to the static level Ts alike (upper disc: Ts = Tc).  In slip (s = sign w)
+        Tc and to the static level Ts alike (upper disc: Ts = Tc_u + dTs_u).  In slip (s = sign w)
         the friction magnitude is ``Tc + dT + s dTc + (b + s db)|w| + (Ts - Tc) S(|w|/ws)``
         (Stribeck part unchanged); the static band is ``[-(Ts + dT - dTc), Ts + dT + dTc]``,
         evaluated with the current time and state.
@@ -456,11 +475,11 @@ def reference_simulate(
     ka = p.get("k_alpha", 0.0) if has_lower else 0.0
     ca = p["c_alpha"] if has_lower else 0.0
     a0 = p["alpha0"] if has_lower else 0.0
-    fr_u = _make_friction_upper(p) if has_upper else None
+    fr_u = _make_friction_upper(p, stribeck_shape) if has_upper else None
     fr_l = _make_friction_lower(p, stribeck_shape) if has_lower else None
     if has_upper:
-        hi_u = p["Tc_u"] + p["dTc_u"]
-        lo_u = -(p["Tc_u"] - p["dTc_u"])
+        hi_u = p["Tc_u"] + p["dTs_u"] + p["dTc_u"]
+        lo_u = -(p["Tc_u"] + p["dTs_u"] - p["dTc_u"])
     if has_lower:
         hi_l = p["Ts_l"] + p["dTc_l"]
         lo_l = -(p["Ts_l"] - p["dTc_l"])

@@ -225,7 +225,7 @@ def _friction_params(params: Mapping[str, float]) -> dict[str, float]:
     from .model.parameters import INFO
 
     out = {n: INFO[n].null for n in ("dTc_u", "db_u", "dTc_l", "db_l", "Ts_l", "ws_l",
-                                     "delta_l")}
+                                     "delta_l", "dTs_u", "ws_u", "delta_u")}
     out.update({k: float(v) for k, v in params.items() if isinstance(v, (int, float, np.number))})
     return out
 
@@ -233,7 +233,8 @@ def _friction_params(params: Mapping[str, float]) -> dict[str, float]:
 def _break_away(p: Mapping[str, float], disc: str) -> tuple[float, float]:
     """Friction torques that bound sticking: ``(-(Ts - dTc), Ts + dTc)``."""
     if disc == "u":
-        return -(p["Tc_u"] - p["dTc_u"]), p["Tc_u"] + p["dTc_u"]
+        ts = p["Tc_u"] + (p.get("dTs_u", 0.0) or 0.0)
+        return -(ts - p["dTc_u"]), ts + p["dTc_u"]
     Ts = p["Ts_l"]
     Ts = p["Tc_l"] if Ts is None or not np.isfinite(Ts) else Ts
     return -(Ts - p["dTc_l"]), Ts + p["dTc_l"]

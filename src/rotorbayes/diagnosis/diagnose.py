@@ -70,18 +70,7 @@ MATERIAL_FLOOR_UNITS = 0.1
 #: Missing-torque variables each catalogue effect can produce (a superset of what
 #: :data:`rotorbayes.diagnosis.torque.TESTED_BY` says the effect tests: an effect named
 #: there for a variable produces it).
-EXPLAINS = {
-    "upper_asymmetric_coulomb": {"direction", "velocity"},
-    "upper_asymmetric_viscous": {"direction", "velocity"},
-    "lower_asymmetric_coulomb": {"direction", "velocity"},
-    "lower_asymmetric_viscous": {"direction", "velocity"},
-    "lower_stribeck": {"velocity", "direction"},
-    "initial_torsion": {"torsion", "direction", "velocity"},
-    "string_damping": {"torsion_rate", "torsion", "velocity"},
-    "voltage_offset": {"input", "direction"},
-    "input_delay": {"input_rate", "input", "input_history"},
-    "motor_deadzone": {"input", "velocity"},
-}
+EXPLAINS = {e.name: set(e.explains) for e in _effects.CATALOGUE.values()}
 #: Variables no catalogue effect produces: a strong dependence on them rules a claim out.
 FOREIGN = {"angle_1", "angle_2", "time"}
 

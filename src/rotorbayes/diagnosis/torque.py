@@ -94,7 +94,8 @@ SHORT = {"velocity": "its speed", "direction": "the direction of rotation",
 TESTED_BY: dict[str, tuple[dict[str, tuple[str, ...]], str]] = {
     "velocity": ({"l": ("lower_stribeck", "lower_asymmetric_viscous",
                         "lower_asymmetric_coulomb"),
-                  "u": ("upper_asymmetric_viscous", "upper_asymmetric_coulomb")},
+                  "u": ("upper_stribeck", "upper_asymmetric_viscous",
+                        "upper_asymmetric_coulomb")},
                  "a friction law of another shape than the catalogue's"),
     "direction": ({"l": ("lower_asymmetric_coulomb", "lower_asymmetric_viscous"),
                    "u": ("upper_asymmetric_coulomb", "upper_asymmetric_viscous")},
@@ -106,12 +107,12 @@ TESTED_BY: dict[str, tuple[dict[str, tuple[str, ...]], str]] = {
     "input": ({"l": ("voltage_offset", "motor_deadzone"),
                "u": ("voltage_offset", "motor_deadzone")},
               "a motor nonlinearity the catalogue does not hold"),
-    "input_rate": ({"l": ("input_delay",), "u": ("input_delay",)},
+    "input_rate": ({"l": ("input_delay", "drive_lag"), "u": ("input_delay", "drive_lag")},
                    "dynamics between the command and the motor torque other than a pure "
-                   "delay (not in the catalogue)"),
-    "input_history": ({"l": ("input_delay",), "u": ("input_delay",)},
-                      "a lag of the drive (first-order dynamics between command and "
-                      "torque), which the catalogue does not hold"),
+                   "delay or a first-order lag (not in the catalogue)"),
+    "input_history": ({"l": ("drive_lag", "input_delay"), "u": ("drive_lag", "input_delay")},
+                      "drive dynamics of higher order than the catalogue's first-order "
+                      "lag"),
 }
 
 #: A map whose RMS is at most this many times its noise shows no missing torque.  The
@@ -526,7 +527,7 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             feats.update(angle_1=np.mod(thl, 2 * np.pi), angle_2=np.mod(thl, 2 * np.pi))
         out["l"] = (t, Ml, feats, slip_mask(wl, n, 0.02))
     if not problem.prescribed_upper:
-        fu = np.nan_to_num(friction_curve(wu, _complete(p), "u"))
+        fu = np.nan_to_num(friction_curve(wu, _complete(p), "u", shape=problem.shape))
         Mu = p["J_u"] * au + fu + np.sign(wu) * shift_u - string - p["k_m"] * v - extra_u
         feats = {"velocity": wu, "direction": np.sign(wu), **common}
         if np.ptp(thu) >= MIN_TURNS * 2 * np.pi:
@@ -559,10 +560,18 @@ def _complete(p: dict) -> dict:
 
 
 def _voltage(u: np.ndarray, t: np.ndarray, p: dict) -> np.ndarray:
-    """The effective motor voltage (offset, delay, dead zone) at the sample times, as the
+    """The effective motor voltage (lag, offset, delay, dead zone) at the sample times, as the
     kernel's :func:`rotorbayes.kernel.terms.drive` has it (held at ``u[0]`` before the
     first sample)."""
     d = p.get("t_delay", 0.0) or 0.0
+    if p.get("tau_drive", 0.0):
+        from ..kernel.layout import CFG_COUPLED, NAMES
+        from ..kernel.terms import voltage_at
+
+        pv = np.array([float(p.get(n, 0.0) or 0.0) for n in NAMES])
+        dt = float(t[1] - t[0]) if t.size > 1 else 1.0
+        return voltage_at(np.arange(t.size) * dt, np.ascontiguousarray(u, float), pv, dt,
+                          CFG_COUPLED)
     v = np.interp(t - d, t, u) if d > 0 else u.copy()
     v = v + (p.get("u_offset", 0.0) or 0.0)
     dz = p.get("u_deadzone", 0.0) or 0.0

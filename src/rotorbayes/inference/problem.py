@@ -65,7 +65,8 @@ def local_name(name: str) -> tuple[str, int | None]:
 
 
 #: Parameters of the motor and the upper disc's friction: fitted from theta_u.
-UPPER_PARAMETERS = ("k_m", "J_u", "Tc_u", "dTc_u", "b_u", "db_u", "u_offset", "u_deadzone")
+UPPER_PARAMETERS = ("k_m", "J_u", "Tc_u", "dTc_u", "b_u", "db_u", "u_offset", "u_deadzone",
+                    "dTs_u", "ws_u", "delta_u", "tau_drive")
 
 
 def _filled(fill: tuple, x) -> tuple[np.ndarray, np.ndarray]:

@@ -13,12 +13,14 @@ NAMES: tuple[str, ...] = (
     "k_m", "J_u", "Tc_u", "dTc_u", "b_u", "db_u",
     "J_l", "k_alpha", "Tc_l", "dTc_l", "b_l", "db_l",
     "Ts_l", "ws_l", "delta_l", "alpha0", "c_alpha", "u_offset", "t_delay", "u_deadzone",
+    "dTs_u", "ws_u", "delta_u", "tau_drive",
 )  # fmt: skip
 INDEX: dict[str, int] = {n: i for i, n in enumerate(NAMES)}
 
 K_M, J_U, TC_U, DTC_U, B_U, DB_U = range(6)
 J_L, K_ALPHA, TC_L, DTC_L, B_L, DB_L = range(6, 12)
 TS_L, WS_L, DELTA_L, ALPHA0, C_ALPHA, U_OFFSET, T_DELAY, U_DEADZONE = range(12, 20)
+DTS_U, WS_U, DELTA_U, TAU_DRIVE = range(20, 24)
 N_PARAMS = len(NAMES)
 
 #: Configuration codes of the kernel.

@@ -69,7 +69,7 @@ from .terms import (
     delay_samples,
     derived,
     drive,
-    drive_source,
+    input_source,
     effect_state_ok,
     guards,
     has_kinks,
@@ -425,7 +425,7 @@ def _integrate(
     n_hold = int(math.floor(dly / h0))
     jj = 0 if dly - n_hold * h0 > 1e-9 else 1
     kinks = has_kinks(c)
-    src = drive_source(cfg, u, thp)
+    src = input_source(c, cfg, u, thp)
     y = (0.0, 0.0, 0.0, 0.0)
     # The rig starts at rest; each disc sticks unless its torque breaks it loose.
     d1 = drive(0.0, c, cfg, src)
@@ -462,8 +462,8 @@ def _integrate(
         t_end = s_end * dt
         n_step_ev = 0
         while True:
-            t_tgt = next_kink(t, t_end, c, u) if kinks else t_end
-            t_sub = t + min(stribeck_step(y[3], f[3], ml, c, cfg),
+            t_tgt = next_kink(t, t_end, c, src) if kinks else t_end
+            t_sub = t + min(stribeck_step(y, f, mu, ml, c, cfg),
                             approach_step(y, f, mu, ml, c, cfg, t_tgt - t))  # fmt: skip
             if t_sub < t_tgt:
                 t_tgt = t_sub  # a substep through the Stribeck band or towards an event

@@ -39,20 +39,24 @@ from .layout import (
     DB_L,
     DB_U,
     DELTA_L,
+    DELTA_U,
     DTC_L,
     DTC_U,
+    DTS_U,
     J_L,
     J_U,
     K_ALPHA,
     K_M,
     N_PARAMS,
     T_DELAY,
+    TAU_DRIVE,
     TC_L,
     TC_U,
     TS_L,
     U_DEADZONE,
     U_OFFSET,
     WS_L,
+    WS_U,
 )  # fmt: skip
 from .numerics import fma
 
@@ -113,6 +117,10 @@ CONSTRAINTS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("t_delay",), "t_delay must be >= 0 (the motor cannot act before it is commanded)",
      "motor"),
     (("u_deadzone",), "u_deadzone must be >= 0", "motor"),
+    (("dTs_u",), "dTs_u must be >= 0 (static friction at least the Coulomb level)", "motor"),
+    (("ws_u",), "ws_u must be > 0", "motor"),
+    (("delta_u",), "delta_u must be > 0", "motor"),
+    (("tau_drive",), "tau_drive must be >= 0", "motor"),
 )  # fmt: skip
 N_CONSTRAINTS = len(CONSTRAINTS)
 
@@ -136,6 +144,10 @@ def violations(p, cfg):
         bad[3] = p[B_U] < abs(p[DB_U])
         bad[12] = p[T_DELAY] < 0.0
         bad[13] = p[U_DEADZONE] < 0.0
+        bad[14] = p[DTS_U] < 0.0
+        bad[15] = p[WS_U] <= 0.0
+        bad[16] = p[DELTA_U] <= 0.0
+        bad[17] = p[TAU_DRIVE] < 0.0
     if lower:
         bad[4] = p[J_L] <= 0.0
         bad[5] = p[K_ALPHA] < 0.0
@@ -151,7 +163,8 @@ def violations(p, cfg):
 # ------------------------------------------------------------------ derived constants
 _KM, _IJU, _TCU, _DTCU, _BU, _DBU, _IJL, _KA, _TCL, _DTCL, _BL, _DBL = range(12)
 _DSL, _IWSL, _DL, _A0, _CA, _UOFF, _TDEL, _UDZ, _TSL, _IDT, _DT, _XCUT = range(12, 24)
-_ND = 24
+_DSU, _IWSU, _DU, _XCUTU, _TAU, _ITAU = range(24, 30)
+_ND = 30
 
 
 @njit(cache=True, error_model="numpy")
@@ -172,12 +185,19 @@ def derived(p, dt):
     c[_IDT] = 1.0 / dt if dt > 0.0 else 0.0
     c[_DT] = dt
     c[_XCUT] = negligible_x(p[DELTA_L])
+    c[_DSU] = p[DTS_U]
+    c[_IWSU] = 1.0 / p[WS_U] if p[WS_U] > 0.0 else 0.0
+    c[_DU] = p[DELTA_U]
+    c[_XCUTU] = negligible_x(p[DELTA_U])
+    c[_TAU] = p[TAU_DRIVE]
+    c[_ITAU] = 1.0 / p[TAU_DRIVE] if p[TAU_DRIVE] > 0.0 else 0.0
     # A tuple, not an array: the inner loop passes the constants through every inlined
     # term, and an array would be reference-counted (atomic increments and decrements)
     # at each pass -- measured at 30 % of the kernel's time.
     return (
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12],
         c[13], c[14], c[15], c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23],
+        c[24], c[25], c[26], c[27], c[28], c[29],
     )  # fmt: skip
 
 
@@ -202,6 +222,56 @@ def interp(t, y, inv_dt):
     return fma(x - i, dy, y[i]), dy * inv_dt
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def lagged(s, src, c):
+    """The command through the drive's first-order lag ``tau_drive`` at time ``s`` [s]
+    (before the delay): ``x' = (u(s) - x) / tau``, ``x = u[0]`` up to ``s = 0`` (at rest
+    before).  ``src`` is :func:`input_source`'s array: the samples ``u`` (``n`` of them)
+    and then ``x`` at the sample times.  Exact for the linearly interpolated input: on a
+    sample interval with slope ``g`` the lag's solution is ``u_i + g (r - tau) + (x_i -
+    u_i + g tau) exp(-r / tau)``, ``r`` the time since sample ``i``; after the last
+    sample ``u`` is held.  It tends to the input as ``tau -> 0``."""
+    n = src.shape[0] // 2
+    dt = c[_DT]
+    x = s * c[_IDT]
+    if x <= 0.0:
+        return src[0]
+    i = int(x)
+    if i >= n - 1:
+        r = s - (n - 1) * dt
+        ul = src[n - 1]
+        return fma(src[2 * n - 1] - ul, math.exp(-r * c[_ITAU]), ul)
+    r = s - i * dt
+    ui = src[i]
+    g = (src[i + 1] - ui) * c[_IDT]
+    tau = c[_TAU]
+    return fma(fma(g, tau, src[n + i] - ui), math.exp(-r * c[_ITAU]), fma(g, r - tau, ui))
+
+
+@njit(cache=True, error_model="numpy")
+def input_source(c, cfg, u, thp):
+    """The array :func:`drive` reads: the prescribed upper-disc angle ``thp`` for
+    :data:`CFG_PRESCRIBED` (the voltage is not read then); with a drive lag (``tau_drive >
+    0``) the samples ``u`` followed by the lagged command at the sample times (see
+    :func:`lagged`; computed once per run by the lag's exact recurrence); else ``u``."""
+    if cfg == CFG_PRESCRIBED:
+        return thp
+    if c[_TAU] <= 0.0:
+        return u
+    n = u.shape[0]
+    out = np.empty(2 * n)
+    out[:n] = u
+    tau = c[_TAU]
+    e = math.exp(-c[_DT] * c[_ITAU])
+    x = u[0]
+    out[n] = x
+    for i in range(n - 1):
+        g = (u[i + 1] - u[i]) * c[_IDT]
+        x = fma(fma(g, tau, x - u[i]), e, u[i + 1] - g * tau)
+        out[n + i + 1] = x
+    return out
+
+
 @njit(cache=True, error_model="numpy")
 def delay_samples(c, cfg):
     """The input delay in samples, ``t_delay / dt``: the solver's step grid is the input's
@@ -221,13 +291,22 @@ def delay_samples(c, cfg):
 def next_kink(t, t1, c, u):
     """The first time in ``(t, t1)`` at which the effective voltage has a slope jump that
     falls inside a Runge-Kutta step, or ``t1`` if there is none: where the offset, delayed
-    input crosses ``±u_deadzone``.  (The delayed sample times and the end of the held start
-    are step points already, see :func:`delay_samples`.)
+    input crosses ``±u_deadzone``.  ``u`` is :func:`input_source`'s array.  (The delayed
+    sample times and the end of the held start are step points already, see
+    :func:`delay_samples`.)
 
     Kinks closer than ``1e-9`` samples to either end are ignored, so the result moves
     continuously with the parameters: a kink that reaches a step boundary leaves a segment
     of zero length, which is no segment at all.
     """
+    if c[_TAU] > 0.0:
+        return _next_kink_lagged(t, t1, c, u)
+    return _next_kink_linear(t, t1, c, u)
+
+
+@njit(cache=True, error_model="numpy")
+def _next_kink_linear(t, t1, c, u):
+    """:func:`next_kink` without a drive lag (the input linear between samples)."""
     dt = c[_DT]
     d = c[_TDEL]
     dz = c[_UDZ]
@@ -262,6 +341,62 @@ def next_kink(t, t1, c, u):
 
 
 @njit(cache=True, error_model="numpy")
+def _next_kink_lagged(t, t1, c, src):
+    """:func:`next_kink` with a drive lag: the lagged command is not linear between
+    samples, so each sample interval whose ends lie on both sides of a dead-zone edge
+    has its crossing found by Illinois regula falsi (to 1e-13 of the interval) on
+    :func:`lagged` itself.  A crossing and a return within one sample interval are not
+    seen (the lag is smooth there; the step's error stays that of a smooth kink)."""
+    dt = c[_DT]
+    d = c[_TDEL]
+    dz = c[_UDZ]
+    off = c[_UOFF]
+    n = src.shape[0] // 2
+    tiny = 1e-9 * dt
+    best = t1
+    a = max(t - d, 0.0)
+    s1 = best - d
+    while a < s1:
+        i = int(math.floor(a * c[_IDT]))
+        b = min((i + 1) * dt, s1) if i < n - 1 else s1
+        if b <= a:
+            b = min(a + dt, s1)
+        wa = lagged(a, src, c) + off
+        wb = lagged(b, src, c) + off
+        hit = math.inf
+        for lev in (dz, -dz):
+            fa = wa - lev
+            fb = wb - lev
+            if fa * fb < 0.0:
+                lo, hi, flo, fhi = a, b, fa, fb
+                side = 0
+                for _ in range(200):
+                    if hi - lo <= 1e-13 * dt:
+                        break
+                    m = hi - fhi * (hi - lo) / (fhi - flo)
+                    if not (lo < m < hi):
+                        m = 0.5 * (lo + hi)
+                    fm = lagged(m, src, c) + off - lev
+                    if fm * flo < 0.0:
+                        hi, fhi = m, fm
+                        if side == -1:
+                            flo *= 0.5
+                        side = -1
+                    else:
+                        lo, flo = m, fm
+                        if side == 1:
+                            fhi *= 0.5
+                        side = 1
+                hit = min(hit, 0.5 * (lo + hi))
+        if hit < math.inf:
+            tk = d + hit
+            if t + tiny < tk < best - tiny:
+                return tk
+        a = b
+    return best
+
+
+@njit(cache=True, error_model="numpy")
 def has_kinks(c):
     """Whether :func:`next_kink` can find anything for these constants."""
     return c[_UDZ] > 0.0
@@ -282,15 +417,19 @@ def drive(t, c, cfg, src):
     """What drives the system at ``t``: ``(t, voltage, upper angle, upper velocity)``.
 
     ``src`` is the input voltage ``u`` (samples), or for :data:`CFG_PRESCRIBED` the
-    prescribed upper-disc angle (see :func:`drive_source`).  Evaluated once per
-    Runge-Kutta stage time, so the right-hand side works on scalars only.  The voltage is
-    delayed by ``t_delay`` (held at ``u[0]`` before the first sample), offset by
-    ``u_offset``, then through the dead zone ``±u_deadzone``.
+    prescribed upper-disc angle, or with a drive lag the samples and the lagged command
+    (see :func:`input_source`).  Evaluated once per Runge-Kutta stage time, so the
+    right-hand side works on scalars only.  The command passes the drive's lag
+    ``tau_drive`` (:func:`lagged`), is delayed by ``t_delay`` (held at ``u[0]`` before the
+    first sample), offset by ``u_offset``, then through the dead zone ``±u_deadzone``.
     """
     presc = cfg == CFG_PRESCRIBED
-    a, da = interp(t if presc else t - c[_TDEL], src, c[_IDT])
-    if presc:
-        return t, 0.0, a, da
+    if c[_TAU] > 0.0 and not presc:
+        a = lagged(t - c[_TDEL], src, c)
+    else:
+        a, da = interp(t if presc else t - c[_TDEL], src, c[_IDT])
+        if presc:
+            return t, 0.0, a, da
     v = a + c[_UOFF]
     dz = c[_UDZ]
     if dz > 0.0:
@@ -304,10 +443,15 @@ def drive(t, c, cfg, src):
 
 
 @njit(cache=True, error_model="numpy")
-def drive_source(cfg, u, thp):
-    """The array :func:`drive` reads: the prescribed upper-disc angle ``thp`` for
-    :data:`CFG_PRESCRIBED` (the voltage is not read then), else the input ``u``."""
-    return thp if cfg == CFG_PRESCRIBED else u
+def voltage_at(times, u, p, dt, cfg):
+    """The effective motor voltage [V] at ``times`` [s] as the solver sees it (lag, delay,
+    offset, dead zone) -- for the diagnosis's torque balance."""
+    c = derived(p, dt)
+    src = input_source(c, cfg, u, u)
+    out = np.empty(times.shape[0])
+    for k in range(times.shape[0]):
+        out[k] = drive(times[k], c, cfg, src)[1]
+    return out
 
 
 # ------------------------------------------------------------------------ torques
@@ -342,8 +486,8 @@ def bands(su, sl, c):
     """Static bands ``(lo_u, hi_u, lo_l, hi_l)``: a sticking disc stays at rest while its
     external torque lies inside ``[lo, hi]``."""
     return (
-        -(c[_TCU] + su - c[_DTCU]),
-        c[_TCU] + su + c[_DTCU],
+        -(c[_TCU] + c[_DSU] + su - c[_DTCU]),
+        c[_TCU] + c[_DSU] + su + c[_DTCU],
         -(c[_TSL] + sl - c[_DTCL]),
         c[_TSL] + sl + c[_DTCL],
     )
@@ -363,7 +507,8 @@ def rhs(thu, wu, thl, wl, mu, ml, d, m):
     dwu = 0.0
     if mu != 0 and cfg != CFG_PRESCRIBED:
         f = slip_torque(
-            wu, mu, c[_TCU] + su, c[_DTCU], c[_BU], c[_DBU], 0.0, 1.0, 1.0, shape, math.inf
+            wu, mu, c[_TCU] + su, c[_DTCU], c[_BU], c[_DBU], c[_DSU], c[_IWSU], c[_DU], shape,
+            c[_XCUTU],
         )
         dthu = wu
         dwu = (te_u - f) * c[_IJU]
@@ -395,13 +540,25 @@ STRIBECK_START = 0.01
 STRIBECK_WEAK = 0.01
 
 
-@njit(cache=True, error_model="numpy")
-def stribeck_step(wl, al, ml, c, cfg):
-    """The longest Runge-Kutta step [s] the lower disc's Stribeck curve allows from a state
-    with lower-disc velocity ``wl``, acceleration ``al`` and mode ``ml``.
+@njit(cache=True, error_model="numpy", inline="always")
+def _stribeck_limit(w, a, ds, iws, delta, tc, dt):
+    """:func:`stribeck_step`'s limit for one disc (velocity ``w``, acceleration ``a != 0``,
+    Stribeck excess ``ds > 0``, ``1/ws``, shape, Coulomb level, sample interval)."""
+    x = abs(w) * iws
+    dx = min(STRIBECK_STEP_FRACTION * (1.0 + x) * min(1.0, 2.0 / delta), STRIBECK_START + x)
+    weak = max(1.0, STRIBECK_WEAK * (tc + ds) / ds)
+    return max(weak * dx / (abs(a) * iws), 0.5 * dt)
 
-    ``inf`` unless the disc slips with a Stribeck term (``Ts_l != Tc_l``); else the time
-    in which ``x = |wl| / ws`` changes, at its present rate ``|al| / ws``, by
+
+@njit(cache=True, error_model="numpy")
+def stribeck_step(y, f, mu, ml, c, cfg):
+    """The longest Runge-Kutta step [s] the discs' Stribeck curves allow from state ``y``
+    (derivative ``f``) in modes ``(mu, ml)``: the lower disc's (``Ts_l``, ``ws_l``,
+    ``delta_l``) and the upper disc's (``dTs_u``, ``ws_u``, ``delta_u``), by one rule.
+
+    For each disc: ``inf`` unless it slips with a Stribeck term (``Ts_l != Tc_l``, ``dTs_u
+    != 0``); else the time in which ``x = |w| / ws`` changes, at its present rate
+    ``|a| / ws``, by
 
         min(STRIBECK_STEP_FRACTION * (1 + x) * min(1, 2 / delta_l), STRIBECK_START + x)
 
@@ -419,14 +576,14 @@ def stribeck_step(wl, al, ml, c, cfg):
     3.4e-5 rad without substeps, 1.6e-6 with; 24 random brake rigs (0.6-1.5x the thesis,
     ``delta_l`` 0.8-3.0, multisines and staircases) at most 5.9e-6.
     """
-    ds = abs(c[_DSL])
-    if ml == 0 or cfg == CFG_UPPER or ds == 0.0 or al == 0.0:
-        return math.inf
-    iws = c[_IWSL]
-    x = abs(wl) * iws
-    dx = min(STRIBECK_STEP_FRACTION * (1.0 + x) * min(1.0, 2.0 / c[_DL]), STRIBECK_START + x)
-    weak = max(1.0, STRIBECK_WEAK * (c[_TCL] + ds) / ds)
-    return max(weak * dx / (abs(al) * iws), 0.5 * c[_DT])
+    best = math.inf
+    dsl = abs(c[_DSL])
+    if ml != 0 and cfg != CFG_UPPER and dsl != 0.0 and f[3] != 0.0:
+        best = _stribeck_limit(y[3], f[3], dsl, c[_IWSL], c[_DL], c[_TCL], c[_DT])
+    dsu = c[_DSU]
+    if mu != 0 and cfg != CFG_PRESCRIBED and dsu != 0.0 and f[1] != 0.0:
+        best = min(best, _stribeck_limit(y[1], f[1], dsu, c[_IWSU], c[_DU], c[_TCU], c[_DT]))
+    return best
 
 
 #: Approach substeps (see :func:`approach_step`): a step is at most this multiple of the

@@ -100,6 +100,11 @@ class Effect:
     resolution : Resolution, optional
         What the data can resolve of it (the smallest size worth a claim); ``None``: only
         the size of its predicted fall of the error counts (user effects).
+    explains : tuple of str
+        The missing-torque map's variables it can produce (``velocity``, ``direction``,
+        ``torsion``, ``torsion_rate``, ``input``, ``input_rate``, ``input_history``; see
+        :mod:`rotorbayes.diagnosis.torque`): a map that names only others speaks against
+        it.
     torque, friction_shift : callable, optional
         A user effect's physics (see the module docstring).
     source : str
@@ -116,6 +121,7 @@ class Effect:
     kernel_term: str = ""
     equivalences: tuple[str, ...] = ()
     resolution: Resolution | None = None
+    explains: tuple[str, ...] = ()
     torque: Callable | None = field(default=None, compare=False, repr=False)
     friction_shift: Callable | None = field(default=None, compare=False, repr=False)
     source: str = "catalogue"
@@ -277,6 +283,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "torque", 1.0, "u", "",
             "an asymmetry below the upper friction level's uncertainty",
         ),
+        explains=("direction", "velocity"),
     ),
     Effect(
         "upper_asymmetric_viscous",
@@ -290,6 +297,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "an asymmetry whose torque at the RMS speed is below the upper friction"
             " level's uncertainty",
         ),
+        explains=("direction", "velocity"),
     ),
     Effect(
         "lower_asymmetric_coulomb",
@@ -309,6 +317,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "torque", 1.0, "l", "",
             "an asymmetry below the lower friction level's uncertainty",
         ),
+        explains=("direction", "velocity"),
     ),
     Effect(
         "lower_asymmetric_viscous",
@@ -322,6 +331,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "an asymmetry whose torque at the RMS speed is below the lower friction"
             " level's uncertainty",
         ),
+        explains=("direction", "velocity"),
     ),
     Effect(
         "lower_stribeck",
@@ -340,6 +350,30 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a static level above the Coulomb level by less than that level's "
             "uncertainty",
         ),
+        explains=("velocity", "direction"),
+    ),
+    Effect(
+        "upper_stribeck",
+        "static friction of the upper disc above its Coulomb level, decaying with speed: "
+        "the lower disc's Stribeck law (eqs. 4.11-4.14) on the upper disc, its static "
+        "level Tc_u + dTs_u.",
+        (
+            _p("dTs_u", "N m", 0.0, 3.0, 0.0,
+               "upper static friction above the Coulomb level (Stribeck excess)", 0.1),
+            _p("ws_u", "rad/s", 1e-3, 50.0, 1.0, "upper Stribeck velocity", 1.0, True),
+            _p("delta_u", "-", 0.2, 5.0, 2.0, "upper Stribeck shape exponent", 2.0, True),
+        ),
+        "the upper disc stays at rest longer than simulated and then jumps; large theta_u "
+        "errors right after each break-away and at slow speeds",
+        motor=True,
+        kernel_term="friction.slip_torque (Stribeck part), terms.bands (static band from "
+        "Tc_u + dTs_u), terms.stribeck_step",
+        resolution=Resolution(
+            "torque", 1.0, "u", "",
+            "a static level above the upper Coulomb level by less than that level's "
+            "uncertainty",
+        ),
+        explains=("velocity", "direction"),
     ),
     Effect(
         "initial_torsion",
@@ -360,6 +394,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a pre-wound torque k_alpha*alpha0 below the lower friction level's "
             "uncertainty",
         ),
+        explains=("torsion", "direction", "velocity"),
     ),
     Effect(
         "string_damping",
@@ -374,6 +409,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a damping torque at the RMS twist rate below the lower friction "
             "level's uncertainty",
         ),
+        explains=("torsion_rate", "torsion", "velocity"),
     ),
     Effect(
         "voltage_offset",
@@ -391,6 +427,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a motor torque k_m*u_offset below the upper friction level's "
             "uncertainty",
         ),
+        explains=("input", "direction"),
     ),
     Effect(
         "input_delay",
@@ -405,6 +442,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a delay below a tenth of a sample cannot be told from how the input "
             "behaves between samples",
         ),
+        explains=("input_rate", "input", "input_history"),
     ),
     Effect(
         "motor_deadzone",
@@ -418,6 +456,26 @@ _CATALOGUE: tuple[Effect, ...] = (
             "a dead zone whose motor torque k_m*u_deadzone is below the upper "
             "friction level's uncertainty",
         ),
+        explains=("input", "velocity"),
+    ),
+    Effect(
+        "drive_lag",
+        "the drive's electrical dynamics (amplifier and motor current): the voltage that "
+        "makes the motor's torque follows the command through a first-order lag; for "
+        "inputs slower than 1/tau_drive it acts like a delay of tau_drive, over fast "
+        "transitions it smooths them as a delay does not.",
+        (_p("tau_drive", "s", 0.0, 0.1, 0.0, "time constant of the drive's lag", 5e-3),),
+        "theta_u residual spikes of alternating sign at every fast input transition, "
+        "which an input delay reduces but does not remove",
+        motor=True,
+        kernel_term="terms.lagged, terms.input_source (the lag's exact solution for the "
+        "interpolated input: no state, no stiffness)",
+        resolution=Resolution(
+            "sample", 0.1, "", "",
+            "a lag below a tenth of a sample cannot be told from how the input behaves "
+            "between samples",
+        ),
+        explains=("input_rate", "input_history", "input"),
     ),
 )
 

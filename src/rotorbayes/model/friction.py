@@ -163,15 +163,21 @@ def friction_curve(
     params : mapping
         Parameter values by name.
     disc : {'u', 'l'}
-        Upper or lower disc.  The upper disc has no Stribeck part.
+        Upper or lower disc.  The upper disc's Stribeck part is ``dTs_u`` (its excess
+        over ``Tc_u``; absent or 0 without the ``upper_stribeck`` effect).
     shape : {'exp', 'rational'}
-        Stribeck shape of the lower disc.
+        Stribeck shape of both discs.
     """
     w = np.asarray(omega, dtype=float)
     s = np.sign(w)
     a = np.abs(w)
     if disc == "u":
         T = params["Tc_u"] + s * params["dTc_u"] + (params["b_u"] + s * params["db_u"]) * a
+        dS = params.get("dTs_u", 0.0) or 0.0
+        if dS != 0.0:
+            x = a / params["ws_u"]
+            d = params["delta_u"]
+            T = T + dS * (np.exp(-(x**d)) if shape == "exp" else 1 / (1 + x**d))
     elif disc == "l":
         Tc = params["Tc_l"]
         Ts = params.get("Ts_l", Tc)
