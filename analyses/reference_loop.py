@@ -48,6 +48,8 @@ CASES = {
     "motor_deadzone": (S0, dict(u_deadzone=0.3), None),
     "voltage_offset": (S1, dict(u_offset=0.08), None),
     "initial_torsion": (S0, {}, 0.25),
+    "upper_stribeck": (S1, dict(dTs_u=0.1, ws_u=0.5, delta_u=2.0), None),
+    "drive_lag": (S1, dict(tau_drive=0.01), None),
 }
 
 

@@ -50,7 +50,11 @@ HIDDEN = {
     "motor_deadzone": (dict(u_deadzone=0.1), "continuous"),
     "upper_asymmetric_coulomb": (dict(dTc_u=0.06), "linear"),
     "upper_asymmetric_viscous": (dict(db_u=0.15), "continuous"),
+    "upper_stribeck": (dict(dTs_u=0.1, ws_u=0.5, delta_u=2.0), "linear"),
+    "drive_lag": (dict(tau_drive=0.01), "continuous"),
 }
+#: Effects of the coupled base model (hidden by switching them off in the fit).
+BASE = set(Model("coupled").effect_names)
 
 
 def _base(config: str, k: int = 0) -> dict:
@@ -77,7 +81,7 @@ def hidden(effect: str):
     extra, hold = HIDDEN[effect]
     p = dict(_base("coupled", HIDDEN_SET), **extra)
     ex = make_experiment("coupled", p, duration=HIDDEN_S, hold=hold, seed=3)
-    without = [effect] if effect.startswith("upper_") else []
+    without = [effect] if effect in BASE else []
     model = Model("coupled", without=without)
     prob = E.Problem(model, [ex])
     # Two restarts, not six: the fit without the effect cannot reach the floor anyway,
@@ -234,7 +238,7 @@ def test_hidden_effect_is_ranked_first_claimed_and_fixed(effect):
     assert true.p_adjusted < 0.01
     assert d.claimed in (effect, *true.alike), d.text()
     # add it, start from the one-step estimate and the best grid point, refit
-    model2 = Model("coupled") if effect.startswith("upper_") else model.with_effects([effect])
+    model2 = Model("coupled") if effect in BASE else model.with_effects([effect])
     prob2 = E.Problem(model2, [ex], base=prob.params_for(res.x, 0))
     start = dict(prob.params_for(res.x, 0), **true.nuisance,
                  **{k: v for k, v in true.step.items() if np.isfinite(v)})

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from refdata import LaggedInput
 from reference import reference_simulate
 
 import rotorbayes as rb
@@ -50,6 +51,8 @@ def _effect_value(name: str) -> dict[str, float]:
         "voltage_offset": dict(u_offset=0.05),
         "input_delay": dict(t_delay=0.0123),
         "motor_deadzone": dict(u_deadzone=0.3),
+        "upper_stribeck": dict(dTs_u=0.1, ws_u=1.0, delta_u=2.0),
+        "drive_lag": dict(tau_drive=0.008),
     }
     return values[name]
 
@@ -68,7 +71,12 @@ def _check(params, config, effects, t, u):
     q = dict(params)
     if config == "coupled" and "lower_stribeck" not in effects:
         q["Ts_l"] = q["Tc_l"]
-    ref = reference_simulate(q, t, u, config)
+    tau = q.pop("tau_drive", 0.0)
+    if tau:  # the lagged command (refdata.LaggedInput: the lag's recurrence, 0.1 ms grid)
+        lag = LaggedInput(lambda tq: np.interp(tq, t, u), tau, float(t[-1]) + 1.0)
+        ref = reference_simulate(q, t, None, config, u_func=lag, u_breaks=t)
+    else:
+        ref = reference_simulate(q, t, u, config)
     err_u = float(np.max(np.abs(sim.theta_u - ref["theta_u"])))
     err_l = 0.0
     if config != "upper":

@@ -64,6 +64,7 @@ from .layout import (
 )  # fmt: skip
 from .numerics import fma
 from .terms import (
+    FULL,
     HOOK_TYPE,
     approach_step,
     delay_samples,
@@ -74,7 +75,9 @@ from .terms import (
     guards,
     has_kinks,
     interp,
+    is_full_kernel,
     modes_at_rest,
+    needs_full_kernel,
     next_kink,
     prescribed_velocity,
     rhs,
@@ -101,10 +104,10 @@ def _rk5(t, h, y, mu, ml, k1, m, src):
     c, cfg = m[0], m[1]
     thu, wu, thl, wl = y
     a1, a2, a3, a4 = k1
-    d_q = drive(t + 0.25 * h, c, cfg, src)
-    d_m = drive(t + 0.5 * h, c, cfg, src)
-    d_3q = drive(t + 0.75 * h, c, cfg, src)
-    d_1 = drive(t + h, c, cfg, src)
+    d_q = drive(t + 0.25 * h, c, cfg, src, m[6])
+    d_m = drive(t + 0.5 * h, c, cfg, src, m[6])
+    d_3q = drive(t + 0.75 * h, c, cfg, src, m[6])
+    d_1 = drive(t + h, c, cfg, src, m[6])
     q = 0.25 * h
     b1, b2, b3, b4 = rhs(fma(q, a1, thu), fma(q, a2, wu), fma(q, a3, thl), fma(q, a4, wl),
                          mu, ml, d_q, m)  # fmt: skip
@@ -212,7 +215,7 @@ def _guard_on_interpolant(sf, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src):
     """The guard of ``disc`` at fraction ``sf`` of a step, on the step's Hermite
     interpolant (coefficients from :func:`_quintic` and :func:`_cubic`): no Runge-Kutta
     map, so a few dozen operations."""
-    d = drive(t + sf * h, m[0], m[1], src)
+    d = drive(t + sf * h, m[0], m[1], src, m[6])
     gu, gl = guards(_horner5(sf, cu), _horner(sf, cwu), _horner5(sf, cl), _horner(sf, cwl),
                     mu, ml, d, m)  # fmt: skip
     return gu if disc == 0 else gl
@@ -412,6 +415,17 @@ def _integrate(
         return BAD_PARAMETERS, 0
     c = derived(p, dt)
     m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift)
+    if needs_full_kernel(c) and not is_full_kernel(hook_torque):
+        # The plain kernel has no code for the lag (terms.full_kernel_only): refuse, never
+        # simulate without it.  rotorbayes.model.simulate picks the full kernel for it.
+        if full:
+            out_thu[:] = np.nan
+            out_wu[:] = np.nan
+            out_thl[:] = np.nan
+            out_wl[:] = np.nan
+        else:
+            _fail_residuals(r, row, col_u, col_l, n)
+        return BAD_PARAMETERS, 0
     max_ev = events.shape[0]
     last = n - 1.0
     inv_dt = 1.0 / dt
@@ -428,7 +442,7 @@ def _integrate(
     src = input_source(c, cfg, u, thp)
     y = (0.0, 0.0, 0.0, 0.0)
     # The rig starts at rest; each disc sticks unless its torque breaks it loose.
-    d1 = drive(0.0, c, cfg, src)
+    d1 = drive(0.0, c, cfg, src, hook_torque)
     if cfg == CFG_PRESCRIBED:
         y = (d1[2], d1[3], 0.0, 0.0)
     mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], d1, m)
@@ -463,7 +477,8 @@ def _integrate(
         n_step_ev = 0
         while True:
             t_tgt = next_kink(t, t_end, c, src) if kinks else t_end
-            t_sub = t + min(stribeck_step(y, f, mu, ml, c, cfg),
+            t_sub = t + min(stribeck_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
+                                          hook_torque),
                             approach_step(y, f, mu, ml, c, cfg, t_tgt - t))  # fmt: skip
             if t_sub < t_tgt:
                 t_tgt = t_sub  # a substep through the Stribeck band or towards an event
@@ -476,7 +491,7 @@ def _integrate(
             de = d1
             if not ok_step:
                 # Locate the earliest event among the violated guards.
-                d0 = drive(t, c, cfg, src)
+                d0 = drive(t, c, cfg, src, hook_torque)
                 gu0, gl0 = guards(y[0], y[1], y[2], y[3], mu, ml, d0, m)
                 f1 = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
                 y_ev, d_ev = y1, d1
@@ -821,6 +836,70 @@ def residuals_batch_into_plain(
     m = P.shape[0]
     for i in prange(m):
         status[i] = residuals_into_plain(
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
+            i, col_u, col_l,
+        )  # fmt: skip
+
+
+# ------------------------------------------------------------------ the full kernel
+# The entry points for a model that needs the full kernel's physics (drive lag, upper
+# Stribeck curve; see terms.lag_of) but has no user effects: the plain entry points'
+# arguments, the marker FULL instead of hook functions (an integer: nothing to unbox per
+# call, where a function argument costs 0.1-0.27 ms).  No signatures: compiled on first
+# use and cached, so commands that never need them never compile them.
+@njit(cache=True, error_model="numpy", nogil=True)
+def simulate_into_full(
+    p, q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_wu, out_thl, out_wl, out_mu,
+    out_ml, events,
+):  # fmt: skip
+    """:func:`simulate_into_plain` on the full kernel."""
+    no_f = np.empty(0)
+    return _integrate(
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL,
+        True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def residuals_into_full(
+    p, q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, r, row, col_u,
+    col_l,
+):  # fmt: skip
+    """:func:`residuals_into_plain` on the full kernel."""
+    no_f = np.empty(0)
+    no_i = np.empty(0, dtype=np.int8)
+    status, _ = _integrate(
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL,
+        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
+    )  # fmt: skip
+    return status
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def simulate_batch_into_full(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl, status):
+    """:func:`simulate_batch_into_plain` on the full kernel."""
+    m = P.shape[0]
+    n = u.shape[0]
+    for i in prange(m):
+        wu, wl, mu, ml, ev = _batch_scratch(n)
+        s, _ = simulate_into_full(
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, out_thu[i], wu, out_thl[i], wl,
+            mu, ml, ev,
+        )  # fmt: skip
+        status[i] = s
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def residuals_batch_into_full(
+    P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
+    status,
+):  # fmt: skip
+    """:func:`residuals_batch_into_plain` on the full kernel."""
+    m = P.shape[0]
+    for i in prange(m):
+        status[i] = residuals_into_full(
             P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
             i, col_u, col_l,
         )  # fmt: skip

@@ -89,7 +89,7 @@ def _call_hook_impl(hook, t, thu, wu, thl, wl, v, p, q):
     # Chosen when the kernel is typed: a model without user effects passes None for its
     # hooks and gets no function values at all (a function argument costs about 0.1 ms per
     # call from Python to type and unbox, and a function constant cannot be cached).
-    if isinstance(hook, types.NoneType):
+    if isinstance(hook, (types.NoneType, types.Integer)):  # plain or full without hooks
         return lambda hook, t, thu, wu, thl, wl, v, p, q: (0.0, 0.0)
     return lambda hook, t, thu, wu, thl, wl, v, p, q: hook(t, thu, wu, thl, wl, v, p, q)
 
@@ -413,33 +413,101 @@ def prescribed_velocity(t, c, thp):
 # tenth of a 30 s brake residual).  It reads one array, with no branch before the read, so
 # that numba's reference-count pruning removes the pair inside the solver's loop.
 @njit(cache=True, error_model="numpy", inline="always")
-def drive(t, c, cfg, src):
+def drive(t, c, cfg, src, hook):
     """What drives the system at ``t``: ``(t, voltage, upper angle, upper velocity)``.
 
-    ``src`` is the input voltage ``u`` (samples), or for :data:`CFG_PRESCRIBED` the
-    prescribed upper-disc angle, or with a drive lag the samples and the lagged command
-    (see :func:`input_source`).  Evaluated once per Runge-Kutta stage time, so the
-    right-hand side works on scalars only.  The command passes the drive's lag
-    ``tau_drive`` (:func:`lagged`), is delayed by ``t_delay`` (held at ``u[0]`` before the
-    first sample), offset by ``u_offset``, then through the dead zone ``±u_deadzone``.
+    ``c`` and ``cfg`` are the constants and the configuration, ``hook`` the model's torque
+    hook (``None`` in the plain kernel; not the model tuple, whose arrays would be
+    reference-counted at every call); ``src`` the input voltage ``u`` (samples), or for :data:`CFG_PRESCRIBED` the prescribed upper-disc
+    angle, or with a drive lag the samples and the lagged command (see
+    :func:`input_source`).  Evaluated once per Runge-Kutta stage time, so the right-hand
+    side works on scalars only.  The command passes the drive's lag ``tau_drive``
+    (:func:`lagged`; only in the full kernel, see :func:`lag_of`), is delayed
+    by ``t_delay`` (held at ``u[0]`` before the first sample), offset by ``u_offset``,
+    then through the dead zone ``±u_deadzone``.
     """
     presc = cfg == CFG_PRESCRIBED
-    if c[_TAU] > 0.0 and not presc:
-        a = lagged(t - c[_TDEL], src, c)
-    else:
-        a, da = interp(t if presc else t - c[_TDEL], src, c[_IDT])
-        if presc:
-            return t, 0.0, a, da
-    v = a + c[_UOFF]
-    dz = c[_UDZ]
+    a, da = interp(t if presc else t - c[_TDEL], src, c[_IDT])
+    if presc:
+        return t, 0.0, a, da
+    a = lag_of(hook, t - c[_TDEL], src, c, a)
+    return t, dead_zone(a + c[_UOFF], c[_UDZ]), 0.0, 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def dead_zone(v, dz):
+    """``v`` through the dead zone ``±dz`` (nothing for ``dz = 0``)."""
     if dz > 0.0:
         if v > dz:
-            v -= dz
-        elif v < -dz:
-            v += dz
-        else:
-            v = 0.0
-    return t, v, 0.0, 0.0
+            return v - dz
+        if v < -dz:
+            return v + dz
+        return 0.0
+    return v
+
+
+def lag_of(hook, s, src, c, a):
+    """The command ``a`` at time ``s``, through the drive's lag where the kernel is the
+    full one (compiled code only; see the overload)."""
+    return a
+
+
+# The plain and the full kernel.  Physics whose code would slow every step of every run
+# -- the drive's lag (an exponential at each stage), the upper disc's Stribeck curve (a
+# branch and the curve in every right-hand side, a third static level, a substep rule)
+# -- exists only in the *full* kernel: the one built with hook functions (user effects)
+# or with the marker FULL instead of them (model.configurations decides which a model
+# needs, from Effect.full_kernel).  The plain kernel (hooks None) has none of their code:
+# with runtime switches instead, a 30 s brake residual without either effect took 6-8 %
+# longer (0.158 -> 0.169 ms).  The full kernel without user hooks is compiled on first
+# use (solver's *_full entry points), so a command that needs neither never compiles it.
+#: The hooks' stand-in in the full kernel without user effects.
+FULL = 0
+
+
+@overload(lag_of, inline="always")
+def _lag_of_impl(hook, s, src, c, a):
+    if isinstance(hook, types.NoneType):
+        return lambda hook, s, src, c, a: a
+
+    def impl(hook, s, src, c, a):
+        if c[_TAU] > 0.0:
+            return lagged(s, src, c)
+        return a
+
+    return impl
+
+
+def upper_excess(hook, c):
+    """The upper disc's static excess ``dTs_u`` in the full kernel, 0 in the plain one
+    (compiled code only; see the overload)."""
+    return 0.0
+
+
+@overload(upper_excess, inline="always")
+def _upper_excess_impl(hook, c):
+    if isinstance(hook, types.NoneType):
+        return lambda hook, c: 0.0
+    return lambda hook, c: c[_DSU]
+
+
+@njit(cache=True, error_model="numpy")
+def needs_full_kernel(c):
+    """Whether these constants switch on physics only the full kernel has (the drive's
+    lag, the upper disc's Stribeck curve)."""
+    return c[_TAU] > 0.0 or c[_DSU] != 0.0
+
+
+def is_full_kernel(hook):
+    """Whether the kernel built for ``hook`` is the full one (compiled code only)."""
+    return hook is not None
+
+
+@overload(is_full_kernel, inline="always")
+def _is_full_kernel_impl(hook):
+    if isinstance(hook, types.NoneType):
+        return lambda hook: False
+    return lambda hook: True
 
 
 @njit(cache=True, error_model="numpy")
@@ -450,7 +518,9 @@ def voltage_at(times, u, p, dt, cfg):
     src = input_source(c, cfg, u, u)
     out = np.empty(times.shape[0])
     for k in range(times.shape[0]):
-        out[k] = drive(times[k], c, cfg, src)[1]
+        s = times[k] - c[_TDEL]
+        a = lagged(s, src, c) if c[_TAU] > 0.0 else interp(s, src, c[_IDT])[0]
+        out[k] = dead_zone(a + c[_UOFF], c[_UDZ])
     return out
 
 
@@ -482,12 +552,13 @@ def torques(thu, wu, thl, wl, d, m):
 
 
 @njit(cache=True, error_model="numpy")
-def bands(su, sl, c):
+def bands(su, sl, c, hook):
     """Static bands ``(lo_u, hi_u, lo_l, hi_l)``: a sticking disc stays at rest while its
     external torque lies inside ``[lo, hi]``."""
+    tsu = c[_TCU] + upper_excess(hook, c)
     return (
-        -(c[_TCU] + c[_DSU] + su - c[_DTCU]),
-        c[_TCU] + c[_DSU] + su + c[_DTCU],
+        -(tsu + su - c[_DTCU]),
+        tsu + su + c[_DTCU],
         -(c[_TSL] + sl - c[_DTCL]),
         c[_TSL] + sl + c[_DTCL],
     )
@@ -507,8 +578,8 @@ def rhs(thu, wu, thl, wl, mu, ml, d, m):
     dwu = 0.0
     if mu != 0 and cfg != CFG_PRESCRIBED:
         f = slip_torque(
-            wu, mu, c[_TCU] + su, c[_DTCU], c[_BU], c[_DBU], c[_DSU], c[_IWSU], c[_DU], shape,
-            c[_XCUTU],
+            wu, mu, c[_TCU] + su, c[_DTCU], c[_BU], c[_DBU], upper_excess(m[6], c), c[_IWSU],
+            c[_DU], shape, c[_XCUTU],
         )
         dthu = wu
         dwu = (te_u - f) * c[_IJU]
@@ -551,9 +622,9 @@ def _stribeck_limit(w, a, ds, iws, delta, tc, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def stribeck_step(y, f, mu, ml, c, cfg):
-    """The longest Runge-Kutta step [s] the discs' Stribeck curves allow from state ``y``
-    (derivative ``f``) in modes ``(mu, ml)``: the lower disc's (``Ts_l``, ``ws_l``,
+def stribeck_step(wu, au, mu, wl, al, ml, c, cfg, hook):
+    """The longest Runge-Kutta step [s] the discs' Stribeck curves allow from velocities
+    ``wu, wl``, accelerations ``au, al`` and modes ``mu, ml``: the lower disc's (``Ts_l``, ``ws_l``,
     ``delta_l``) and the upper disc's (``dTs_u``, ``ws_u``, ``delta_u``), by one rule.
 
     For each disc: ``inf`` unless it slips with a Stribeck term (``Ts_l != Tc_l``, ``dTs_u
@@ -578,11 +649,11 @@ def stribeck_step(y, f, mu, ml, c, cfg):
     """
     best = math.inf
     dsl = abs(c[_DSL])
-    if ml != 0 and cfg != CFG_UPPER and dsl != 0.0 and f[3] != 0.0:
-        best = _stribeck_limit(y[3], f[3], dsl, c[_IWSL], c[_DL], c[_TCL], c[_DT])
-    dsu = c[_DSU]
-    if mu != 0 and cfg != CFG_PRESCRIBED and dsu != 0.0 and f[1] != 0.0:
-        best = min(best, _stribeck_limit(y[1], f[1], dsu, c[_IWSU], c[_DU], c[_TCU], c[_DT]))
+    if ml != 0 and cfg != CFG_UPPER and dsl != 0.0 and al != 0.0:
+        best = _stribeck_limit(wl, al, dsl, c[_IWSL], c[_DL], c[_TCL], c[_DT])
+    dsu = upper_excess(hook, c)
+    if mu != 0 and cfg != CFG_PRESCRIBED and dsu != 0.0 and au != 0.0:
+        best = min(best, _stribeck_limit(wu, au, dsu, c[_IWSU], c[_DU], c[_TCU], c[_DT]))
     return best
 
 
@@ -631,7 +702,7 @@ def guards(thu, wu, thl, wl, mu, ml, d, m):
     """
     c, cfg = m[0], m[1]
     te_u, te_l, su, sl = torques(thu, wu, thl, wl, d, m)
-    lo_u, hi_u, lo_l, hi_l = bands(su, sl, c)
+    lo_u, hi_u, lo_l, hi_l = bands(su, sl, c, m[6])
     gu = 1.0
     if cfg != CFG_PRESCRIBED:
         gu = mu * wu if mu != 0 else min(hi_u - te_u, te_u - lo_u)
@@ -656,7 +727,7 @@ def modes_at_rest(thu, wu, thl, wl, d, m):
     """Modes of both discs if they were at rest now."""
     c, cfg = m[0], m[1]
     te_u, te_l, su, sl = torques(thu, wu, thl, wl, d, m)
-    lo_u, hi_u, lo_l, hi_l = bands(su, sl, c)
+    lo_u, hi_u, lo_l, hi_l = bands(su, sl, c, m[6])
     mu = mode_at_rest(te_u, lo_u, hi_u) if cfg != CFG_PRESCRIBED else 0
     ml = mode_at_rest(te_l, lo_l, hi_l) if cfg != CFG_UPPER else 0
     return mu, ml

@@ -205,6 +205,9 @@ class Model:
             else (_layout.CFG_COUPLED if self.configuration.has_lower else _layout.CFG_UPPER)
         )
         self.stribeck = "lower_stribeck" in names
+        #: Whether it runs on the full kernel (the one with hook functions): user effects,
+        #: or a catalogue effect whose code only that kernel has (``Effect.full_kernel``).
+        self.full_kernel = bool(self.user_effects) or any(e.full_kernel for e in self.effects)
         self._hooks = None
 
     def __repr__(self) -> str:

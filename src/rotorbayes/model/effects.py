@@ -100,6 +100,10 @@ class Effect:
     resolution : Resolution, optional
         What the data can resolve of it (the smallest size worth a claim); ``None``: only
         the size of its predicted fall of the error counts (user effects).
+    full_kernel : bool
+        Its physics lives only in the full kernel (built with hook functions): code that
+        would slow every run if the plain kernel carried it (see
+        :func:`rotorbayes.kernel.terms.full_kernel_only`).
     explains : tuple of str
         The missing-torque map's variables it can produce (``velocity``, ``direction``,
         ``torsion``, ``torsion_rate``, ``input``, ``input_rate``, ``input_history``; see
@@ -122,6 +126,7 @@ class Effect:
     equivalences: tuple[str, ...] = ()
     resolution: Resolution | None = None
     explains: tuple[str, ...] = ()
+    full_kernel: bool = False
     torque: Callable | None = field(default=None, compare=False, repr=False)
     friction_shift: Callable | None = field(default=None, compare=False, repr=False)
     source: str = "catalogue"
@@ -374,6 +379,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "uncertainty",
         ),
         explains=("velocity", "direction"),
+        full_kernel=True,
     ),
     Effect(
         "initial_torsion",
@@ -476,6 +482,7 @@ _CATALOGUE: tuple[Effect, ...] = (
             "between samples",
         ),
         explains=("input_rate", "input_history", "input"),
+        full_kernel=True,
     ),
 )
 

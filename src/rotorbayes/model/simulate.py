@@ -327,12 +327,15 @@ class Simulator:
 
     def _entry(self, name: str):
         """``(kernel function, experiment arguments)`` for the kernel entry point ``name``:
-        without user effects its ``_plain`` twin, which takes no hooks (a function
+        without user effects (or a catalogue effect only the full kernel has, see
+        ``Model.full_kernel``) its ``_plain`` twin, which takes no hooks (a function
         argument costs 0.1-0.27 ms per call from Python to type and unbox)."""
         a = self._kernel_args()
-        if not a[7]:
-            return getattr(_solver, name + "_plain"), a[:7]
-        return getattr(_solver, name), a
+        if a[7]:
+            return getattr(_solver, name), a
+        if self.model.full_kernel:
+            return getattr(_solver, name + "_full"), a[:7]
+        return getattr(_solver, name + "_plain"), a[:7]
 
     @property
     def t(self) -> np.ndarray:
