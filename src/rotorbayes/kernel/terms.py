@@ -418,13 +418,13 @@ def drive(t, c, cfg, src, hook):
 
     ``c`` and ``cfg`` are the constants and the configuration, ``hook`` the model's torque
     hook (``None`` in the plain kernel; not the model tuple, whose arrays would be
-    reference-counted at every call); ``src`` the input voltage ``u`` (samples), or for :data:`CFG_PRESCRIBED` the prescribed upper-disc
-    angle, or with a drive lag the samples and the lagged command (see
-    :func:`input_source`).  Evaluated once per Runge-Kutta stage time, so the right-hand
-    side works on scalars only.  The command passes the drive's lag ``tau_drive``
-    (:func:`lagged`; only in the full kernel, see :func:`lag_of`), is delayed
-    by ``t_delay`` (held at ``u[0]`` before the first sample), offset by ``u_offset``,
-    then through the dead zone ``±u_deadzone``.
+    reference-counted at every call); ``src`` the input voltage ``u`` (samples), or for
+    :data:`CFG_PRESCRIBED` the prescribed upper-disc angle, or with a drive lag the
+    samples and the lagged command (see :func:`input_source`).  Evaluated once per
+    Runge-Kutta stage time, so the right-hand side works on scalars only.  The command
+    passes the drive's lag ``tau_drive`` (:func:`lagged`; only in the full kernel, see
+    :func:`lag_of`), is delayed by ``t_delay`` (held at ``u[0]`` before the first
+    sample), offset by ``u_offset``, then through the dead zone ``±u_deadzone``.
     """
     presc = cfg == CFG_PRESCRIBED
     a, da = interp(t if presc else t - c[_TDEL], src, c[_IDT])
