@@ -315,6 +315,19 @@ def _owned_data(fit, spec: str, sha: str) -> bool:
     return str(spec).lower().endswith(".csv")
 
 
+def _recorded_read(fit, spec: str):
+    """How the fit read the data file ``spec`` (its recorded names and units)."""
+    from ..rigfiles import ReadSpec
+
+    if fit is None:
+        return None
+    for key in ("data_files", "validation_files"):
+        for d in fit.doc.get(key) or []:
+            if isinstance(d, dict) and d.get("path") == spec:
+                return ReadSpec.from_record(d.get("read"))
+    return None
+
+
 def _data(f: Found) -> Raw | None:
     from ..data import load_experiment
 
@@ -358,7 +371,8 @@ def _data(f: Found) -> Raw | None:
                          Raw(f'<span class="hash">{esc(sha)}</span>')])
             continue
         try:
-            ex = load_experiment(p, expect_lower=config != "upper")
+            ex = load_experiment(p, expect_lower=config != "upper",
+                                 read=_recorded_read(fit, spec))
         except Exception:  # noqa: BLE001 - said, never quoted (the file may not be ours)
             rows.append([role, name, "unreadable as a measurement file (`rotorbayes fit` "
                          "names the problem)", None, None, None, "",
