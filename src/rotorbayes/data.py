@@ -1035,7 +1035,7 @@ def _warn_voltage(path: Path, u: np.ndarray, max_abs_u: float, where) -> None:
         warnings.warn(
             f"{path}, {where(first)}: u = {float(u[first])!r} V exceeds "
             f"±{max_abs_u:g} V ({over.size} sample(s), largest |u| = "
-            f"{abs(float(u[worst]))!r} V at {where(worst)}); the rig's amplifier "
+            f"{abs(float(u[worst]))!r} V on {where(worst)}); the rig's amplifier "
             "limits the motor voltage to ±5 V, so check the voltage scaling of this file",
             DataWarning,
             stacklevel=3,
@@ -1240,6 +1240,12 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                 else ""
             )
             if len(fields) != ncols:
+                seps = {",": "commas", ";": "semicolons", "\t": "tabs"}
+                other = [w for c, w in seps.items() if c != sep and c in body]
+                if other and len(fields) == 1 and ncols > 1:
+                    truncated = (f"; the header is separated by {seps[sep]} but this row by "
+                                 f"{other[0]}: use one separator throughout (export the "
+                                 "file again)")
                 raise DataFileError(
                     path,
                     lineno,
