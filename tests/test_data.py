@@ -286,7 +286,8 @@ def test_absurd_time_step_has_no_unit_guess(tmp_path):
     path = write(tmp_path, [HEADER, *timed_rows([1e10 * i for i in range(10)])])
     with pytest.raises(
         DataFileError,
-        match=r"line 3: time step 1e\+10 .*is far too long: .*must be in seconds -- convert it \(a time in ms is read with --time-unit ms.*\)$",
+        match=r"line 3: time step 1e\+10 .*is far too long: .*must be in seconds -- convert "
+        r"it \(a time in ms is read with --time-unit ms.*\)$",
     ):
         load_experiment(path)
 
@@ -305,7 +306,8 @@ def test_fast_data_in_milliseconds_refused_by_duration(tmp_path):
     assert str(err).startswith(f"{path}, line 72003: time t = 7250.1 is more than 7200 s (2 h)")
     assert re.search(
         r"the record lasts 8000 s \(2\.22 h\).*looks like milliseconds \(then a 8 s experiment "
-        r"at 10000 Hz\): the t column must be in seconds -- divide it by 1000 or declare the unit, --time-unit ms .*\(if the record "
+        r"at 10000 Hz\): the t column must be in seconds -- divide it by 1000 or declare the "
+        r"unit, --time-unit ms .*\(if the record "
         r"really is this long, split it into files of at most 7200 s\)$",
         str(err),
     )
@@ -436,7 +438,8 @@ def test_encoder_counts_detected(tmp_path, column, counts_per_rev):
     factor = f"{counts_per_rev / (2 * math.pi):.6f}"
     with pytest.raises(
         DataFileError,
-        match=rf"{column} .*encoder counts; declare them with --angle-unit counts .*divide by "
+        match=rf"{column} .*encoder counts; declare them with --angle-unit counts "
+        rf".*divide by "
         rf"counts_per_rev/\(2π\) = {re.escape(factor)}",
     ):
         load_experiment(counts_file(tmp_path, column))
@@ -447,7 +450,8 @@ def test_degrees_detected(tmp_path):
     for i in range(20):
         t = i * 0.01
         lines.append(f"{t!r},1.0,{math.degrees(2.0 * t)!r},0.0")
-    with pytest.raises(DataFileError, match=r"theta_u .*looks like degrees; declare them with --angle-unit deg .*multiply by π/180"):
+    with pytest.raises(DataFileError, match=r"theta_u .*looks like degrees; declare them with "
+                       r"--angle-unit deg .*multiply by π/180"):
         load_experiment(write(tmp_path, lines))
     # The same motion in radians (2 rad/s) is accepted.
     radians = [HEADER] + [f"{i * 0.01!r},1.0,{2.0 * i * 0.01!r},0.0" for i in range(20)]

@@ -21,7 +21,7 @@ from .common import (
     say_glitches,
 )
 from .fit import build_problem
-from .options import MAX_STARTS, add_fit_options, add_parallel_options, ranged
+from .options import MAX_STARTS, add_fit_options, add_parallel_options, ranged, read_spec
 
 HELP = "many fits from spread starts; waterfall and spread"
 
