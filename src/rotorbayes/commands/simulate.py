@@ -215,13 +215,13 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
     ``out`` (a measurement file whose header records how to make it again).
 
     The input is generated (``input`` "est" or "val", ``duration`` s at ``rate`` Hz,
-    ``seed``) or read from ``input_file`` (columns t,u, or those ``columns`` names,
-    e.g. "t=Time,u=Volt"; time in ``time_unit``, s or ms; a CSV or MATLAB .mat file).
-    ``params`` is a named set, TOML file or fit.json (default: the configuration's P_ref;
-    a fit of the same configuration brings the effects it ran with, its user effect files checked as every command checks
-    them: ``trust_effects`` imports one that changed since); ``add`` switches effects on;
-    ``quantize`` rounds to encoder counts, ``noise`` adds Gaussian noise [rad]; ``plot``
-    also saves a figure.  ``Outcome.doc`` holds the file's header.
+    ``seed``) or read from ``input_file`` (columns t,u, or those ``columns`` names, e.g.
+    "t=Time,u=Volt"; time in ``time_unit``, s or ms; a CSV or MATLAB .mat file). ``params``
+    is a named set, TOML file or fit.json (default: the configuration's P_ref; a fit of the
+    same configuration brings the effects it ran with, its user effect files checked as
+    every command checks them: ``trust_effects`` imports one that changed since); ``add``
+    switches effects on; ``quantize`` rounds to encoder counts, ``noise`` adds Gaussian
+    noise [rad]; ``plot`` also saves a figure. ``Outcome.doc`` holds the file's header.
     """
     from ..model import Model
     from ..model import simulate as run_simulation
