@@ -261,18 +261,16 @@ def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> 
 
 def _fmt_params(prob, names, x, se=None, x0=None, at_bound=(), near_bound=()) -> str:
     rows = [f"{'parameter':<12} {'estimate':>12} {'std. error':>12} {'start':>12}  unit"]
+    from ..numformat import mean_sd
+
     for i, n in enumerate(names):
-        if n in at_bound:
-            s = f"{'AT BOUND':>12}"
-        else:
-            s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
+        # The standard error to two significant digits and the estimate to the same
+        # decimal place (a value printed to 5 digits beside an error of 1e-6 of it cannot
+        # be compared with anything); without one, the estimate to 6 digits.
+        value, err = mean_sd(float(x[i]), float(se[i]) if se is not None else math.nan)
+        s = f"{'AT BOUND':>12}" if n in at_bound else f"{err:>12}"
         st = f"{x0[i]:12.5g}" if x0 is not None else ""
-        # Enough digits to show the standard error's own two digits (a value printed to
-        # 5 digits beside an error of 1e-6 of it cannot be compared with anything).
-        digits = 5
-        if se is not None and np.isfinite(se[i]) and se[i] > 0 and x[i] != 0:
-            digits = int(min(max(5, math.ceil(math.log10(abs(x[i]) / se[i])) + 2), 12))
-        rows.append(f"{n:<12} {x[i]:>{max(12, digits + 7)}.{digits}g} {s} {st}  "
+        rows.append(f"{n:<12} {value:>12} {s} {st}  "
                     f"{prob.info(n).unit}" + ("  NEAR A BOUND" if n in near_bound else ""))
     return "\n".join(rows)
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ..inference.identify import profile_interval
 from ..inference.problem import ValidationTorsion
+from ..numformat import fmt_interval_at, mean_sd, sd_place
 from ..outputs import write_text_atomic
 from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
@@ -481,6 +482,10 @@ def _fit(f: Found) -> Raw | None:
                                  if p.get("start_source") else "")
         else:
             status, src = p.get("status"), p.get("source") or ""
+        if isinstance(v, int | float) and isinstance(se, int | float) and se > 0 \
+                and math.isfinite(se):
+            # The error to two significant digits, the value to the same decimal place.
+            v, se = (Raw(esc(t).replace("-", "−")) for t in mean_sd(float(v), float(se)))
         return [Raw(f"<code>{esc(n)}</code>"), v, se, rel, _unit(p.get("unit")), status, src]
 
     heads = ["parameter", "value", "std. error", "rel. s.e. [%]", "unit", "status", "source"]
@@ -827,9 +832,16 @@ def _identify(f: Found) -> Raw | None:
         for pr in prof:
             grid = pr.get("grid") or []
             iv = profile_interval(pr)
-            rows.append([Raw(f"<code>{esc(pr.get('parameter'))}</code>"), pr.get("estimate"),
-                         Raw(f"{num(iv['lo'], 7)} … {num(iv['hi'], 7)}")
-                         if iv["lo"] is not None else "no grid point", _unit(pr.get("unit")),
+            est, ends = pr.get("estimate"), "no grid point"
+            if iv["lo"] is not None:
+                # The 95 % interval's half-width over 1.96 is the sd its digits follow.
+                sd = (iv["hi"] - iv["lo"]) / 3.92
+                ends = Raw(esc(fmt_interval_at(iv["lo"], iv["hi"], sd)).replace(
+                    ", ", " … ").replace("-", "−"))
+                if isinstance(est, int | float) and sd_place(sd) is not None:
+                    est = Raw(esc(mean_sd(float(est), sd)[0]).replace("-", "−"))
+            rows.append([Raw(f"<code>{esc(pr.get('parameter'))}</code>"), est,
+                         ends, _unit(pr.get("unit")),
                          Raw(f"{num(grid[0], 7)} … {num(grid[-1], 7)}") if grid else None,
                          iv["note"]])
         out.append(Raw("<h3>Profile likelihoods</h3>"))
