@@ -609,7 +609,7 @@ def _check_columns(cols: Mapping[str, np.ndarray], read: ReadSpec | None = None)
                 fix = (
                     f"and all its values are whole numbers: it looks like encoder counts; "
                     f"declare them with {COUNTS_OPTION} (with --counts-per-rev "
-                    f"{key}=N if the encoder is not the rig's {cpr:g} counts/rev), or divide "
+                    f"{key}=N if the encoder is not the rig's {cpr:.10g} counts/rev), or divide "
                     f"by counts_per_rev/(2π) = {cpr / (2 * math.pi):.6f} to get rad"
                 )
             else:

@@ -451,6 +451,8 @@ def _missing(tree, sig: str, name: str, spec: ReadSpec) -> str:
     held = ", ".join(_listing(tree)) or "no numeric variables"
     if sig in spec.columns:
         return (f"no {name!r} for {sig} (--columns {sig}={name}); the file holds {held}")
-    return (f"no variable {sig!r}: name the file's signals with --columns (e.g. "
-            f"--columns t=ScopeData.time,u=ScopeData.signals(1).values,...; analysis file: "
-            f"columns = {{t = \"...\"}}); the file holds {held}")
+    return (f"no variable {sig!r}: name the file's signals with --columns "
+            "t=NAME,u=NAME,theta_u=NAME,theta_l=NAME (analysis file: columns = {t = "
+            "\"NAME\", ...}), each NAME a variable, a struct's field (ScopeData.time, "
+            "ScopeData.signals(2).values) or a matrix's column (Encoder(:,1)); the file "
+            f"holds {held}")
