@@ -23,7 +23,8 @@ from rotorbayes.model.simulate import default_step
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 #: Tables of the analysis file and the command each one's keys are options of.
-TABLE_COMMAND = {"analysis": "fit", "fit": "fit", "sample": "sample", "identify": "identify", "design": "design"}
+TABLE_COMMAND = {"analysis": "fit", "fit": "fit", "sample": "sample", "identify": "identify",
+                 "design": "design"}
 
 
 def _subparsers():

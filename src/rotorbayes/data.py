@@ -87,7 +87,6 @@ __all__ = [
     "DataWarning",
     "Experiment",
     "Glitch",
-    "ReadSpec",
     "leave_out_glitches",
     "load_experiment",
     "measurement_sha256",
