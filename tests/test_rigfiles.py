@@ -291,3 +291,21 @@ def test_analysis_file_reads_a_mat_file(tmp_path, brake):
     with pytest.raises(AnalysisError, match=r"b.toml: \[analysis\] angle unit 'grad': choose "
                        "rad, deg or counts"):
         load_analysis(tmp_path / "b.toml")
+
+
+def test_run_fits_a_mat_file_as_its_analysis_file_says(tmp_path, brake, capsys):
+    from rotorbayes.study import _command_line
+
+    _scope_v5(tmp_path / "run.mat", brake)
+    cols = ", ".join(f'{k} = "{v}"' for k, v in ReadSpec.from_options(SCOPE).columns.items())
+    (tmp_path / "a.toml").write_text(
+        f'[analysis]\nout = "o"\nconfig = "brake"\ndata = ["run.mat"]\ncolumns = {{{cols}}}\n'
+        '[fit]\np0 = "thesis:4.3:P_ref"\nfree = ["Tc_l", "b_l"]\nmax_nfev = 3\n')
+    assert main(["run", str(tmp_path / "a.toml")]) in (0, 1)
+    log = (tmp_path / "o" / "log.txt").read_text()
+    # The stage's command line is one to type: the MATLAB names quoted for the shell.
+    assert "--columns 't=ScopeData.time,u=ScopeData.signals(1).values," in log
+    doc = json.loads((tmp_path / "o" / "fit0" / "fit.json").read_text())
+    assert doc["data_files"][0]["read"]["columns"]["t"] == "ScopeData.time"
+    assert _command_line("fit", {"data": ["my data.csv"], "columns": "t=d(:,1)"}) == \
+        "fit 'my data.csv' --columns 't=d(:,1)'"

@@ -23,6 +23,7 @@ import hashlib
 import io
 import json
 import math
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -483,7 +484,8 @@ def _command_line(command: str, options: dict) -> str:
                 words += [flag, str(x)]
         elif v is not None and v is not False:
             words += [flag, str(v)]
-    return " ".join(words)
+    # Quoted for a shell where needed (a path with a space, a column "data(:,1)").
+    return " ".join(shlex.quote(w) for w in words)
 
 
 def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # noqa: C901
