@@ -309,3 +309,25 @@ def test_run_fits_a_mat_file_as_its_analysis_file_says(tmp_path, brake, capsys):
     assert doc["data_files"][0]["read"]["columns"]["t"] == "ScopeData.time"
     assert _command_line("fit", {"data": ["my data.csv"], "columns": "t=d(:,1)"}) == \
         "fit 'my data.csv' --columns 't=d(:,1)'"
+
+
+def test_a_loggers_units_row_is_read_and_checked(tmp_path, brake):
+    deg = {"Time": brake.t * 1000, "Volt": brake.u, "A1": np.rad2deg(brake.theta_u),
+           "A2": np.rad2deg(brake.theta_l)}
+    _csv(tmp_path / "log.csv", deg, sep=";", comma=True)
+    lines = (tmp_path / "log.csv").read_text().splitlines(keepends=True)
+    lines.insert(1, "[ms];[V];[deg];[deg]\n")
+    (tmp_path / "log.csv").write_text("".join(lines))
+    cols = "t=Time,u=Volt,theta_u=A1,theta_l=A2"
+    got = load_experiment(tmp_path / "log.csv", read=ReadSpec.from_options(
+        cols, time_unit="ms", angle_unit="deg"))
+    assert got.n == brake.n
+    with pytest.raises(DataFileError, match=r"log.csv, line 2: the units row gives theta_u in "
+                       r"deg, but it is read in rad: declare the unit with --angle-unit deg"):
+        load_experiment(tmp_path / "log.csv", read=ReadSpec.from_options(cols, time_unit="ms"))
+    # Bad data on the first line after the units row still names its line.
+    lines[2] = "0;x;0;0\n"
+    (tmp_path / "log.csv").write_text("".join(lines))
+    with pytest.raises(DataFileError, match=r"line 3: value 'x' in column Volt"):
+        load_experiment(tmp_path / "log.csv", read=ReadSpec.from_options(
+            cols, time_unit="ms", angle_unit="deg"))

@@ -1088,6 +1088,43 @@ def _load_mat(path: Path, fd: int, read: ReadSpec, expect_lower: bool | None,
     return leave_out_glitches(exp, keep=keep_glitches)
 
 
+#: The units a logger's units row may name, by what they mean.
+_UNIT_WORDS = {"s": "s", "sec": "s", "seconds": "s", "ms": "ms", "msec": "ms", "v": "V",
+               "volt": "V", "rad": "rad", "deg": "deg", "°": "deg", "degree": "deg",
+               "degrees": "deg", "counts": "counts", "count": "counts", "cnt": "counts",
+               "inc": "counts", "increments": "counts"}
+
+
+def _units_row(line: str, sep: str, idx: list[int], names: list[str], ncols: int,
+               read: ReadSpec, path: Path, lineno: int) -> bool:
+    """Whether the line after the header is a logger's units row (``s;V;deg;deg``): no
+    number in the signals' columns, and units it knows.  Units that contradict the
+    declared ones (``--time-unit``, ``--angle-unit``) are refused."""
+    fields = line.rstrip("\n").split(sep)
+    if len(fields) != ncols:
+        return False
+    texts = [fields[j].strip().strip('"').strip() for j in idx]
+    if any(_is_number(t.replace(",", ".")) for t in texts):
+        return False
+    units = {n: _UNIT_WORDS.get(t.strip("[]() ").lower()) for n, t in zip(names, texts,
+                                                                       strict=True)}
+    if not any(units.values()):
+        return False
+    declared = {"t": read.time_unit, "u": "V", "theta_u": read.angle_unit,
+                "theta_l": read.angle_unit}
+    for n, unit in units.items():
+        if unit is not None and unit != declared[n]:
+            option = (f"--time-unit {unit}" if n == "t" else "" if n == "u"
+                      else f"--angle-unit {unit}")
+            raise DataFileError(
+                path, lineno,
+                f"the units row gives {n} in {unit}, but it is read in {declared[n]}"
+                + (f": declare the unit with {option} (analysis file: "
+                   f"{'time_unit' if n == 't' else 'angle_unit'} = \"{unit}\")"
+                   if option else "; give the voltage in V"))
+    return True
+
+
 def _delimiter(header: str) -> str:
     """The field separator of a CSV, from its header: a semicolon or a tab where the header
     has one (spreadsheets in locales with a decimal comma, loggers), else a comma."""
@@ -1219,6 +1256,10 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                 f"comment line {line.strip()!r} after the header; comment lines are "
                 "only allowed before the header -- move it there or delete it",
             )
+        if n_rows == 0 and lineno == header_lineno + 1 and _units_row(
+                line, sep, idx, names, ncols, read, path, lineno):
+            header_lineno = lineno  # a logger's units under the names: part of the header
+            continue
         body = line[:-1] if line.endswith("\n") else line
         fields = body.split(sep)
         values_of_row = None
