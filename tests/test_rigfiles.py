@@ -175,6 +175,17 @@ def test_mat_without_mapping_lists_what_it_holds(tmp_path, brake):
     with pytest.raises(DataFileError, match=r"6001x2 matrix, not one signal.*\(:,K\)"):
         load_experiment(tmp_path / "run.mat", read=ReadSpec.from_options(
             SCOPE.replace("values(:,1)", "values")))
+    # A MATLAB object (a timeseries) holds no data outside MATLAB: named as such.
+    _mat73(tmp_path / "obj.mat", {"t": brake.t[:, None]})
+    with h5py.File(tmp_path / "obj.mat", "r+") as f:
+        d = f.create_dataset("ts", data=np.array([[3707764736, 2, 1, 1, 1, 1]], np.uint32).T)
+        d.attrs["MATLAB_class"] = np.bytes_("timeseries")
+        d.attrs["MATLAB_object_decode"] = 3
+    with pytest.raises(DataFileError, match=r"ts \(a MATLAB timeseries object: save its "):
+        load_experiment(tmp_path / "obj.mat")
+    with pytest.raises(DataFileError, match=r"ts is a MATLAB object of class timeseries.*"
+                       r"t = ts.Time, u = ts.Data"):
+        load_experiment(tmp_path / "obj.mat", read=ReadSpec.from_options("u=ts"))
     (tmp_path / "bad.mat").write_bytes(b"MATLAB 5.0 MAT-file" + b"\0" * 200)
     with pytest.raises(DataFileError, match="bad.mat: not a readable MATLAB file"):
         load_experiment(tmp_path / "bad.mat")

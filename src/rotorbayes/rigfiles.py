@@ -303,7 +303,21 @@ def _mat_tree(data: bytes):
     return {k: _v5(v) for k, v in raw.items() if not k.startswith("__")}
 
 
+@dataclass(frozen=True)
+class _Object:
+    """A MATLAB object (timeseries, Simulink.SimulationData.Dataset, a function handle):
+    its data cannot be read outside MATLAB."""
+
+    cls: str
+
+
 def _v5(x):
+    from scipy.io.matlab import MatlabFunction, MatlabObject, MatlabOpaque
+
+    if isinstance(x, MatlabOpaque | MatlabFunction):
+        return _Object(str(getattr(x, "classname", "") or "opaque"))
+    if isinstance(x, MatlabObject):
+        return _Object(str(getattr(x, "classname", "") or "object"))
     if isinstance(x, np.ndarray):
         if x.dtype.names:  # a struct (array)
             elems = [{f: _v5(e[f]) for f in x.dtype.names} for e in x.ravel(order="F")]
@@ -330,6 +344,11 @@ def _h5_tree(data: bytes):
         return {k: _h5(f, f[k]) for k in f if not k.startswith("#")}
 
 
+# The MATLAB classes of v7.3 datasets that hold data (others are objects' handles).
+_H5_DATA_CLASSES = {"", "double", "single", "int8", "uint8", "int16", "uint16", "int32",
+                    "uint32", "int64", "uint64", "logical", "char", "cell", "struct"}
+
+
 def _h5(f, node):
     import h5py
 
@@ -348,6 +367,8 @@ def _h5(f, node):
         return {k: _h5(f, d) for k, d in fields.items()}
     if node.attrs.get("MATLAB_empty", 0):
         return np.zeros((0, 0))
+    if "MATLAB_object_decode" in node.attrs or cls not in _H5_DATA_CLASSES:
+        return _Object(cls or "unknown")
     arr = np.asarray(node)
     if node.dtype == h5py.ref_dtype:  # a cell array
         return [_h5(f, f[r]) for r in arr.T.ravel(order="F")]
@@ -423,6 +444,12 @@ def _vector(node, name: str) -> np.ndarray:
         raise FormatProblem(f"{name} is a {node.shape[0]}x{node.shape[1]} matrix, not one "
                             f"signal; pick a column with {name}(:,K) (or a row with "
                             f"{name}(K,:))")
+    if isinstance(node, _Object):
+        raise FormatProblem(
+            f"{name} is a MATLAB object of class {node.cls}, whose data only MATLAB can "
+            "read; save its arrays in the file instead (for a timeseries ts: "
+            "t = ts.Time, u = ts.Data; Simulink's To Workspace block: the formats "
+            "'Structure With Time' or 'Array')")
     what = ("a struct (fields " + ", ".join(node) + ")" if isinstance(node, dict)
             else f"a list of {len(node)}" if isinstance(node, list)
             else "text" if isinstance(node, str) else f"of type {type(node).__name__}")
@@ -444,6 +471,8 @@ def _listing(tree, prefix: str = "", out=None, depth: int = 0) -> list[str]:
                 _listing(v, f"{prefix}({i})", out, depth + 1)
     elif isinstance(tree, np.ndarray) and tree.dtype.kind in "biuf" and tree.ndim == 2:
         out.append(f"{prefix} ({tree.shape[0]}x{tree.shape[1]})")
+    elif isinstance(tree, _Object):
+        out.append(f"{prefix} (a MATLAB {tree.cls} object: save its arrays instead)")
     return out
 
 
