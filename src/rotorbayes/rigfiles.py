@@ -298,9 +298,18 @@ def _mat_tree(data: bytes):
         raise FormatProblem(f"a MATLAB file scipy cannot read ({exc}); save it again "
                             "with save -v7 or -v7.3") from None
     except Exception as exc:  # noqa: BLE001 - any parser failure is a damaged file
+        head = data[:512]
+        text = bool(head) and not data.startswith(b"MATLAB") and all(
+            32 <= b < 127 or b in b"\t\r\n" for b in head)
         raise FormatProblem(f"not a readable MATLAB file ({type(exc).__name__}: {exc}); "
-                            "save it again from MATLAB, or export CSV") from None
-    return {k: _v5(v) for k, v in raw.items() if not k.startswith("__")}
+                            + ("it holds text: if it is a CSV file, name it .csv"
+                               if text else "save it again from MATLAB, or export CSV")
+                            ) from None
+    try:
+        return {k: _v5(v) for k, v in raw.items() if not k.startswith("__")}
+    except RecursionError:
+        raise FormatProblem("its structs are nested too deep to read; save the signals "
+                            "as plain variables") from None
 
 
 @dataclass(frozen=True)
@@ -341,7 +350,13 @@ def _h5_tree(data: bytes):
         raise FormatProblem(f"not a readable MATLAB v7.3 (HDF5) file ({exc}); save it again "
                             "from MATLAB, or export CSV") from None
     with f:
-        return {k: _h5(f, f[k]) for k in f if not k.startswith("#")}
+        try:
+            return {k: _h5(f, f[k]) for k in f if not k.startswith("#")}
+        except FormatProblem:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a damaged file, or one nested absurdly
+            raise FormatProblem(f"not a readable MATLAB v7.3 file ({type(exc).__name__}: "
+                                f"{exc}); save it again from MATLAB, or export CSV") from None
 
 
 # The MATLAB classes of v7.3 datasets that hold data (others are objects' handles).
