@@ -920,7 +920,7 @@ def load_experiment(
         while reading) accepted. Default: the environment variables
         ``ROTORBAYES_MAX_DATA_MB`` (MB) and ``ROTORBAYES_MAX_DATA_ROWS``, else
         :data:`MAX_DATA_BYTES` (1 GB) and :data:`MAX_DATA_ROWS` (10 million).
-    read : ReadSpec, optional
+    read : ReadSpec or mapping, optional
         How to read a rig's own file (:mod:`rotorbayes.rigfiles`): the file's names of the
         signals and its units of time (s, ms) and angle (rad, deg, encoder counts).  A
         MATLAB ``.mat`` file (v5 or v7.3) is recognised by its content; a CSV may be
@@ -958,7 +958,14 @@ def load_experiment(
     limit_bytes = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
                          "largest file size in MB")
     limit_rows = _limit(path, max_rows, MAX_ROWS_ENV, MAX_DATA_ROWS, 1, "most data rows")
-    read = ReadSpec() if read is None else read
+    if read is None:
+        read = ReadSpec()
+    elif isinstance(read, Mapping):  # {"columns": {...}, "angle_unit": "deg"}
+        read = ReadSpec.from_record(read)
+    elif not isinstance(read, ReadSpec):
+        raise TypeError(f"read must be a rotorbayes.ReadSpec (or a mapping of its fields), "
+                        f"got {type(read).__name__}; e.g. ReadSpec.from_options("
+                        "'t=Time,u=Volt', angle_unit='deg')")
     fd = _open_measurement(path, limit_bytes)
     try:
         head = os.pread(fd, 520, 0)
