@@ -32,6 +32,18 @@ A UTF-8 CSV file in SI units (s, V, rad), uniformly sampled::
 the line (1-based, counting every line of the file, comments included), the bad value and what
 to do about it.
 
+A rig's own files
+-----------------
+``load_experiment(path, read=ReadSpec(...))`` reads what a rig records as it is: MATLAB
+``.mat`` files (v5 and v7.3, recognised by their content), CSV files separated by
+semicolons or tabs with decimal commas, other columns and a logger's units row, with the
+file's names of the signals and its units of time (s, ms) and angle (rad, deg, encoder
+counts) declared (:mod:`rotorbayes.rigfiles`).  The declared conversions are applied
+before the checks above, which then hold as for a CSV in SI units; undeclared
+milliseconds, degrees or counts are refused, and the message names the option
+(``--time-unit``, ``--angle-unit``) that declares them.  A ``.mat`` file's problems name
+the sample (1-based) instead of a line.
+
 Glitches
 --------
 Encoder lines pick up spikes: a sample (or a burst of up to three within 13 samples) that
@@ -1066,6 +1078,11 @@ def _load_mat(path: Path, fd: int, read: ReadSpec, expect_lower: bool | None,
         cols, names = _rig.read_mat(data, read, wanted)
     except FormatProblem as exc:
         raise DataFileError(path, None, str(exc)) from None
+    if expect_lower is False and "theta_l" in cols:
+        raise DataFileError(
+            path, None, f"theta_l is mapped (--columns theta_l={names['theta_l']}), but an "
+            "upper-configuration record without the lower disc was expected; leave "
+            "theta_l out of --columns, or use --model coupled or brake for this file")
     if expect_lower is True and "theta_l" not in cols:
         raise DataFileError(
             path, None, "no theta_l (the lower disc's angle) in it: map it with --columns "
