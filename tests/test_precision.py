@@ -168,3 +168,23 @@ def test_fit_table_prints_the_estimate_to_its_error(narrow):
     lines = text.splitlines()
     assert lines[1].split()[:3] == ["Tc_l", "0.03736123", "6.9e-07"]
     assert lines[2].split()[:3] == ["b_l", "0.0011", "—"]
+
+
+def test_report_prints_each_estimate_to_its_error(tmp_path, capsys):
+    import json
+
+    from rotorbayes.cli import main
+    from rotorbayes.report.markup import digits
+
+    fit = tmp_path / "fit"
+    assert main(["fit", "--model", "upper", "example:upper_est", "--p0", "thesis:4.1:P_ref",
+                 "--max-nfev", "20", "--out", str(fit)]) in (0, 1)
+    assert main(["report", str(fit)]) == 0
+    capsys.readouterr()
+    html = (fit / "report.html").read_text()
+    doc = json.loads((fit / "fit.json").read_text())
+    for n in doc["free"]:
+        p = doc["parameters"][n]
+        value, err = (digits(t) for t in NF.mean_sd(p["value"], p["stderr"]))
+        assert f'<td class="n">{value}</td><td class="n">{err}</td>' in html, n
+    assert "<td class=\"n\">4.3687" in html  # k_m to the place of its error, not 4.369

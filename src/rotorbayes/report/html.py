@@ -26,6 +26,7 @@ from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
     CSS,
     Raw,
+    digits,
     esc,
     figure,
     figure_store,
@@ -485,7 +486,7 @@ def _fit(f: Found) -> Raw | None:
         if isinstance(v, int | float) and isinstance(se, int | float) and se > 0 \
                 and math.isfinite(se):
             # The error to two significant digits, the value to the same decimal place.
-            v, se = (Raw(esc(t).replace("-", "−")) for t in mean_sd(float(v), float(se)))
+            v, se = (digits(t) for t in mean_sd(float(v), float(se)))
         return [Raw(f"<code>{esc(n)}</code>"), v, se, rel, _unit(p.get("unit")), status, src]
 
     heads = ["parameter", "value", "std. error", "rel. s.e. [%]", "unit", "status", "source"]
@@ -836,10 +837,10 @@ def _identify(f: Found) -> Raw | None:
             if iv["lo"] is not None:
                 # The 95 % interval's half-width over 1.96 is the sd its digits follow.
                 sd = (iv["hi"] - iv["lo"]) / 3.92
-                ends = Raw(esc(fmt_interval_at(iv["lo"], iv["hi"], sd)).replace(
-                    ", ", " … ").replace("-", "−"))
+                lo, hi = fmt_interval_at(iv["lo"], iv["hi"], sd).split(", ")
+                ends = Raw(f"{digits(lo)} … {digits(hi)}")
                 if isinstance(est, int | float) and sd_place(sd) is not None:
-                    est = Raw(esc(mean_sd(float(est), sd)[0]).replace("-", "−"))
+                    est = digits(mean_sd(float(est), sd)[0])
             rows.append([Raw(f"<code>{esc(pr.get('parameter'))}</code>"), est,
                          ends, _unit(pr.get("unit")),
                          Raw(f"{num(grid[0], 7)} … {num(grid[-1], 7)}") if grid else None,
