@@ -259,8 +259,10 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
         raise Refused(f"--params {params}: {exc}" if params and str(params) not in
                       str(exc) else str(exc)) from None
     if input_file:
-        t, u = read_input_file(input_file, read_spec(columns, time_unit))
-        source = input_file
+        read = read_spec(columns, time_unit)
+        t, u = read_input_file(input_file, read)
+        # How it was read is part of making the file again (its names, its time unit).
+        source = " ".join([input_file, read.options()]).strip()
     else:
         input = input or "est"
         duration = 30.0 if duration is None else duration
