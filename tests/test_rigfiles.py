@@ -379,3 +379,21 @@ def test_every_form_gives_the_csvs_residuals_bit_for_bit(tmp_path, brake):
         got = load_experiment(path, read=spec)
         _same(got, csv)
         assert np.array_equal(residuals(got), residuals(csv)), path.name
+
+
+@pytest.mark.parametrize(("argv", "needle"), [
+    (["--counts-per-rev", "1000"], "--counts-per-rev: counts per revolution given, but the "
+     "angles are read in rad; they are for --angle-unit counts"),
+    (["--angle-unit", "counts", "--counts-per-rev", "theta_x=5"], "--counts-per-rev: counts "
+     "per revolution: 'theta_x' is not an angle"),
+    (["--angle-unit", "counts", "--counts-per-rev", "0"], "--counts-per-rev: counts per "
+     "revolution of theta_u: 0.0"),
+    (["--columns", "t=a,t=b"], "--columns: columns: t is mapped twice"),
+    (["--columns", "x=a"], "--columns: columns: 'x' is not a signal of the model"),
+])
+def test_bad_read_options_are_refused_naming_the_option(tmp_path, capsys, argv, needle):
+    assert main(["fit", "--model", "brake", "example:brake_est", *argv, "--out",
+                 str(tmp_path / "f")]) == EXIT.REFUSED
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "f").exists()

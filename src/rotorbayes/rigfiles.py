@@ -106,6 +106,10 @@ class ReadSpec:
                                     "counts per revolution, a number from 1 to 1e9")
         object.__setattr__(self, "counts_per_rev", {k: float(cpr[k]) for k in
                                                     DEFAULT_COUNTS_PER_REV if k in cpr})
+        if self.counts_per_rev and self.angle_unit != "counts":
+            raise FormatProblem(f"counts per revolution given, but the angles are read in "
+                                f"{self.angle_unit}; they are for --angle-unit counts "
+                                "(analysis file: angle_unit = \"counts\")")
 
     # -- construction from the command line, an analysis file, a fit.json ----------------
 
