@@ -1326,7 +1326,8 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                         path,
                         lineno,
                         f"value {shown} in column {name} is not a number"
-                        f"{truncated or '; write plain decimal numbers (e.g. 0.25 or 2.5e-1)'}",
+                        + (truncated or "; write plain decimal numbers (e.g. "
+                           + ("0,25 or 0.25" if decimal_comma else "0.25 or 2.5e-1") + ")"),
                     )
             # float() failed, so one field must be non-numeric
             raise AssertionError(body)  # pragma: no cover
