@@ -114,6 +114,9 @@ def test_load_reordered_columns_crlf_and_bom(tmp_path):
 # Every refusal: (lines of the file, expected line number or None, regex the message must match)
 
 GOOD = rows()
+#: How a refusal of time in milliseconds ends: the fix, and the option that declares ms.
+MS_OPTION = r", or declare the unit: --time-unit ms \(analysis file: time_unit = \"ms\"\)$"
+
 BAD_FILES = {
     "empty": ([], None, r"empty"),
     "blank only": (["", "   ", ""], None, r"empty"),
@@ -137,7 +140,9 @@ BAD_FILES = {
     ),
     "trailing comma": (["t,u,theta_u,theta_l,", *GOOD], 1, r"empty name: trailing comma"),
     "repeated column": (["t,u,theta_u,theta_u", *GOOD], 1, r"repeated column\(s\) theta_u"),
-    "semicolons": (["t;u;theta_u;theta_l", *GOOD], 1, r"separated by commas"),
+    # Semicolons are a separator (issue 36), but not mixed with commas.
+    "semicolons": (["t;u;theta_u;theta_l", *GOOD], 2,
+                   r"header is separated by semicolons but this row by commas"),
     "short row": (
         ["# a: b", HEADER, *GOOD[:4], "0.04,0.1,0.2", *GOOD[5:]],
         7,
@@ -192,22 +197,22 @@ BAD_FILES = {
         r"time step 1 \(from t = 0\.0 to 1\.0\) looks like milliseconds: read as seconds, this "
         r"is a 9 s experiment sampled at 1 Hz, but the rig is sampled at tens of Hz to tens of "
         r"kHz.*in milliseconds it is a 0\.009 s experiment at 1000 Hz\. The t column must be "
-        r"in seconds -- divide it by 1000$",
+        r"in seconds -- divide it by 1000" + MS_OPTION,
     ),
     "time in milliseconds, 200 Hz": (
         ["# rate: 200 Hz", HEADER, *timed_rows([5.0 * i for i in range(10)])],
         4,
-        r"time step 5 .*looks like milliseconds.*at 200 Hz\. .*divide it by 1000$",
+        r"time step 5 .*looks like milliseconds.*at 200 Hz\. .*divide it by 1000" + MS_OPTION,
     ),
     "time in milliseconds, step 0.5 (2 kHz)": (
         [HEADER, *timed_rows([0.5 * i for i in range(10)])],
         3,
-        r"time step 0\.5 .*looks like milliseconds.*at 2000 Hz\. .*divide it by 1000$",
+        r"time step 0\.5 .*looks like milliseconds.*at 2000 Hz\. .*divide it by 1000" + MS_OPTION,
     ),
     "time in milliseconds, not starting at zero": (
         [HEADER, *timed_rows([1000.0 + i for i in range(10)])],
         3,
-        r"from t = 1000\.0 to 1001\.0\) looks like milliseconds.*divide it by 1000$",
+        r"from t = 1000\.0 to 1001\.0\) looks like milliseconds.*divide it by 1000" + MS_OPTION,
     ),
     "time in microseconds, 1 kHz": (
         [HEADER, *timed_rows([1000.0 * i for i in range(10)])],
@@ -281,7 +286,8 @@ def test_absurd_time_step_has_no_unit_guess(tmp_path):
     path = write(tmp_path, [HEADER, *timed_rows([1e10 * i for i in range(10)])])
     with pytest.raises(
         DataFileError,
-        match=r"line 3: time step 1e\+10 .*is far too long: .*must be in seconds -- convert it$",
+        match=r"line 3: time step 1e\+10 .*is far too long: .*must be in seconds -- convert "
+        r"it \(a time in ms is read with --time-unit ms.*\)$",
     ):
         load_experiment(path)
 
@@ -300,7 +306,8 @@ def test_fast_data_in_milliseconds_refused_by_duration(tmp_path):
     assert str(err).startswith(f"{path}, line 72003: time t = 7250.1 is more than 7200 s (2 h)")
     assert re.search(
         r"the record lasts 8000 s \(2\.22 h\).*looks like milliseconds \(then a 8 s experiment "
-        r"at 10000 Hz\): the t column must be in seconds -- divide it by 1000 \(if the record "
+        r"at 10000 Hz\): the t column must be in seconds -- divide it by 1000 or declare the "
+        r"unit, --time-unit ms .*\(if the record "
         r"really is this long, split it into files of at most 7200 s\)$",
         str(err),
     )
@@ -431,7 +438,8 @@ def test_encoder_counts_detected(tmp_path, column, counts_per_rev):
     factor = f"{counts_per_rev / (2 * math.pi):.6f}"
     with pytest.raises(
         DataFileError,
-        match=rf"{column} .*encoder counts; divide by "
+        match=rf"{column} .*encoder counts; declare them with --angle-unit counts "
+        rf".*divide by "
         rf"counts_per_rev/\(2π\) = {re.escape(factor)}",
     ):
         load_experiment(counts_file(tmp_path, column))
@@ -442,7 +450,8 @@ def test_degrees_detected(tmp_path):
     for i in range(20):
         t = i * 0.01
         lines.append(f"{t!r},1.0,{math.degrees(2.0 * t)!r},0.0")
-    with pytest.raises(DataFileError, match=r"theta_u .*looks like degrees; multiply by π/180"):
+    with pytest.raises(DataFileError, match=r"theta_u .*looks like degrees; declare them with "
+                       r"--angle-unit deg .*multiply by π/180"):
         load_experiment(write(tmp_path, lines))
     # The same motion in radians (2 rad/s) is accepted.
     radians = [HEADER] + [f"{i * 0.01!r},1.0,{2.0 * i * 0.01!r},0.0" for i in range(20)]

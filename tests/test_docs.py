@@ -70,5 +70,5 @@ def test_api_reference_documents_the_public_modules(site):
                 "rotorbayes.inference.likelihood.load_priors",
                 "rotorbayes.inference.sampling.sample", "rotorbayes.diagnosis.diagnose.diagnose",
                 "rotorbayes.model.effects.Effect", "rotorbayes.data.load_experiment",
-                "rotorbayes.results.load_fit"):
+                "rotorbayes.results.load_fit", "rotorbayes.rigfiles.ReadSpec"):
         assert f'id="{obj}"' in api, f"{obj} is not in the API reference"

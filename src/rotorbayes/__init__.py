@@ -55,6 +55,7 @@ try:
         parameters,
         simulate,
     )  # fmt: skip
+    from .rigfiles import ReadSpec
 except KeyboardInterrupt:
     # A Ctrl-C while the command line loads (numba's import, a cold compile) is an ordinary
     # stop of the command, not a crash: exit 130 with a word, no traceback.  Python code
@@ -65,7 +66,7 @@ except KeyboardInterrupt:
 __version__ = "0.3.0"
 
 __all__ = [
-    "CONFIGS", "NAMES", "Effect", "Experiment", "Model", "Parameter", "ParameterError",
+    "CONFIGS", "NAMES", "Effect", "Experiment", "Model", "Parameter", "ParameterError", "ReadSpec",
     "Simulation", "SimulationError", "Simulator", "data", "effects", "example_names",
     "load_example", "load_experiment", "parameters", "save_experiment", "signals", "simulate",
 ]  # fmt: skip

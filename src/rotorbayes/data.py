@@ -32,6 +32,18 @@ A UTF-8 CSV file in SI units (s, V, rad), uniformly sampled::
 the line (1-based, counting every line of the file, comments included), the bad value and what
 to do about it.
 
+A rig's own files
+-----------------
+``load_experiment(path, read=ReadSpec(...))`` reads what a rig records as it is: MATLAB
+``.mat`` files (v5 and v7.3, recognised by their content), CSV files separated by
+semicolons or tabs with decimal commas, other columns and a logger's units row, with the
+file's names of the signals and its units of time (s, ms) and angle (rad, deg, encoder
+counts) declared (:mod:`rotorbayes.rigfiles`).  The declared conversions are applied
+before the checks above, which then hold as for a CSV in SI units; undeclared
+milliseconds, degrees or counts are refused, and the message names the option
+(``--time-unit``, ``--angle-unit``) that declares them.  A ``.mat`` file's problems name
+the sample (1-based) instead of a line.
+
 Glitches
 --------
 Encoder lines pick up spikes: a sample (or a burst of up to three within 13 samples) that
@@ -62,7 +74,9 @@ from pathlib import Path
 import numpy as np
 
 from . import glitches as _glitches
+from . import rigfiles as _rig
 from .glitches import Glitch
+from .rigfiles import FormatProblem, ReadSpec
 
 __all__ = [
     "UPPER_COUNTS_PER_REV",
@@ -261,6 +275,10 @@ MAX_ABS_INPUT = 1000.0
 
 _COUNTS_PER_REV = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}
 _ENCODER_NAME = {"theta_u": "upper", "theta_l": "lower"}
+#: How the guards name the options that declare a file's units (command line; analysis file).
+TIME_OPTION = '--time-unit ms (analysis file: time_unit = "ms")'
+DEG_OPTION = '--angle-unit deg (analysis file: angle_unit = "deg")'
+COUNTS_OPTION = '--angle-unit counts (analysis file: angle_unit = "counts")'
 # Encoders read zero at the start; allow a few counts of slack (1e-2 rad ~ 60-90 counts).
 _ZERO_START_TOL = 1e-2
 # Largest relative deviation of a time step from the median step before we call the sampling
@@ -483,7 +501,8 @@ def check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
             raise RowProblem(
                 k + 1,
                 f"time step {dt[k]:.6g} (from t = {float(t[k])!r} to {float(t[k + 1])!r}) is "
-                f"far too long: {as_seconds}; the t column must be in seconds -- convert it",
+                f"far too long: {as_seconds}; the t column must be in seconds -- convert it "
+                f"(a time in ms is read with {TIME_OPTION})",
             )
         unit, factor = guess
         raise RowProblem(
@@ -491,7 +510,8 @@ def check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
             f"time step {dt[k]:.6g} (from t = {float(t[k])!r} to {float(t[k + 1])!r}) looks "
             f"like {unit}: {as_seconds}; in {unit} it is a {duration / factor:.6g} s "
             f"experiment at {factor / step:.6g} Hz. The t column must be in seconds -- divide "
-            f"it by {factor:.0f}",
+            f"it by {factor:.0f}" + (f", or declare the unit: {TIME_OPTION}" if factor == 1e3
+                                     else ""),
         )
     if duration > MAX_DURATION:
         k = int(np.flatnonzero(t - t[0] > MAX_DURATION)[0])
@@ -506,8 +526,8 @@ def check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
             fix = (
                 f"it looks like milliseconds (then a {duration / 1e3:.6g} s experiment at "
                 f"{1e3 / step:.6g} Hz): the t column must be in seconds -- divide it by 1000 "
-                f"(if the record really is this long, split it into files of at most "
-                f"{MAX_DURATION:g} s)"
+                f"or declare the unit, {TIME_OPTION} (if the record really is this long, "
+                f"split it into files of at most {MAX_DURATION:g} s)"
             )
         raise RowProblem(
             k,
@@ -518,8 +538,9 @@ def check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
         )
 
 
-def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
-    """Check finite values, uniform time in s, zeroed angles in rad; raise :class:`RowProblem`."""
+def _check_columns(cols: Mapping[str, np.ndarray], read: ReadSpec | None = None) -> None:
+    """Check finite values, uniform time in s, zeroed angles in rad; raise :class:`RowProblem`.
+    ``read``: how the file was read (its declared units are named in the messages)."""
     for key, values in cols.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
@@ -586,15 +607,25 @@ def _check_columns(cols: Mapping[str, np.ndarray]) -> None:
                 f"{rates[k]:.4g} per s, faster than the rig's discs ever turn, about "
                 f"{MAX_ANGULAR_RATE:g} rad/s)"
             )
-            if np.all(np.abs(theta - np.round(theta)) <= 1e-6):
+            declared = read.angle_unit if read is not None else "rad"
+            if declared != "rad":
+                fix = (
+                    f"the file was read with --angle-unit {declared}"
+                    + (f" and {read.cpr(key):g} counts/rev" if declared == "counts" else "")
+                    + "; check the declared unit (--angle-unit, --counts-per-rev) and the "
+                    "column mapping (--columns)"
+                )
+            elif np.all(np.abs(theta - np.round(theta)) <= 1e-6):
                 cpr = _COUNTS_PER_REV[key]
                 fix = (
                     f"and all its values are whole numbers: it looks like encoder counts; "
-                    f"divide by counts_per_rev/(2π) = {cpr / (2 * math.pi):.6f} "
-                    f"({cpr:g} counts/rev for the {_ENCODER_NAME[key]} encoder) to get rad"
+                    f"declare them with {COUNTS_OPTION} (with --counts-per-rev "
+                    f"{key}=N if the encoder is not the rig's {cpr:.10g} counts/rev), or divide "
+                    f"by counts_per_rev/(2π) = {cpr / (2 * math.pi):.6f} to get rad"
                 )
             else:
-                fix = f"it looks like degrees; multiply by π/180 (= {math.pi / 180:.9f}) to get rad"
+                fix = (f"it looks like degrees; declare them with {DEG_OPTION}, or multiply "
+                       f"by π/180 (= {math.pi / 180:.9f}) to get rad")
             raise RowProblem(k + lag, f"{where}; {fix}")
         if abs(theta[0]) > _ZERO_START_TOL:
             raise RowProblem(
@@ -641,9 +672,11 @@ def _parse_header(fields: list[str], path: Path, lineno: int) -> list[str]:
         problems.append(f"unknown column(s) {names}")
     if duplicates:
         problems.append(f"repeated column(s) {', '.join(duplicates)}")
-    hint = ""
-    if len(fields) == 1 and any(sep in fields[0] for sep in ";\t "):
-        hint = " Fields must be separated by commas, not semicolons, tabs or spaces."
+    hint = (" If the file names its columns otherwise (a logger's or a spreadsheet's names), "
+            "map them: --columns t=NAME,u=NAME,theta_u=NAME,theta_l=NAME (the file's other "
+            "columns are then ignored).")
+    if len(fields) == 1 and " " in fields[0]:
+        hint += " Fields must be separated by commas, semicolons or tabs, not spaces."
     raise DataFileError(
         path,
         lineno,
@@ -876,6 +909,7 @@ def load_experiment(
     keep_glitches: bool = False,
     max_bytes: int | None = None,
     max_rows: int | None = None,
+    read: ReadSpec | None = None,
 ) -> Experiment:
     """Load and validate a measurement file, and leave out its glitches.
 
@@ -898,6 +932,12 @@ def load_experiment(
         while reading) accepted. Default: the environment variables
         ``ROTORBAYES_MAX_DATA_MB`` (MB) and ``ROTORBAYES_MAX_DATA_ROWS``, else
         :data:`MAX_DATA_BYTES` (1 GB) and :data:`MAX_DATA_ROWS` (10 million).
+    read : ReadSpec or mapping, optional
+        How to read a rig's own file (:mod:`rotorbayes.rigfiles`): the file's names of the
+        signals and its units of time (s, ms) and angle (rad, deg, encoder counts).  A
+        MATLAB ``.mat`` file (v5 or v7.3) is recognised by its content; a CSV may be
+        separated by commas, semicolons or tabs (then a decimal comma is read too).
+        Default: the plain measurement CSV (names t,u,theta_u,theta_l; s, V, rad).
 
     Returns
     -------
@@ -930,7 +970,22 @@ def load_experiment(
     limit_bytes = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
                          "largest file size in MB")
     limit_rows = _limit(path, max_rows, MAX_ROWS_ENV, MAX_DATA_ROWS, 1, "most data rows")
-    raw = _HashingReader(_open_measurement(path, limit_bytes))
+    if read is None:
+        read = ReadSpec()
+    elif isinstance(read, Mapping):  # {"columns": {...}, "angle_unit": "deg"}
+        read = ReadSpec.from_record(read)
+    elif not isinstance(read, ReadSpec):
+        raise TypeError(f"read must be a rotorbayes.ReadSpec (or a mapping of its fields), "
+                        f"got {type(read).__name__}; e.g. ReadSpec.from_options("
+                        "'t=Time,u=Volt', angle_unit='deg')")
+    fd = _open_measurement(path, limit_bytes)
+    try:
+        head = os.pread(fd, 520, 0)
+    except OSError:
+        head = b""
+    if _rig.is_mat_file(head, path.suffix):
+        return _load_mat(path, fd, read, expect_lower, max_abs_u, keep_glitches, limit_rows)
+    raw = _HashingReader(fd)
     meta: dict[str, str] = {}
     try:
         # utf-8-sig drops the byte-order mark that spreadsheet programs put in front of CSVs;
@@ -939,7 +994,7 @@ def load_experiment(
         with io.TextIOWrapper(io.BufferedReader(raw, 1 << 16), encoding="utf-8-sig",
                               newline=None) as fh:
             names, header_lineno, values = _read_table(fh, path, meta, expect_lower,
-                                                       limit_rows)
+                                                       limit_rows, read)
     except UnicodeDecodeError:
         raise DataFileError(
             path,
@@ -967,27 +1022,13 @@ def load_experiment(
     def linenos(row: int) -> int:
         return header_lineno + 1 + int(row)
 
-    cols = {name: np.ascontiguousarray(table[:, j]) for j, name in enumerate(names)}
+    cols = read.to_si({name: np.ascontiguousarray(table[:, j]) for j, name in enumerate(names)})
     try:
-        _check_columns(cols)
+        _check_columns(cols, read)
     except RowProblem as exc:
         raise DataFileError(path, linenos(exc.row), exc.problem) from None
 
-    # A file that reaches the limit exactly may pass it by rounding (5.000000000000009 V
-    # from a generator's arithmetic): only more than a billionth above it is reported.
-    over = np.flatnonzero(np.abs(cols["u"]) > max_abs_u * (1.0 + 1e-9))
-    if over.size:
-        first = int(over[0])
-        worst = int(over[np.argmax(np.abs(cols["u"][over]))])
-        warnings.warn(
-            f"{path}, line {linenos(first)}: u = {float(cols['u'][first])!r} V exceeds "
-            f"±{max_abs_u:g} V ({over.size} sample(s), largest |u| = "
-            f"{abs(float(cols['u'][worst]))!r} V on line {linenos(worst)}); the rig's amplifier "
-            "limits the motor voltage to ±5 V, so check the voltage scaling of this file",
-            DataWarning,
-            stacklevel=2,
-        )
-
+    _warn_voltage(path, cols["u"], max_abs_u, lambda k: f"line {linenos(k)}")
     exp = Experiment(
         t=cols["t"],
         u=cols["u"],
@@ -1001,10 +1042,154 @@ def load_experiment(
     return leave_out_glitches(exp, keep=keep_glitches)
 
 
+def _warn_voltage(path: Path, u: np.ndarray, max_abs_u: float, where) -> None:
+    """A :class:`DataWarning` for voltages beyond ``max_abs_u``; ``where(k)`` names sample k."""
+    # A file that reaches the limit exactly may pass it by rounding (5.000000000000009 V
+    # from a generator's arithmetic): only more than a billionth above it is reported.
+    over = np.flatnonzero(np.abs(u) > max_abs_u * (1.0 + 1e-9))
+    if over.size:
+        first = int(over[0])
+        worst = int(over[np.argmax(np.abs(u[over]))])
+        warnings.warn(
+            f"{path}, {where(first)}: u = {float(u[first])!r} V exceeds "
+            f"±{max_abs_u:g} V ({over.size} sample(s), largest |u| = "
+            f"{abs(float(u[worst]))!r} V on {where(worst)}); the rig's amplifier "
+            "limits the motor voltage to ±5 V, so check the voltage scaling of this file",
+            DataWarning,
+            stacklevel=3,
+        )
+
+
+def _load_mat(path: Path, fd: int, read: ReadSpec, expect_lower: bool | None,
+              max_abs_u: float, keep_glitches: bool, max_rows: int) -> Experiment:
+    """A MATLAB file (v5 or v7.3): read whole (its SHA-256 is that of the bytes parsed),
+    the signals picked by ``read``, converted and checked as a CSV's columns."""
+    raw = _HashingReader(fd)
+    try:
+        with raw:
+            data = io.BufferedReader(raw, 1 << 20).read()
+    except OSError as exc:
+        raise DataFileError(
+            path, None, f"cannot be read ({exc.strerror or exc}); check the permissions"
+        ) from None
+    wanted = ("t", "u", "theta_u") + (() if expect_lower is False and "theta_l" not in
+                                      read.columns else ("theta_l",))
+    try:
+        cols, names = _rig.read_mat(data, read, wanted)
+    except FormatProblem as exc:
+        raise DataFileError(path, None, str(exc)) from None
+    if expect_lower is False and "theta_l" in cols:
+        raise DataFileError(
+            path, None, f"theta_l is mapped (--columns theta_l={names['theta_l']}), but an "
+            "upper-configuration record without the lower disc was expected; leave "
+            "theta_l out of --columns, or use --model coupled or brake for this file")
+    if expect_lower is True and "theta_l" not in cols:
+        raise DataFileError(
+            path, None, "no theta_l (the lower disc's angle) in it: map it with --columns "
+            "theta_l=NAME, or use --model upper for an upper-configuration record")
+    n = len(cols["t"])
+    if n < _MIN_ROWS:
+        raise DataFileError(path, None, f"only {n} sample(s); at least {_MIN_ROWS} are "
+                            "needed to check the sampling")
+    if n > max_rows:
+        raise DataFileError(path, None, f"{n:,} samples, more than the {max_rows:,} a "
+                            "measurement may have (2 h at 1 kHz are 7.2 million); if it is a "
+                            f"measurement, raise the limit: {MAX_ROWS_ENV}=N (rows)")
+    cols = read.to_si(cols)
+
+    def where(k: int) -> str:
+        return f"sample {int(k) + 1} (t = {float(cols['t'][int(k)])!r} s)"
+
+    try:
+        _check_columns(cols, read)
+    except RowProblem as exc:
+        raise DataFileError(path, None, f"{where(exc.row)}: {exc.problem}") from None
+    _warn_voltage(path, cols["u"], max_abs_u, where)
+    meta = {"source_format": "MATLAB", **{f"column_{k}": v for k, v in names.items()}}
+    exp = Experiment(t=cols["t"], u=cols["u"], theta_u=cols["theta_u"],
+                     theta_l=cols.get("theta_l"), name=path.stem, path=str(path), meta=meta,
+                     sha256=raw.sha256.hexdigest())
+    return leave_out_glitches(exp, keep=keep_glitches)
+
+
+#: The units a logger's units row may name, by what they mean.
+_UNIT_WORDS = {"s": "s", "sec": "s", "seconds": "s", "ms": "ms", "msec": "ms", "v": "V",
+               "volt": "V", "rad": "rad", "deg": "deg", "°": "deg", "degree": "deg",
+               "degrees": "deg", "counts": "counts", "count": "counts", "cnt": "counts",
+               "inc": "counts", "increments": "counts"}
+
+
+def _units_row(line: str, sep: str, idx: list[int], names: list[str], ncols: int,
+               read: ReadSpec, path: Path, lineno: int) -> bool:
+    """Whether the line after the header is a logger's units row (``s;V;deg;deg``): no
+    number in the signals' columns, and units it knows.  Units that contradict the
+    declared ones (``--time-unit``, ``--angle-unit``) are refused."""
+    fields = line.rstrip("\n").split(sep)
+    if len(fields) != ncols:
+        return False
+    texts = [fields[j].strip().strip('"').strip() for j in idx]
+    if any(_is_number(t.replace(",", ".")) for t in texts):
+        return False
+    units = {n: _UNIT_WORDS.get(t.strip("[]() ").lower()) for n, t in zip(names, texts,
+                                                                       strict=True)}
+    if not any(units.values()):
+        return False
+    declared = {"t": read.time_unit, "u": "V", "theta_u": read.angle_unit,
+                "theta_l": read.angle_unit}
+    for n, unit in units.items():
+        if unit is not None and unit != declared[n]:
+            option = (f"--time-unit {unit}" if n == "t" else "" if n == "u"
+                      else f"--angle-unit {unit}")
+            raise DataFileError(
+                path, lineno,
+                f"the units row gives {n} in {unit}, but it is read in {declared[n]}"
+                + (f": declare the unit with {option} (analysis file: "
+                   f"{'time_unit' if n == 't' else 'angle_unit'} = \"{unit}\")"
+                   if option else "; give the voltage in V"))
+    return True
+
+
+def _delimiter(header: str) -> str:
+    """The field separator of a CSV, from its header: a semicolon or a tab where the header
+    has one (spreadsheets in locales with a decimal comma, loggers), else a comma."""
+    for sep in (";", "\t"):
+        if sep in header:
+            return sep
+    return ","
+
+
+def _mapped_header(fields: list[str], path: Path, lineno: int, read: ReadSpec
+                   ) -> tuple[list[str], list[int]]:
+    """The signals a mapping (``read.columns``) finds in the header ``fields`` and their
+    positions; the file's other columns are ignored."""
+    names, idx, missing = [], [], []
+    for sig in COLUMNS:
+        name = read.name_of(sig)
+        hits = [j for j, f in enumerate(fields) if f == name]
+        if len(hits) > 1:
+            raise DataFileError(path, lineno, f"the column {name!r} ({sig}) appears "
+                                f"{len(hits)} times in the header; rename one")
+        if hits:
+            names.append(sig)
+            idx.append(hits[0])
+        elif sig != "theta_l" or sig in read.columns:
+            missing.append(f"{sig} = {name!r}" if sig in read.columns else sig)
+    if missing:
+        shown = ", ".join(repr(f) for f in fields[:20])
+        raise DataFileError(path, lineno, f"no column for {', '.join(missing)} in the header; "
+                            f"the file's columns are {shown}: name them with --columns "
+                            "(e.g. --columns t=Time,u=Volt,theta_u=Enc1,theta_l=Enc2; analysis "
+                            "file: columns = {t = \"Time\", ...})")
+    return names, idx
+
+
 def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
-                max_rows: int) -> tuple[list[str], int, array.array]:
+                max_rows: int, read: ReadSpec | None = None
+                ) -> tuple[list[str], int, array.array]:
     """Read the comment lines (into ``meta``), the header and the data rows of the text
-    file ``fh``: the column names, the header's line number and the values row by row."""
+    file ``fh``: the column names (the model's), the header's line number and the values
+    row by row (the named columns only)."""
+    read = ReadSpec() if read is None else read
     lines = _numbered_lines(fh, path)
     seen_text = False
     header = None
@@ -1031,9 +1216,19 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
             f"'{','.join(COLUMNS)}' and the data rows after the comments",
         )
     header_lineno, header_line = header
-    names = _parse_header(
-        [f.strip() for f in header_line.rstrip("\n").split(",")], path, header_lineno
-    )
+    sep = _delimiter(header_line)
+    # A comma is the decimal mark where it does not separate fields ("0,25" in a
+    # semicolon-separated file from a German or Dutch spreadsheet).
+    decimal_comma = sep != ","
+    quoted = '"' in header_line
+    file_fields = [f.strip().strip('"').strip() for f in header_line.rstrip("\n").split(sep)]
+    if read.columns:
+        names, idx = _mapped_header(file_fields, path, header_lineno, read)
+        file_names = [file_fields[j] for j in idx]
+    else:
+        names = _parse_header(file_fields, path, header_lineno)
+        idx = list(range(len(names)))
+        file_names = names
     has_lower = "theta_l" in names
     if expect_lower is True and not has_lower:
         raise DataFileError(
@@ -1054,7 +1249,8 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
             "(in Python: expect_lower=True)",
         )
 
-    ncols = len(names)
+    ncols = len(file_fields)
+    plain = idx == list(range(ncols)) and not decimal_comma and not quoted
     # The values, row after row, as packed doubles (8 bytes each): a list of row lists
     # would cost about 190 bytes a row, 1.9 GB for 10 million rows.  Data rows are
     # contiguous (a gap or comment inside them is refused), so row k is on line
@@ -1084,12 +1280,20 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                 f"comment line {line.strip()!r} after the header; comment lines are "
                 "only allowed before the header -- move it there or delete it",
             )
+        if n_rows == 0 and lineno == header_lineno + 1 and _units_row(
+                line, sep, idx, names, ncols, read, path, lineno):
+            header_lineno = lineno  # a logger's units under the names: part of the header
+            continue
         body = line[:-1] if line.endswith("\n") else line
-        fields = body.split(",")
+        fields = body.split(sep)
         values_of_row = None
         if len(fields) == ncols:
             try:
-                values_of_row = [float(f) for f in fields]
+                if plain:
+                    values_of_row = [float(f) for f in fields]
+                else:
+                    values_of_row = [_rig.parse_number(fields[j].strip().strip('"'),
+                                                       decimal_comma) for j in idx]
             except ValueError:
                 pass
         if values_of_row is None:
@@ -1100,20 +1304,30 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                 else ""
             )
             if len(fields) != ncols:
+                seps = {",": "commas", ";": "semicolons", "\t": "tabs"}
+                other = [w for c, w in seps.items() if c != sep and c in body]
+                if other and len(fields) == 1 and ncols > 1:
+                    truncated = (f"; the header is separated by {seps[sep]} but this row by "
+                                 f"{other[0]}: use one separator throughout (export the "
+                                 "file again)")
                 raise DataFileError(
                     path,
                     lineno,
                     f"{len(fields)} field(s) {body.strip()!r} but the header "
-                    f"{','.join(names)!r} has {ncols}{truncated or '; fix or delete this row'}",
+                    f"{sep.join(file_fields)!r} has {ncols}"
+                    f"{truncated or '; fix or delete this row'}",
                 )
-            for name, text in zip(names, fields, strict=True):
-                if not _is_number(text):
+            for name, j in zip(file_names, idx, strict=True):
+                text = fields[j]
+                clean = text.strip().strip('"')
+                if not _is_number(clean.replace(",", ".") if decimal_comma else clean):
                     shown = repr(text.strip()) if text.strip() else "empty"
                     raise DataFileError(
                         path,
                         lineno,
                         f"value {shown} in column {name} is not a number"
-                        f"{truncated or '; write plain decimal numbers (e.g. 0.25 or 2.5e-1)'}",
+                        + (truncated or "; write plain decimal numbers (e.g. "
+                           + ("0,25 or 0.25" if decimal_comma else "0.25 or 2.5e-1") + ")"),
                     )
             # float() failed, so one field must be non-numeric
             raise AssertionError(body)  # pragma: no cover

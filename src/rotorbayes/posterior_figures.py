@@ -172,6 +172,22 @@ def plot_trace(runs, coord_names):
     return fig, axes
 
 
+#: A band is drawn where it is wider than this many spacings of its stored numbers (each
+#: stored end is off by up to half a spacing, so the width is then known to about 10 %).
+RESOLVED_SPACINGS = 10
+
+
+def band_resolution(lo, hi, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """The spacing of numbers of ``dtype`` at each point of a band ``[lo, hi]`` [rad], and
+    where the band is resolved: wider than :data:`RESOLVED_SPACINGS` spacings (a band of
+    exactly known zeros, the encoders at rest, counts as resolved)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    big = np.maximum(np.abs(lo), np.abs(hi))
+    spacing = np.spacing(big.astype(dtype)).astype(float)
+    resolved = (hi - lo > RESOLVED_SPACINGS * spacing) | (big == 0)
+    return spacing, resolved
+
+
 def plot_predictive(idata, prob, *, i: int = 0):
     """Measured angles with the posterior's noise-free simulations, per channel in three
     panels: the angle with the median simulation; the error of the median; and the 94 %
@@ -180,6 +196,12 @@ def plot_predictive(idata, prob, *, i: int = 0):
     The band holds the parameters' uncertainty only (noise-free simulations). It is often
     a thousand times narrower than the angle and much narrower than the encoder noise, so
     drawn over the angle or the error it would be invisible; its own panel shows its width.
+
+    A band is drawn only where it is resolved: wider than :data:`RESOLVED_SPACINGS` times
+    the spacing of the stored numbers at the angle (float32's is 1.9e-6 to 7.6e-6 rad at
+    16-64 rad; a posterior.nc written before predictions were stored as float64 has such
+    bands).  Narrower, the band would show the storage's rounding as parameter
+    uncertainty: the panel says it is unresolved there, and how fine the storage is.
     """
     plt = pyplot()
     chans = list(prob.channels)
@@ -191,16 +213,22 @@ def plot_predictive(idata, prob, *, i: int = 0):
         key = f"{c}_exp{i}"
         da = pp[key]
         tp = da[da.dims[-1]].values  # the predictive group's own (decimated) time axis
-        sims = da.values.reshape(-1, tp.size)
-        lo, med, hi = np.percentile(sims, [3, 50, 97], axis=0)
+        stored = da.values.reshape(-1, tp.size)
+        lo, med, hi = np.percentile(stored.astype(np.float64), [3, 50, 97], axis=0)
+        spacing, resolved = band_resolution(lo, hi, stored.dtype)
         full = obs[key].values
         meas = np.interp(tp, ex.t, full)
-        width = float(np.max(hi - lo))
+        width = float(np.max(hi - lo, where=resolved, initial=0.0))
+        finest = float(np.max(spacing))
+        band_words = (f"94 % band (≤ {width:.2g} rad wide: see the third panel)"
+                      if resolved.any() else
+                      f"94 % band unresolved (narrower than {RESOLVED_SPACINGS}x the "
+                      f"storage spacing, ≤ {finest:.2g} rad)")
         ax = axes[3 * k, 0]
         ax.plot(ex.t, full, color="k", lw=1.2, label="measured")
         ax.plot(tp, med, color="tab:orange", lw=1.2, ls="--", label="posterior median")
-        ax.fill_between(tp, lo, hi, color="tab:orange", alpha=0.5,
-                        label=f"94 % band (≤ {width:.2g} rad wide: see the third panel)")
+        ax.fill_between(tp, lo, hi, where=resolved, color="tab:orange", alpha=0.5,
+                        label=band_words)
         ax.set_ylabel(f"{c} [rad]")
         ax.legend(loc="upper left", fontsize=8)
         ax2 = axes[3 * k + 1, 0]
@@ -209,11 +237,24 @@ def plot_predictive(idata, prob, *, i: int = 0):
         ax2.set_ylabel(f"{c} error [rad]")
         ax2.legend(loc="upper left", fontsize=8)
         ax3 = axes[3 * k + 2, 0]
-        ax3.fill_between(tp, lo - med, hi - med, color="tab:orange", alpha=0.6,
-                         label="94 % predictive band − median (parameter uncertainty)")
+        if resolved.any():
+            gaps = "" if resolved.all() else (
+                f"; not drawn at {int(np.count_nonzero(~resolved))} of {resolved.size} "
+                f"points, where narrower than {RESOLVED_SPACINGS}x the storage spacing "
+                f"({finest:.2g} rad)")
+            ax3.fill_between(tp, lo - med, hi - med, where=resolved, color="tab:orange",
+                             alpha=0.6, label="94 % predictive band − median (parameter "
+                             f"uncertainty){gaps}")
+        else:
+            ax3.text(0.5, 0.5, f"94 % predictive band unresolved: narrower than "
+                     f"{RESOLVED_SPACINGS}x the spacing of the stored predictions "
+                     f"({np.dtype(stored.dtype).name}: {finest:.2g} rad at these angles), so "
+                     "not drawn", transform=ax3.transAxes, ha="center", va="center",
+                     fontsize=9)
         ax3.axhline(0, color="k", lw=0.5)
         ax3.set_ylabel(f"{c} band [rad]")
-        ax3.legend(loc="upper left", fontsize=8)
+        if resolved.any():
+            ax3.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(f"posterior predictive (noise-free simulations of the draws), experiment "
                  f"{ex.name or i}")

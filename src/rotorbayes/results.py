@@ -265,18 +265,39 @@ def data_path(spec: str, doc: dict, index: int, key: str, fit_json: Path) -> Pat
                       "restore it or fit again")
 
 
-def data_record(paths: list, fit_folder: Path) -> list[dict]:
+def data_record(paths: list, fit_folder: Path, read=None) -> list[dict]:
     """What a fit records of its data files: absolute path, path relative to the fit
-    folder, SHA-256.  ``paths`` holds paths or the experiments read from them
+    folder, SHA-256, and how it was read (``read``, a :class:`~rotorbayes.rigfiles.ReadSpec`:
+    the file's names of the signals and its units; a bundled example is a plain CSV).
+    ``paths`` holds paths or the experiments read from them
     (:class:`~rotorbayes.data.Experiment`): then the SHA-256 is that of the bytes that were
-    read and fitted, not of the file as it may be now."""
+    read and fitted (a .mat file's bytes, as a CSV's), not of the file as it may be now."""
+    from .examples import EXAMPLES
+
     out = []
     for p in paths:
         sha = getattr(p, "sha256", None)
         ap = Path(getattr(p, "path", p)).absolute()
-        out.append({"path": str(ap), "relative": os.path.relpath(ap, fit_folder.absolute()),
-                    "sha256": sha or file_sha256(ap)})
+        rec = {"path": str(ap), "relative": os.path.relpath(ap, fit_folder.absolute()),
+               "sha256": sha or file_sha256(ap)}
+        if read is not None and not read.is_default and ap.parent != EXAMPLES.absolute():
+            rec["read"] = read.as_dict()
+        out.append(rec)
     return out
+
+
+def recorded_read(doc: dict, key: str, index: int, where: Path):
+    """How data file ``index`` of ``key`` ("data" or "validation") was read by the fit
+    (its :class:`~rotorbayes.rigfiles.ReadSpec`; the plain CSV where none is recorded)."""
+    from .rigfiles import FormatProblem, ReadSpec
+
+    recs = doc.get(f"{key}_files")
+    rec = recs[index] if isinstance(recs, list) and index < len(recs) else None
+    try:
+        return ReadSpec.from_record(rec.get("read") if isinstance(rec, dict) else None)
+    except (FormatProblem, TypeError, AttributeError) as exc:
+        raise ResultError(f"{where}: the way {key} file {index + 1} was read is damaged "
+                          f"({exc}); fit again") from None
 
 
 def _recorded_sha256(doc: dict, key: str, index: int) -> str | None:
@@ -305,7 +326,7 @@ def _load_recorded(doc: dict, key: str, index: int, fit_json: Path, config: str,
     fix = (f"restore the file the fit was made from, fit the changed file again, or pass "
            f"{CHANGED_DATA_OPTION} to use it with this fit anyway")
     try:
-        ex = _load(p, config, keep)
+        ex = _load(p, config, keep, recorded_read(doc, key, index, fit_json))
     except DataFileError as exc:
         # Say first that the file is not the one fitted (when it is a file we may read).
         if recorded and not accept_changed:
@@ -523,8 +544,9 @@ def _validation_alpha0(doc: dict, path: Path, val: list) -> list:
     return out
 
 
-def _load(p: Path, config: str, keep_glitches: bool = False):
-    return load_experiment(p, expect_lower=config != "upper", keep_glitches=keep_glitches)
+def _load(p: Path, config: str, keep_glitches: bool = False, read=None):
+    return load_experiment(p, expect_lower=config != "upper", keep_glitches=keep_glitches,
+                           read=read)
 
 
 def diagnosis_starts(spec: str | Path | None, effects) -> dict[str, float]:

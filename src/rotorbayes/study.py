@@ -23,6 +23,7 @@ import hashlib
 import io
 import json
 import math
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -35,7 +36,9 @@ from .outputs import write_text_atomic
 #: Tables and keys the analysis file may hold (key -> expected type(s)).
 SCHEMA: dict[str, dict[str, tuple]] = {
     "analysis": {"name": (str,), "out": (str,), "config": (str,), "data": (list,),
-                 "validate": (list,), "validate_alpha0": (list,), "seed": (int,)},
+                 "validate": (list,), "validate_alpha0": (list,), "seed": (int,),
+                 "columns": (dict,), "time_unit": (str,), "angle_unit": (str,),
+                 "counts_per_rev": (int, float, dict)},
     "fit": {"p0": (str,), "free": (list,), "fixed": (list,), "effects": (list,),
             "channels": (list,), "max_nfev": (int,), "step": (int, float),
             "keep_glitches": (bool,), "search": (bool,)},
@@ -120,6 +123,19 @@ class Analysis:
         return str(p if p.is_absolute() else self.base_dir / p)
 
 
+def read_spec(a: Analysis):
+    """How the analysis file's data are read (``columns``, ``time_unit``, ``angle_unit``,
+    ``counts_per_rev`` of ``[analysis]``: :class:`~rotorbayes.rigfiles.ReadSpec`)."""
+    from .rigfiles import FormatProblem, ReadSpec
+
+    an = a.table("analysis")
+    try:
+        return ReadSpec.from_options(an.get("columns"), an.get("time_unit"),
+                                     an.get("angle_unit"), an.get("counts_per_rev"))
+    except FormatProblem as exc:
+        raise _err(a.path, "analysis", str(exc)) from None
+
+
 def _err(path, key, text) -> AnalysisError:
     return AnalysisError(f"{path}: [{key}] {text}")
 
@@ -202,6 +218,7 @@ def load_analysis(path: str | Path) -> Analysis:
                 raise _err(p, "analysis", f"{key}: file {f!r} not found (relative paths are "
                            f"relative to {a.base_dir})")
     _check_validate_alpha0(p, an)
+    read_spec(a)
     fit = a.table("fit")
     for key in ("free", "fixed"):
         for n in fit.get(key, []):
@@ -467,7 +484,8 @@ def _command_line(command: str, options: dict) -> str:
                 words += [flag, str(x)]
         elif v is not None and v is not False:
             words += [flag, str(v)]
-    return " ".join(words)
+    # Quoted for a shell where needed (a path with a space, a column "data(:,1)").
+    return " ".join(shlex.quote(w) for w in words)
 
 
 def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # noqa: C901
@@ -542,6 +560,14 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
         fit_args["step"] = float(fit_t["step"])
     if fit_t.get("keep_glitches"):
         fit_args["keep_glitches"] = True
+    read = read_spec(a)
+    if not read.is_default or read.counts_per_rev:
+        # In the options' own forms, so the stage's command line reads as one to type.
+        fit_args.update(
+            columns=",".join(f"{k}={v}" for k, v in read.columns.items()) or None,
+            time_unit=read.time_unit, angle_unit=read.angle_unit,
+            counts_per_rev=",".join(f"{k}={v!r}" for k, v in read.counts_per_rev.items())
+            or None)
     if fit_t.get("effects"):
         fit_args["add"] = [a.resolve(e) if ".py:" in e else e for e in fit_t["effects"]]
     first = out / "fit0"

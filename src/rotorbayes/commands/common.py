@@ -50,14 +50,16 @@ def data_path(name: str) -> str:
 
 
 def load_experiments(paths: Sequence[str], config: str, *,
-                     keep_glitches: bool = False) -> list[Experiment]:
+                     keep_glitches: bool = False, read=None) -> list[Experiment]:
     """The measurement files (or ``example:NAME``), checked, their glitches left out
-    (kept with ``keep_glitches``; :func:`rotorbayes.data.leave_out_glitches`); a file whose
-    header names another configuration gets a warning."""
+    (kept with ``keep_glitches``; :func:`rotorbayes.data.leave_out_glitches`), read as
+    ``read`` says (:class:`~rotorbayes.rigfiles.ReadSpec`; a bundled example is always a
+    plain CSV); a file whose header names another configuration gets a warning."""
     exps = []
     for p in paths:
         ex = load_experiment(data_path(p), expect_lower=config != "upper",
-                             keep_glitches=keep_glitches)
+                             keep_glitches=keep_glitches,
+                             read=None if p.startswith("example:") else read)
         said = str((ex.meta or {}).get("config", "")).strip()
         if said in ("upper", "coupled", "brake") and said != config:
             print(f"warning: {p} says it holds {said}-configuration data (its header), but "

@@ -30,7 +30,7 @@ from .common import (
     run_values,
     strict_json,
 )
-from .options import MAX_RESTARTS, add_fit_options, ranged
+from .options import MAX_RESTARTS, add_fit_options, ranged, read_spec
 
 HELP = "least squares from a start P0"
 
@@ -80,7 +80,9 @@ def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
         prescribed_upper: bool = False, max_nfev: int = 200, ftol: float = 1e-10,
         xtol: float = 1e-10, gtol: float = 1e-10, force: bool = False,
         trust_effects: bool = False, step: float | None = None,
-        search: bool = True, keep_glitches: bool = False) -> Outcome:
+        search: bool = True, keep_glitches: bool = False, columns=None,
+        time_unit: str | None = None, angle_unit: str | None = None,
+        counts_per_rev=None) -> Outcome:
     """Fit the ``model`` configuration ("upper", "coupled" or "brake") to the measurement
     files ``data`` and write fit.json and figures into the folder ``out``.
 
@@ -92,12 +94,16 @@ def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
     torsion [rad] ("fit" or None: fitted on that run alone, the default whenever the model
     has a pre-wound string).  With ``p0`` and effects added, ``search``
     fits from several starts of the added parameters (:mod:`rotorbayes.inference.refit`)
-    and keeps the best.  The folder appears only when the fit has finished
+    and keeps the best.  ``columns``, ``time_unit``, ``angle_unit`` and ``counts_per_rev``
+    say how to read a rig's own files (:class:`rotorbayes.rigfiles.ReadSpec`; every data
+    and validation file alike); fit.json records them, so later commands read the files
+    the same way.  The folder appears only when the fit has finished
     (``force`` replaces an earlier one).  ``Outcome.doc`` is the fit.json document;
     ``exit_code`` is 1 when the fit did not converge.
     """
     a = SimpleNamespace(**locals())  # the steps below read the options by name
     a.data = [data] if isinstance(data, str) else list(data)
+    a.read = read_spec(columns, time_unit, angle_unit, counts_per_rev)
     guard = InterruptGuard()
     try:
         with output_folder(a.out, a.force, inputs=[a.data, a.validate, a.p0, a.base,
@@ -255,18 +261,16 @@ def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> 
 
 def _fmt_params(prob, names, x, se=None, x0=None, at_bound=(), near_bound=()) -> str:
     rows = [f"{'parameter':<12} {'estimate':>12} {'std. error':>12} {'start':>12}  unit"]
+    from ..numformat import mean_sd
+
     for i, n in enumerate(names):
-        if n in at_bound:
-            s = f"{'AT BOUND':>12}"
-        else:
-            s = f"{se[i]:12.4g}" if se is not None and np.isfinite(se[i]) else f"{'—':>12}"
+        # The standard error to two significant digits and the estimate to the same
+        # decimal place (a value printed to 5 digits beside an error of 1e-6 of it cannot
+        # be compared with anything); without one, the estimate to 6 digits.
+        value, err = mean_sd(float(x[i]), float(se[i]) if se is not None else math.nan)
+        s = f"{'AT BOUND':>12}" if n in at_bound else f"{err:>12}"
         st = f"{x0[i]:12.5g}" if x0 is not None else ""
-        # Enough digits to show the standard error's own two digits (a value printed to
-        # 5 digits beside an error of 1e-6 of it cannot be compared with anything).
-        digits = 5
-        if se is not None and np.isfinite(se[i]) and se[i] > 0 and x[i] != 0:
-            digits = int(min(max(5, math.ceil(math.log10(abs(x[i]) / se[i])) + 2), 12))
-        rows.append(f"{n:<12} {x[i]:>{max(12, digits + 7)}.{digits}g} {s} {st}  "
+        rows.append(f"{n:<12} {value:>12} {s} {st}  "
                     f"{prob.info(n).unit}" + ("  NEAR A BOUND" if n in near_bound else ""))
     return "\n".join(rows)
 
@@ -342,9 +346,9 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     from .common import glitch_record, say_glitches
 
     # Glitches (encoder spikes) are named and left out unless --keep-glitches.
-    exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches)
-    val = load_experiments(a.validate, a.model, keep_glitches=a.keep_glitches) \
-        if a.validate else []
+    exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches, read=a.read)
+    val = load_experiments(a.validate, a.model, keep_glitches=a.keep_glitches,
+                           read=a.read) if a.validate else []
     say_glitches(exps, val)
     # The start set also fixes the values of the parameters that are not estimated.
     prob, fixed_from_upper = build_problem(a, exps, start_spec=a.p0, also=val)
@@ -494,8 +498,9 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         "data": [str(Path(e.path).absolute()) for e in exps],
         "glitches": glitch_record(exps, val),
         "validation": [str(Path(e.path).absolute()) for e in val],
-        "data_files": data_record(exps, Path(a.out)),  # the SHA-256 of the bytes fitted
-        "validation_files": data_record(val, Path(a.out)),
+        # The SHA-256 of the bytes fitted, and how they were read (names, units).
+        "data_files": data_record(exps, Path(a.out), a.read),
+        "validation_files": data_record(val, Path(a.out), a.read),
         "effect_files": {e.source: _effects.file_sha256(e.source) for e in prob.model.added
                          if e.source != "catalogue"},
         "success": res.success, "message": res.message, "nfev": res.nfev,

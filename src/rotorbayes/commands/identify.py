@@ -95,6 +95,7 @@ def _posterior(folder: str, prob, fit_folder: Path):
 def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
     """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
     from ..inference.taskstore import store_path
+    from ..numformat import fmt_interval_at
 
     for n in profiles:
         t0 = time.perf_counter()
@@ -102,8 +103,10 @@ def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
                        resume=store_path(a.out))  # finished points kept: a re-run skips them
         doc["profiles"].append(pr)
         iv = I.profile_interval(pr)
+        ends = ("" if iv["lo"] is None else
+                fmt_interval_at(iv["lo"], iv["hi"], (iv["hi"] - iv["lo"]) / 3.92))
         print(f"profile of {n}: {a.points} points in {time.perf_counter() - t0:.1f} s; "
-              + (f"95 % interval (Δχ² < 3.84) about [{iv['lo']:.7g}, {iv['hi']:.7g}] "
+              + (f"95 % interval (Δχ² < 3.84) about [{ends}] "
                  f"{pr['unit']} (ends interpolated between grid points)"
                  if iv["lo"] is not None else "no grid point within Δχ² < 3.84")
               + (f"; {iv['note']}" if iv["note"] and iv["lo"] is not None else

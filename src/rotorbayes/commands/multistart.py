@@ -21,7 +21,7 @@ from .common import (
     say_glitches,
 )
 from .fit import build_problem
-from .options import MAX_STARTS, add_fit_options, add_parallel_options, ranged
+from .options import MAX_STARTS, add_fit_options, add_parallel_options, ranged, read_spec
 
 HELP = "many fits from spread starts; waterfall and spread"
 
@@ -48,7 +48,8 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
                gtol: float = 1e-10, backend: str | None = None, workers: int | None = None,
                scheduler: str | None = None, force: bool = False,
                trust_effects: bool = False, step: float | None = None,
-               keep_glitches: bool = False) -> Outcome:
+               keep_glitches: bool = False, columns=None, time_unit: str | None = None,
+               angle_unit: str | None = None, counts_per_rev=None) -> Outcome:
     """``starts`` fits of the ``model`` configuration to ``data`` from spread starts (a
     Latin hypercube over the bounds, or a log-normal ``spread`` around the set ``around``);
     writes multistart.json, summary.txt and the waterfall and spread figures into ``out``.
@@ -60,6 +61,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     """
     a = SimpleNamespace(**locals())  # the steps below read the options by name
     a.data = [data] if isinstance(data, str) else list(data)
+    a.read = read_spec(columns, time_unit, angle_unit, counts_per_rev)
     from .. import inference as E
     from ..inference.taskstore import remove_store, store_path
     from ..plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
@@ -67,7 +69,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     guard = InterruptGuard()
     with guard, output_folder(a.out, a.force,
                               inputs=[a.data, a.around, a.base, a.add]) as out:
-        exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches)
+        exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches, read=a.read)
         say_glitches(exps)
         prob, _ = build_problem(a, exps)
         around = None
@@ -99,6 +101,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
         doc = {"config": a.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
                "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters,
                "summary": summary, "data": [str(e.path) for e in exps],
+               "read": a.read.as_dict(),
                "glitches": glitch_record(exps),
                "n_requested": a.starts, "n_finished": n_done, "interrupted": ms.interrupted,
                "start_index": ms.start_index, "failed": {str(k): v for k, v in

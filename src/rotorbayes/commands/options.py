@@ -78,7 +78,8 @@ def rate(text: str) -> float:
 def add_fit_options(p) -> None:
     """The options of ``fit`` and ``multistart``: model, data, what is free, the budget."""
     p.add_argument("--model", required=True, choices=CONFIGS, help="rig configuration")
-    p.add_argument("data", nargs="+", help="measurement CSV file(s), or example:NAME")
+    p.add_argument("data", nargs="+", help="measurement file(s): CSV (commas, or semicolons "
+                   "or tabs with decimal commas), MATLAB .mat (v5 or v7.3), or example:NAME")
     p.add_argument("--out", required=True,
                    help="output folder (created, with missing parent folders; it appears only "
                    "when the run succeeds)")
@@ -116,9 +117,48 @@ def add_fit_options(p) -> None:
                    help="fit samples that jump against their neighbours by far more than "
                    "the discs can move (encoder spikes) as measured; by default each is "
                    "named and left out (replaced by the cubic through its neighbours)")
+    add_read_options(p)
     p.add_argument("--force", action="store_true",
                    help="replace the results in --out (only once the new run has succeeded)")
     add_trust_option(p)
+
+
+def add_read_options(p, *, angles: bool = True) -> None:
+    """How to read a rig's own data files (:class:`rotorbayes.rigfiles.ReadSpec`): the
+    file's names of the signals and their units; ``angles=False`` for a file of t and u."""
+    sigs = "t=NAME,u=NAME" + (",theta_u=NAME,theta_l=NAME" if angles else "")
+    p.add_argument("--columns", metavar=sigs,
+                   help="the data file's names of the signals, e.g. t=Time,u=Volt"
+                   + (",theta_u=Enc1,theta_l=Enc2" if angles else "")
+                   + " (CSV columns; in a .mat file MATLAB names such as ScopeData.time, "
+                   "ScopeData.signals(2).values or data(:,3)); the file's other columns are "
+                   "ignored (default: the signals' own names)")
+    p.add_argument("--time-unit", choices=["s", "ms"], default=None,
+                   help="unit of the data's time (default s)")
+    if angles:
+        p.add_argument("--angle-unit", choices=["rad", "deg", "counts"], default=None,
+                       help="unit of the data's angles: rad, deg, or encoder counts (see "
+                       "--counts-per-rev) (default rad)")
+        p.add_argument("--counts-per-rev", metavar="theta_u=N,theta_l=N",
+                       help="encoder counts per revolution for --angle-unit counts (one "
+                       "number for both encoders; default the rig's: theta_u=54934.256, "
+                       "theta_l=40000)")
+
+
+def read_spec(columns=None, time_unit=None, angle_unit=None, counts_per_rev=None):
+    """The :class:`~rotorbayes.rigfiles.ReadSpec` the read options give; Refused naming
+    the option for a bad value."""
+    from ..exitcodes import Refused
+    from ..rigfiles import FormatProblem, ReadSpec
+
+    try:
+        return ReadSpec.from_options(columns, time_unit, angle_unit, counts_per_rev)
+    except FormatProblem as exc:
+        text = str(exc)
+        opt = ("--columns" if text.startswith("columns") else "--counts-per-rev"
+               if text.startswith("counts") else "--time-unit" if text.startswith("time")
+               else "--angle-unit")
+        raise Refused(f"{opt}: {text}") from None
 
 
 def add_parallel_options(p, what: str, backend_help: str | None = None) -> None:

@@ -27,6 +27,10 @@ from .options import (
 HELP = "posterior sampling with emcee from a fit (checkpointed; --resume continues)"
 
 
+#: Steps per ensemble of a new run (``--steps``; ``[sample] steps`` of an analysis file).
+DEFAULT_STEPS = 2000
+
+
 def add_arguments(sp) -> None:
     sp.add_argument("source", help="a fit folder, or with --resume a sample folder")
     sp.add_argument("--out", help="output folder (new runs)")
@@ -37,8 +41,8 @@ def add_arguments(sp) -> None:
                     default=32, help="walkers per ensemble")
     sp.add_argument("--steps", type=ranged(int, ge=10, le=MAX_STEPS, why=" (steps per "
                                             "ensemble)"), default=None,
-                    help="total steps per ensemble (default 2000; with --resume the new "
-                    "total)")
+                    help=f"total steps per ensemble (default {DEFAULT_STEPS}; with --resume "
+                    "the new total)")
     sp.add_argument("--ensembles", type=ranged(int, ge=1, le=64, why=" (independent "
                                                 "ensembles)"), default=2,
                     help="independent ensembles (>= 2 for R-hat)")
@@ -139,7 +143,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
         out = src
     else:
         if a.steps is None:
-            a.steps = 2000
+            a.steps = DEFAULT_STEPS
         if not a.out:
             raise Refused("give --out FOLDER for the posterior (or --resume FOLDER)")
         out = follow_link(Path(a.out), "--out")  # a link is followed, never replaced

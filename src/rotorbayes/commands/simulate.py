@@ -14,7 +14,15 @@ from ..model import SimulationError
 from ..model import parameters as _params
 from ..outputs import check_output_file
 from .common import Outcome, fit_effects, resolve_values
-from .options import CONFIGS, MAX_RATE, MIN_RATE, add_trust_option, ranged
+from .options import (
+    CONFIGS,
+    MAX_RATE,
+    MIN_RATE,
+    add_read_options,
+    add_trust_option,
+    ranged,
+    read_spec,
+)
 from .options import rate as rate_type
 
 HELP = "simulate an experiment and write a measurement CSV"
@@ -25,9 +33,11 @@ def add_arguments(s) -> None:
     s.add_argument("--input", choices=["est", "val"],
                    help="generated input: est (quasi-random levels) or val (multisine) "
                    "(default: est)")
-    s.add_argument("--input-file", help="CSV with columns t,u in s and V, uniformly sampled; "
+    s.add_argument("--input-file", help="CSV or MATLAB .mat file with t [s] and u [V] "
+                   "(other names and ms: --columns, --time-unit), uniformly sampled; "
                    "gives the input, duration and rate (so not with --input, --duration, "
                    "--rate)")
+    add_read_options(s, angles=False)
     s.add_argument("--duration", type=ranged(gt=0, le=7200, why=" seconds (experiments on "
                    "the rig last seconds to about an hour)"),
                    help="seconds of generated input, > 0 and <= 7200 (default: 30)")
@@ -53,16 +63,22 @@ def add_arguments(s) -> None:
     add_trust_option(s)
 
 
-def read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """Read ``t,u`` (and possibly more columns) from a CSV file.
+def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``t,u`` (and possibly more columns) from a CSV or MATLAB ``.mat`` file.
 
-    The time column gets the checks of a measurement file (:mod:`rotorbayes.data`): finite,
-    strictly increasing, uniformly sampled, in seconds (a step of ``MAX_SAMPLE_INTERVAL``
-    or more, or a record longer than ``MAX_DURATION``, is refused), and a last line without
-    its line break (a truncated file) is refused; messages name the file and the line.
+    ``read`` (a :class:`~rotorbayes.rigfiles.ReadSpec`) names the file's columns of t and
+    u and the unit of t (s or ms), as for measurement files; a CSV may be separated by
+    commas, semicolons or tabs (then with decimal commas).  The time column gets the
+    checks of a measurement file (:mod:`rotorbayes.data`): finite, strictly increasing,
+    uniformly sampled, in seconds (a step of ``MAX_SAMPLE_INTERVAL`` or more, or a record
+    longer than ``MAX_DURATION``, is refused), and a last line without its line break (a
+    truncated file) is refused; messages name the file and the line (a .mat file: the
+    sample).
     """
+    from .. import rigfiles as R
     from ..data import MAX_ABS_INPUT, DataFileError, RowProblem, check_data_file, check_time_unit
 
+    read = R.ReadSpec() if read is None else read
     p = Path(path)
     try:
         # A regular file within the size limit, before it is opened (a pipe would wait
@@ -72,8 +88,21 @@ def read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
     except DataFileError as exc:
         raise Refused(f"--input-file {exc}") from None
     try:
-        with open(p, encoding="utf-8-sig", newline=None) as fh:
-            lines = fh.read().split("\n")
+        with open(p, "rb") as fh:
+            head = fh.read(520)
+        if R.is_mat_file(head, p.suffix):
+            try:
+                cols, _ = R.read_mat(p.read_bytes(), read, ("t", "u"))
+            except R.FormatProblem as exc:
+                raise Refused(f"--input-file {p}: {exc}") from None
+            t, u = cols["t"], cols["u"]
+            rows = list(range(1, t.size + 1))
+            unit = "sample"
+        else:
+            with open(p, encoding="utf-8-sig", newline=None) as fh:
+                lines = fh.read().split("\n")
+            t, u, rows = _input_csv(p, lines, read)
+            unit = "line"
     except FileNotFoundError:
         raise Refused(f"--input-file {p}: file not found (looked in "
                       f"{p.resolve().parent}); check the path") from None
@@ -84,16 +113,61 @@ def read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
                       "plain-text CSV with columns t,u") from None
     except OSError as exc:
         raise Refused(f"--input-file {p}: cannot be read ({exc.strerror})") from None
+    if len(t) < 3:
+        raise Refused(f"{p}: only {len(t)} data row(s); an input needs at least 3")
+    t, u = np.asarray(t, float), np.asarray(u, float)
+    t = read.to_si({"t": t})["t"]
+    for name, col in (("t", t), ("u", u)):
+        bad = np.flatnonzero(~np.isfinite(col))
+        if bad.size:
+            raise Refused(f"{p}, {unit} {rows[bad[0]]}: {name} is {col[bad[0]]!r}; every value "
+                          "must be a finite number")
+    bad = np.flatnonzero(np.abs(u) > MAX_ABS_INPUT)
+    if bad.size:
+        raise Refused(f"{p}, {unit} {rows[bad[0]]}: u is {float(u[bad[0]])!r} V: no amplifier "
+                      f"of the rig gives more than {MAX_ABS_INPUT:g} V; the value is corrupt "
+                      "or not in volts -- repair the file")
+    d = np.diff(t)
+    bad = np.flatnonzero(d <= 0)
+    if bad.size:
+        raise Refused(f"{p}, {unit} {rows[bad[0] + 1]}: time {t[bad[0] + 1]!r} is not after "
+                      f"{t[bad[0]]!r}; time must increase from row to row")
+    try:
+        check_time_unit(t, d)
+    except RowProblem as exc:
+        raise Refused(f"{p}, {unit} {rows[exc.row]}: {exc.problem}") from None
+    step = float(np.median(d))
+    dev = np.abs(d - step) / step
+    bad = np.flatnonzero(dev > 1e-6)
+    if bad.size:
+        raise Refused(f"{p}, {unit} {rows[bad[0] + 1]}: time step {d[bad[0]]:.9g} s differs "
+                      f"from the median step {step:.9g} s; time must be uniformly sampled -- "
+                      "resample the input first")
+    if not MIN_RATE <= 1.0 / step <= MAX_RATE:
+        raise Refused(f"{p}: sampled at {1.0 / step:.6g} Hz (step {step:.6g} s); simulate "
+                      f"needs {MIN_RATE:g} Hz to {MAX_RATE:g} Hz (the rig's encoders are read "
+                      "at 1 kHz); resample the input")
+    return t - t[0], u
+
+
+def _input_csv(p: Path, lines: list[str], read) -> tuple[list, list, list]:
+    """t, u and their line numbers from the lines of a CSV input file."""
+    from .. import rigfiles as R
+
     numbered = [(k, ln) for k, ln in enumerate(lines, start=1)
                 if ln.strip() and not ln.lstrip().startswith("#")]
     if not numbered:
         raise Refused(f"{p}: the file is empty; it needs a header 't,u' and rows of numbers")
     hline, htext = numbered[0]
-    header = [h.strip() for h in htext.split(",")]
-    if "t" not in header or "u" not in header:
-        raise Refused(f"{p}, line {hline}: the header {htext!r} must contain the columns t "
-                      "and u (comma-separated)")
-    it, iu = header.index("t"), header.index("u")
+    sep = ";" if ";" in htext else "\t" if "\t" in htext else ","
+    comma = sep != ","
+    header = [h.strip().strip('"').strip() for h in htext.split(sep)]
+    nt, nu = read.name_of("t"), read.name_of("u")
+    if nt not in header or nu not in header:
+        raise Refused(f"{p}, line {hline}: the header {htext!r} must contain the columns "
+                      f"{nt} and {nu}" + (" (comma-separated)" if not read.columns else "")
+                      + "; name the file's columns with --columns t=NAME,u=NAME")
+    it, iu = header.index(nt), header.index(nu)
     # A complete file ends with a line break; without one the last number may be cut.
     if lines[-1].strip() and len(numbered) > 1 and not lines[-1].lstrip().startswith("#"):
         raise Refused(f"{p}, line {len(lines)}: the last line {lines[-1].strip()[:80]!r} "
@@ -103,51 +177,19 @@ def read_input_file(path: str) -> tuple[np.ndarray, np.ndarray]:
                       "with a line break)")
     t, u, rows = [], [], []
     for k, ln in numbered[1:]:
-        f = ln.split(",")
+        f = ln.split(sep)
         try:
             if len(f) != len(header):
                 raise ValueError
-            tk, uk = float(f[it]), float(f[iu])
+            tk = R.parse_number(f[it].strip().strip('"'), comma)
+            uk = R.parse_number(f[iu].strip().strip('"'), comma)
         except ValueError:
             raise Refused(f"{p}, line {k}: {ln.strip()!r} is not a row of {len(header)} numbers "
                           f"matching the header {htext.strip()!r}") from None
         t.append(tk)
         u.append(uk)
         rows.append(k)
-    if len(t) < 3:
-        raise Refused(f"{p}: only {len(t)} data row(s); an input needs at least 3")
-    t, u = np.array(t), np.array(u)
-    for name, col in (("t", t), ("u", u)):
-        bad = np.flatnonzero(~np.isfinite(col))
-        if bad.size:
-            raise Refused(f"{p}, line {rows[bad[0]]}: {name} is {col[bad[0]]!r}; every value "
-                          "must be a finite number")
-    bad = np.flatnonzero(np.abs(u) > MAX_ABS_INPUT)
-    if bad.size:
-        raise Refused(f"{p}, line {rows[bad[0]]}: u is {float(u[bad[0]])!r} V: no amplifier "
-                      f"of the rig gives more than {MAX_ABS_INPUT:g} V; the value is corrupt "
-                      "or not in volts -- repair the file")
-    d = np.diff(t)
-    bad = np.flatnonzero(d <= 0)
-    if bad.size:
-        raise Refused(f"{p}, line {rows[bad[0] + 1]}: time {t[bad[0] + 1]!r} is not after "
-                      f"{t[bad[0]]!r}; time must increase from row to row")
-    try:
-        check_time_unit(t, d)
-    except RowProblem as exc:
-        raise Refused(f"{p}, line {rows[exc.row]}: {exc.problem}") from None
-    step = float(np.median(d))
-    dev = np.abs(d - step) / step
-    bad = np.flatnonzero(dev > 1e-6)
-    if bad.size:
-        raise Refused(f"{p}, line {rows[bad[0] + 1]}: time step {d[bad[0]]:.9g} s differs "
-                      f"from the median step {step:.9g} s; time must be uniformly sampled -- "
-                      "resample the input first")
-    if not MIN_RATE <= 1.0 / step <= MAX_RATE:
-        raise Refused(f"{p}: sampled at {1.0 / step:.6g} Hz (step {step:.6g} s); simulate "
-                      f"needs {MIN_RATE:g} Hz to {MAX_RATE:g} Hz (the rig's encoders are read "
-                      "at 1 kHz); resample the input")
-    return t - t[0], u
+    return t, u, rows
 
 
 def check_plot_format(path: Path) -> None:
@@ -167,17 +209,19 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
              rate: float | None = None, seed: int = 0, params: str | None = None,
              alpha0: float | None = None, add: list[str] | None = None,
              quantize: bool = False, noise: float = 0.0, plot: str | None = None,
-             force: bool = False, trust_effects: bool = False) -> Outcome:
+             force: bool = False, trust_effects: bool = False, columns=None,
+             time_unit: str | None = None) -> Outcome:
     """Simulate one experiment of the ``model`` configuration and write it to the CSV file
     ``out`` (a measurement file whose header records how to make it again).
 
     The input is generated (``input`` "est" or "val", ``duration`` s at ``rate`` Hz,
-    ``seed``) or read from ``input_file`` (columns t,u).  ``params`` is a named set, TOML
-    file or fit.json (default: the configuration's P_ref; a fit of the same configuration
-    brings the effects it ran with, its user effect files checked as every command checks
-    them: ``trust_effects`` imports one that changed since); ``add`` switches effects on;
-    ``quantize`` rounds to encoder counts, ``noise`` adds Gaussian noise [rad]; ``plot``
-    also saves a figure.  ``Outcome.doc`` holds the file's header.
+    ``seed``) or read from ``input_file`` (columns t,u, or those ``columns`` names, e.g.
+    "t=Time,u=Volt"; time in ``time_unit``, s or ms; a CSV or MATLAB .mat file). ``params``
+    is a named set, TOML file or fit.json (default: the configuration's P_ref; a fit of the
+    same configuration brings the effects it ran with, its user effect files checked as
+    every command checks them: ``trust_effects`` imports one that changed since); ``add``
+    switches effects on; ``quantize`` rounds to encoder counts, ``noise`` adds Gaussian
+    noise [rad]; ``plot`` also saves a figure. ``Outcome.doc`` holds the file's header.
     """
     from ..model import Model
     from ..model import simulate as run_simulation
@@ -185,6 +229,9 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
     from ..signals import make_signal
 
     # Everything the user can get wrong is checked before the simulation.
+    if not input_file and (columns or time_unit):
+        raise Refused("--columns and --time-unit say how to read --input-file; give the "
+                      "file, or leave them out")
     if input_file:
         ignored = [flag for flag, v in (("--duration", duration), ("--rate", rate),
                                         ("--input", input)) if v is not None]
@@ -212,8 +259,10 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
         raise Refused(f"--params {params}: {exc}" if params and str(params) not in
                       str(exc) else str(exc)) from None
     if input_file:
-        t, u = read_input_file(input_file)
-        source = input_file
+        read = read_spec(columns, time_unit)
+        t, u = read_input_file(input_file, read)
+        # How it was read is part of making the file again (its names, its time unit).
+        source = " ".join([input_file, read.options()]).strip()
     else:
         input = input or "est"
         duration = 30.0 if duration is None else duration

@@ -14,12 +14,15 @@ import math
 
 import numpy as np
 
+from ..numformat import fmt_interval_at, mean_sd, sd_place
 from . import arviz_compat as AZ
 from .likelihood import LogPosterior
 from .sampling import EnsembleRun, burn_thin
 
 #: Time points per experiment kept in the posterior-predictive group.
 PREDICTIVE_POINTS = 1500
+#: How the posterior predictive is stored: at the precision its band needs.
+PREDICTIVE_DTYPE = np.float64
 #: Largest pointwise log-likelihood group kept in memory and in posterior.nc [bytes, as
 #: float32]: beyond it, consecutive samples are summed in blocks (long data).
 LOGLIK_BYTES = 256 * 2**20
@@ -91,7 +94,10 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
             # The predictive bands need far fewer time points than the fit: at most
             # PREDICTIVE_POINTS per experiment, on their own time axis.
             step = max(1, int(np.ceil(ex.n / PREDICTIVE_POINTS)))
-            pp[key] = np.empty((n_rows, len(range(0, ex.n, step))), np.float32)
+            # float64: the band is the parameters' effect on the angle, often 1e-6 rad on
+            # angles of tens of rad, where float32's spacing is 1.9e-6 to 7.6e-6 rad (stored
+            # as float32 the band was that rounding: issue 36).
+            pp[key] = np.empty((n_rows, len(range(0, ex.n, step))), PREDICTIVE_DTYPE)
             dims_pp[key] = [f"time_pred_exp{ex_i}"]
             coords[f"time_pred_exp{ex_i}"] = ex.t[::step]
     # The draws are simulated a few at a time (long data: the residuals of every draw at
@@ -140,7 +146,7 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
 def file_bytes(logpost: LogPosterior, n_rows: int) -> int:
     """A generous bound on the size of posterior.nc [bytes] for ``n_rows`` kept draws (all
     ensembles together), before any draw exists: the pointwise log-likelihood (float32;
-    in blocks beyond :data:`LOGLIK_BYTES`), the posterior predictive (float32, at most
+    in blocks beyond :data:`LOGLIK_BYTES`), the posterior predictive (float64, at most
     :data:`PREDICTIVE_POINTS` + 1 per experiment and channel), the data with their time
     axes, the draws and sample statistics (float64), a quarter on top and 1 MB for the
     file's own structure. Compression makes the file smaller, never larger."""
@@ -148,7 +154,8 @@ def file_bytes(logpost: LogPosterior, n_rows: int) -> int:
     n_res = prob.n_residuals
     block = loglik_block(n_rows, n_res)
     ll = 4 * n_rows * sum(math.ceil((b - a) / block) for _, a, b in logpost.segments)
-    pp = 4 * n_rows * sum(min(b - a, PREDICTIVE_POINTS + 1) for _, a, b in logpost.segments)
+    pp = np.dtype(PREDICTIVE_DTYPE).itemsize * n_rows * sum(
+        min(b - a, PREDICTIVE_POINTS + 1) for _, a, b in logpost.segments)
     data = 16 * n_res + 32 * sum(ex.n for ex in prob.experiments)
     draws_ = 8 * n_rows * (logpost.ndim + 4)
     return int(1.25 * (ll + pp + data + draws_)) + 1_000_000
@@ -261,9 +268,13 @@ def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -
             + extra_s)
     lines = [head]
     for r in rows:
+        # The sd to two significant digits, the mean and the interval to its last place.
+        mean, sd = mean_sd(r["mean"], r["sd"])
+        hdi_text = (fmt_interval_at(r["hdi_low"], r["hdi_high"], r["sd"])
+                    if sd_place(r["sd"]) is not None else _hdi_fmt(r["hdi_low"], r["hdi_high"]))
         line = (
-            f"| {r['parameter']} | {r['mean']:.6g} | {r['sd']:.3g} | "
-            f"[{_hdi_fmt(r['hdi_low'], r['hdi_high'])}] | {r['ess_bulk']:.0f} | "
+            f"| {r['parameter']} | {mean} | {sd} | "
+            f"[{hdi_text}] | {r['ess_bulk']:.0f} | "
             f"{r['ess_tau']:.0f} | {r['r_hat']:.3f} | {r['tau']:.1f} | {r['unit']} |"
         )
         if honest:

@@ -20,11 +20,13 @@ from pathlib import Path
 
 from ..inference.identify import profile_interval
 from ..inference.problem import ValidationTorsion
+from ..numformat import fmt_interval_at, mean_sd, sd_place
 from ..outputs import write_text_atomic
 from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
     CSS,
     Raw,
+    digits,
     esc,
     figure,
     figure_store,
@@ -315,6 +317,19 @@ def _owned_data(fit, spec: str, sha: str) -> bool:
     return str(spec).lower().endswith(".csv")
 
 
+def _recorded_read(fit, spec: str):
+    """How the fit read the data file ``spec`` (its recorded names and units)."""
+    from ..rigfiles import ReadSpec
+
+    if fit is None:
+        return None
+    for key in ("data_files", "validation_files"):
+        for d in fit.doc.get(key) or []:
+            if isinstance(d, dict) and d.get("path") == spec:
+                return ReadSpec.from_record(d.get("read"))
+    return None
+
+
 def _data(f: Found) -> Raw | None:
     from ..data import load_experiment
 
@@ -358,7 +373,8 @@ def _data(f: Found) -> Raw | None:
                          Raw(f'<span class="hash">{esc(sha)}</span>')])
             continue
         try:
-            ex = load_experiment(p, expect_lower=config != "upper")
+            ex = load_experiment(p, expect_lower=config != "upper",
+                                 read=_recorded_read(fit, spec))
         except Exception:  # noqa: BLE001 - said, never quoted (the file may not be ours)
             rows.append([role, name, "unreadable as a measurement file (`rotorbayes fit` "
                          "names the problem)", None, None, None, "",
@@ -467,6 +483,10 @@ def _fit(f: Found) -> Raw | None:
                                  if p.get("start_source") else "")
         else:
             status, src = p.get("status"), p.get("source") or ""
+        if isinstance(v, int | float) and isinstance(se, int | float) and se > 0 \
+                and math.isfinite(se):
+            # The error to two significant digits, the value to the same decimal place.
+            v, se = (digits(t) for t in mean_sd(float(v), float(se)))
         return [Raw(f"<code>{esc(n)}</code>"), v, se, rel, _unit(p.get("unit")), status, src]
 
     heads = ["parameter", "value", "std. error", "rel. s.e. [%]", "unit", "status", "source"]
@@ -813,9 +833,16 @@ def _identify(f: Found) -> Raw | None:
         for pr in prof:
             grid = pr.get("grid") or []
             iv = profile_interval(pr)
-            rows.append([Raw(f"<code>{esc(pr.get('parameter'))}</code>"), pr.get("estimate"),
-                         Raw(f"{num(iv['lo'], 7)} … {num(iv['hi'], 7)}")
-                         if iv["lo"] is not None else "no grid point", _unit(pr.get("unit")),
+            est, ends = pr.get("estimate"), "no grid point"
+            if iv["lo"] is not None:
+                # The 95 % interval's half-width over 1.96 is the sd its digits follow.
+                sd = (iv["hi"] - iv["lo"]) / 3.92
+                lo, hi = fmt_interval_at(iv["lo"], iv["hi"], sd).split(", ")
+                ends = Raw(f"{digits(lo)} … {digits(hi)}")
+                if isinstance(est, int | float) and sd_place(sd) is not None:
+                    est = digits(mean_sd(float(est), sd)[0])
+            rows.append([Raw(f"<code>{esc(pr.get('parameter'))}</code>"), est,
+                         ends, _unit(pr.get("unit")),
                          Raw(f"{num(grid[0], 7)} … {num(grid[-1], 7)}") if grid else None,
                          iv["note"]])
         out.append(Raw("<h3>Profile likelihoods</h3>"))

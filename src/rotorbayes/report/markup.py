@@ -54,6 +54,16 @@ def num(x, digits: int = 4) -> Raw:
     return Raw(f"{m.replace('-', '−')}\u202f×\u202f10<sup>{str(int(e)).replace('-', '−')}</sup>")
 
 
+def digits(text: str) -> Raw:
+    """A number already written with its digits (``rotorbayes.numformat``: ``4.3687027``,
+    ``4.8e-06``) as a table shows numbers: a true minus, powers of ten as ``4.8 × 10⁻⁶``."""
+    mant, e, exp = str(text).partition("e")
+    out = esc(mant).replace("-", "−")
+    if e:
+        out += f"\u202f×\u202f10<sup>{str(int(exp)).replace('-', '−')}</sup>"
+    return Raw(out)
+
+
 def pval(p) -> Raw:
     """A p-value: two significant digits, ``< 10⁻¹⁶`` below machine precision."""
     if p is None or (isinstance(p, float) and math.isnan(p)):
