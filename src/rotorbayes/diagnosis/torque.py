@@ -489,7 +489,7 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
     derivatives) at parameters ``p``: ``{disc: (t, M, features, slip mask)}``, the mask
     and features taken from these angles' own velocities."""
     m = problem.model
-    use, hook_t, hook_s = m.hooks()
+    use, hook_t, hook_s, hook_r, _ = m.hooks()
     dt = ex.dt
     thu, wu, au, n = derivatives(theta_u, dt, window)
     t = ex.t
@@ -510,11 +510,20 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
     shift_l = np.zeros_like(t)
     if use:
         pv, qv = m.kernel_vectors(p)
+        # A stateful effect's state along these angles: its rate integrated sample by
+        # sample (trapezoidal; good enough for a map of what is missing).
+        z = 0.0
         for k in range(t.size):
-            a_u, a_l = hook_t(t[k], thu[k], wu[k], thl[k], wl[k], v[k], pv, qv)
-            s_u, s_l = hook_s(t[k], thu[k], wu[k], thl[k], wl[k], v[k], pv, qv)
+            args = (t[k], thu[k], wu[k], thl[k], wl[k], v[k])
+            a_u, a_l = hook_t(*args, z, pv, qv)
+            s_u, s_l = hook_s(*args, z, pv, qv)
             extra_u[k], extra_l[k] = a_u, a_l
             shift_u[k], shift_l[k] = s_u, s_l
+            if m.stateful is not None and k + 1 < t.size:
+                r0 = hook_r(*args, z, pv, qv)[0]
+                nxt = (t[k + 1], thu[k + 1], wu[k + 1], thl[k + 1], wl[k + 1], v[k + 1])
+                r1 = hook_r(*nxt, z + dt * r0, pv, qv)[0]
+                z += 0.5 * dt * (r0 + r1)
     du = np.gradient(u, dt)
     common = {"input": v, "input_rate": du, "input_history": _history(v, dt), "time": t}
     out = {}

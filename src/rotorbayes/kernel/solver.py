@@ -81,6 +81,8 @@ from .terms import (
     next_kink,
     prescribed_velocity,
     rhs,
+    state_fma,
+    state_value,
     stribeck_step,
     violations,
 )  # fmt: skip
@@ -102,37 +104,41 @@ def _rk5(t, h, y, mu, ml, k1, m, src):
     weights on those points are Boole's rule's (see :func:`_input_defect`).
     """
     c, cfg = m[0], m[1]
-    thu, wu, thl, wl = y
-    a1, a2, a3, a4 = k1
+    thu, wu, thl, wl, z = y
+    a1, a2, a3, a4, a5 = k1
     d_q = drive(t + 0.25 * h, c, cfg, src, m[6])
     d_m = drive(t + 0.5 * h, c, cfg, src, m[6])
     d_3q = drive(t + 0.75 * h, c, cfg, src, m[6])
     d_1 = drive(t + h, c, cfg, src, m[6])
     q = 0.25 * h
-    b1, b2, b3, b4 = rhs(fma(q, a1, thu), fma(q, a2, wu), fma(q, a3, thl), fma(q, a4, wl),
-                         mu, ml, d_q, m)  # fmt: skip
+    b1, b2, b3, b4, b5 = rhs(fma(q, a1, thu), fma(q, a2, wu), fma(q, a3, thl), fma(q, a4, wl),
+                             state_fma(m[6], q, a5, z), mu, ml, d_q, m)  # fmt: skip
     e = 0.125 * h
-    c1, c2, c3, c4 = rhs(
+    c1, c2, c3, c4, c5 = rhs(
         fma(e, a1 + b1, thu), fma(e, a2 + b2, wu), fma(e, a3 + b3, thl), fma(e, a4 + b4, wl),
-        mu, ml, d_q, m,
+        state_fma(m[6], e, a5 + b5, z), mu, ml, d_q, m,
     )  # fmt: skip
     hh = 0.5 * h
-    e1, e2, e3, e4 = rhs(
+    e1, e2, e3, e4, e5 = rhs(
         fma(h, c1, fma(-hh, b1, thu)), fma(h, c2, fma(-hh, b2, wu)),
-        fma(h, c3, fma(-hh, b3, thl)), fma(h, c4, fma(-hh, b4, wl)), mu, ml, d_m, m,
+        fma(h, c3, fma(-hh, b3, thl)), fma(h, c4, fma(-hh, b4, wl)),
+        state_fma(m[6], h, c5, state_fma(m[6], -hh, b5, z)), mu, ml, d_m, m,
     )  # fmt: skip
     r = 0.1875 * h
-    z = 0.5625 * h
-    f1, f2, f3, f4 = rhs(
-        fma(z, e1, fma(r, a1, thu)), fma(z, e2, fma(r, a2, wu)),
-        fma(z, e3, fma(r, a3, thl)), fma(z, e4, fma(r, a4, wl)), mu, ml, d_3q, m,
+    zz = 0.5625 * h
+    f1, f2, f3, f4, f5 = rhs(
+        fma(zz, e1, fma(r, a1, thu)), fma(zz, e2, fma(r, a2, wu)),
+        fma(zz, e3, fma(r, a3, thl)), fma(zz, e4, fma(r, a4, wl)),
+        state_fma(m[6], zz, e5, state_fma(m[6], r, a5, z)), mu, ml, d_3q, m,
     )  # fmt: skip
     s = h / 7.0
-    g1, g2, g3, g4 = rhs(
+    g1, g2, g3, g4, g5 = rhs(
         fma(s * 8.0, f1, fma(s, 2.0 * b1 + 12.0 * (c1 - e1) - 3.0 * a1, thu)),
         fma(s * 8.0, f2, fma(s, 2.0 * b2 + 12.0 * (c2 - e2) - 3.0 * a2, wu)),
         fma(s * 8.0, f3, fma(s, 2.0 * b3 + 12.0 * (c3 - e3) - 3.0 * a3, thl)),
         fma(s * 8.0, f4, fma(s, 2.0 * b4 + 12.0 * (c4 - e4) - 3.0 * a4, wl)),
+        state_fma(m[6], s * 8.0, f5,
+                  state_fma(m[6], s, 2.0 * b5 + 12.0 * (c5 - e5) - 3.0 * a5, z)),
         mu, ml, d_1, m,
     )  # fmt: skip
     k = h / 90.0
@@ -141,6 +147,8 @@ def _rk5(t, h, y, mu, ml, k1, m, src):
         fma(k * 7.0, g2, fma(k, 7.0 * a2 + 32.0 * (c2 + f2) + 12.0 * e2, wu)),
         fma(k * 7.0, g3, fma(k, 7.0 * a3 + 32.0 * (c3 + f3) + 12.0 * e3, thl)),
         fma(k * 7.0, g4, fma(k, 7.0 * a4 + 32.0 * (c4 + f4) + 12.0 * e4, wl)),
+        state_fma(m[6], k * 7.0, g5,
+                  state_fma(m[6], k, 7.0 * a5 + 32.0 * (c5 + f5) + 12.0 * e5, z)),
     ), d_1
 
 
@@ -211,13 +219,13 @@ def _step_to(t, x, y, mu, ml, k1, m, src):
 
 
 @njit(cache=True, error_model="numpy")
-def _guard_on_interpolant(sf, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src):
+def _guard_on_interpolant(sf, t, h, cu, cwu, cl, cwl, cz, disc, mu, ml, m, src):
     """The guard of ``disc`` at fraction ``sf`` of a step, on the step's Hermite
     interpolant (coefficients from :func:`_quintic` and :func:`_cubic`): no Runge-Kutta
     map, so a few dozen operations."""
     d = drive(t + sf * h, m[0], m[1], src, m[6])
     gu, gl = guards(_horner5(sf, cu), _horner(sf, cwu), _horner5(sf, cl), _horner(sf, cwl),
-                    mu, ml, d, m)  # fmt: skip
+                    _horner(sf, cz), mu, ml, d, m)  # fmt: skip
     return gu if disc == 0 else gl
 
 
@@ -247,6 +255,7 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, y1, d1, k_end, m, src):
     cl = _quintic(h, y[2], k1[2], k1[3], y1[2], k_end[2], k_end[3])
     cwu = _cubic(h, y[1], k1[1], y1[1], k_end[1])
     cwl = _cubic(h, y[3], k1[3], y1[3], k_end[3])
+    cz = _cubic(h, y[4], k1[4], y1[4], k_end[4])
     sa, pa, sb, pb = 0.0, g0, 1.0, g1
     side = 0
     for _ in range(60):
@@ -255,7 +264,7 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, y1, d1, k_end, m, src):
         sx = sb - pb * (sb - sa) / (pb - pa)
         if not (sa < sx < sb):
             sx = 0.5 * (sa + sb)
-        px = _guard_on_interpolant(sx, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src)
+        px = _guard_on_interpolant(sx, t, h, cu, cwu, cl, cwl, cz, disc, mu, ml, m, src)
         if px < 0.0:
             sb, pb = sx, px
             if side == -1:
@@ -269,8 +278,8 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, y1, d1, k_end, m, src):
     seed = 0.5 * (sa + sb)
     lo = max(seed - 1e-4, 0.0)
     hi = min(seed + 1e-4, 1.0)
-    slope = (_guard_on_interpolant(hi, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src)
-             - _guard_on_interpolant(lo, t, h, cu, cwu, cl, cwl, disc, mu, ml, m, src)) / (
+    slope = (_guard_on_interpolant(hi, t, h, cu, cwu, cl, cwl, cz, disc, mu, ml, m, src)
+             - _guard_on_interpolant(lo, t, h, cu, cwu, cl, cwl, cz, disc, mu, ml, m, src)) / (
         (hi - lo) * h)  # fmt: skip
     # 2. Secant steps on the map from the seed, inside the bracket [a, b].
     tol = 1e-13 * h + 1e-16
@@ -283,7 +292,7 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, y1, d1, k_end, m, src):
             if not (a < x < b):
                 x = 0.5 * (a + b)
         yx, d = _step_to(t, x, y, mu, ml, k1, m, src)
-        gu, gl = guards(yx[0], yx[1], yx[2], yx[3], mu, ml, d, m)
+        gu, gl = guards(yx[0], yx[1], yx[2], yx[3], yx[4], mu, ml, d, m)
         fx = gu if disc == 0 else gl
         if fx < 0.0:
             b, fb = x, fx
@@ -389,8 +398,8 @@ def _fail_residuals(r, row, col_u, col_l, n):
 # The exceptions are terms.drive and terms.rhs (numba-inlined, see there).
 @njit(cache=True, error_model="numpy")
 def _integrate(
-    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-    full, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
+    state_reset, full, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
     meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
 ):  # fmt: skip
     """The solver: one experiment, either every output (``full``) or only residuals.
@@ -414,7 +423,7 @@ def _integrate(
             _fail_residuals(r, row, col_u, col_l, n)
         return BAD_PARAMETERS, 0
     c = derived(p, dt)
-    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift)
+    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift, hook_rate)
     if needs_full_kernel(c) and not is_full_kernel(hook_torque):
         # The plain kernel has no code for the lag (terms.full_kernel_only): refuse, never
         # simulate without it.  rotorbayes.model.simulate picks the full kernel for it.
@@ -440,19 +449,21 @@ def _integrate(
     jj = 0 if dly - n_hold * h0 > 1e-9 else 1
     kinks = has_kinks(c)
     src = input_source(c, cfg, u, thp)
-    y = (0.0, 0.0, 0.0, 0.0)
+    # The state: both discs' angles and velocities and the effect state z (a stateful user
+    # effect's; in the plain kernel nothing reads it, and the compiler drops it).
+    y = (0.0, 0.0, 0.0, 0.0, 0.0)
     # The rig starts at rest; each disc sticks unless its torque breaks it loose.
     d1 = drive(0.0, c, cfg, src, hook_torque)
     if cfg == CFG_PRESCRIBED:
-        y = (d1[2], d1[3], 0.0, 0.0)
-    mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], d1, m)
-    f = rhs(y[0], y[1], y[2], y[3], mu, ml, d1, m)
+        y = (d1[2], d1[3], 0.0, 0.0, 0.0)
+    mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], y[4], d1, m)
+    f = rhs(y[0], y[1], y[2], y[3], y[4], mu, ml, d1, m)
     n_ev = 0
     status = OK
-    if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], d1, m):
+    if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], y[4], d1, m):
         status = BAD_EFFECT
     if full:
-        out_thu[0], out_wu[0], out_thl[0], out_wl[0] = y
+        out_thu[0], out_wu[0], out_thl[0], out_wl[0] = y[0], y[1], y[2], y[3]
         out_mu[0], out_ml[0] = mu, ml
     else:
         if col_u >= 0:
@@ -484,7 +495,7 @@ def _integrate(
                 t_tgt = t_sub  # a substep through the Stribeck band or towards an event
             rem = t_tgt - t
             y1, d1 = _rk5(t, rem, y, mu, ml, f, m, src)
-            gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
+            gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], y1[4], mu, ml, d1, m)
             seg = rem
             ok_step = gu1 >= 0.0 and gl1 >= 0.0
             disc = -1
@@ -492,8 +503,8 @@ def _integrate(
             if not ok_step:
                 # Locate the earliest event among the violated guards.
                 d0 = drive(t, c, cfg, src, hook_torque)
-                gu0, gl0 = guards(y[0], y[1], y[2], y[3], mu, ml, d0, m)
-                f1 = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, m)
+                gu0, gl0 = guards(y[0], y[1], y[2], y[3], y[4], mu, ml, d0, m)
+                f1 = rhs(y1[0], y1[1], y1[2], y1[3], y1[4], mu, ml, d1, m)
                 y_ev, d_ev = y1, d1
                 for dsc in range(2):
                     g1 = gu1 if dsc == 0 else gl1
@@ -505,8 +516,10 @@ def _integrate(
                             seg = tl
                             disc = dsc
                             y_ev, d_ev = yl, dl
-                y1, de = y_ev, d_ev
-            fe = rhs(y1[0], y1[1], y1[2], y1[3], mu, ml, de, m)
+                # (the state as the plain kernel knows it: a constant 0, see terms.state_fma)
+                y1 = (y_ev[0], y_ev[1], y_ev[2], y_ev[3], state_value(m[6], y_ev[4]))
+                de = d_ev
+            fe = rhs(y1[0], y1[1], y1[2], y1[3], y1[4], mu, ml, de, m)
             t_seg = t + seg
             lim = t_seg + 1e-9 * dt
             if kout < n and kout * dt <= lim:
@@ -542,7 +555,7 @@ def _integrate(
                 kout = k1 + 1
             y = y1
             f = fe
-            if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], de, m):
+            if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], y[4], de, m):
                 status = BAD_EFFECT
                 break
             t = t_seg
@@ -552,17 +565,19 @@ def _integrate(
                 continue  # a kink of the input: same modes, new segment
             # Switch the disc whose guard fired: it is at zero velocity now.
             if disc == 0:
-                y = (y[0], 0.0, y[2], y[3])
+                y = (y[0], 0.0, y[2], y[3], y[4])
             else:
-                y = (y[0], y[1], y[2], 0.0)
-            new_u, new_l = modes_at_rest(y[0], y[1], y[2], y[3], de, m)
+                y = (y[0], y[1], y[2], 0.0, y[4])
+            new_u, new_l = modes_at_rest(y[0], y[1], y[2], y[3], y[4], de, m)
             if disc == 0:
                 mu = new_u
                 new = mu
             else:
                 ml = new_l
                 new = ml
-            f = rhs(y[0], y[1], y[2], y[3], mu, ml, de, m)
+            if new == 0 and state_reset == disc:  # a stateful effect reset as the disc sticks
+                y = (y[0], y[1], y[2], y[3], 0.0)
+            f = rhs(y[0], y[1], y[2], y[3], y[4], mu, ml, de, m)
             if n_ev < max_ev:
                 events[n_ev, 0] = t
                 events[n_ev, 1] = disc
@@ -576,7 +591,7 @@ def _integrate(
                 break
         if status == OK and not (
             abs(y[1]) < _VMAX and abs(y[3]) < _VMAX and math.isfinite(y[0])
-            and math.isfinite(y[2])
+            and math.isfinite(y[2]) and math.isfinite(y[4])
         ):  # fmt: skip
             status = BLOW_UP
         if status != OK:
@@ -602,15 +617,15 @@ def _integrate(
 _F1 = types.float64[::1]
 _SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
     _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
-    types.boolean, HOOK_TYPE, HOOK_TYPE,
+    types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE, types.int64,
     _F1, _F1, _F1, _F1, types.int8[::1], types.int8[::1], types.float64[:, ::1],
 )  # fmt: skip
 
 
 @njit(_SIMULATE_SIGNATURE, cache=True, error_model="numpy", nogil=True)
 def simulate_into(
-    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-    out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
+    state_reset, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
 ):  # fmt: skip
     """Integrate one experiment and write the result into preallocated arrays.
 
@@ -636,9 +651,12 @@ def simulate_into(
         ``t_delay``).
     thp : float64[n]
         Prescribed upper-disc angle [rad] (only read for ``CFG_PRESCRIBED``).
-    use_hooks, hook_torque, hook_shift
-        Whether to call the user-effect hooks: extra torques on the discs, and shifts of
-        their friction levels (see :data:`rotorbayes.kernel.terms.HOOK_SIGNATURE`).
+    use_hooks, hook_torque, hook_shift, hook_rate
+        Whether to call the user-effect hooks: extra torques on the discs, shifts of
+        their friction levels, and the rate of the effect state ``z`` (see
+        :data:`rotorbayes.kernel.terms.HOOK_SIGNATURE`).
+    state_reset : int
+        The disc (0 upper, 1 lower) at whose sticking ``z`` is set to 0; -1: never.
     out_* : arrays of length n
         Angles [rad], velocities [rad/s] and modes (-1, 0, +1) at the samples.
     events : float64[m, 3]
@@ -651,7 +669,7 @@ def simulate_into(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        hook_rate, state_reset, True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
         no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
     )  # fmt: skip
 
@@ -672,7 +690,7 @@ def simulate_into_plain(
     the hooks, 0.13 ms without; the same numbers bit for bit)."""
     no_f = np.empty(0)
     return _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -1,
         True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
         no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
     )  # fmt: skip
@@ -680,7 +698,7 @@ def simulate_into_plain(
 
 _RESIDUALS_SIGNATURE = types.int64(
     _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
-    types.boolean, HOOK_TYPE, HOOK_TYPE,
+    types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE, types.int64,
     _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
     types.int64,
 )  # fmt: skip
@@ -688,8 +706,8 @@ _RESIDUALS_SIGNATURE = types.int64(
 
 @njit(_RESIDUALS_SIGNATURE, cache=True, error_model="numpy", nogil=True)
 def residuals_into(
-    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-    meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
+    p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
+    state_reset, meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
 ):  # fmt: skip
     """Integrate one experiment and write only its weighted residuals (no output arrays).
 
@@ -704,7 +722,7 @@ def residuals_into(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        hook_rate, state_reset, False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -712,7 +730,8 @@ def residuals_into(
 
 _BATCH_SIGNATURE = types.void(
     types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
+    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE,
+    types.int64,
     types.float64[:, ::1], types.float64[:, ::1], types.int64[::1],
 )  # fmt: skip
 
@@ -727,8 +746,8 @@ def _batch_scratch(n):
 
 @njit(_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
 def simulate_batch_into(
-    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-    out_thu, out_thl, status,
+    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
+    state_reset, out_thu, out_thl, status,
 ):  # fmt: skip
     """Integrate one experiment for every row of ``P`` (and ``Q``) in parallel threads.
 
@@ -740,7 +759,7 @@ def simulate_batch_into(
         wu, wl, mu, ml, ev = _batch_scratch(n)
         s, _ = simulate_into(
             P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
-            hook_shift, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
+            hook_shift, hook_rate, state_reset, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
         )  # fmt: skip
         status[i] = s
 
@@ -788,7 +807,7 @@ def residuals_into_plain(
     no_f = np.empty(0)
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -1,
         False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
@@ -797,7 +816,8 @@ def residuals_into_plain(
 
 _RESIDUALS_BATCH_SIGNATURE = types.void(
     types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE,
+    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE,
+    types.int64,
     _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
     types.int64[::1],
 )  # fmt: skip
@@ -805,8 +825,8 @@ _RESIDUALS_BATCH_SIGNATURE = types.void(
 
 @njit(_RESIDUALS_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
 def residuals_batch_into(
-    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-    meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
+    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
+    state_reset, meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
 ):  # fmt: skip
     """:func:`residuals_into` for every row of ``P`` (and ``Q``) in parallel threads:
     row ``i`` of ``R`` receives the residuals of parameter row ``i``, ``status[i]`` its
@@ -815,7 +835,7 @@ def residuals_batch_into(
     for i in prange(m):
         status[i] = residuals_into(
             P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
-            hook_shift, meas_u, meas_l, w_u, w_l, R, i, col_u, col_l,
+            hook_shift, hook_rate, state_reset, meas_u, meas_l, w_u, w_l, R, i, col_u, col_l,
         )  # fmt: skip
 
 
@@ -855,7 +875,7 @@ def simulate_into_full(
     """:func:`simulate_into_plain` on the full kernel."""
     no_f = np.empty(0)
     return _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -1,
         True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
         no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
     )  # fmt: skip
@@ -870,7 +890,7 @@ def residuals_into_full(
     no_f = np.empty(0)
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -1,
         False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip

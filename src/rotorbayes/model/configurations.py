@@ -17,7 +17,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 from ..kernel import layout as _layout
 from ..kernel.terms import CONSTRAINTS, HOOK_SIGNATURE, null_hook, violations
@@ -175,6 +175,11 @@ class Model:
         self.added = tuple(e for e in added if e not in base)
         self.effects = self.base_effects + self.added
         self.user_effects = tuple(e for e in self.effects if e.is_user)
+        stateful = [e.name for e in self.effects if e.state]
+        if len(stateful) > 1:
+            raise EffectError(
+                f"effects {', '.join(stateful)} each carry a state; a model holds at most one "
+                "stateful effect (the kernel integrates one effect state)")
         names = [e.name for e in self.effects]
         if len(set(names)) != len(names):
             raise EffectError(f"an effect is listed twice: {names}")
@@ -301,35 +306,78 @@ class Model:
 
     # ------------------------------------------------------------------------ hooks
     def hooks(self):
-        """``(use, torque_hook, shift_hook)`` for the kernel, compiled on first use."""
+        """``(use, torque_hook, shift_hook, rate_hook, state_reset)`` for the kernel,
+        compiled on first use (see :data:`rotorbayes.kernel.terms.HOOK_SIGNATURE`)."""
         if self._hooks is None:
             self._hooks = _compile_hooks(self.user_effects)
         return self._hooks
 
+    @property
+    def stateful(self) -> Effect | None:
+        """The model's effect with a state (at most one), or None."""
+        return next((e for e in self.effects if e.state), None)
+
 
 _HOOK_CACHE: dict[tuple, tuple] = {}
 
+#: A user's function without the state: ``(t, theta_u, omega_u, theta_l, omega_l, v, p, q)``.
+_STATELESS_SIGNATURE = types.UniTuple(types.float64, 2)(
+    types.float64, types.float64, types.float64, types.float64, types.float64,
+    types.float64, types.float64[::1], types.float64[::1],
+)  # fmt: skip
+#: A stateful effect's rate: ``(t, theta_u, omega_u, theta_l, omega_l, v, z, p, q) -> dz/dt``.
+_RATE_SIGNATURE = types.float64(
+    types.float64, types.float64, types.float64, types.float64, types.float64,
+    types.float64, types.float64, types.float64[::1], types.float64[::1],
+)  # fmt: skip
+
 
 def _compile_one(effect: Effect, fn, what: str):
+    """The kernel's hook (:data:`HOOK_SIGNATURE`) for one function of a user effect: a
+    stateful effect's functions take the state ``z`` after ``v`` (its rate returns one
+    float), a stateless effect's do not (wrapped so that the kernel may pass ``z``)."""
     py = getattr(fn, "py_func", fn)
+    if effect.state:
+        sig = _RATE_SIGNATURE if what == "state_rate" else HOOK_SIGNATURE
+        args = "(t, theta_u, omega_u, theta_l, omega_l, v, z, p, q)"
+        ret = "one float" if what == "state_rate" else "two floats"
+    else:
+        sig, ret = _STATELESS_SIGNATURE, "two floats"
+        args = "(t, theta_u, omega_u, theta_l, omega_l, v, p, q)"
     try:
-        return njit(HOOK_SIGNATURE, cache=True)(py)
+        f = njit(sig, cache=True)(py)
     except Exception as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise EffectError(
             f"{effect.source}: the {what} function of effect {effect.name!r} does not compile "
-            f"with numba ({first}); it must take (t, theta_u, omega_u, theta_l, omega_l, v, "
-            "p, q) and return two floats, using only numpy/math (see docs/effects.md)"
+            f"with numba ({first}); it must take {args} and return {ret}, using only "
+            "numpy/math (see docs/effects.md)"
         ) from None
+    if effect.state and what != "state_rate":
+        return f
+    if what == "state_rate":
+
+        @njit(HOOK_SIGNATURE)
+        def rate(t, thu, wu, thl, wl, v, z, p, q):
+            return f(t, thu, wu, thl, wl, v, z, p, q), 0.0
+
+        return rate
+
+    @njit(HOOK_SIGNATURE)
+    def stateless(t, thu, wu, thl, wl, v, z, p, q):
+        return f(t, thu, wu, thl, wl, v, p, q)
+
+    return stateless
 
 
 def _compile_hooks(user: tuple[Effect, ...]):
     if not user:
-        return False, null_hook, null_hook
+        return False, null_hook, null_hook, null_hook, -1
     key = tuple((e.source, e.name) for e in user)
     if key in _HOOK_CACHE:
         return _HOOK_CACHE[key]
-    torques, shifts = [], []
+    torques, shifts, rates = [], [], []
+    reset = -1
     off = 0
     for e in user:
         k = len(e.parameters)
@@ -337,8 +385,11 @@ def _compile_hooks(user: tuple[Effect, ...]):
             torques.append((_compile_one(e, e.torque, "torque"), off, k))
         if e.friction_shift is not None:
             shifts.append((_compile_one(e, e.friction_shift, "friction_shift"), off, k))
+        if e.state:
+            rates.append((_compile_one(e, e.state_rate, "state_rate"), off, k))
+            reset = {"": -1, "u": 0, "l": 1}[e.state_reset]
         off += k
-    out = (True, _combine(torques), _combine(shifts))
+    out = (True, _combine(torques), _combine(shifts), _combine(rates), reset)
     _HOOK_CACHE[key] = out
     return out
 
@@ -351,8 +402,8 @@ def _combine(parts):
         f0, _, k0 = parts[0]
 
         @njit(HOOK_SIGNATURE)
-        def one(t, thu, wu, thl, wl, v, p, q):
-            return f0(t, thu, wu, thl, wl, v, p, q[:k0])
+        def one(t, thu, wu, thl, wl, v, z, p, q):
+            return f0(t, thu, wu, thl, wl, v, z, p, q[:k0])
 
         return one
     head, rest = parts[0], parts[1:]
@@ -360,9 +411,9 @@ def _combine(parts):
     tail = _combine(rest)
 
     @njit(HOOK_SIGNATURE)
-    def both(t, thu, wu, thl, wl, v, p, q):
-        a, b = f0(t, thu, wu, thl, wl, v, p, q[o0 : o0 + k0])
-        c, d = tail(t, thu, wu, thl, wl, v, p, q)
+    def both(t, thu, wu, thl, wl, v, z, p, q):
+        a, b = f0(t, thu, wu, thl, wl, v, z, p, q[o0 : o0 + k0])
+        c, d = tail(t, thu, wu, thl, wl, v, z, p, q)
         return a + c, b + d
 
     return both

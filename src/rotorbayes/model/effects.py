@@ -111,6 +111,16 @@ class Effect:
         it.
     torque, friction_shift : callable, optional
         A user effect's physics (see the module docstring).
+    state : str
+        The name of the effect's state variable (e.g. ``"heat"``); empty: no state.  A
+        stateful effect's ``torque`` and ``friction_shift`` take the state ``z`` after
+        ``v``; its ``state_rate`` gives ``dz/dt`` (a float) with the same arguments.  ``z``
+        starts at 0 and is integrated with the rig's state (stick or slip).
+    state_rate : callable, optional
+        ``f(t, theta_u, omega_u, theta_l, omega_l, v, z, p, q) -> dz/dt``.
+    state_reset : str
+        ``"u"`` or ``"l"``: ``z`` is set to 0 whenever that disc starts to stick (e.g. a
+        bristle deflection that a stop releases); empty: never.
     source : str
         Where a user effect was loaded from.
     """
@@ -129,6 +139,9 @@ class Effect:
     full_kernel: bool = False
     torque: Callable | None = field(default=None, compare=False, repr=False)
     friction_shift: Callable | None = field(default=None, compare=False, repr=False)
+    state: str = ""
+    state_rate: Callable | None = field(default=None, compare=False, repr=False)
+    state_reset: str = ""
     source: str = "catalogue"
 
     def __post_init__(self):
@@ -139,13 +152,19 @@ class Effect:
         bad = [c for c in self.configs if c not in ALL]
         if bad:
             raise ValueError(f"effect {self.name!r}: unknown configuration(s) {bad}")
+        if bool(self.state) != (self.state_rate is not None):
+            raise ValueError(f"effect {self.name!r}: a state needs its state_rate, and a "
+                             "state_rate its state's name")
+        if self.state_reset not in ("", "u", "l"):
+            raise ValueError(f"effect {self.name!r}: state_reset must be '', 'u' or 'l'")
         object.__setattr__(self, "parameters", tuple(self.parameters))
         object.__setattr__(self, "configs", tuple(self.configs))
 
     @property
     def is_user(self) -> bool:
         """A user-defined effect (brings its own compiled physics)."""
-        return self.torque is not None or self.friction_shift is not None
+        return (self.torque is not None or self.friction_shift is not None
+                or self.state_rate is not None)
 
     def __reduce_ex__(self, protocol):
         # A user effect loaded from a file travels with the file's code and its SHA-256:
@@ -617,7 +636,8 @@ def load_user_effect(spec: str, *, code: bytes | None = None) -> Effect:
         )
     if not isinstance(eff, Effect) or not eff.is_user:
         raise EffectError(
-            f"{path_s}:{name} must be a rotorbayes Effect with a torque and/or friction_shift "
+            f"{path_s}:{name} must be a rotorbayes Effect with a torque, friction_shift or "
+            "state_rate "
             "function (see docs/effects.md)"
         )
     if eff.name in CATALOGUE:

@@ -321,9 +321,9 @@ class Simulator:
 
     def _kernel_args(self) -> tuple:
         """The kernel's experiment arguments, shared by single and batched runs."""
-        use, ht, hs = self.model.hooks()
+        use, ht, hs, hr, reset = self.model.hooks()
         return (self.u, self.dt, self.cfg, self.shape, self.grid, self.h0,
-                self.theta_u, use, ht, hs)  # fmt: skip
+                self.theta_u, use, ht, hs, hr, reset)  # fmt: skip
 
     def _entry(self, name: str):
         """``(kernel function, experiment arguments)`` for the kernel entry point ``name``:
