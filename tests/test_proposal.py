@@ -95,15 +95,17 @@ def _check_case(extra, key, truth, tmp_path):
     p = propose(missing_torque(prob, x), catalogue_near_floor=False)
     kept = {k.term.key: k for k in p.kept if k.disc == "l"}
     assert key in kept, p.words()
-    assert kept[key].value == pytest.approx(truth, rel=0.2), p.words()
+    # At the parent fit the parameters bend to the missing term (the drift's coefficient
+    # was 0.36x the truth there, the drag's 0.97x); the refit finds it.
+    assert truth / 4 < kept[key].value < 2 * truth, p.words()
     assert kept[key].frequency >= 0.8
     pe, xr = _refit(prob, x, p, tmp_path)
     est, val = floor_ratio(pe, xr), validation_ratio(pe, xr, [va])
     assert est <= 1.5, (est, val)
+    assert xr[pe.names.index(kept[key].name)] == pytest.approx(truth, rel=0.05)
     return est, val
 
 
-@pytest.mark.slow
 def test_a_friction_drift_in_time_is_proposed_and_its_refit_reaches_the_floor(tmp_path):
     est, val = _check_case({"drift_Tc_l": 0.0006}, "t", 0.0006, tmp_path)
     # The issue asks <= 1.5x on the validation run; measured 6.5x (estimation 0.93x, the
@@ -113,7 +115,6 @@ def test_a_friction_drift_in_time_is_proposed_and_its_refit_reaches_the_floor(tm
     assert val <= 10, (est, val)
 
 
-@pytest.mark.slow
 def test_a_quadratic_drag_is_proposed_and_its_refit_reaches_the_floor(tmp_path):
     est, val = _check_case({"drag_l": 0.004}, "w2", 0.004, tmp_path)
     # Issue's bar 1.5x not met yet: measured 8.3x (estimation 0.94x); see above.
