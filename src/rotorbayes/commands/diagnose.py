@@ -239,7 +239,6 @@ def _proposal(result, d, tried: dict | None, specs: dict):
     well above its noise: the proposed missing term (:mod:`rotorbayes.diagnosis.proposal`),
     printed with its refit command; the caller writes its file.  None: not looked for."""
     import os
-    import shlex
 
     from ..diagnosis.diagnose import REFIT_TOKEN
     from ..diagnosis.proposal import EFFECT_NAME, FILE_NAME, catalogue_near_floor, propose

@@ -316,7 +316,7 @@ def propose_disc(m: TorqueMap, *, seed: int = 0) -> DiscProposal:
         picks.append(r)
         counts += _select(Xs[r], y[r])
     freq = counts / RESAMPLES
-    out.frequencies = {f"{t.key}": float(fq) for (t, _), fq in zip(lib, freq) if fq > 0}
+    out.frequencies = {t.key: float(fq) for (t, _), fq in zip(lib, freq, strict=True) if fq > 0}
     keep = np.flatnonzero(freq >= KEEP)
     while keep.size:
         beta, *_ = np.linalg.lstsq(Xs[:, keep], y, rcond=None)
@@ -344,7 +344,7 @@ def propose_disc(m: TorqueMap, *, seed: int = 0) -> DiscProposal:
                       f"bootstrap standard deviations from 0; a proposal needs "
                       f"{100 * MIN_R2:.0f} % and {MIN_Z:g})")
         return out
-    for j, c, e, part in zip(keep, beta, sd, parts):
+    for j, c, e, part in zip(keep, beta, sd, parts, strict=True):
         term, g = lib[j]
         out.kept.append(Kept(m.disc, term, float(freq[j]), float(c), float(e),
                              float(g.mean()), float(part)))
