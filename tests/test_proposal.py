@@ -140,3 +140,60 @@ def test_a_control_proposes_nothing():
     p = propose(missing_torque(prob, x), catalogue_near_floor=False)
     assert not p.kept, p.words()
     assert "noise" in p.reason
+
+
+def test_diagnose_writes_the_proposal_and_its_command_refits_to_the_floor(tmp_path,
+                                                                          monkeypatch):
+    """The command end to end, as a user runs it: fit, diagnose (the proposal printed and
+    written), the printed refit command run as printed, its validation at the floor; a
+    second diagnose leaves the file alone; --no-proposal writes none."""
+    import json
+    import shlex
+
+    from rotorbayes.cli import main
+    from rotorbayes.data import save_experiment
+
+    params = dict(SETS["coupled"][0], drift_Tc_l=0.0006)
+    save_experiment(make_experiment("coupled", params, duration=DURATION, seed=SEED),
+                    tmp_path / "est.csv")
+    save_experiment(make_experiment("coupled", params, duration=DURATION, seed=5),
+                    tmp_path / "val.csv")
+    monkeypatch.chdir(tmp_path)
+    assert main(["fit", "--model", "coupled", "est.csv", "--validate", "val.csv",
+                 "--out", "fit/"]) == 0
+    assert main(["diagnose", "fit/", "--no-trials"]) == 0
+    doc = json.loads((tmp_path / "fit" / "diagnosis.json").read_text())["proposal"]
+    assert doc["proposed"] and doc["effect"] == "fit/proposal.py:proposed"
+    assert [k["term"] for d in doc["discs"] for k in d["kept"]] == ["t"]
+    first = (tmp_path / "fit" / "proposal.py").read_text()
+    assert doc["command"] in first  # the file's docstring carries the command
+    argv = shlex.split(doc["command"])
+    assert argv[:2] == ["rotorbayes", "fit"] and "--add" in argv
+    assert main(argv[1:]) == 0
+    fit = json.loads((tmp_path / "fit_proposed" / "fit.json").read_text())["assessment"]
+    assert fit["worst_ratio_to_floor"] <= 1.5
+    assert fit["worst_ratio_to_floor_validation"] <= 1.5
+    # Diagnosing the parent again proposes the same text: the file is left as it was
+    # (the refit recorded its SHA-256).
+    assert main(["diagnose", "fit/", "--no-trials"]) == 0
+    assert (tmp_path / "fit" / "proposal.py").read_text() == first
+    assert not (tmp_path / "fit" / "proposal_2.py").exists()
+    # The refit is adequate: nothing proposed, and said why in diagnosis.json.
+    assert main(["diagnose", "fit_proposed/", "--no-trials"]) == 0
+    doc2 = json.loads((tmp_path / "fit_proposed" / "diagnosis.json").read_text())["proposal"]
+    assert not doc2["proposed"] and doc2["reason"]
+    assert not (tmp_path / "fit_proposed" / "proposal.py").exists()
+    assert main(["diagnose", "fit/", "--no-trials", "--no-proposal"]) == 0
+    assert json.loads((tmp_path / "fit" / "diagnosis.json").read_text())["proposal"] is None
+
+
+def test_an_edited_proposal_is_not_replaced(tmp_path):
+    drift = Term("t", "friction", "friction level drifting in time", "t", "s")
+    p = Proposal(discs=[DiscProposal("l", [Kept("l", drift, 1.0, 0.002, 1e-4, 5.0, 1e-3)])])
+    (tmp_path / "proposal.py").write_text("# my own edits\n")
+    path = write_effect_file(p, tmp_path, "rotorbayes fit --add d/proposal.py:proposed")
+    assert path.endswith("proposal_2.py")
+    assert (tmp_path / "proposal.py").read_text() == "# my own edits\n"
+    with open(path) as f:
+        assert "--add d/proposal_2.py:proposed" in f.read()
+    assert write_effect_file(p, tmp_path, "rotorbayes fit --add d/proposal.py:proposed") == path

@@ -29,6 +29,10 @@ def add_arguments(g) -> None:
     g.add_argument("--no-trials", dest="trials", action="store_false",
                    help="far above the floor, skip the trial refits (one refit of every "
                    "candidate effect, its parameters searched, ranked by where it ends)")
+    g.add_argument("--no-proposal", dest="proposal", action="store_false",
+                   help="when no catalogue effect brings the fit near the floor, do not "
+                   "propose a missing term (a sparse regression of the missing torque, "
+                   "written as proposal.py beside the fit with its refit command)")
     add_trust_option(g)
     add_changed_data_option(g)
 
@@ -140,14 +144,23 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
         for fig, name in figs:
             save_figure_atomic(fig, result.folder / name)
         if proposed is not None and proposed.kept:
-            from ..diagnosis.proposal import write_effect_file
+            from ..diagnosis.proposal import FILE_NAME, write_effect_file
 
-            write_effect_file(proposed, result.folder, proposed.command)
+            written = Path(write_effect_file(proposed, result.folder, proposed.command)).name
+            if written != FILE_NAME:  # an earlier, different proposal.py is kept
+                old = proposed.file
+                proposed.file = str(Path(old).with_name(written))
+                proposed.command = proposed.command.replace(f"{old}:", f"{proposed.file}:")
+                print(f"{old} exists with other content (kept: you may have edited it, or "
+                      f"refitted it); this proposal is {proposed.file}: refit it with\n"
+                      f"  {proposed.command}")
+            doc["proposal"] = proposed.as_dict()
         write_text_atomic(result.folder / "diagnosis.json", strict_json(doc))
     if guard.hit:
         raise Interrupted(f"interrupted (Ctrl-C) after the diagnosis had finished; it was "
                           f"kept, complete, in {result.folder}/ (diagnosis.json and figures)")
-    also = ", proposal.py" if proposed is not None and proposed.kept else ""
+    also = (f", {Path(proposed.file).name}" if proposed is not None and proposed.kept
+            else "")
     print(f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
           f"missing_torque.png{also} ({d.seconds:.1f} s)")
     return Outcome(folder=Path(fit), doc=doc)

@@ -483,11 +483,30 @@ def header_text(p: Proposal, command: str) -> str:
 
 
 def write_effect_file(p: Proposal, folder, command: str) -> str:
-    """Write the proposal as ``folder/proposal.py`` (atomically) and return its path."""
+    """Write the proposal as ``folder/proposal.py`` (atomically) and return its path.
+
+    An existing ``proposal.py`` with other content is never replaced (the user may have
+    edited it, and a refit records its SHA-256: replacing it would orphan that refit); the
+    proposal then goes to ``proposal_2.py``, ``proposal_3.py``, ... (the first free name,
+    or the one already holding the same text).  ``command`` names the file as
+    ``proposal.py``; it is rewritten to the name chosen."""
     from pathlib import Path
 
     from ..outputs import write_text_atomic
 
-    path = Path(folder) / FILE_NAME
-    write_text_atomic(path, effect_source(p, header=header_text(p, command)))
-    return str(path)
+    folder = Path(folder)
+    stem, suffix = FILE_NAME.rsplit(".", 1)
+    for i in range(1, 1000):
+        name = FILE_NAME if i == 1 else f"{stem}_{i}.{suffix}"
+        path = folder / name
+        cmd = command.replace(f"{FILE_NAME}:", f"{name}:")
+        text = effect_source(p, header=header_text(p, cmd))
+        if not path.exists():
+            write_text_atomic(path, text)
+            return str(path)
+        try:
+            if path.read_text(encoding="utf-8") == text:
+                return str(path)
+        except (OSError, UnicodeDecodeError):
+            pass
+    raise OSError(f"{folder}: proposal.py to proposal_999.py all exist; remove some")
