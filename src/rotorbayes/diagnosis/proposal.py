@@ -405,9 +405,16 @@ def catalogue_near_floor(diagnosis, trials: dict | None) -> str:
     return ""
 
 
+#: The written parameters' bounds: this many times the estimate (or its bootstrap standard
+#: deviation) either side of it.  Wide: at a parent fit in a basin scaled along the lower
+#: disc's ridge (J_l, k_alpha, Tc_l, b_l at 0.04x the reference's), the estimates were 25x
+#: below what the refit needed, and bounds of 4x held the refit at 948x the floor.
+BOUND_FACTOR = 100.0
+
+
 def _bounds(k: Kept) -> tuple[float, float]:
-    """Wide around the estimate, the null (0) always inside."""
-    half = max(4.0 * abs(k.value), 10.0 * k.std, 1e-12)
+    """Wide around the estimate (:data:`BOUND_FACTOR`), the null (0) always inside."""
+    half = max(BOUND_FACTOR * abs(k.value), BOUND_FACTOR * k.std, 1e-12)
     return k.value - half, k.value + half
 
 
