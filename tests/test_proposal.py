@@ -202,3 +202,17 @@ def test_an_edited_proposal_is_not_replaced(tmp_path):
     with open(path) as f:
         assert "--add d/proposal_2.py:proposed" in f.read()
     assert write_effect_file(p, tmp_path, "rotorbayes fit --add d/proposal.py:proposed") == path
+
+
+def test_a_drive_lag_no_effect_file_can_write_is_not_proposed():
+    """A first-order lag of the drive (the map names the input's recent history) needs the
+    input's past, which a hook does not see: the library holds no such term, and the
+    regression must not dress something else up as it (measured, estimation seeds 3, 6,
+    7, 8: nothing proposed, first fits at 228-503x the floor)."""
+    prob, x, _ = _case({"drive_lag": 0.02})
+    assert floor_ratio(prob, x) > 20
+    maps = missing_torque(prob, x)
+    assert any(m.above_noise for m in maps)
+    p = propose(maps, catalogue_near_floor=False)
+    assert not p.kept, p.words()
+    assert p.reason and "no missing term is proposed" in p.words()

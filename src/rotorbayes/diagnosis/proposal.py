@@ -339,10 +339,13 @@ def propose_disc(m: TorqueMap, *, seed: int = 0) -> DiscProposal:
     sd = boot.std(axis=0, ddof=1)
     z = np.abs(beta) / np.maximum(sd, 1e-300)
     if r2 < MIN_R2 or (z < MIN_Z).any():
-        out.reason = (f"the terms kept explain little ({100 * r2:.0f} % of the missing torque, "
-                      f"RMS {explained:.2g} N m; coefficients {', '.join(f'{v:.1f}' for v in z)} "
-                      f"bootstrap standard deviations from 0; a proposal needs "
-                      f"{100 * MIN_R2:.0f} % and {MIN_Z:g})")
+        names = ", ".join(lib[j][0].key for j in keep)
+        out.reason = (f"the regression explains little: the {keep.size} term(s) it keeps "
+                      f"({names}) explain {100 * r2:.0f} % of the missing torque (RMS "
+                      f"{explained:.2g} N m), and {int(np.sum(z < MIN_Z))} of their "
+                      f"coefficients lie within {MIN_Z:g} bootstrap standard deviations of 0 "
+                      f"(a proposal needs {100 * MIN_R2:.0f} % and every coefficient beyond "
+                      f"{MIN_Z:g}); nothing written")
         return out
     for j, c, e, part in zip(keep, beta, sd, parts, strict=True):
         term, g = lib[j]
