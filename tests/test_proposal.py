@@ -216,3 +216,16 @@ def test_a_drive_lag_no_effect_file_can_write_is_not_proposed():
     p = propose(maps, catalogue_near_floor=False)
     assert not p.kept, p.words()
     assert p.reason and "no missing term is proposed" in p.words()
+
+
+def test_a_second_proposal_gets_names_of_its_own(tmp_path):
+    """A fit made with a proposal has ``proposed`` and ``c_l_t`` on: the next proposal from
+    it must not share them (an effect of the same name would be dropped as a repeat)."""
+    drift = Term("t", "friction", "friction level drifting in time", "t", "s")
+    p = Proposal(discs=[DiscProposal("l", [Kept("l", drift, 1.0, 0.002, 1e-4, 5.0, 1e-3)])])
+    p.rename(["proposed", "c_l_t", "Tc_l"])
+    assert p.effect == "proposed_2" and p.kept[0].name == "c2_l_t"
+    path = write_effect_file(p, tmp_path, "rotorbayes fit ...")
+    e = load_user_effect(f"{path}:proposed_2")
+    assert e.name == "proposed_2" and [q.name for q in e.parameters] == ["c2_l_t"]
+    assert p.as_dict()["discs"][0]["kept"][0]["parameter"] == "c2_l_t"

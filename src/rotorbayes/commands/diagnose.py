@@ -254,18 +254,21 @@ def _proposal(result, d, tried: dict | None, specs: dict):
     import os
 
     from ..diagnosis.diagnose import REFIT_TOKEN
-    from ..diagnosis.proposal import EFFECT_NAME, FILE_NAME, catalogue_near_floor, propose
+    from ..diagnosis.proposal import FILE_NAME, catalogue_near_floor, propose
 
     why = catalogue_near_floor(d, tried)
     p = propose(d.maps, catalogue_near_floor=bool(why))
     if why:
         p.reason = why
     if p.kept:
+        # A fit made with an earlier proposal has "proposed" on: this one gets other names.
+        model = result.problem.model
+        p.rename([*model.effect_names, *model.info])
         path = result.folder / FILE_NAME
         rel = os.path.relpath(path)
-        spec = f"{rel if len(rel) < len(str(path)) else path}:{EFFECT_NAME}"
-        cmd = _with_refit_command(f"{REFIT_TOKEN} --add {EFFECT_NAME}", result.folder,
-                                  result.doc, {**specs, EFFECT_NAME: spec})
+        spec = f"{rel if len(rel) < len(str(path)) else path}:{p.effect}"
+        cmd = _with_refit_command(f"{REFIT_TOKEN} --add {p.effect}", result.folder,
+                                  result.doc, {**specs, p.effect: spec})
         # The file is written by diagnose, beside the fit: the refit trusts it as the fit's
         # own (a folder from elsewhere needs --trust-effects, as any effect file does).
         p.file, p.command = str(spec.rpartition(":")[0]), cmd

@@ -105,10 +105,11 @@ class Kept:
     std: float
     centre: float  # the term's mean on the estimation samples (subtracted in the file)
     part_rms: float  # RMS [N m] of the torque it explains
+    tag: str = ""  # "" or "2", "3", ...: tells a second proposal's parameters apart
 
     @property
     def name(self) -> str:
-        return f"c_{self.disc}_{self.term.key}"
+        return f"c{self.tag}_{self.disc}_{self.term.key}"
 
     @property
     def unit(self) -> str:
@@ -150,6 +151,25 @@ class Proposal:
     file: str = ""
     command: str = ""
     seconds: float = 0.0
+    #: The effect's name in the file (:data:`EFFECT_NAME`, or ``proposed_2``, ... where the
+    #: fit has a proposal on already: see :meth:`rename`).
+    effect: str = EFFECT_NAME
+
+    def rename(self, taken) -> None:
+        """Give the effect and its parameters names that none of ``taken`` (the fit's
+        effect and parameter names) has: a fit made with one proposal gets a second one
+        named ``proposed_2`` with parameters ``c2_...``."""
+        taken = set(taken)
+        for i in range(1, 1000):
+            effect = EFFECT_NAME if i == 1 else f"{EFFECT_NAME}_{i}"
+            tag = "" if i == 1 else str(i)
+            names = {f"c{tag}_{k.disc}_{k.term.key}" for k in self.kept}
+            if effect not in taken and not names & taken:
+                self.effect = effect
+                for k in self.kept:
+                    k.tag = tag
+                return
+        raise ValueError("no free name for the proposed effect")
 
     @property
     def kept(self) -> list[Kept]:
@@ -172,7 +192,7 @@ class Proposal:
                 lines.append(f"    {k.term.words}: {k.name} = {k.value:.3g} ± {k.std:.2g} "
                              f"{k.unit} (kept in {k.frequency:.0%})")
         if self.file:
-            lines.append(f"written as {self.file}:{EFFECT_NAME}; refit it (the validation "
+            lines.append(f"written as {self.file}:{self.effect}; refit it (the validation "
                          "data judge it):")
             lines.append(f"  {self.command}")
         return "\n".join(lines)
@@ -180,7 +200,7 @@ class Proposal:
     def as_dict(self) -> dict:
         return {"proposed": bool(self.kept), "reason": self.reason or None,
                 "discs": [d.as_dict() for d in self.discs], "file": self.file or None,
-                "effect": f"{self.file}:{EFFECT_NAME}" if self.file else None,
+                "effect": f"{self.file}:{self.effect}" if self.file else None,
                 "command": self.command or None, "seconds": self.seconds,
                 "method": {"regression": "sklearn LassoLarsIC (BIC)", "resamples": RESAMPLES,
                            "block_s": BLOCK, "keep": KEEP, "thin_s": THIN}}
@@ -422,7 +442,7 @@ def _bounds(k: Kept) -> tuple[float, float]:
 
 
 def effect_source(p: Proposal, *, header: str = "") -> str:
-    """The proposal as the text of a user-effect file (one effect, :data:`EFFECT_NAME`)."""
+    """The proposal as the text of a user-effect file (one effect, ``p.effect``)."""
     kept = p.kept
     if not kept:
         raise ValueError("nothing proposed: no effect file to write")
@@ -459,7 +479,7 @@ def effect_source(p: Proposal, *, header: str = "") -> str:
         src += ["", "def proposed_torque(t, theta_u, omega_u, theta_l, omega_l, v, p, q):",
                 '    """Extra torque on each disc [N m], alike in both directions."""',
                 *body("torque"), ""]
-    src += ["", f"{EFFECT_NAME} = Effect(", f"    name={EFFECT_NAME!r},",
+    src += ["", f"{p.effect} = Effect(", f"    name={p.effect!r},",
             f"    physics={('proposed by rotorbayes diagnose: ' + words)!r},",
             "    parameters=(", *params, "    ),",
             "    signature='the missing-torque map of the fit this was proposed from',",
