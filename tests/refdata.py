@@ -343,6 +343,9 @@ def simulate_reference(
     # discs' friction levels drifting linearly in time (oil warming) [N m/s].
     params = dict(params)
     drift_u, drift_l = params.pop("drift_Tc_u", 0.0), params.pop("drift_Tc_l", 0.0)
+    # ... and a lower friction level rising with the speed squared (fluid drag of the
+    # oil film) [N m s^2/rad^2].
+    drag_l = params.pop("drag_l", 0.0)
     # The drive's lag (the catalogue's tau_drive; drive_lag is its older name here): the
     # command -- the input function, or with hold='linear' the linear interpolant of its
     # samples -- through a first-order lag, before delay, offset and dead zone.
@@ -363,9 +366,9 @@ def simulate_reference(
         else:
             drive = LaggedInput(f, lag, duration + 1.0)
     shift = None
-    if drift_u or drift_l:
-        def shift(t_, *_):
-            return drift_u * t_, drift_l * t_
+    if drift_u or drift_l or drag_l:
+        def shift(t_, theta_u, omega_u, theta_l, omega_l, v):
+            return drift_u * t_, drift_l * t_ + drag_l * omega_l * omega_l
     t0 = time.perf_counter()
     if hold == "continuous":
         res = reference_simulate(params, t, None, config, u_func=drive, u_breaks=f.breaks,
@@ -416,7 +419,8 @@ def make_experiment(
         reference knows may be on (``c_alpha``, ``u_offset``, ``t_delay``, ``u_deadzone``,
         ``dTc_*``, ``db_*``, ``Ts_l``/``ws_l``/``delta_l``, ``alpha0``), and physics the
         catalogue lacks: ``drift_Tc_u``/``drift_Tc_l``, a friction level rising linearly in
-        time [N m/s]; ``drive_lag``, a first-order lag [s] between the file's input (the
+        time [N m/s]; ``drag_l``, a lower friction level rising with the speed squared
+        [N m s^2/rad^2]; ``drive_lag``, a first-order lag [s] between the file's input (the
         command) and the voltage that drives the motor (:class:`LaggedInput`).
     duration, rate : length [s] and sampling rate [Hz]; ``duration * rate + 1`` samples.
     signal : {'steps', 'multisine'}

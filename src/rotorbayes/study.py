@@ -43,7 +43,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
             "channels": (list,), "max_nfev": (int,), "step": (int, float),
             "keep_glitches": (bool,), "search": (bool,)},
     "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float),
-                 "trials": (bool,)},
+                 "trials": (bool,), "proposal": (bool,)},
     "sample": {"walkers": (int,), "steps": (int,), "ensembles": (int,), "noise": (str,),
                "ar1": (bool,), "moves": (str,)},
     "priors": {},
@@ -470,6 +470,10 @@ def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool) -> di
 _POSITIONAL = ("data", "fit", "fits", "source")
 
 
+#: Options whose command-line form is a ``--no-...`` switch (False spelled as it).
+_NEGATED = ("trials", "proposal")
+
+
 def _command_line(command: str, options: dict) -> str:
     """The ``rotorbayes`` command line that does what ``command(**options)`` does."""
     words = [command]
@@ -479,6 +483,8 @@ def _command_line(command: str, options: dict) -> str:
             words += [str(x) for x in v] if isinstance(v, list) else [str(v)]
         elif v is True:
             words.append(flag)
+        elif v is False and k in _NEGATED:
+            words.append("--no-" + k.replace("_", "-"))
         elif isinstance(v, list):
             for x in v:
                 words += [flag, str(x)]
@@ -587,7 +593,9 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
         for k in range(1, dg.get("max_steps", 3) + 2):
             stage(f"diagnose{k - 1}", fit, digest(fit, "fit.json") + json.dumps(dg),
                   "diagnose", {"fit": str(fit), **noise,
-                               **({"trials": False} if dg.get("trials") is False else {})},
+                               **({"trials": False} if dg.get("trials") is False else {}),
+                               **({"proposal": False} if dg.get("proposal") is False
+                                  else {})},
                   "diagnosis.json")
             d = json.loads((fit / "diagnosis.json").read_text())
             worst = max(d["rms_over_floor"].values())

@@ -29,6 +29,10 @@ def add_arguments(g) -> None:
     g.add_argument("--no-trials", dest="trials", action="store_false",
                    help="far above the floor, skip the trial refits (one refit of every "
                    "candidate effect, its parameters searched, ranked by where it ends)")
+    g.add_argument("--no-proposal", dest="proposal", action="store_false",
+                   help="when no catalogue effect brings the fit near the floor, do not "
+                   "propose a missing term (a sparse regression of the missing torque, "
+                   "written as proposal.py beside the fit with its refit command)")
     add_trust_option(g)
     add_changed_data_option(g)
 
@@ -48,12 +52,14 @@ def _integration(result) -> dict:
 
 def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False,
              add: list[str] | None = None, trials: bool = True,
-             accept_changed_data: bool = False) -> Outcome:
+             accept_changed_data: bool = False, proposal: bool = True) -> Outcome:
     """Verdict, ranking of missing effects and missing-torque map of the fit folder ``fit``
     (written into it: diagnosis.json, diagnosis_candidates.png, missing_torque.png).
     ``noise`` is Gaussian measurement noise [rad] besides the encoders' rounding.  A data
     file changed since the fit is refused unless ``accept_changed_data`` (then
-    diagnosis.json names it under ``data_changed``).  ``Outcome.doc`` is diagnosis.json's
+    diagnosis.json names it under ``data_changed``).  ``proposal``: when no catalogue
+    effect brings the fit near the floor, propose a missing term (proposal.py in the fit
+    folder, :mod:`rotorbayes.diagnosis.proposal`).  ``Outcome.doc`` is diagnosis.json's
     document."""
     from ..diagnosis import diagnose as run_diagnosis
     from ..diagnosis.figures import plot_candidates, plot_torque_map
@@ -90,6 +96,7 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     print()
     print(d.text())
     tried = _trials(result, d, specs) if trials else None
+    proposed = _proposal(result, d, tried, specs) if proposal else None
     integ = _integration(result)
     print(integ["line"])
     fa = result.doc.get("assessment") or {}
@@ -127,6 +134,7 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     doc["fit"] = str(result.folder)
     doc["trials"] = tried
     doc["refit_choice"] = (tried or {}).get("choice")
+    doc["proposal"] = None if proposed is None else proposed.as_dict()
     if result.changed_data:  # diagnosed on data the fit was not made from
         doc["data_changed"] = result.changed_data
     # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
@@ -135,12 +143,26 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
                 (plot_torque_map(d)[0], "missing_torque.png")]
         for fig, name in figs:
             save_figure_atomic(fig, result.folder / name)
+        if proposed is not None and proposed.kept:
+            from ..diagnosis.proposal import FILE_NAME, write_effect_file
+
+            written = Path(write_effect_file(proposed, result.folder, proposed.command)).name
+            if written != FILE_NAME:  # an earlier, different proposal.py is kept
+                old = proposed.file
+                proposed.file = str(Path(old).with_name(written))
+                proposed.command = proposed.command.replace(f"{old}:", f"{proposed.file}:")
+                print(f"{old} exists with other content (kept: you may have edited it, or "
+                      f"refitted it); this proposal is {proposed.file}: refit it with\n"
+                      f"  {proposed.command}")
+            doc["proposal"] = proposed.as_dict()
         write_text_atomic(result.folder / "diagnosis.json", strict_json(doc))
     if guard.hit:
         raise Interrupted(f"interrupted (Ctrl-C) after the diagnosis had finished; it was "
                           f"kept, complete, in {result.folder}/ (diagnosis.json and figures)")
+    also = (f", {Path(proposed.file).name}" if proposed is not None and proposed.kept
+            else "")
     print(f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
-          f"missing_torque.png ({d.seconds:.1f} s)")
+          f"missing_torque.png{also} ({d.seconds:.1f} s)")
     return Outcome(folder=Path(fit), doc=doc)
 
 
@@ -223,6 +245,37 @@ def _trials(result, d, specs: dict) -> dict | None:
     return {"ran_above": TRIAL_ABOVE, "before": worst,
             "choice": None if best is None else best.effect, "words": words,
             "trials": [t.as_dict() for t in trials]}
+
+
+def _proposal(result, d, tried: dict | None, specs: dict):
+    """When no catalogue effect brings the fit near the floor and a map's missing torque is
+    well above its noise: the proposed missing term (:mod:`rotorbayes.diagnosis.proposal`),
+    printed with its refit command; the caller writes its file.  None: not looked for."""
+    import os
+
+    from ..diagnosis.diagnose import REFIT_TOKEN
+    from ..diagnosis.proposal import FILE_NAME, catalogue_near_floor, propose
+
+    why = catalogue_near_floor(d, tried)
+    p = propose(d.maps, catalogue_near_floor=bool(why))
+    if why:
+        p.reason = why
+    if p.kept:
+        # A fit made with an earlier proposal has "proposed" on: this one gets other names.
+        model = result.problem.model
+        p.rename([*model.effect_names, *model.info])
+        path = result.folder / FILE_NAME
+        rel = os.path.relpath(path)
+        spec = f"{rel if len(rel) < len(str(path)) else path}:{p.effect}"
+        cmd = _with_refit_command(f"{REFIT_TOKEN} --add {p.effect}", result.folder,
+                                  result.doc, {**specs, p.effect: spec})
+        # The file is written by diagnose, beside the fit: the refit trusts it as the fit's
+        # own (a folder from elsewhere needs --trust-effects, as any effect file does).
+        p.file, p.command = str(spec.rpartition(":")[0]), cmd
+    if p.kept or not why:
+        print()
+        print(p.words())
+    return p
 
 
 def _with_refit_command(advice: str, folder: Path, doc: dict,
