@@ -82,6 +82,7 @@ from .terms import (
     prescribed_velocity,
     rhs,
     state_fma,
+    state_step,
     state_value,
     stribeck_step,
     violations,
@@ -423,7 +424,7 @@ def _integrate(
             _fail_residuals(r, row, col_u, col_l, n)
         return BAD_PARAMETERS, 0
     c = derived(p, dt)
-    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift, hook_rate)
+    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift, hook_rate, state_reset)
     if needs_full_kernel(c) and not is_full_kernel(hook_torque):
         # The plain kernel has no code for the lag (terms.full_kernel_only): refuse, never
         # simulate without it.  rotorbayes.model.simulate picks the full kernel for it.
@@ -458,6 +459,7 @@ def _integrate(
         y = (d1[2], d1[3], 0.0, 0.0, 0.0)
     mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], y[4], d1, m)
     f = rhs(y[0], y[1], y[2], y[3], y[4], mu, ml, d1, m)
+    d_at = d1  # the drive at the present time t
     n_ev = 0
     status = OK
     if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], y[4], d1, m):
@@ -490,7 +492,8 @@ def _integrate(
             t_tgt = next_kink(t, t_end, c, src) if kinks else t_end
             t_sub = t + min(stribeck_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
                                           hook_torque),
-                            approach_step(y, f, mu, ml, c, cfg, t_tgt - t))  # fmt: skip
+                            approach_step(y, f, mu, ml, c, cfg, t_tgt - t),
+                            state_step(hook_rate, y, d_at, m))  # fmt: skip
             if t_sub < t_tgt:
                 t_tgt = t_sub  # a substep through the Stribeck band or towards an event
             rem = t_tgt - t
@@ -555,6 +558,7 @@ def _integrate(
                 kout = k1 + 1
             y = y1
             f = fe
+            d_at = de
             if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], y[4], de, m):
                 status = BAD_EFFECT
                 break
@@ -656,7 +660,8 @@ def simulate_into(
         their friction levels, and the rate of the effect state ``z`` (see
         :data:`rotorbayes.kernel.terms.HOOK_SIGNATURE`).
     state_reset : int
-        The disc (0 upper, 1 lower) at whose sticking ``z`` is set to 0; -1: never.
+        The disc (0 upper, 1 lower) at whose sticking ``z`` is set to 0; -1: never; -2: no
+        effect has a state.
     out_* : arrays of length n
         Angles [rad], velocities [rad/s] and modes (-1, 0, +1) at the samples.
     events : float64[m, 3]
@@ -690,7 +695,7 @@ def simulate_into_plain(
     the hooks, 0.13 ms without; the same numbers bit for bit)."""
     no_f = np.empty(0)
     return _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -1,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -2,
         True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
         no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
     )  # fmt: skip
@@ -807,7 +812,7 @@ def residuals_into_plain(
     no_f = np.empty(0)
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -1,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -2,
         False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
@@ -875,7 +880,7 @@ def simulate_into_full(
     """:func:`simulate_into_plain` on the full kernel."""
     no_f = np.empty(0)
     return _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -1,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -2,
         True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
         no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
     )  # fmt: skip
@@ -890,7 +895,7 @@ def residuals_into_full(
     no_f = np.empty(0)
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
-        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -1,
+        p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -2,
         False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip

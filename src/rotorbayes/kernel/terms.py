@@ -511,6 +511,45 @@ def _state_value_impl(hook, z):
     return lambda hook, z: z
 
 
+#: State substeps (see :func:`state_step`): a step is at most this multiple of the effect
+#: state's time constant, ``1 / |d(dz/dt)/dz|`` at the step's start ...
+STATE_STEP_FACTOR = 1.0
+#: ... and never below this fraction of a sample (a state faster than that is not
+#: followed: it blows up, and the run stops with BAD_EFFECT or BLOW_UP).
+STATE_STEP_MIN = 0.05
+
+
+def state_step(hook, y, d, m):
+    """The longest Runge-Kutta step [s] the effect state allows (compiled code only; see
+    the overload): ``inf`` without a stateful effect."""
+    return math.inf
+
+
+@overload(state_step, inline="always")
+def _state_step_impl(hook, y, d, m):
+    if isinstance(hook, (types.NoneType, types.Integer)):
+        return lambda hook, y, d, m: math.inf
+
+    def impl(hook, y, d, m):
+        # An explicit Runge-Kutta step follows a state of time constant tau accurately
+        # only for steps of about tau: the rate's slope in z, by a forward difference.
+        if m[9] < -1:  # no effect has a state
+            return math.inf
+        presc = m[1] == CFG_PRESCRIBED
+        thu = d[2] if presc else y[0]
+        wu = d[3] if presc else y[1]
+        z = y[4]
+        e = 1e-7 * (abs(z) + 1e-3)
+        r0 = hook(d[0], thu, wu, y[2], y[3], d[1], z, m[3], m[4])[0]
+        r1 = hook(d[0], thu, wu, y[2], y[3], d[1], z + e, m[3], m[4])[0]
+        lam = abs(r1 - r0) / e
+        if not lam > 0.0:
+            return math.inf
+        return max(STATE_STEP_FACTOR / lam, STATE_STEP_MIN * m[0][_DT])
+
+    return impl
+
+
 def upper_excess(hook, c):
     """The upper disc's static excess ``dTs_u`` in the full kernel, 0 in the plain one
     (compiled code only; see the overload)."""

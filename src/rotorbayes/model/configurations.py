@@ -372,12 +372,12 @@ def _compile_one(effect: Effect, fn, what: str):
 
 def _compile_hooks(user: tuple[Effect, ...]):
     if not user:
-        return False, null_hook, null_hook, null_hook, -1
+        return False, null_hook, null_hook, null_hook, -2
     key = tuple((e.source, e.name) for e in user)
     if key in _HOOK_CACHE:
         return _HOOK_CACHE[key]
     torques, shifts, rates = [], [], []
-    reset = -1
+    reset = -2  # no state (-1: a state never reset; 0/1: reset when that disc sticks)
     off = 0
     for e in user:
         k = len(e.parameters)
