@@ -424,7 +424,7 @@ def _integrate(
             _fail_residuals(r, row, col_u, col_l, n)
         return BAD_PARAMETERS, 0
     c = derived(p, dt)
-    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift, hook_rate, state_reset)
+    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift, hook_rate)
     if needs_full_kernel(c) and not is_full_kernel(hook_torque):
         # The plain kernel has no code for the lag (terms.full_kernel_only): refuse, never
         # simulate without it.  rotorbayes.model.simulate picks the full kernel for it.
@@ -459,7 +459,6 @@ def _integrate(
         y = (d1[2], d1[3], 0.0, 0.0, 0.0)
     mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], y[4], d1, m)
     f = rhs(y[0], y[1], y[2], y[3], y[4], mu, ml, d1, m)
-    d_at = d1  # the drive at the present time t
     n_ev = 0
     status = OK
     if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], y[4], d1, m):
@@ -492,8 +491,9 @@ def _integrate(
             t_tgt = next_kink(t, t_end, c, src) if kinks else t_end
             t_sub = t + min(stribeck_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
                                           hook_torque),
-                            approach_step(y, f, mu, ml, c, cfg, t_tgt - t),
-                            state_step(hook_rate, y, d_at, m))  # fmt: skip
+                            approach_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
+                                          t_tgt - t))  # fmt: skip
+            t_sub = state_step(hook_rate, state_reset, t, t_sub, y, src, m)
             if t_sub < t_tgt:
                 t_tgt = t_sub  # a substep through the Stribeck band or towards an event
             rem = t_tgt - t
@@ -558,7 +558,6 @@ def _integrate(
                 kout = k1 + 1
             y = y1
             f = fe
-            d_at = de
             if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], y[4], de, m):
                 status = BAD_EFFECT
                 break

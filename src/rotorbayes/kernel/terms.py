@@ -519,33 +519,37 @@ STATE_STEP_FACTOR = 1.0
 STATE_STEP_MIN = 0.05
 
 
-def state_step(hook, y, d, m):
-    """The longest Runge-Kutta step [s] the effect state allows (compiled code only; see
-    the overload): ``inf`` without a stateful effect."""
-    return math.inf
+def state_step(hook, reset, t, t_end, y, src, m):
+    """The end of a step from ``t`` that ends at ``t_end`` or earlier as the effect state
+    needs (compiled code only; see the overload): ``t_end`` without a stateful effect
+    (``reset`` below -1) and in the plain kernel."""
+    return t_end
 
 
 @overload(state_step, inline="always")
-def _state_step_impl(hook, y, d, m):
+def _state_step_impl(hook, reset, t, t_end, y, src, m):
     if isinstance(hook, (types.NoneType, types.Integer)):
-        return lambda hook, y, d, m: math.inf
+        return lambda hook, reset, t, t_end, y, src, m: t_end
 
-    def impl(hook, y, d, m):
+    def impl(hook, reset, t, t_end, y, src, m):
         # An explicit Runge-Kutta step follows a state of time constant tau accurately
-        # only for steps of about tau: the rate's slope in z, by a forward difference.
-        if m[9] < -1:  # no effect has a state
-            return math.inf
-        presc = m[1] == CFG_PRESCRIBED
+        # only for steps of about tau: the rate's slope in z by a forward difference, at
+        # the step's start.
+        if reset < -1:  # no effect has a state
+            return t_end
+        c, cfg = m[0], m[1]
+        d = drive(t, c, cfg, src, m[6])
+        presc = cfg == CFG_PRESCRIBED
         thu = d[2] if presc else y[0]
         wu = d[3] if presc else y[1]
         z = y[4]
         e = 1e-7 * (abs(z) + 1e-3)
-        r0 = hook(d[0], thu, wu, y[2], y[3], d[1], z, m[3], m[4])[0]
-        r1 = hook(d[0], thu, wu, y[2], y[3], d[1], z + e, m[3], m[4])[0]
+        r0 = hook(t, thu, wu, y[2], y[3], d[1], z, m[3], m[4])[0]
+        r1 = hook(t, thu, wu, y[2], y[3], d[1], z + e, m[3], m[4])[0]
         lam = abs(r1 - r0) / e
         if not lam > 0.0:
-            return math.inf
-        return max(STATE_STEP_FACTOR / lam, STATE_STEP_MIN * m[0][_DT])
+            return t_end
+        return min(t_end, t + max(STATE_STEP_FACTOR / lam, STATE_STEP_MIN * c[_DT]))
 
     return impl
 
@@ -743,8 +747,9 @@ APPROACH_STEP_FACTOR = 2.0
 
 
 @njit(cache=True, error_model="numpy")
-def approach_step(y, f, mu, ml, c, cfg, room):
-    """The longest Runge-Kutta step [s] from state ``y`` (derivative ``f``) that goes at
+def approach_step(wu, au, mu, wl, al, ml, c, cfg, room):
+    """The longest Runge-Kutta step [s] from velocities ``wu, wl`` and accelerations
+    ``au, al`` (scalars, not the state tuples) that goes at
     most :data:`APPROACH_STEP_FACTOR` times as far as a slipping disc needs to stop at its
     present deceleration; ``room`` (the step the grid allows) if that is shorter or no
     disc decelerates.
@@ -766,10 +771,10 @@ def approach_step(y, f, mu, ml, c, cfg, room):
     best = room
     # A limit k |w| / |a| binds where k |w| < |a| * best (no division otherwise: the
     # step's length is on the solver's critical path).
-    if mu != 0 and cfg != CFG_PRESCRIBED and mu * f[1] < 0.0 and k * abs(y[1]) < -mu * f[1] * best:
-        best = k * abs(y[1]) / abs(f[1])
-    if ml != 0 and cfg != CFG_UPPER and ml * f[3] < 0.0 and k * abs(y[3]) < -ml * f[3] * best:
-        best = k * abs(y[3]) / abs(f[3])
+    if mu != 0 and cfg != CFG_PRESCRIBED and mu * au < 0.0 and k * abs(wu) < -mu * au * best:
+        best = k * abs(wu) / abs(au)
+    if ml != 0 and cfg != CFG_UPPER and ml * al < 0.0 and k * abs(wl) < -ml * al * best:
+        best = k * abs(wl) / abs(al)
     return max(best, min(0.5 * c[_DT], room))
 
 
