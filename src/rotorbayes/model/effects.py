@@ -194,6 +194,10 @@ class Effect:
                 f"    {p.name:<11} [{p.unit}]  bounds [{p.lower:g}, {p.upper:g}], "
                 f"null {null}{extra}: {p.description}"
             )
+        if self.state:
+            reset = {"u": ", reset when the upper disc sticks",
+                     "l": ", reset when the lower disc sticks"}.get(self.state_reset, "")
+            rows.append(f"    state: {self.state} (starts at 0{reset})")
         rows.append(f"    missing when: {self.signature}")
         for eq in self.equivalences:
             rows.append(f"    equivalence: {eq}")
