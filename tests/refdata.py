@@ -346,6 +346,10 @@ def simulate_reference(
     # ... and a lower friction level rising with the speed squared (fluid drag of the
     # oil film) [N m s^2/rad^2].
     drag_l = params.pop("drag_l", 0.0)
+    # ... and a lower friction that falls as the brake warms from sliding and recovers at
+    # rest: a state z [N m], z' = (warm_k |omega_l| - z) / warm_tau, z(0) = 0, the lower
+    # friction level shifted by -z (warm_k [N m s/rad], warm_tau [s]).
+    warm_k, warm_tau = params.pop("warm_k", 0.0), params.pop("warm_tau", 0.0)
     # The drive's lag (the catalogue's tau_drive; drive_lag is its older name here): the
     # command -- the input function, or with hold='linear' the linear interpolant of its
     # samples -- through a first-order lag, before delay, offset and dead zone.
@@ -366,16 +370,28 @@ def simulate_reference(
         else:
             drive = LaggedInput(f, lag, duration + 1.0)
     shift = None
-    if drift_u or drift_l or drag_l:
+    state = {}
+    if warm_k:
+        if not warm_tau > 0.0:
+            raise ValueError("warm_k needs a positive warm_tau")
+
+        def rate_warm(t_, theta_u, omega_u, theta_l, omega_l, v, z, _k=warm_k, _tau=warm_tau):
+            return (_k * abs(omega_l) - z) / _tau
+
+        def shift(t_, theta_u, omega_u, theta_l, omega_l, v, z):
+            return drift_u * t_, drift_l * t_ + drag_l * omega_l * omega_l - z
+
+        state = {"state_rate": rate_warm}
+    elif drift_u or drift_l or drag_l:
         def shift(t_, theta_u, omega_u, theta_l, omega_l, v):
             return drift_u * t_, drift_l * t_ + drag_l * omega_l * omega_l
     t0 = time.perf_counter()
     if hold == "continuous":
         res = reference_simulate(params, t, None, config, u_func=drive, u_breaks=f.breaks,
-                                 rtol=rtol, atol=atol, friction_shift=shift)
+                                 rtol=rtol, atol=atol, friction_shift=shift, **state)
     else:
         res = reference_simulate(params, t, u, config, rtol=rtol, atol=atol,
-                                 friction_shift=shift)
+                                 friction_shift=shift, **state)
     secs = time.perf_counter() - t0
     thl = res["theta_l"]
     stick = float(np.mean(res["mode_l"] == 0)) if thl is not None else math.nan
@@ -421,7 +437,11 @@ def make_experiment(
         catalogue lacks: ``drift_Tc_u``/``drift_Tc_l``, a friction level rising linearly in
         time [N m/s]; ``drag_l``, a lower friction level rising with the speed squared
         [N m s^2/rad^2]; ``drive_lag``, a first-order lag [s] between the file's input (the
-        command) and the voltage that drives the motor (:class:`LaggedInput`).
+        command) and the voltage that drives the motor (:class:`LaggedInput`);
+        ``warm_k`` [N m s/rad] and ``warm_tau`` [s], a lower friction that falls as the
+        brake warms from sliding and recovers at rest: a state z [N m] with
+        ``z' = (warm_k |omega_l| - z) / warm_tau``, ``z(0) = 0``, the lower friction
+        level shifted by ``-z`` (the reference's ``state_rate``).
     duration, rate : length [s] and sampling rate [Hz]; ``duration * rate + 1`` samples.
     signal : {'steps', 'multisine'}
         The input function (:func:`make_input`), drawn with ``seed``.

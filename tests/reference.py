@@ -354,6 +354,9 @@ def reference_simulate(
     friction_shift: Callable | None = None,
     u_func: Callable | None = None,
     u_breaks: np.ndarray | None = None,
+    state_rate: Callable | None = None,
+    state_z0: float = 0.0,
+    state_reset: str | None = None,
 ) -> dict:
     """Reference (event-driven, exact switching) simulation of the rig.
 
@@ -393,6 +396,17 @@ def reference_simulate(
         linearly (the results are bitwise those of the version without this option).
     u_breaks : times [s] at which ``u_func`` is not smooth (e.g. the ends of a transition);
         they are delayed like the input and become breakpoints of the integration.
+    state_rate : optional ``r(t, theta_u, omega_u, theta_l, omega_l, v, z) -> dz/dt``:
+        an extra effect state z (a float) integrated by DOP853 together with the rig in
+        every mode (also while a disc sticks).  When given, ``extra_torque`` and
+        ``friction_shift`` are called with z as a 7th argument
+        ``(t, theta_u, omega_u, theta_l, omega_l, v, z)`` (also inside the event
+        functions, so the stick band moves with z).  Without it (None) the hooks keep
+        their 6-argument form and the results are bitwise those of the version without
+        this option.
+    state_z0 : z at ``t[0]``.
+    state_reset : 'u' or 'l': z is set to exactly 0 at every event at which that disc
+        starts to stick (slip -> stick); None: never reset.
     dense_output : if True, the result also contains ``"sol"``, a callable mapping an
         array of times in [t[0], t[-1]] to a (4, n) array
         [theta_u, omega_u, theta_l, omega_l] (rows of absent discs are NaN).
@@ -403,7 +417,8 @@ def reference_simulate(
     entries are None for config "upper"), "events" (list of (time, disc, kind) with
     disc in {'u', 'l'} and kind in {'stick', 'slip+', 'slip-'}), "mode_u"/"mode_l"
     (int arrays at ``t``: 0 stick, +1/-1 slip direction, mode valid just after each
-    sample time; None for absent discs) and "n_solve_ivp" (number of solver calls).
+    sample time; None for absent discs), "z" (the state at ``t``, after a reset at a
+    sample time; None without ``state_rate``) and "n_solve_ivp" (number of solver calls).
     """
     if config not in _CONFIGS:
         raise ValueError(f"config must be one of {_CONFIGS}, got {config!r}")
@@ -439,6 +454,10 @@ def reference_simulate(
     if u_func is not None and config == "prescribed":
         raise ValueError("u_func has no meaning for config 'prescribed'")
     cont = u_func is not None
+    has_z = state_rate is not None
+    if state_reset not in (None, "u", "l"):
+        raise ValueError("state_reset must be None, 'u' or 'l'")
+    NY = 5 if has_z else 4
 
     dt_min = float(np.min(np.diff(t))) if t.size > 1 else 1.0
     tol_bp = 1e-9 * dt_min
@@ -504,7 +523,12 @@ def reference_simulate(
         thu, wu = upper_kin(t_, y) if has_upper or config == "prescribed" else (0.0, 0.0)
         v = seg["vf"](t_) if cont else seg["ua"] + seg["ub"] * (t_ - seg["a"])
         thl, wl = (y[2], y[3]) if has_lower else (0.0, 0.0)
+        if has_z:
+            return t_, thu, wu, thl, wl, v, y[4]
         return t_, thu, wu, thl, wl, v
+
+    def zdot(t_: float, y: list) -> float:
+        return float(state_rate(*hook_args(t_, y)))
 
     def extra(t_: float, y: list) -> tuple[float, float]:
         if extra_torque is None:
@@ -533,30 +557,34 @@ def reference_simulate(
         if config == "upper":
 
             def rhs(t_, yy):
-                y0, y1, _, _ = yy.tolist()
+                yv = yy.tolist()
+                y0, y1 = yv[0], yv[1]
+                yl = [y0, y1, 0.0, 0.0] + yv[4:]
                 if mu == 0:
-                    return [0.0, 0.0, 0.0, 0.0]
+                    return [0.0, 0.0, 0.0, 0.0] + ([zdot(t_, yl)] if has_z else [])
                 ue = vf(t_) if cont else sua + sub * (t_ - a)
-                yl = [y0, y1, 0.0, 0.0]
                 f = fr_u(y1, mu) + mu * shift(t_, yl)[0]
-                return [y1, (km * ue - f + extra(t_, yl)[0]) * iJu, 0.0, 0.0]
+                out = [y1, (km * ue - f + extra(t_, yl)[0]) * iJu, 0.0, 0.0]
+                return out + [zdot(t_, yl)] if has_z else out
         elif config == "prescribed":
 
             def rhs(t_, yy):
-                _, _, y2, y3 = yy.tolist()
+                yv = yy.tolist()
+                y2, y3 = yv[2], yv[3]
+                yl = [0.0, 0.0, y2, y3] + yv[4:]
                 if ml == 0:
-                    return [0.0, 0.0, 0.0, 0.0]
+                    return [0.0, 0.0, 0.0, 0.0] + ([zdot(t_, yl)] if has_z else [])
                 thu = spa + spb * (t_ - a)
                 Tsr = ka * (y2 - thu + a0) + ca * (y3 - spb)
-                yl = [0.0, 0.0, y2, y3]
                 f = fr_l(y3, ml) + ml * shift(t_, yl)[1]
-                return [0.0, 0.0, y3, (-f - Tsr + extra(t_, yl)[1]) * iJl]
+                out = [0.0, 0.0, y3, (-f - Tsr + extra(t_, yl)[1]) * iJl]
+                return out + [zdot(t_, yl)] if has_z else out
         else:
 
             def rhs(t_, yy):
-                y0, y1, y2, y3 = yy.tolist()
+                yl = yy.tolist()
+                y0, y1, y2, y3 = yl[:4]
                 Tsr = ka * (y2 - y0 + a0) + ca * (y3 - y1)
-                yl = [y0, y1, y2, y3]
                 shu, shl = shift(t_, yl)
                 exu, exl = extra(t_, yl)
                 if mu != 0:
@@ -565,6 +593,8 @@ def reference_simulate(
                 else:
                     dwu = 0.0
                 dwl = (-fr_l(y3, ml) - ml * shl - Tsr + exl) * iJl if ml != 0 else 0.0
+                if has_z:
+                    return [y1, dwu, y3, dwl, zdot(t_, yl)]
                 return [y1, dwu, y3, dwl]
 
         return rhs
@@ -636,7 +666,7 @@ def reference_simulate(
     # ---- bookkeeping --------------------------------------------------------------------
     events: list[tuple[float, str, str]] = []
     n_out = t.size
-    Y = np.zeros((4, n_out))
+    Y = np.zeros((NY, n_out))
     MU = np.zeros(n_out, dtype=int)
     ML = np.zeros(n_out, dtype=int)
     pieces: list[tuple[float, float, object]] = []  # (t_start, t_end, OdeSolution)
@@ -650,7 +680,7 @@ def reference_simulate(
         return "stick" if m == 0 else ("slip+" if m > 0 else "slip-")
 
     # ---- initial state and modes ----------------------------------------------------
-    y = [0.0, 0.0, 0.0, 0.0]
+    y = [0.0, 0.0, 0.0, 0.0] + ([float(state_z0)] if has_z else [])
     modes = {"u": 0, "l": 0}
 
     def set_segment(i: int) -> None:
@@ -707,7 +737,7 @@ def reference_simulate(
             span = b_i - tc
             if span <= 1e-14 * max(1.0, abs(b_i)):
                 f = rhs(tc, np.asarray(y))
-                y = [y[k] + f[k] * span for k in range(4)]
+                y = [y[k] + f[k] * span for k in range(NY)]
                 if cont:
                     k1 = int(np.searchsorted(t, b_i, side="left"))
                     for k in range(next_sample, k1):
@@ -748,7 +778,7 @@ def reference_simulate(
                 k1 = int(np.searchsorted(t, t_new, side="left"))
                 if k1 > next_sample:
                     ks = np.arange(next_sample, k1)
-                    Y[:, ks] = np.asarray(sol.sol(t[ks])).reshape(4, -1)
+                    Y[:, ks] = np.asarray(sol.sol(t[ks])).reshape(NY, -1)
                     MU[ks], ML[ks] = mu, ml
                     next_sample = k1
                     out_i = k1
@@ -782,6 +812,8 @@ def reference_simulate(
                         m = 1
                     else:
                         m = -1
+                    if has_z and disc == state_reset and m == 0 and modes[disc] != 0:
+                        y[4] = 0.0
                     modes[disc] = m
                     events.append((tc, disc, kind_of(m)))
                 restick_check(tc)
@@ -820,6 +852,7 @@ def reference_simulate(
         res["omega_l"] = None
         res["mode_l"] = None
 
+    res["z"] = Y[4].copy() if has_z else None
     if dense_output:
         res["sol"] = _DenseSolution(pieces, config, t, thp, has_lower)
     return res
@@ -853,7 +886,7 @@ class _DenseSolution:
         idx = np.clip(np.searchsorted(self._starts, tq, side="right") - 1, 0, len(self._sols) - 1)
         for j in np.unique(idx):
             sel = idx == j
-            out[:, sel] = np.asarray(self._sols[j](tq[sel])).reshape(4, -1)
+            out[:, sel] = np.asarray(self._sols[j](tq[sel]))[:4].reshape(4, -1)
         if self._config == "prescribed":
             out[0] = np.interp(tq, self._t, self._thp)
             k = np.clip(np.searchsorted(self._t, tq, side="right") - 1, 0, self._t.size - 2)
