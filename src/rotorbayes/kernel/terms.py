@@ -473,12 +473,17 @@ def _lag_of_impl(hook, s, src, c, a):
     if isinstance(hook, types.NoneType):
         return lambda hook, s, src, c, a: a
 
-    def impl(hook, s, src, c, a):
-        if c[_TAU] > 0.0:
-            return lagged(s, src, c)
-        return a
+    # A lambda around a compiled function: an inlined overload with branches of its own
+    # made numba warn (NumbaIRAssumptionWarning) in every kernel with hooks.
+    return lambda hook, s, src, c, a: _lagged_or(s, src, c, a)
 
-    return impl
+
+@njit(cache=True, error_model="numpy")
+def _lagged_or(s, src, c, a):
+    """The lagged command at ``s`` with a drive lag, else ``a``."""
+    if c[_TAU] > 0.0:
+        return lagged(s, src, c)
+    return a
 
 
 def state_fma(hook, a, b, z):
@@ -531,27 +536,30 @@ def _state_step_impl(hook, reset, t, t_end, y, src, m):
     if isinstance(hook, (types.NoneType, types.Integer)):
         return lambda hook, reset, t, t_end, y, src, m: t_end
 
-    def impl(hook, reset, t, t_end, y, src, m):
-        # An explicit Runge-Kutta step follows a state of time constant tau accurately
-        # only for steps of about tau: the rate's slope in z by a forward difference, at
-        # the step's start.
-        if reset < -1:  # no effect has a state
-            return t_end
-        c, cfg = m[0], m[1]
-        d = drive(t, c, cfg, src, m[6])
-        presc = cfg == CFG_PRESCRIBED
-        thu = d[2] if presc else y[0]
-        wu = d[3] if presc else y[1]
-        z = y[4]
-        e = 1e-7 * (abs(z) + 1e-3)
-        r0 = hook(t, thu, wu, y[2], y[3], d[1], z, m[3], m[4])[0]
-        r1 = hook(t, thu, wu, y[2], y[3], d[1], z + e, m[3], m[4])[0]
-        lam = abs(r1 - r0) / e
-        if not lam > 0.0:
-            return t_end
-        return min(t_end, t + max(STATE_STEP_FACTOR / lam, STATE_STEP_MIN * c[_DT]))
+    return lambda hook, reset, t, t_end, y, src, m: _state_limit(hook, reset, t, t_end, y,
+                                                                 src, m)
 
-    return impl
+
+@njit(cache=True, error_model="numpy")
+def _state_limit(hook, reset, t, t_end, y, src, m):
+    """:func:`state_step` in the kernel with hooks: an explicit Runge-Kutta step follows a
+    state of time constant tau accurately only for steps of about tau -- the rate's slope
+    in z by a forward difference, at the step's start."""
+    if reset < -1:  # no effect has a state
+        return t_end
+    c, cfg = m[0], m[1]
+    d = drive(t, c, cfg, src, m[6])
+    presc = cfg == CFG_PRESCRIBED
+    thu = d[2] if presc else y[0]
+    wu = d[3] if presc else y[1]
+    z = y[4]
+    e = 1e-7 * (abs(z) + 1e-3)
+    r0 = hook(t, thu, wu, y[2], y[3], d[1], z, m[3], m[4])[0]
+    r1 = hook(t, thu, wu, y[2], y[3], d[1], z + e, m[3], m[4])[0]
+    lam = abs(r1 - r0) / e
+    if not lam > 0.0:
+        return t_end
+    return min(t_end, t + max(STATE_STEP_FACTOR / lam, STATE_STEP_MIN * c[_DT]))
 
 
 def upper_excess(hook, c):
