@@ -241,6 +241,14 @@ def _trials(result, d, specs: dict) -> dict | None:
                       "initial torsion would")
     if best is not None and best.on_bound:
         words += (f" (its {', '.join(best.on_bound)} ended on a bound: distrust the size)")
+    if best is not None and best.ratio > TRIAL_ABOVE:
+        # The best catalogue effect helps, but leaves the fit far from the floor: say that
+        # most of what is missing lies outside the catalogue, not only what to add.
+        words += (f". Even with it the fit stays {best.ratio:.3g}x the floor: most of what "
+                  "is missing is not in the catalogue (or the fit is in a wrong basin: "
+                  "`rotorbayes multistart`); see the missing-torque map and the proposal "
+                  "below, or write the physics as your own effect -- with a state of its "
+                  "own if it has memory (docs/effects.md)")
     print(words)
     return {"ran_above": TRIAL_ABOVE, "before": worst,
             "choice": None if best is None else best.effect, "words": words,
