@@ -2,9 +2,9 @@
 
 The kernel's functions are compiled by numba when :mod:`rotorbayes.kernel.solver` is first
 imported and kept in numba's on-disk cache. A cold cache (a fresh install, a new Python, an
-edited kernel) costs about 40 s on 2 cores (measured: 38-40 s idle); :func:`compile_kernel`
-imports the kernel and, only when no up-to-date cache is found, says what is happening
-before and how long it took after, on stderr.
+edited kernel) costs about 120 s on 2 idle cores (69 s before the effect state; issue 33);
+:func:`compile_kernel` imports the kernel and, only when no up-to-date cache is found, says
+what is happening before and how long it took after, on stderr.
 """
 
 from __future__ import annotations
