@@ -569,21 +569,13 @@ def _complete(p: dict) -> dict:
 
 
 def _voltage(u: np.ndarray, t: np.ndarray, p: dict) -> np.ndarray:
-    """The effective motor voltage (lag, offset, delay, dead zone) at the sample times, as the
-    kernel's :func:`rotorbayes.kernel.terms.drive` has it (held at ``u[0]`` before the
-    first sample)."""
-    d = p.get("t_delay", 0.0) or 0.0
-    if p.get("tau_drive", 0.0):
-        from ..kernel.layout import CFG_COUPLED, NAMES
-        from ..kernel.terms import voltage_at
+    """The effective motor voltage (lag, delay, offset, dead zone) at the sample times: the
+    kernel's own (:func:`rotorbayes.kernel.terms.voltage_at`, held at ``u[0]`` before the
+    first sample), not a copy of it."""
+    from ..kernel.layout import CFG_COUPLED, NAMES
+    from ..kernel.terms import voltage_at
 
-        pv = np.array([float(p.get(n, 0.0) or 0.0) for n in NAMES])
-        dt = float(t[1] - t[0]) if t.size > 1 else 1.0
-        return voltage_at(np.arange(t.size) * dt, np.ascontiguousarray(u, float), pv, dt,
-                          CFG_COUPLED)
-    v = np.interp(t - d, t, u) if d > 0 else u.copy()
-    v = v + (p.get("u_offset", 0.0) or 0.0)
-    dz = p.get("u_deadzone", 0.0) or 0.0
-    if dz > 0:
-        v = np.where(v > dz, v - dz, np.where(v < -dz, v + dz, 0.0))
-    return v
+    pv = np.array([float(p.get(n, 0.0) or 0.0) for n in NAMES])
+    dt = float(t[1] - t[0]) if t.size > 1 else 1.0
+    return voltage_at(np.arange(t.size) * dt, np.ascontiguousarray(u, float), pv, dt,
+                      CFG_COUPLED)
