@@ -521,6 +521,11 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             shift_u[k], shift_l[k] = s_u, s_l
             if m.stateful is not None and k + 1 < t.size:
                 r0 = hook_r(*args, z, pv, qv)[0]
+                e = 1e-7 * (abs(z) + 1e-3)
+                lam = -(hook_r(*args, z + e, pv, qv)[0] - r0) / e
+                if dt * lam > 0.5:  # a stiff state (bristles): linearly implicit
+                    z += dt * r0 / (1.0 + dt * lam)
+                    continue
                 nxt = (t[k + 1], thu[k + 1], wu[k + 1], thl[k + 1], wl[k + 1], v[k + 1])
                 r1 = hook_r(*nxt, z + dt * r0, pv, qv)[0]
                 z += 0.5 * dt * (r0 + r1)
@@ -528,7 +533,10 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
     common = {"input": v, "input_rate": du, "input_history": _history(v, dt), "time": t}
     out = {}
     if has_l and m.configuration.has_lower:
-        fl = np.nan_to_num(friction_curve(wl, _complete(p), "l", shape=problem.shape))
+        pl = _complete(p)
+        if m.replacing is not None:  # its law gives the dry friction (in extra_l): viscous
+            pl = {**pl, "Tc_l": 0.0, "dTc_l": 0.0, "Ts_l": 0.0}
+        fl = np.nan_to_num(friction_curve(wl, pl, "l", shape=problem.shape))
         Ml = p["J_l"] * al + fl + np.sign(wl) * shift_l + string - extra_l
         feats = {"velocity": wl, "direction": np.sign(wl), "torsion": alpha,
                  "torsion_rate": dalpha, **common}

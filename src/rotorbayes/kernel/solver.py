@@ -493,7 +493,7 @@ def _integrate(
                                           hook_torque),
                             approach_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
                                           t_tgt - t))  # fmt: skip
-            t_sub = state_step(hook_rate, state_reset, t, t_sub, y, src, m)
+            t_sub = state_step(hook_rate, state_reset, t, t_sub, y, f, src, m)
             if t_sub < t_tgt:
                 t_tgt = t_sub  # a substep through the Stribeck band or towards an event
             rem = t_tgt - t

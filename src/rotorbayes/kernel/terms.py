@@ -521,45 +521,81 @@ def _state_value_impl(hook, z):
 STATE_STEP_FACTOR = 1.0
 #: ... and never below this fraction of a sample (a state faster than that is not
 #: followed: it blows up, and the run stops with BAD_EFFECT or BLOW_UP).
-STATE_STEP_MIN = 0.05
+STATE_STEP_MIN = 0.002
 
 
-def state_step(hook, reset, t, t_end, y, src, m):
+def state_step(hook, reset, t, t_end, y, f, src, m):
     """The end of a step from ``t`` that ends at ``t_end`` or earlier as the effect state
     needs (compiled code only; see the overload): ``t_end`` without a stateful effect
-    (``reset`` below -1) and in the plain kernel."""
+    (``reset`` below -1) and in the plain kernel.  ``f``: the right-hand side at ``t``."""
     return t_end
 
 
 @overload(state_step, inline="always")
-def _state_step_impl(hook, reset, t, t_end, y, src, m):
+def _state_step_impl(hook, reset, t, t_end, y, f, src, m):
     if isinstance(hook, (types.NoneType, types.Integer)):
-        return lambda hook, reset, t, t_end, y, src, m: t_end
+        return lambda hook, reset, t, t_end, y, f, src, m: t_end
 
-    return lambda hook, reset, t, t_end, y, src, m: _state_limit(hook, reset, t, t_end, y,
-                                                                 src, m)
+    return lambda hook, reset, t, t_end, y, f, src, m: _state_limit(hook, reset, t, t_end,
+                                                                    y, f, src, m)
 
 
 @njit(cache=True, error_model="numpy")
-def _state_limit(hook, reset, t, t_end, y, src, m):
-    """:func:`state_step` in the kernel with hooks: an explicit Runge-Kutta step follows a
-    state of time constant tau accurately only for steps of about tau -- the rate's slope
-    in z by a forward difference, at the step's start."""
-    if reset < -1:  # no effect has a state
-        return t_end
+def _state_slope(hook, t, y, src, m):
+    """How fast the effect state's part of the dynamics moves [1/s] at time ``t`` and state
+    ``y``: the rate's slope in ``z`` plus, where ``z`` acts on a disc (a torque or a
+    friction level that depends on it) and the disc's velocity drives ``z``, the frequency
+    of that loop, ``sqrt(|d(dw/dt)/dz * d(dz/dt)/dw|)`` (a bristle deflection is a spring on
+    the disc while it barely moves).  Forward differences, with the hooks."""
     c, cfg = m[0], m[1]
     d = drive(t, c, cfg, src, m[6])
     presc = cfg == CFG_PRESCRIBED
     thu = d[2] if presc else y[0]
     wu = d[3] if presc else y[1]
-    z = y[4]
+    thl, wl, z = y[2], y[3], y[4]
+    v, p, q = d[1], m[3], m[4]
     e = 1e-7 * (abs(z) + 1e-3)
-    r0 = hook(t, thu, wu, y[2], y[3], d[1], z, m[3], m[4])[0]
-    r1 = hook(t, thu, wu, y[2], y[3], d[1], z + e, m[3], m[4])[0]
+    r0 = hook(t, thu, wu, thl, wl, v, z, p, q)[0]
+    r1 = hook(t, thu, wu, thl, wl, v, z + e, p, q)[0]
     lam = abs(r1 - r0) / e
-    if not lam > 0.0:
+    a0u, a0l = m[6](t, thu, wu, thl, wl, v, z, p, q)
+    a1u, a1l = m[6](t, thu, wu, thl, wl, v, z + e, p, q)
+    s0u, s0l = m[7](t, thu, wu, thl, wl, v, z, p, q)
+    s1u, s1l = m[7](t, thu, wu, thl, wl, v, z + e, p, q)
+    if cfg != CFG_UPPER:  # the lower disc's loop through z
+        ew = 1e-7 * (abs(wl) + 1e-3)
+        dzw = (hook(t, thu, wu, thl, wl + ew, v, z, p, q)[0] - r0) / ew
+        dwz = (abs(a1l - a0l) + abs(s1l - s0l)) / e * c[_IJL]
+        lam += math.sqrt(abs(dzw) * dwz)
+    if not presc:  # the upper disc's
+        ew = 1e-7 * (abs(wu) + 1e-3)
+        dzw = (hook(t, thu, wu + ew, thl, wl, v, z, p, q)[0] - r0) / ew
+        dwz = (abs(a1u - a0u) + abs(s1u - s0u)) / e * c[_IJU]
+        lam += math.sqrt(abs(dzw) * dwz)
+    return lam
+
+
+@njit(cache=True, error_model="numpy")
+def _state_limit(hook, reset, t, t_end, y, f, src, m):
+    """:func:`state_step` in the kernel with hooks: an explicit Runge-Kutta step follows a
+    state of time constant tau accurately only for steps of about tau -- the rate's slope
+    in z, at the step's start and at its end as the rig's present rates predict it (a
+    state whose time constant shortens as a disc speeds up, such as a bristle deflection
+    after break-away, must not be stepped over by a step chosen at rest)."""
+    if reset < -1:  # no effect has a state
         return t_end
-    return min(t_end, t + max(STATE_STEP_FACTOR / lam, STATE_STEP_MIN * c[_DT]))
+    lam = _state_slope(hook, t, y, src, m)
+    h = t_end - t
+    if lam * h > STATE_STEP_FACTOR:
+        h = STATE_STEP_FACTOR / lam
+    for _ in range(3):  # the slope where this step would end (z held: it is what is fast)
+        ye = (fma(h, f[0], y[0]), fma(h, f[1], y[1]), fma(h, f[2], y[2]),
+              fma(h, f[3], y[3]), y[4])
+        lam_e = _state_slope(hook, t + h, ye, src, m)
+        if not lam_e * h > STATE_STEP_FACTOR:
+            break
+        h = STATE_STEP_FACTOR / lam_e
+    return min(t_end, t + max(h, STATE_STEP_MIN * m[0][_DT]))
 
 
 def upper_excess(hook, c):

@@ -193,6 +193,19 @@ class Model:
                     )
                 self.info[p.name] = p
         self.user_names = tuple(p.name for e in self.user_effects for p in e.parameters)
+        replacing = [e for e in self.effects if e.replaces]
+        if len(replacing) > 1:
+            raise EffectError(
+                f"effects {', '.join(e.name for e in replacing)} each replace the lower "
+                "disc's friction; switch on one of them")
+        #: The effect that carries the lower disc's dry friction (``Effect.replaces``).
+        self.replacing = replacing[0] if replacing else None
+        #: The kernel's ``q``: the user effects' parameters, the replacing effect's followed
+        #: by the levels it carries (:data:`BORROWED`).
+        self.q_names = tuple(
+            n for e in self.user_effects
+            for n in (*e.names, *(BORROWED if e is self.replacing else ()))
+        )
         on = set(self.configuration.parameters)
         for e in self.effects:
             on.update(e.names)
@@ -272,6 +285,15 @@ class Model:
         is refused, see :meth:`check_off`); ``Ts_l`` is ``Tc_l`` without the Stribeck
         effect.
         """
+        p, q = self._vectors(values)
+        if self.replacing is not None:
+            for n in BORROWED:  # the levels act through the effect alone
+                p[_layout.INDEX[n]] = 0.0
+        return p, q
+
+    def _vectors(self, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`kernel_vectors` before the replacing effect takes the lower levels out of
+        ``p`` (what the constraints are checked on)."""
         self.check_off(values)
         p = np.array([float(values[n]) for n in _layout.NAMES])
         for n in self.off:
@@ -279,7 +301,10 @@ class Model:
                 p[_layout.INDEX[n]] = INFO[n].null
         if not self.stribeck or math.isnan(p[_layout.TS_L]):
             p[_layout.TS_L] = p[_layout.TC_L]
-        q = np.array([float(values.get(n, self.info[n].null)) for n in self.user_names])
+        q = np.array([
+            p[_layout.INDEX[n]] if n in BORROWED else float(values.get(n, self.info[n].null))
+            for n in self.q_names
+        ])
         return p, q
 
     def kernel_slot(self, name: str) -> tuple[int, int] | None:
@@ -289,19 +314,28 @@ class Model:
         Without the Stribeck effect ``Ts_l`` also follows ``Tc_l``."""
         if name in self.off or (name == "Ts_l" and not self.stribeck):
             return None
+        if self.replacing is not None and name in BORROWED:
+            return None  # it moves from p into q
         if name in _layout.INDEX:
             return 0, _layout.INDEX[name]
         if name in self.user_names:
-            return 1, self.user_names.index(name)
+            return 1, self.q_names.index(name)
         return None
 
     def problems(self, values: Mapping[str, float]) -> list[str]:
         """Why ``values`` cannot be simulated in this model (empty if they can)."""
-        p, q = self.kernel_vectors(values)
+        p, q = self._vectors(values)
         out = problems(dict(zip(_layout.NAMES, p, strict=True)), self.kernel_cfg)
-        for n, v in zip(self.user_names, q, strict=True):
-            if not math.isfinite(v):
+        for n, v in zip(self.q_names, q, strict=True):
+            if not math.isfinite(v) and n not in BORROWED:
                 out.append(f"{n} = {v} is not finite")
+        if self.replacing is not None:
+            tc, dtc, ts = (p[_layout.INDEX[n]] for n in BORROWED)
+            if not min(tc, ts) > abs(dtc):
+                out.append(
+                    f"Tc_l = {tc:g} and Ts_l = {ts:g} must exceed |dTc_l| = {abs(dtc):g} with "
+                    f"{self.replacing.name!r} (its bristles relax towards that level, which "
+                    "must be positive)")
         return out
 
     # ------------------------------------------------------------------------ hooks
@@ -317,6 +351,10 @@ class Model:
         """The model's effect with a state (at most one), or None."""
         return next((e for e in self.effects if e.state), None)
 
+
+#: The lower disc's levels that an effect replacing its friction carries (``q``, after the
+#: effect's own parameters; zero in ``p``).
+BORROWED = ("Tc_l", "dTc_l", "Ts_l")
 
 _HOOK_CACHE: dict[tuple, tuple] = {}
 
@@ -380,7 +418,7 @@ def _compile_hooks(user: tuple[Effect, ...]):
     reset = -2  # no state (-1: a state never reset; 0/1: reset when that disc sticks)
     off = 0
     for e in user:
-        k = len(e.parameters)
+        k = len(e.parameters) + (len(BORROWED) if e.replaces else 0)
         if e.torque is not None:
             torques.append((_compile_one(e, e.torque, "torque"), off, k))
         if e.friction_shift is not None:

@@ -121,6 +121,13 @@ class Effect:
     state_reset : str
         ``"u"`` or ``"l"``: ``z`` is set to 0 whenever that disc starts to stick (e.g. a
         bristle deflection that a stop releases); empty: never.
+    replaces : str
+        ``"l"``: the effect carries the lower disc's whole dry friction (a dynamic friction
+        law such as :data:`rotorbayes.model.laws.LUGRE`).  The kernel then gives that disc
+        no Coulomb or static level (it never sticks: its velocity passes zero like any
+        other value; the viscous part stays), and the effect's functions find the levels
+        in ``q`` after its own parameters, as ``(Tc_l, dTc_l, Ts_l)`` (``Ts_l = Tc_l``
+        without the Stribeck effect).  Empty: the switch model's friction stays.
     source : str
         Where a user effect was loaded from.
     """
@@ -142,6 +149,7 @@ class Effect:
     state: str = ""
     state_rate: Callable | None = field(default=None, compare=False, repr=False)
     state_reset: str = ""
+    replaces: str = ""
     source: str = "catalogue"
 
     def __post_init__(self):
@@ -157,6 +165,12 @@ class Effect:
                              "state_rate its state's name")
         if self.state_reset not in ("", "u", "l"):
             raise ValueError(f"effect {self.name!r}: state_reset must be '', 'u' or 'l'")
+        if self.replaces not in ("", "l"):
+            raise ValueError(f"effect {self.name!r}: replaces must be '' or 'l' (the lower "
+                             "disc's friction)")
+        if self.replaces and any(c not in LOWER for c in self.configs):
+            raise ValueError(f"effect {self.name!r} replaces the lower disc's friction, so "
+                             f"its configs must be among {LOWER}")
         object.__setattr__(self, "parameters", tuple(self.parameters))
         object.__setattr__(self, "configs", tuple(self.configs))
 
@@ -194,6 +208,9 @@ class Effect:
                 f"    {p.name:<11} [{p.unit}]  bounds [{p.lower:g}, {p.upper:g}], "
                 f"null {null}{extra}: {p.description}"
             )
+        if self.replaces:
+            rows.append("    replaces the lower disc's dry friction (Tc_l, dTc_l, Ts_l act "
+                        "through it; the disc never sticks)")
         if self.state:
             reset = {"u": ", reset when the upper disc sticks",
                      "l": ", reset when the lower disc sticks"}.get(self.state_reset, "")
@@ -518,14 +535,19 @@ class EffectError(ValueError):
 
 
 def get(name: str) -> Effect:
-    """Look a catalogue effect up by name, with an error that lists the catalogue."""
-    try:
+    """Look a catalogue effect or a shipped friction law (:mod:`.laws`) up by name, with an
+    error that lists both."""
+    if name in CATALOGUE:
         return CATALOGUE[name]
-    except KeyError:
-        raise EffectError(
-            f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)}; a user "
-            "effect is given as FILE.py:NAME (see docs/effects.md)"
-        ) from None
+    from .laws import LAWS
+
+    if name in LAWS:
+        return LAWS[name]
+    raise EffectError(
+        f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)}; the friction "
+        f"laws: {', '.join(LAWS)}; a user effect is given as FILE.py:NAME (see "
+        "docs/effects.md)"
+    )
 
 
 def effect_of(parameter: str) -> Effect | None:

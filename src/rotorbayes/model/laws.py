@@ -1,0 +1,111 @@
+"""Friction laws shipped with rotorbayes to hold against the switch model.
+
+The model's friction is a *static* switch law: a disc sticks exactly while its torque lies
+in the static band and slips with a friction that depends on its velocity alone.  A
+dynamic law gives the friction a memory.  Each law here is one :class:`Effect` that
+*replaces* the lower disc's dry friction (``Effect.replaces``): switched on with ``--add
+NAME``, the lower disc never sticks, its friction comes from the law's state, and the
+switch model's parameters keep their meaning (``Tc_l``, ``dTc_l``, ``Ts_l``, ``ws_l``,
+``delta_l``, ``b_l``, ``db_l``), so one fit of each model on the same data compares them.
+
+They are not nested in the switch model (no value of their parameters gives it back
+exactly), so the diagnosis's score tests and trial refits leave them out: a law is a
+hypothesis to fit and judge on validation data, side by side with the switch model.
+
+**LuGre** (Canudas de Wit, Olsson, Astrom & Lischinsky, IEEE TAC 1995), chosen over a
+generalized Maxwell-slip model because it needs one state (the kernel integrates one
+effect state), its two new parameters have a physical reading a user can check against
+the encoder (the bristle stiffness ``sigma0_l`` sets the pre-sliding displacement
+``Ts_l / sigma0_l`` before break-away; ``sigma1_l`` damps it), and in steady sliding it
+gives back exactly the switch model's Stribeck curve.  Maxwell-slip's several elements
+(several states) would buy hysteresis with non-local memory, which the rig's encoders
+resolve only where the pre-sliding displacement is many counts.
+
+    dz/dt = omega_l - sigma0_l |omega_l| z / g(omega_l)
+    T_f   = sigma0_l z + sigma1_l dz/dt + (b_l + sgn(omega_l) db_l) omega_l
+    g(w)  = Tc_l + sgn(w) dTc_l + (Ts_l - Tc_l) exp(-(|w| / ws_l)^delta_l)
+
+**Stiffness.** While the disc slides, ``z`` relaxes with the time constant ``g /
+(sigma0_l |omega_l|)`` -- 0.05 N m / (300 N m/rad * 5 rad/s) = 33 us, thirty times shorter
+than a 1 kHz sample.  The kernel's substep rule for an effect state
+(:func:`rotorbayes.kernel.terms.state_step`) follows it, so a simulation costs more the
+stiffer the bristles and the faster the slide; the figures are in ``benchmarks/README.md``
+(``benchmarks/bench_lugre.py``).  Above the bound of ``sigma0_l`` the substeps would fall
+below the rule's floor and the run would stop (``BLOW_UP``) rather than return a wrong
+answer; such a stiffness gives a pre-sliding displacement below the lower encoder's count
+anyway, where the law is the switch model to the data.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from ..kernel.layout import DELTA_L, WS_L
+from .effects import Effect
+from .info import Parameter
+
+# The law's slice of q: its own parameters, then the lower disc's levels (Effect.replaces).
+_S0, _S1, _TC, _DTC, _TS = range(5)
+
+
+@njit(cache=True, error_model="numpy")
+def lugre_level(w, p, q):
+    """``g(w)`` [N m]: the steady sliding friction at velocity ``w`` without the viscous
+    part (the switch model's Coulomb level, asymmetry and exponential Stribeck excess)."""
+    s = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else 0.0)
+    g = q[_TC] + s * q[_DTC]
+    ds = q[_TS] - q[_TC]
+    if ds != 0.0:
+        g += ds * math.exp(-((abs(w) / p[WS_L]) ** p[DELTA_L]))
+    return g
+
+
+@njit(cache=True, error_model="numpy")
+def lugre_bristle_rate(w, z, p, q):
+    """``dz/dt`` [rad/s] of the bristle deflection ``z`` at velocity ``w``."""
+    return w - q[_S0] * abs(w) * z / lugre_level(w, p, q)
+
+
+def lugre_rate(t, theta_u, omega_u, theta_l, omega_l, v, z, p, q):
+    """The effect state's rate: the bristles' deflection rate."""
+    return lugre_bristle_rate(omega_l, z, p, q)
+
+
+def lugre_torque(t, theta_u, omega_u, theta_l, omega_l, v, z, p, q):
+    """The bristles' torque on the lower disc (the viscous part stays in the kernel)."""
+    zd = lugre_bristle_rate(omega_l, z, p, q)
+    return 0.0, -(q[_S0] * z + q[_S1] * zd)
+
+
+LUGRE = Effect(
+    name="lugre",
+    physics="LuGre dynamic friction on the lower disc: the contact's bristles deflect "
+    "before it slides (pre-sliding, a spring of stiffness sigma0_l), so the disc creeps "
+    "under a torque below the static level instead of sticking, and the friction lags "
+    "the velocity (frictional memory); steady sliding follows the switch model's "
+    "Stribeck curve.",
+    parameters=(
+        Parameter("sigma0_l", "N m/rad", 5.0, 2000.0, 2000.0,
+                  "bristle stiffness (pre-sliding displacement Ts_l/sigma0_l)", start=300.0),
+        Parameter("sigma1_l", "N m s/rad", 0.0, 10.0, 0.0,
+                  "bristle damping", start=0.5),
+    ),
+    signature="theta_l residual at every lower stop and break-away (the disc creeps by "
+    "about Ts_l/sigma0_l where the model holds it still), with the residual's sign "
+    "following the torque's history",
+    configs=("coupled", "brake"),
+    kernel_term="the effect state (terms.state_step substeps the stiff bristles); the "
+    "lower disc's levels reach the law through q (Effect.replaces)",
+    explains=("velocity", "direction", "torsion", "input_history"),
+    torque=lugre_torque,
+    state="bristle",
+    state_rate=lugre_rate,
+    replaces="l",
+)
+
+#: The shipped laws by name (``--add NAME`` like a catalogue effect).
+LAWS: dict[str, Effect] = {LUGRE.name: LUGRE}
+
+__all__ = ["LAWS", "LUGRE", "lugre_level", "lugre_bristle_rate"]
