@@ -50,7 +50,7 @@ def main() -> None:
     for s0 in stiff:
         p = dict(BASE, sigma0_l=s0, sigma1_l=np.sqrt(s0 * BASE["J_l"]))
         cases.append((f"lugre {s0:g}", p, EFFECTS + ["lugre"], {}))
-    for name, p, eff, kw in cases:  # compile and warm
+    for _name, p, eff, kw in cases:  # compile and warm
         simulate(p, u, dt=dt, config="coupled", effects=eff, **kw)
     times = {name: [] for name, *_ in cases}
     for _ in range(a.repeats):
