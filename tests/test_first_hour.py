@@ -12,7 +12,7 @@ import pytest
 
 from rotorbayes import coldstart
 from rotorbayes.inference.assess import Assessment
-from rotorbayes.numformat import fmt_interval, fmt_value, significant_digits
+from rotorbayes.numformat import fmt_value, significant_digits
 
 
 def _row(data, ratio, fitted=True):
@@ -38,10 +38,7 @@ def test_headline_is_the_estimation_data_and_validation_is_named():
     assert "validation" not in c.verdict and math.isnan(c.worst_ratio_validation)
 
 
-def test_interval_digits_follow_the_width():
-    assert fmt_interval(4.368697, 4.368712) == "[4.368697, 4.368712]"
-    assert fmt_interval(-0.00525013, -0.00524978) == "[-0.00525013, -0.00524978]"
-    assert fmt_interval(-1.2, 3.4) == "[-1.2, 3.4]"
+def test_value_digits_follow_the_spread():
     assert fmt_value(4.3687012, 2.7e-6) == "4.3687012"
     # Trial 11's corner titles: "k_m = 3.2 ± 1.6e-05" beside "b_u = 1.7499982".
     assert fmt_value(3.2, 1.6e-5) == "3.200000" and fmt_value(12.0, 0.5) == "12.00"

@@ -31,13 +31,6 @@ def fmt_value(value: float, spread: float, **kw) -> str:
     return out[:-1] if out.endswith(".") else out
 
 
-def fmt_interval(lo: float, hi: float) -> str:
-    """``[lo, hi]`` with both ends distinguishable (two digits of the width)."""
-    big = lo if abs(lo) >= abs(hi) else hi
-    n = significant_digits(big, hi - lo)
-    return f"[{lo:.{n}g}, {hi:.{n}g}]"
-
-
 def sd_place(sd: float) -> int | None:
     """The power of ten of the last digit of ``sd`` written to two significant digits
     (6.9e-7 -> -8, 0.0123 -> -3, 230 -> 1); None for an sd that is not finite and > 0."""

@@ -124,6 +124,7 @@ def fit_json_path(spec: str | Path) -> Path:
 
 
 def file_sha256(path: str | Path) -> str:
+    """SHA-256 (hex) of the file ``path`` as it is now, read in blocks."""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):

@@ -21,16 +21,15 @@ from .least_squares import (
     quality,
 )
 from .multistart import MultistartResult, cluster_ends, describe_spread, latin_hypercube, multistart
-from .parallel import Mapper, get_mapper
 from .problem import CHANNELS, Evaluation, Problem, local_name
 from .starts import DataStart, data_start
 from .uncertainty import Uncertainty, fit_uncertainty
 
 __all__ = [
     "Assessment", "DataStart", "FirstFit", "StartError", "assess", "data_start",
-    "fit_from_data", "CHANNELS", "Evaluation", "FAIL_RESIDUAL", "FitResult", "Mapper",
+    "fit_from_data", "CHANNELS", "Evaluation", "FAIL_RESIDUAL", "FitResult",
     "MultistartResult",
-    "Problem", "cluster_ends", "describe_spread", "fit", "get_mapper", "latin_hypercube",
+    "Problem", "cluster_ends", "describe_spread", "fit", "latin_hypercube",
     "local_name", "multistart", "quality", "Uncertainty", "attach_uncertainty",
     "fit_uncertainty",
 ]  # fmt: skip

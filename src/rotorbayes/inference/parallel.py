@@ -827,30 +827,6 @@ def map_ordered(fn: Callable, items: Iterable, *, shared: Any = _NOTHING,
     return out
 
 
-class Mapper:
-    """The older interface: ``map(fn, items)`` yields ``(index, fn(item))`` as tasks finish.
-
-    Kept for callers outside the package; new code calls :func:`run_tasks`.
-    """
-
-    def __init__(self, kind: str = "threads", workers: int | None = None):
-        if kind not in ("serial", "threads", "processes"):
-            raise ValueError(f"unknown parallel backend {kind!r}; choose serial, threads or "
-                             "processes")  # fmt: skip
-        self.spec = ExecutorSpec(kind, workers)
-        self.kind = kind
-        self.workers = self.spec.n_workers()
-
-    def map(self, fn: Callable[[Any], Any], items: Sequence) -> Iterator[tuple[int, Any]]:
-        with open_executor(self.spec) as ex:
-            yield from run_tasks(fn, items, executor=ex)
-
-
-def get_mapper(kind: str = "threads", workers: int | None = None) -> Mapper:
-    """The mapper for ``kind`` (``'serial'``, ``'threads'`` or ``'processes'``)."""
-    return Mapper(kind, workers)
-
-
 def progress(results: Iterator, total: int, desc: str, *, enabled: bool = True) -> Iterator:
     """Wrap a ``(index, result)`` stream with a progress bar (tqdm, on stderr) when
     ``enabled`` and stderr is a terminal; otherwise pass it through unchanged."""

@@ -833,10 +833,6 @@ class Problem:
         """Full :class:`~rotorbayes.Simulation` of experiment ``i`` at ``x`` (with status)."""
         return self.sims[i].simulate(self.params_for(x, i), raise_on_failure=False)
 
-    def simulate_all(self, x: np.ndarray) -> list[Simulation]:
-        """Full simulations of every experiment at ``x``."""
-        return [self.simulate(x, i) for i in range(len(self.experiments))]
-
     # --------------------------------------------------------------------- Jacobian
     def jacobian(
         self,

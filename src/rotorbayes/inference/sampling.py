@@ -69,7 +69,7 @@ class EnsembleRun:
 #: they differ only in how fast the walkers forget where they were.
 MOVES = {
     "stretch": ((("stretch", 1.0),),
-                "emcee's stretch move alone (a = 2; the default before issue 19)"),
+                "emcee's stretch move alone (a = 2; rotorbayes's default before the mixed moves)"),
     "de": ((("de", 1.0),), "differential evolution alone (emcee's DEMove, γ = 2.38/√(2d))"),
     "de-mix": ((("de", 0.8), ("snooker", 0.2)),
                "differential evolution 80 % and DE snooker 20 % (emcee's DEMove, "

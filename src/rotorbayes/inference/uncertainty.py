@@ -116,10 +116,6 @@ class Uncertainty:
         (Student's t with the Welch–Satterthwaite degrees of freedom)."""
         return stats.t.ppf(0.5 + level / 2, np.maximum(self.dof, 1.0))
 
-    def interval(self, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
-        h = self.quantile(level) * self.stderr
-        return self.x - h, self.x + h
-
     def shares(self) -> dict[str, dict[str, float]]:
         """Per parameter: the share of the total variance that is noise, model error shown
         by the residuals, and the input-hold allowance (they add to 1)."""

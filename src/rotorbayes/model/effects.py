@@ -20,7 +20,7 @@ compiles, both with the signature
 ``v`` is the effective motor voltage [V], ``p`` the built-in parameter vector (positions
 in :mod:`rotorbayes.kernel.layout`, e.g. ``p[TC_L]``) and ``q`` the effect's own
 parameters in the order declared.  See ``docs/effects.md`` and
-``examples/effects/angle_friction.py``.
+``examples/angle_friction.py``.
 """
 
 from __future__ import annotations
@@ -696,11 +696,3 @@ def resolve(specs: Iterable[str | Effect]) -> tuple[Effect, ...]:
         out.append(e)
     return tuple(out)
 
-
-def catalogue_markdown() -> str:
-    """The catalogue as a markdown table (for docs and ``rotorbayes effects --markdown``)."""
-    rows = ["| effect | parameters | physics | missing when |", "|---|---|---|---|"]
-    for e in CATALOGUE.values():
-        ps = ", ".join(f"`{p.name}` [{p.unit}]" for p in e.parameters)
-        rows.append(f"| `{e.name}` | {ps} | {e.physics} | {e.signature} |")
-    return "\n".join(rows)

@@ -54,8 +54,3 @@ class Parameter:
                     f"parameter {self.name}: {what} value {v:g} lies outside its bounds "
                     f"[{self.lower:g}, {self.upper:g}]"
                 )
-
-    @property
-    def null_on_bound(self) -> bool:
-        """The null value is a bound (a one-sided effect such as damping or delay >= 0)."""
-        return self.null in (self.lower, self.upper)

@@ -11,7 +11,6 @@ nothing (no fonts, scripts or styles from elsewhere).
 from __future__ import annotations
 
 import datetime
-import hashlib
 import math
 import sys
 import tomllib
@@ -22,6 +21,7 @@ from ..inference.identify import profile_interval
 from ..inference.problem import ValidationTorsion
 from ..numformat import fmt_interval_at, mean_sd, sd_place
 from ..outputs import write_text_atomic
+from ..results import file_sha256
 from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
     CSS,
@@ -101,17 +101,6 @@ def _ratio_cls(r) -> str:
     return "good" if r <= near else "bad"
 
 
-def _ratio_tag(r) -> Raw:
-    at, near = _floors()
-    if r is None or (isinstance(r, float) and math.isnan(r)):
-        return Raw('<span class="tag muted">no fitted channel</span>')
-    if r <= at:
-        return Raw('<span class="tag good">at the encoder floor</span>')
-    if r <= near:
-        return Raw('<span class="tag good">near the encoder floor</span>')
-    return Raw(f'<span class="tag bad">{num(r, 3)}× the encoder floor</span>')
-
-
 def _path(p) -> Raw:
     """A file path, breakable after its slashes."""
     return Raw(f'<span class="path">{esc(p).replace("/", "/<wbr>")}</span>')
@@ -178,14 +167,6 @@ def _example_or_path(spec: str) -> Path:
 
         return Path(example_path(spec))
     return Path(spec)
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _analysis_name(run: dict | None) -> str | None:
@@ -364,7 +345,7 @@ def _data(f: Found) -> Raw | None:
                                                    "</span>")])
             continue
         if not sha:
-            sha, computed = _sha256(p), True
+            sha, computed = file_sha256(p), True
         owned = _owned_data(fit, spec, sha) if fit is not None else True
         if not owned:
             # A result folder may come from anyone: read only files the result vouches for.
@@ -903,7 +884,7 @@ def _reproducibility(f: Found) -> Raw:
             rows = []
             for spec in fit.doc.get("data", []) + fit.doc.get("validation", []):
                 p = Path(spec)
-                rows.append([spec, Raw(f'<span class="hash">{esc(_sha256(p))}</span>')
+                rows.append([spec, Raw(f'<span class="hash">{esc(file_sha256(p))}</span>')
                              if p.is_file() else "file not found"])
             out.append(Raw("<h3>Data hashes (computed now)</h3>"))
             out.append(table(["file", "SHA-256"], rows))
