@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .inference import arviz_compat as AZ
+from .inference import arviz_compat
 from .plots import pyplot
 
 
@@ -103,7 +103,7 @@ def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
     from .numformat import fmt_value
 
     names = list(prob.names)
-    post = AZ.group(idata, "posterior")
+    post = arviz_compat.group(idata, "posterior")
     X = np.column_stack([post[n].values.reshape(-1) for n in names])
     X = X[np.all(np.isfinite(X), axis=1)]
     n = X.shape[0]
@@ -206,7 +206,8 @@ def plot_predictive(idata, prob, *, i: int = 0):
     plt = pyplot()
     chans = list(prob.channels)
     ex = prob.experiments[i]
-    pp, obs = AZ.group(idata, "posterior_predictive"), AZ.group(idata, "observed_data")
+    pp = arviz_compat.group(idata, "posterior_predictive")
+    obs = arviz_compat.group(idata, "observed_data")
     fig, axes = plt.subplots(3 * len(chans), 1, figsize=(10, 1.9 * 3 * len(chans) + 0.8),
                              sharex=True, squeeze=False, constrained_layout=True)
     for k, c in enumerate(chans):
@@ -265,7 +266,7 @@ def plot_correlation(idata, prob):
     """Posterior correlation matrix of the free parameters."""
     plt = pyplot()
     names = list(prob.names)
-    post = AZ.group(idata, "posterior")
+    post = arviz_compat.group(idata, "posterior")
     X = np.column_stack([post[n].values.reshape(-1) for n in names])
     C = np.corrcoef(X, rowvar=False)
     fig, ax = plt.subplots(figsize=(1.0 + 0.6 * len(names), 0.8 + 0.6 * len(names)),

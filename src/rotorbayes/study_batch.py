@@ -142,7 +142,7 @@ def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
     study ended with 0, 130 after a Ctrl-C, else the highest of the studies' codes
     (a study killed by a signal counts as 3). ``Outcome.doc``: ``{"studies": [...]}``, one
     row per file with its exit code, seconds, host and message."""
-    from .inference import parallel as P
+    from .inference import parallel
     from .study import load_analysis
 
     analyses = [load_analysis(f) for f in files]  # AnalysisError: refused, nothing run
@@ -156,9 +156,9 @@ def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
         seen[out] = a.path.resolve()
     n = len(analyses)
     with executor(backend, workers, scheduler) as ex:
-        at_once = 1 if isinstance(ex, P.SerialExecutor) else min(
+        at_once = 1 if isinstance(ex, parallel.SerialExecutor) else min(
             n, getattr(ex, "_max_workers", None) or n)
-        local = not P.is_dask(ex)
+        local = not parallel.is_dask(ex)
         threads = max(1, (os.cpu_count() or 1) // at_once) if local else 1
         tasks = [StudyTask(str(a.path.resolve()),
                            hashlib.sha256(a.path.read_bytes()).hexdigest(), force, threads)
@@ -169,7 +169,7 @@ def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
         rows: list[dict | None] = [None] * n
         t0 = time.perf_counter()
         try:
-            for k, (i, row) in enumerate(P.run_tasks(run_one, tasks, executor=ex), 1):
+            for k, (i, row) in enumerate(parallel.run_tasks(run_one, tasks, executor=ex), 1):
                 rows[i] = row
                 _say(k, n, analyses[i], row, quiet)
         except KeyboardInterrupt:

@@ -253,18 +253,18 @@ def executor(backend: str | None = None, workers: int | None = None,
     """Open the executor the options, DASK_SCHEDULER_ADDRESS or an analysis file's
     [parallel] table (``file``) choose, for the length of a command.  A command run inside
     ``run`` (a study stage) without options of its own uses the study's executor."""
-    from ..inference import parallel as P
+    from ..inference import parallel
 
     opts = (backend, workers, scheduler)
-    if P.current_executor() is not None and opts == (None, None, None):
-        yield P.current_executor()
+    if parallel.current_executor() is not None and opts == (None, None, None):
+        yield parallel.current_executor()
         return
     try:
-        spec = P.choose(*opts, file=file)
+        spec = parallel.choose(*opts, file=file)
     except ValueError as exc:
         raise Refused(str(exc)) from None
-    with P.use_executor(spec) as ex:
+    with parallel.use_executor(spec) as ex:
         # Said once the executor is there (a scheduler answered and has workers).
-        if spec.backend != P.DEFAULT_BACKEND or spec.source != "default":
+        if spec.backend != parallel.DEFAULT_BACKEND or spec.source != "default":
             print(f"parallel tasks run {spec.describe()}", flush=True)
         yield ex

@@ -28,8 +28,6 @@ def compare(fits, *, out: str | None = None, force: bool = False,
     the chain of --p0 parents of one): compare.json and figures in ``out`` (default: the
     last fit's compare/ folder, made again each time).  ``Outcome.doc`` is compare.json's
     document."""
-    from ..diagnosis import compare as C
-    from ..diagnosis import figures as F
     from ..results import load_fit
 
     fits = [fits] if isinstance(fits, str) else list(fits)
@@ -45,21 +43,24 @@ def compare(fits, *, out: str | None = None, force: bool = False,
     folder = Path(out) if out else last.folder / "compare"
     # FIT/compare (the default) is derived from the fits: it is simply made again.
     with output_folder(folder, force or not out, inputs=given) as tmp:
-        written, doc = _compare_into(fits, last, tmp, C, F)
+        written, doc = _compare_into(fits, last, tmp)
     print(f"\nwrote {', '.join(written)} in {folder}/")
     return Outcome(folder=Path(out) if out else Path(given[-1]) / "compare", doc=doc)
 
 
-def _compare_into(fits, last, out: Path, C, F) -> tuple[list[str], dict]:
-    doc = C.compare_fits(fits)
-    print(C.table(doc))
-    views = C.residual_views(last.problem, last.x)
-    for name, (fig, _) in (("error_vs_state.png", F.plot_error_vs_state(views)),
-                           ("residual_correlation.png", F.plot_residual_correlation(views))):
+def _compare_into(fits, last, out: Path) -> tuple[list[str], dict]:
+    from ..diagnosis import compare as diagnosis_compare
+    from ..diagnosis import figures
+
+    doc = diagnosis_compare.compare_fits(fits)
+    print(diagnosis_compare.table(doc))
+    views = diagnosis_compare.residual_views(last.problem, last.x)
+    for name, (fig, _) in (("error_vs_state.png", figures.plot_error_vs_state(views)),
+                           ("residual_correlation.png", figures.plot_residual_correlation(views))):
         save_figure_atomic(fig, out / name)
     written = ["compare.json", "error_vs_state.png", "residual_correlation.png"]
     if len(fits) > 1:
-        fig, _ = F.plot_chain(doc)
+        fig, _ = figures.plot_chain(doc)
         save_figure_atomic(fig, out / "chain.png")
         written.append("chain.png")
     for c, v in views["channels"].items():

@@ -340,7 +340,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     ``guard`` (an :class:`~rotorbayes.outputs.InterruptGuard`) is started once the fit has
     finished: a Ctrl-C after that keeps the result.
     """
-    from .. import inference as E
+    from .. import inference
     from ..plots import plot_fit, plot_friction
     from ..results import data_record
     from .common import glitch_record, say_glitches
@@ -373,7 +373,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         p0_params = (fit_json(a.p0) or {}).get("parameters") or {}
         # (alpha0[1] of a --p0 fit of one run: that fit's alpha0, not a default.)
         start_source = {n: f"--p0 {a.p0}" if not p0_params or (
-            (p0_params.get(n) or p0_params.get(E.local_name(n)[0])
+            (p0_params.get(n) or p0_params.get(inference.local_name(n)[0])
              or {"status": "off"}).get("status") != "off")
             else "the effect's default" for n in prob.names}
         from ..results import diagnosis_starts
@@ -410,7 +410,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
                 print("start of the added effects' parameters: " + ", ".join(
                     f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
                     for e in prob.model.added for n in e.names if n in prob.names))
-            res = E.fit(prob, x0, verbose=True, **fit_kw)
+            res = inference.fit(prob, x0, verbose=True, **fit_kw)
             chose = f"--p0 {a.p0}"
     else:
         print("start: computed from the data (the equations of motion as a regression on "
@@ -419,11 +419,11 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
 
         # The fit from the data start and each finished restart are kept beside --out:
         # a re-run after a kill or Ctrl-C skips them.
-        ff = E.fit_from_data(prob, restarts=a.restarts, verbose=True,
+        ff = inference.fit_from_data(prob, restarts=a.restarts, verbose=True,
                              resume=store_path(a.out), **fit_kw)
         res, chose = ff.result, ff.chose
         start_source = {n: ff.start.source.get(n, ff.start.source.get(
-            E.local_name(n)[0], "")) for n in prob.names}
+            inference.local_name(n)[0], "")) for n in prob.names}
         if ff.restarts:
             print(f"{len(ff.restarts)} restarts tried; kept {ff.chose}")
     if guard is not None:
@@ -431,10 +431,10 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     status = "" if res.success else "DID NOT CONVERGE: "
     print(f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
           f"{res.seconds:.1f} s)\n")
-    q_est = E.quality(prob, res.x)
-    q_val = E.quality(prob, res.x, val, validation_alpha0=val_alpha0) if val else []
+    q_est = inference.quality(prob, res.x)
+    q_val = inference.quality(prob, res.x, val, validation_alpha0=val_alpha0) if val else []
     torsion = [r["validation_alpha0"] for r in q_val]
-    assessment = E.assess(res, q_est, q_val, sources=sources, val_experiments=val or ())
+    assessment = inference.assess(res, q_est, q_val, sources=sources, val_experiments=val or ())
     print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound,
                       assessment.near_bound))
     if chose.startswith("restart"):  # trial 10 read this column as the data start above
@@ -467,7 +467,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
               f"{ratio:.1e}) moves {', '.join(movers)} together "
               f"({', '.join(f'{n} {sloppy[n]:+.2f}' for n in movers)} in log scale); the data "
               "fix their ratios far better than their values.")
-    free_base = {E.local_name(n)[0] for n in res.names}
+    free_base = {inference.local_name(n)[0] for n in res.names}
     parameters = {}
     for n in prob.model.info:
         if n in free_base:

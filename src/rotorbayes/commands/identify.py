@@ -70,7 +70,7 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
 def _posterior(folder: str, prob, fit_folder: Path):
     """The posterior of the sample folder ``folder``, read before anything is written; a
     missing, damaged or foreign posterior.nc is refused with its name and what to do."""
-    from ..inference import arviz_compat as AZ
+    from ..inference import arviz_compat
 
     path = Path(folder) / "posterior.nc"
     if not path.exists() and not path.is_symlink():
@@ -80,10 +80,10 @@ def _posterior(folder: str, prob, fit_folder: Path):
             f"{folder}/chain.h5 (no new steps)" if (Path(folder) / "chain.h5").exists()
             else "sample again")
     try:
-        idata = AZ.load(path)
-    except AZ.PosteriorFileError as exc:
+        idata = arviz_compat.load(path)
+    except arviz_compat.PosteriorFileError as exc:
         raise Refused(f"--posterior: {exc}; {redo}, or leave out --posterior") from None
-    have = set(AZ.group(idata, "posterior").data_vars)
+    have = set(arviz_compat.group(idata, "posterior").data_vars)
     lacking = [n for n in prob.names if n not in have]
     if lacking:
         raise Refused(f"--posterior: {path} holds no draws of {', '.join(lacking)}, free in "
@@ -92,17 +92,19 @@ def _posterior(folder: str, prob, fit_folder: Path):
     return idata
 
 
-def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
+def _profiles_into(a, prob, fit, profiles, se, ex, doc) -> None:
     """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
+    from ..inference import identify as inference_identify
     from ..inference.taskstore import store_path
     from ..numformat import fmt_interval_at
 
     for n in profiles:
         t0 = time.perf_counter()
-        pr = I.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n), executor=ex,
-                       resume=store_path(a.out))  # finished points kept: a re-run skips them
+        pr = inference_identify.profile(prob, fit.x, n, n_points=a.points, stderr=se.get(n),
+                                        executor=ex, resume=store_path(a.out))
+        # (finished points are kept: a re-run skips them)
         doc["profiles"].append(pr)
-        iv = I.profile_interval(pr)
+        iv = inference_identify.profile_interval(pr)
         ends = ("" if iv["lo"] is None else
                 fmt_interval_at(iv["lo"], iv["hi"], (iv["hi"] - iv["lo"]) / 3.92))
         print(f"profile of {n}: {a.points} points in {time.perf_counter() - t0:.1f} s; "
@@ -114,27 +116,28 @@ def _profiles_into(a, I, prob, fit, profiles, se, ex, doc) -> None:
 
 
 def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:
-    from ..inference import identify as I
+    from ..inference import identify as inference_identify
 
-    F = I.fisher(prob, fit.x)
-    words = I.describe(F)
+    F = inference_identify.fisher(prob, fit.x)
+    words = inference_identify.describe(F)
     print(f"Fisher information of {fit.folder}/ at the fit (noise at each channel's floor; "
           "log coordinates for positive parameters):")
     print("  eigenvalues " + ", ".join(f"{v:.3g}" for v in F.eigenvalues))
     for w in words:
         print("  " + w)
     doc = {"fit": str(fit.folder), "fisher": F.as_dict(), "words": words, "profiles": []}
-    from .. import posterior_figures as PF
+    from .. import posterior_figures
 
-    save_figure_atomic(PF.plot_fisher(F)[0], out / "fisher.png")
+    save_figure_atomic(posterior_figures.plot_fisher(F)[0], out / "fisher.png")
     written = ["identify.json", "fisher.png"]
     if profiles:
         se = dict(zip(prob.names, fit.doc and [fit.doc["estimates"][n]["stderr"] or 0.0
                                                for n in prob.names], strict=True))
         # One executor (one cluster, if any) for every profile.
         with executor(a.backend, a.workers, a.scheduler) as ex:
-            _profiles_into(a, I, prob, fit, profiles, se, ex, doc)
-        save_figure_atomic(PF.plot_profiles(doc["profiles"])[0], out / "profiles.png")
+            _profiles_into(a, prob, fit, profiles, se, ex, doc)
+        save_figure_atomic(posterior_figures.plot_profiles(doc["profiles"])[0],
+                           out / "profiles.png")
         written.append("profiles.png")
     if a.posterior:
         idata = a.idata
@@ -145,7 +148,8 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:
                 raise Refused(f"{a.multistart}: its free parameters {ms.get('names')} "
                               f"differ from the fit's {list(prob.names)}")
             overlay = np.array(ms["ends"])
-        save_figure_atomic(PF.plot_corner(idata, prob, overlay=overlay), out / "corner.png")
+        save_figure_atomic(posterior_figures.plot_corner(idata, prob, overlay=overlay),
+                           out / "corner.png")
         written.append("corner.png")
     write_text_atomic(out / "identify.json", strict_json(doc))
     write_text_atomic(out / "summary.txt", "\n".join(words) + "\n")

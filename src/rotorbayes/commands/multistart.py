@@ -62,7 +62,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     a = SimpleNamespace(**locals())  # the steps below read the options by name
     a.data = [data] if isinstance(data, str) else list(data)
     a.read = read_spec(columns, time_unit, angle_unit, counts_per_rev)
-    from .. import inference as E
+    from .. import inference
     from ..inference.taskstore import remove_store, store_path
     from ..plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
@@ -82,7 +82,7 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
         print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
         with executor(a.backend, a.workers, a.scheduler) as ex:
             # Each finished start is kept beside --out: a re-run after a kill skips it.
-            ms = E.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
+            ms = inference.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
                               executor=ex, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
                               gtol=a.gtol, resume=store_path(a.out))
         guard.start()  # the starts are done: from here on Ctrl-C must not throw them away

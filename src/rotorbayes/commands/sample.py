@@ -177,7 +177,7 @@ def _check_sample_target(a, out: Path) -> None:
 def _sample_locked(a, src: Path, out: Path) -> int:
     import shutil
 
-    from ..inference import sampling as S
+    from ..inference import sampling
     from ..inference.likelihood import LogPosterior, load_priors
     from ..outputs import check_free_space
     from ..results import load_fit
@@ -189,7 +189,7 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     else:
         settings = {"fit": str(Path(a.source).resolve()), "walkers": a.walkers,
                     "steps": a.steps, "ensembles": a.ensembles, "seed": a.seed,
-                    "noise": a.noise, "ar1": a.ar1, "moves": a.moves or S.DEFAULT_MOVES,
+                    "noise": a.noise, "ar1": a.ar1, "moves": a.moves or sampling.DEFAULT_MOVES,
                     "priors": str(Path(a.priors).resolve()) if a.priors else None}
     fit = load_fit(settings["fit"], trust_effects=a.trust_effects,
                    accept_changed_data=a.accept_changed_data)
@@ -212,13 +212,13 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     sizes = summary_sizes(lp, settings["walkers"], settings["steps"], settings["ensembles"],
                           a.max_draws)
     outputs = sum(sizes.values())
-    need = S.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
+    need = sampling.chain_bytes(settings["walkers"], lp.ndim, settings["steps"],
                          settings["ensembles"]) + outputs
     chain = out / "chain.h5"
     # Reserve files left by a killed run are free space, not results.
-    S.SummaryReserve.clear(out)
+    sampling.SummaryReserve.clear(out)
     if a.resume:
-        held, restored = S.recover_checkpoint(chain, n_walkers=settings["walkers"],
+        held, restored = sampling.recover_checkpoint(chain, n_walkers=settings["walkers"],
                                               ndim=lp.ndim, n_ensembles=settings["ensembles"])
         if restored:
             print(f"warning: {restored}", file=sys.stderr, flush=True)
@@ -246,7 +246,7 @@ def _sample_locked(a, src: Path, out: Path) -> int:
                 continue
             shutil.rmtree(p) if p.is_dir() else p.unlink()
     out.mkdir(exist_ok=True)
-    S.save_settings(out, settings)
+    sampling.save_settings(out, settings)
     print(f"sampling {lp.ndim} coordinates ({', '.join(lp.coord_names)}) of {fit.folder}/ "
           f"with {settings['walkers']} walkers x {settings['steps']} steps x "
           f"{settings['ensembles']} independent ensembles; noise: "
@@ -256,10 +256,10 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     reserve = None
     guard = InterruptGuard().start()  # Ctrl-C: stop between two steps, never inside one
     try:
-        reserve = S.SummaryReserve(out, sizes)
+        reserve = sampling.SummaryReserve(out, sizes)
         try:
             with _ensemble_executor(a) as ex:
-                runs = S.sample(lp, fit.x, out, n_walkers=settings["walkers"],
+                runs = sampling.sample(lp, fit.x, out, n_walkers=settings["walkers"],
                                 n_steps=settings["steps"], n_ensembles=settings["ensembles"],
                                 seed=settings["seed"],
                                 progress=not a.quiet and sys.stderr.isatty(),
@@ -269,9 +269,9 @@ def _sample_locked(a, src: Path, out: Path) -> int:
             if "cannot place the walkers" not in str(exc):
                 raise
             raise Refused(f"{fit.folder}/: {exc}") from None
-        except S.CheckpointBusy as exc:
+        except sampling.CheckpointBusy as exc:
             raise EXIT.Busy(f"{exc.strerror} `rotorbayes sample {out} --resume`") from None
-        except S.SamplingStopped as exc:
+        except sampling.SamplingStopped as exc:
             earlier = (f" ({', '.join(stale)} still describe the earlier, shorter run "
                        "until then)") if stale else ""
             raise Interrupted(
@@ -280,7 +280,7 @@ def _sample_locked(a, src: Path, out: Path) -> int:
                 f"settings.json). Continue with `rotorbayes sample {out} --resume`{earlier}"
             ) from None
         except BaseException as exc:
-            if created and not S.steps_held(chain):
+            if created and not sampling.steps_held(chain):
                 shutil.rmtree(out, ignore_errors=True)  # nothing done: leave no folder
             if EXIT.is_disk_full(exc) and not isinstance(exc, EXIT.EnvironmentFailure):
                 _die_disk_full(out, exc)
@@ -322,13 +322,13 @@ def _ensemble_executor(a):
     ``--scheduler`` is given, ``DASK_SCHEDULER_ADDRESS`` is set, or a study runs on a Dask
     cluster. On one machine the serial loop already keeps every core busy (the walkers of
     an ensemble are one parallel kernel batch), so it stays the default there."""
-    from ..inference import parallel as P
+    from ..inference import parallel
     from .common import executor
 
     opts = (getattr(a, "backend", None), getattr(a, "workers", None),
             getattr(a, "scheduler", None))
-    if (opts == (None, None, None) and not os.environ.get(P.SCHEDULER_ENV)
-            and not P.is_dask(P.current_executor())):
+    if (opts == (None, None, None) and not os.environ.get(parallel.SCHEDULER_ENV)
+            and not parallel.is_dask(parallel.current_executor())):
         yield None
         return
     with executor(*opts) as ex:
@@ -355,13 +355,11 @@ def _write_sample_outputs(a, out: Path, lp, fit, runs, guard, reserve=None) -> i
     :class:`~rotorbayes.inference.sampling.SummaryReserve`); Ctrl-C between two files
     stops with a true account of what is on disk, and so does a write that fails (exit
     code 3: the chains are complete, ``--resume`` writes the rest)."""
-    from .. import posterior_figures as PF
-    from ..inference import arviz_compat as AZ
-    from ..inference import posterior as PO
-    from ..inference import sampling as S
+    from .. import posterior_figures
+    from ..inference import arviz_compat, posterior, sampling
 
     if reserve is None:
-        reserve = S.SummaryReserve(out, {})
+        reserve = sampling.SummaryReserve(out, {})
     names = lp.coord_names
     done: list[str] = []
 
@@ -378,12 +376,12 @@ def _write_sample_outputs(a, out: Path, lp, fit, runs, guard, reserve=None) -> i
                     "not written", "not yet rewritten") + f". `rotorbayes sample {out} "
                 "--resume` writes them from the chains (no new steps)")
 
-    warnings = S.convergence(runs, names)
+    warnings = sampling.convergence(runs, names)
     if lp.n_failed:
         warnings.append(f"{lp.n_failed} proposals could not be simulated (counted in "
                         "sample_stats.failed_simulations; they got -inf)")
-    idata = PO.inference_data(lp, runs, max_draws=a.max_draws)
-    rows = PO.summary_table(idata, lp, runs)
+    idata = posterior.inference_data(lp, runs, max_draws=a.max_draws)
+    rows = posterior.summary_table(idata, lp, runs)
     if len(runs) >= 2:
         bad = [r["parameter"] for r in rows if not r["r_hat"] < 1.01]
         if bad:
@@ -399,16 +397,18 @@ def _write_sample_outputs(a, out: Path, lp, fit, runs, guard, reserve=None) -> i
         warnings.append("--noise floor counts every sample as independent: on data where a "
                         "disc sticks or turns slowly the intervals are too narrow (the "
                         "default, --noise robust, widens them to what the errors support)")
-    md = PO.table_markdown(rows, assumptions=unc.assumptions() if unc is not None else None)
+    md = posterior.table_markdown(rows, assumptions=unc.assumptions() if unc is not None else None)
     print("\n" + md)
     for name, make in (
-            ("posterior.nc", lambda: AZ.to_bytes(idata)),
+            ("posterior.nc", lambda: arviz_compat.to_bytes(idata)),
             ("summary.md", lambda: (md + "\n").encode()),
-            ("summary.csv", lambda: PO.table_csv(rows).encode()),
-            ("corner.png", lambda: _png(PF.plot_corner(idata, fit.problem))),
-            ("trace.png", lambda: _png(PF.plot_trace(runs, names)[0])),
-            ("predictive.png", lambda: _png(PF.plot_predictive(idata, fit.problem)[0])),
-            ("correlation.png", lambda: _png(PF.plot_correlation(idata, fit.problem)[0])),
+            ("summary.csv", lambda: posterior.table_csv(rows).encode()),
+            ("corner.png", lambda: _png(posterior_figures.plot_corner(idata, fit.problem))),
+            ("trace.png", lambda: _png(posterior_figures.plot_trace(runs, names)[0])),
+            ("predictive.png",
+             lambda: _png(posterior_figures.plot_predictive(idata, fit.problem)[0])),
+            ("correlation.png",
+             lambda: _png(posterior_figures.plot_correlation(idata, fit.problem)[0])),
             ("warnings.txt", lambda: ("\n".join(warnings) + "\n").encode())):
         checkpoint()
         data = make()

@@ -75,10 +75,10 @@ def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
     truncated file) is refused; messages name the file and the line (a .mat file: the
     sample).
     """
-    from .. import rigfiles as R
+    from .. import rigfiles
     from ..data import MAX_ABS_INPUT, DataFileError, RowProblem, check_data_file, check_time_unit
 
-    read = R.ReadSpec() if read is None else read
+    read = rigfiles.ReadSpec() if read is None else read
     p = Path(path)
     try:
         # A regular file within the size limit, before it is opened (a pipe would wait
@@ -90,10 +90,10 @@ def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
     try:
         with open(p, "rb") as fh:
             head = fh.read(520)
-        if R.is_mat_file(head, p.suffix):
+        if rigfiles.is_mat_file(head, p.suffix):
             try:
-                cols, _ = R.read_mat(p.read_bytes(), read, ("t", "u"))
-            except R.FormatProblem as exc:
+                cols, _ = rigfiles.read_mat(p.read_bytes(), read, ("t", "u"))
+            except rigfiles.FormatProblem as exc:
                 raise Refused(f"--input-file {p}: {exc}") from None
             t, u = cols["t"], cols["u"]
             rows = list(range(1, t.size + 1))
@@ -152,7 +152,7 @@ def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
 
 def _input_csv(p: Path, lines: list[str], read) -> tuple[list, list, list]:
     """t, u and their line numbers from the lines of a CSV input file."""
-    from .. import rigfiles as R
+    from .. import rigfiles
 
     numbered = [(k, ln) for k, ln in enumerate(lines, start=1)
                 if ln.strip() and not ln.lstrip().startswith("#")]
@@ -181,8 +181,8 @@ def _input_csv(p: Path, lines: list[str], read) -> tuple[list, list, list]:
         try:
             if len(f) != len(header):
                 raise ValueError
-            tk = R.parse_number(f[it].strip().strip('"'), comma)
-            uk = R.parse_number(f[iu].strip().strip('"'), comma)
+            tk = rigfiles.parse_number(f[it].strip().strip('"'), comma)
+            uk = rigfiles.parse_number(f[iu].strip().strip('"'), comma)
         except ValueError:
             raise Refused(f"{p}, line {k}: {ln.strip()!r} is not a row of {len(header)} numbers "
                           f"matching the header {htext.strip()!r}") from None

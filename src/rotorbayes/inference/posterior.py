@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from ..numformat import fmt_interval_at, mean_sd, sd_place
-from . import arviz_compat as AZ
+from . import arviz_compat
 from .likelihood import LogPosterior
 from .sampling import EnsembleRun, burn_thin
 
@@ -140,7 +140,7 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
                  f"one value per block of {block} consecutive samples (their sum): the "
                  f"pointwise values of every sample would exceed {LOGLIK_BYTES // 2**20} MiB; "
                  "the block_exp coordinates are each block's first time")}}
-    return AZ.from_groups(groups, dims=group_dims, coords=coords, attrs=attrs)
+    return arviz_compat.from_groups(groups, dims=group_dims, coords=coords, attrs=attrs)
 
 
 def file_bytes(logpost: LogPosterior, n_rows: int) -> int:
@@ -174,7 +174,7 @@ def ess_all_draws(logpost: LogPosterior, runs: list[EnsembleRun]):
     log θ): the bulk ESS that posterior.nc would show if it kept all draws."""
     Z, _, _, _ = draws(logpost, runs, max_draws=2**62)
     post = {f"c{j}": Z[:, :, j] for j in range(Z.shape[2])}
-    summ = AZ.summary(AZ.from_groups({"posterior": post}))
+    summ = arviz_compat.summary(arviz_compat.from_groups({"posterior": post}))
     return (np.array([float(summ.loc[f"c{j}", "ess_bulk"]) for j in range(Z.shape[2])]),
             np.array([float(summ.loc[f"c{j}", "r_hat"]) for j in range(Z.shape[2])]))
 
@@ -195,7 +195,7 @@ def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: fl
     speed: the conservative ESS (the lower of arviz's bulk ESS over every thinned draw and
     the τ-based one) per second and per minute of sampling."""
     prob = logpost.problem
-    summ = AZ.summary(idata, hdi_prob=hdi)
+    summ = arviz_compat.summary(idata, hdi_prob=hdi)
     # R-hat, like the conservative ESS, from every thinned draw after burn-in: from the
     # --max-draws kept in posterior.nc (a few hundred) it scattered by +-0.02 about 1 and
     # the demo's chains, at 3300-4000 ESS each, were said not to have converged (1.018,

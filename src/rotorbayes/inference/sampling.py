@@ -1121,7 +1121,7 @@ def _run_on_executor(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensemb
     from concurrent.futures import FIRST_COMPLETED, CancelledError
     from concurrent.futures import wait as _wait
 
-    from . import parallel as P
+    from . import parallel
 
     active: dict[str, dict] = {}
     fit_prop: list = []
@@ -1153,7 +1153,7 @@ def _run_on_executor(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensemb
         return
     total = sum(n_steps - a["done"] for a in active.values())
     step_bytes = 8 * n_walkers * (logpost.ndim + 1) + 8192
-    shared = P.share(executor, logpost)
+    shared = parallel.share(executor, logpost)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -1188,7 +1188,7 @@ def _run_on_executor(logpost, x_fit, path, held, *, n_walkers, n_steps, n_ensemb
                 except CancelledError:
                     raise _lost(executor, path, active, n_steps, total) from None
                 except OSError as exc:
-                    if P.client_gone(executor):
+                    if parallel.client_gone(executor):
                         raise _lost(executor, path, active, n_steps, total) from exc
                     raise
                 n = chunk.chain.shape[0]
@@ -1250,9 +1250,9 @@ def _stopped(active: dict, n_steps: int) -> SamplingStopped:
 
 def _lost(executor, path: Path, active: dict, n_steps: int, total: int):
     """The error for a Dask scheduler lost while the ensembles ran on it."""
-    from . import parallel as P
+    from . import parallel
 
-    return P.lost_scheduler(
+    return parallel.lost_scheduler(
         executor, total - _left(active, n_steps), total, unit="steps",
         then=f"every finished step is kept in {path}. Continue with `rotorbayes sample "
         f"{path.parent} --resume` (on this machine; or with --scheduler once the "
