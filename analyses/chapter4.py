@@ -37,8 +37,7 @@ from pathlib import Path
 import numpy as np
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes import plots
+from rotorbayes import inference, plots
 from rotorbayes.model.parameters import INFO, TABLE_FREE, thesis_set
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -147,9 +146,9 @@ def run_table(tab: str, duration: float, out: Path, rep: Report) -> dict:
     est = make_experiment("est", config, pref, duration)
     val = make_experiment("val", config, pref, duration)
 
-    prob = E.Problem(config, [est], free=free, base=pref, channels=(channel,))
+    prob = inference.Problem(config, [est], free=free, base=pref, channels=(channel,))
     rep.step(f"least squares from P0, free: {', '.join(free)}")
-    res = E.fit(prob, {n: p0[n] for n in free}, max_nfev=200)
+    res = inference.fit(prob, {n: p0[n] for n in free}, max_nfev=200)
     rep.step(
         f"fit done: {res.message}; {res.nfev} evaluations, {res.seconds:.1f} s, "
         f"SSR {res.ssr:.3e} rad²"

@@ -36,8 +36,7 @@ import sys
 from pathlib import Path
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes import plots
+from rotorbayes import inference, plots
 from rotorbayes.metrics import aicc, channel_fit
 from rotorbayes.model.parameters import INFO, TABLE_FREE, thesis_set
 
@@ -171,13 +170,13 @@ def fit_and_report(
     figure=None,
 ):
     """Fit ``free`` on ``est`` from ``start``; print and plot estimation/validation."""
-    prob = E.Problem(config, [est], free=list(free), base=base, effects=effects)
+    prob = inference.Problem(config, [est], free=list(free), base=base, effects=effects)
     rep.step(f"{tag}: least squares, free {', '.join(free)}")
-    res = E.fit(prob, {n: start[n] for n in free}, max_nfev=200)
+    res = inference.fit(prob, {n: start[n] for n in free}, max_nfev=200)
     rep.step(
         f"{tag}: {res.message}; {res.nfev} evaluations, {res.seconds:.1f} s, SSR {res.ssr:.4e} rad²"
     )
-    q = E.quality(prob, res.x)[0]
+    q = inference.quality(prob, res.x)[0]
     rows, fits = [], {}
     for kind, ex in (("est", est), ("val", val)):
         if ex is None:
@@ -430,17 +429,17 @@ def step_brake(rep, a, quick_s, upper, coupled):
     rep("  start: table 5.4 P0, upper part from our 5.1 result, J_l and k_alpha from our")
     rep("  5.2 result, alpha0 = 0")
 
-    prob_e = E.Problem("brake", reps, free=[*free, "alpha0"], base=base)
+    prob_e = inference.Problem("brake", reps, free=[*free, "alpha0"], base=base)
     rep.step(f"per-experiment alpha0: least squares, free {', '.join(free)}, alpha0[0..3]")
-    res_e = E.fit(prob_e, {n: base[n] for n in free}, max_nfev=200)
+    res_e = inference.fit(prob_e, {n: base[n] for n in free}, max_nfev=200)
     rep.step(
         f"per-experiment alpha0: {res_e.message}; {res_e.nfev} evaluations, "
         f"{res_e.seconds:.1f} s, SSR {res_e.ssr:.4e} rad²"
     )
 
-    prob_s = E.Problem("brake", reps, free=free, base=base)
+    prob_s = inference.Problem("brake", reps, free=free, base=base)
     rep.step("shared alpha0 = 0 (the thesis's eq. 5.19): least squares, free " + ", ".join(free))
-    res_s = E.fit(prob_s, {n: base[n] for n in free}, max_nfev=200)
+    res_s = inference.fit(prob_s, {n: base[n] for n in free}, max_nfev=200)
     rep.step(
         f"shared alpha0 = 0: {res_s.message}; {res_s.nfev} evaluations, "
         f"{res_s.seconds:.1f} s, SSR {res_s.ssr:.4e} rad²"
@@ -480,7 +479,7 @@ def step_brake(rep, a, quick_s, upper, coupled):
         )
     )
 
-    q_e, q_s = E.quality(prob_e, res_e.x), E.quality(prob_s, res_s.x)
+    q_e, q_s = inference.quality(prob_e, res_e.x), inference.quality(prob_s, res_s.x)
     rep()
     rep("  Fit quality per experiment (R² thesis: table 5.5, the thesis's shared-alpha0")
     rep("  fit of its measurements):")

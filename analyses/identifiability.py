@@ -34,10 +34,8 @@ from pathlib import Path
 import numpy as np
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes.inference import identify as I
-from rotorbayes.inference import posterior as PO
-from rotorbayes.inference import sampling as S
+from rotorbayes import inference
+from rotorbayes.inference import identify, posterior, sampling
 from rotorbayes.inference.likelihood import LogPosterior
 from rotorbayes.model.parameters import thesis_set
 
@@ -60,9 +58,9 @@ def _unit(v):
 
 def _posterior(prob, x, folder, *, walkers, steps, seed=0, noise="floor"):
     lp = LogPosterior(prob, x, noise=noise)
-    runs = S.sample(lp, x, folder, n_walkers=walkers, n_steps=steps, n_ensembles=2,
+    runs = sampling.sample(lp, x, folder, n_walkers=walkers, n_steps=steps, n_ensembles=2,
                     seed=seed, progress=False)
-    burn, thin = S.burn_thin(runs)
+    burn, thin = sampling.burn_thin(runs)
     Z = np.concatenate([r.chain[burn::thin].reshape(-1, lp.ndim) for r in runs])
     return lp, runs, Z
 
@@ -98,9 +96,9 @@ def main(argv=None) -> dict:
     # ---------------------------------------------------------------- A: thesis step
     say(f"A. thesis step (table 4.2): {', '.join(LOWER4)} free, theta_l fitted, "
         f"{seconds:.0f} s of coupled data")
-    prob = E.Problem("coupled", [ex], free=LOWER4, base=truth)
-    res = E.fit(prob, thesis_set("4.2", "P0"))
-    F = I.fisher(prob, res.x)
+    prob = inference.Problem("coupled", [ex], free=LOWER4, base=truth)
+    res = inference.fit(prob, thesis_set("4.2", "P0"))
+    F = identify.fisher(prob, res.x)
     v_f = F.vectors[:, 0] * np.sign(F.vectors[0, 0])
     lp, runs, Z = _posterior(prob, res.x, out / "A", walkers=walkers, steps=steps)
     Zl = Z[:, :4] - Z[:, :4].mean(axis=0)
@@ -133,15 +131,15 @@ def main(argv=None) -> dict:
                                                    strict=True)))
     result["A"] = {"cosines": cos, "share": share, "sd_log": sd_log.tolist(),
                    "sd_log_ratios": ratios.std(axis=0).tolist(),
-                   "rhat_max": float(max(PO.summary_table(PO.inference_data(
+                   "rhat_max": float(max(posterior.summary_table(posterior.inference_data(
                        lp, runs, max_draws=200, predictive=False), lp, runs)[i]["r_hat"]
                        for i in range(4)))}
 
     # ------------------------------------------------------ B: theta_u prescribed
     say("\nB. the measured theta_u prescribed (the lower disc alone): the symmetry is exact")
-    probB = E.Problem("coupled", [ex], free=LOWER4, base=truth, prescribed_upper=True)
-    resB = E.fit(probB, thesis_set("4.2", "P0"))
-    FB = I.fisher(probB, resB.x)
+    probB = inference.Problem("coupled", [ex], free=LOWER4, base=truth, prescribed_upper=True)
+    resB = inference.fit(probB, thesis_set("4.2", "P0"))
+    FB = identify.fisher(probB, resB.x)
     say(f"  Fisher eigenvalues: smallest/largest {FB.eigenvalues[0] / FB.eigenvalues[-1]:.2e}"
         " (singular to rounding); sloppiest direction " + ", ".join(
             f"{n} {c:+.2f}" for n, c in zip(LOWER4, FB.vectors[:, 0] * np.sign(
@@ -165,10 +163,10 @@ def main(argv=None) -> dict:
 
     # ---------------------------------------------------------- C: rotorbayes default
     say("\nC. rotorbayes's default: upper disc fitted too, both channels, J_u fixed (eq. 5.4)")
-    probC = E.Problem("coupled", [ex])
-    resC = E.fit_from_data(probC).result
-    FC = I.fisher(probC, resC.x)
-    for w in I.describe(FC):
+    probC = inference.Problem("coupled", [ex])
+    resC = inference.fit_from_data(probC).result
+    FC = identify.fisher(probC, resC.x)
+    for w in identify.describe(FC):
         say("  " + w)
     se = dict(zip(probC.names, resC.stderr / np.abs(resC.x), strict=True))
     say("  relative standard errors: " + ", ".join(
@@ -188,12 +186,12 @@ def main(argv=None) -> dict:
     # ----------------------------------------------------- upper and brake configurations
     for config, name in (("upper", "upper_est"), ("brake", "brake_est")):
         exc = _short(rb.load_example(name), seconds)
-        p = E.Problem(config, [exc])
-        r = E.fit_from_data(p).result
-        Fx = I.fisher(p, r.x)
+        p = inference.Problem(config, [exc])
+        r = inference.fit_from_data(p).result
+        Fx = identify.fisher(p, r.x)
         say(f"\n{config} configuration ({len(p.names)} free parameters, default set): "
             f"Fisher condition number {Fx.eigenvalues[-1] / Fx.eigenvalues[0]:.3g}")
-        for w in I.describe(Fx):
+        for w in identify.describe(Fx):
             say("  " + w)
         result[config] = {"condition": float(Fx.eigenvalues[-1] / Fx.eigenvalues[0])}
     result["seconds"] = time.perf_counter() - t_start

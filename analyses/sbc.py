@@ -40,9 +40,8 @@ from pathlib import Path
 import numpy as np
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes.inference import parallel as P
-from rotorbayes.inference import sampling as S
+from rotorbayes import inference
+from rotorbayes.inference import parallel, sampling
 from rotorbayes.inference.likelihood import LogPosterior, Prior
 from rotorbayes.model.parameters import resolve
 
@@ -68,16 +67,16 @@ def one(seed: int, case: dict, u, dt, folder: Path | None, *, walkers: int, step
         truth[n] = centre[n] * (1 + REL_SD * rng.standard_normal())
     p = resolve(truth, config=config)
     sim = rb.simulate(p, u, dt=dt, config=config, quantize_angles=True)
-    prob = E.Problem(config, [sim.to_experiment(f"sbc{seed}")], free=list(free), base=p)
-    res = E.fit(prob, {n: centre[n] for n in free})
+    prob = inference.Problem(config, [sim.to_experiment(f"sbc{seed}")], free=list(free), base=p)
+    res = inference.fit(prob, {n: centre[n] for n in free})
     priors = {n: Prior("normal", prob.lower[j], prob.upper[j], centre[n], REL_SD * centre[n])
               for j, n in enumerate(free)}
     lp = LogPosterior(prob, res.x, priors=priors, noise=noise,
                       uncertainty=res.uncertainty if noise == "robust" else None)
-    runs = S.sample(lp, res.x, folder / f"sbc{seed}" if folder else None,
+    runs = sampling.sample(lp, res.x, folder / f"sbc{seed}" if folder else None,
                     n_walkers=walkers, n_steps=steps,
                     n_ensembles=1, seed=seed, progress=False)
-    burn, thin = S.burn_thin(runs)
+    burn, thin = sampling.burn_thin(runs)
     Z = runs[0].chain[burn::thin].reshape(-1, lp.ndim)
     X, _, _ = lp.split(Z)
     out = {"seed": seed}
@@ -109,8 +108,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--noise", choices=["robust", "floor"], default="robust")
     ap.add_argument("--out", help="keep the chains here (default: in memory)")
-    ap.add_argument("--backend", choices=P.BACKENDS, help="where the data sets run "
-                    f"(default {P.DEFAULT_BACKEND})")
+    ap.add_argument("--backend", choices=parallel.BACKENDS, help="where the data sets run "
+                    f"(default {parallel.DEFAULT_BACKEND})")
     ap.add_argument("--workers", type=int, help="parallel data sets (default: the cores)")
     ap.add_argument("--scheduler", help="a Dask scheduler's address")
     a = ap.parse_args(argv)
@@ -124,8 +123,8 @@ def main(argv=None) -> dict:
     folder = Path(a.out) if a.out else None
     shared = (case, u, t[1] - t[0], folder, dict(walkers=a.walkers, steps=a.steps,
                                                    noise=a.noise))
-    with P.open_executor(P.choose(a.backend, a.workers, a.scheduler)) as ex:
-        done = dict(P.run_tasks(_one_task, list(range(a.datasets)), shared=shared,
+    with parallel.open_executor(parallel.choose(a.backend, a.workers, a.scheduler)) as ex:
+        done = dict(parallel.run_tasks(_one_task, list(range(a.datasets)), shared=shared,
                                 executor=ex))
     rows = [done[s] for s in range(a.datasets)]
     n = len(rows)

@@ -19,16 +19,16 @@ import time
 import numpy as np
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes.inference import parallel as P
+from rotorbayes import inference
+from rotorbayes.inference import parallel
 
 
-def small_problem() -> E.Problem:
+def small_problem() -> inference.Problem:
     ex = rb.load_example("upper_est")
     n = int(round(5.0 / ex.dt)) + 1
     short = rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None,
                           name="upper 5 s", path=ex.path)
-    return E.Problem("upper", [short])
+    return inference.Problem("upper", [short])
 
 
 def main() -> None:
@@ -39,16 +39,17 @@ def main() -> None:
     print(f"{a.starts}-start multistart, upper, 5 s at 200 Hz ({prob.names}); "
           f"{os.cpu_count()} cores, load average before: "
           + " ".join(f"{v:.1f}" for v in os.getloadavg()))
-    specs = [("serial (reference)", P.ExecutorSpec("serial")),
-             (f"default ({P.DEFAULT_BACKEND}, 2)", P.ExecutorSpec(P.DEFAULT_BACKEND, 2)),
-             ("dask LocalCluster, 1 worker", P.ExecutorSpec("dask", 1)),
-             ("dask LocalCluster, 2 workers", P.ExecutorSpec("dask", 2))]
+    specs = [("serial (reference)", parallel.ExecutorSpec("serial")),
+             (f"default ({parallel.DEFAULT_BACKEND}, 2)",
+              parallel.ExecutorSpec(parallel.DEFAULT_BACKEND, 2)),
+             ("dask LocalCluster, 1 worker", parallel.ExecutorSpec("dask", 1)),
+             ("dask LocalCluster, 2 workers", parallel.ExecutorSpec("dask", 2))]
     rows, ref = [], None
     for label, spec in specs:
         t0 = time.perf_counter()
-        with P.open_executor(spec) as ex:
+        with parallel.open_executor(spec) as ex:
             t1 = time.perf_counter()
-            ms = E.multistart(prob, a.starts, seed=0, progress=False, executor=ex)
+            ms = inference.multistart(prob, a.starts, seed=0, progress=False, executor=ex)
             t2 = time.perf_counter()
         t3 = time.perf_counter()
         if ref is None:

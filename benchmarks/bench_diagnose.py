@@ -31,7 +31,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 import rotorbayes as rb  # noqa: E402
-from rotorbayes import inference as E  # noqa: E402
+from rotorbayes import inference  # noqa: E402
 from rotorbayes.diagnosis import candidates, diagnose  # noqa: E402
 from rotorbayes.model.parameters import resolve  # noqa: E402
 
@@ -49,9 +49,9 @@ def main() -> None:
     sim = rb.simulate(p, u, dt=1 / a.rate, config="coupled",
                       effects=["lower_asymmetric_coulomb"], quantize_angles=True)
     ex = sim.to_experiment("hidden")
-    prob = E.Problem("coupled", [ex])
+    prob = inference.Problem("coupled", [ex])
     t0 = time.perf_counter()
-    res = E.fit_from_data(prob, restarts=0).result
+    res = inference.fit_from_data(prob, restarts=0).result
     t_fit = time.perf_counter() - t0
     diagnose(prob, res.x)  # warm-up: compiles the model variants' kernels
     times = []
@@ -63,10 +63,10 @@ def main() -> None:
     refit = {}
     base = prob.params_for(res.x, 0)
     for e in candidates(prob):
-        p2 = E.Problem(prob.model.with_effects([e.name]), [ex], base=base)
+        p2 = inference.Problem(prob.model.with_effects([e.name]), [ex], base=base)
         t0 = time.perf_counter()
         try:
-            r2 = E.fit(p2, p2.start_vector(base))
+            r2 = inference.fit(p2, p2.start_vector(base))
             refit[e.name] = (time.perf_counter() - t0, r2.ssr)
         except Exception as exc:  # noqa: BLE001 - report and go on
             refit[e.name] = (time.perf_counter() - t0, float("nan"))

@@ -45,8 +45,8 @@ def child(repeats: int) -> dict:
     import numpy as np
 
     import rotorbayes as rb
-    from rotorbayes import inference as E
-    from rotorbayes.kernel import solver as S
+    from rotorbayes import inference
+    from rotorbayes.kernel import solver
     from rotorbayes.kernel.layout import TC_L, TS_L
 
     p = rb.parameters.thesis_set("4.3", "P_ref")
@@ -54,7 +54,7 @@ def child(repeats: int) -> dict:
     dt = float(t[1] - t[0])
     ex = rb.simulate(p, u, dt=dt, config="brake", alpha0=0.0, quantize_angles=True)
     ex = ex.to_experiment("brake_1khz")
-    prob = E.Problem("brake", [ex], base=p)
+    prob = inference.Problem("brake", [ex], base=p)
     x = prob.x_from(p)
     sim = prob.sims[0]
     kp, kq = (np.ascontiguousarray(v, dtype=float) for v in sim.kernel_vector(p))
@@ -67,14 +67,14 @@ def child(repeats: int) -> dict:
     zero = np.zeros_like(sim.u)
 
     def kernel(pp, cols, stride=sim.stride, uu=sim.u):
-        if hasattr(S, "step_grid"):  # the kernel's grid follows the input (since 2026-11-24)
+        if hasattr(solver, "step_grid"):  # the kernel's grid follows the input (since 2026-11-24)
             from rotorbayes.model.simulate import INPUT_TOLERANCE
 
-            grid = S.step_grid(uu, stride, INPUT_TOLERANCE / sim.dt)
+            grid = solver.step_grid(uu, stride, INPUT_TOLERANCE / sim.dt)
             a = (uu, sim.dt, sim.cfg, sim.shape, grid, float(stride), sim.theta_u)
         else:  # an older kernel: a uniform grid of `stride` samples
             a = (uu, sim.dt, sim.cfg, sim.shape, stride, 1, sim.theta_u)
-        return lambda: S.residuals_into_plain(pp, kq, *a, mu, ml, 1.0, 1.0, r, 0, *cols)
+        return lambda: solver.residuals_into_plain(pp, kq, *a, mu, ml, 1.0, 1.0, r, 0, *cols)
 
     fns = {
         "Problem.residuals": lambda: prob.residuals(x),

@@ -54,10 +54,12 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import rotorbayes as rb  # noqa: E402
-from rotorbayes import inference as E  # noqa: E402
-from rotorbayes.inference import arviz_compat as AZ  # noqa: E402
-from rotorbayes.inference import posterior as PO  # noqa: E402
-from rotorbayes.inference import sampling as S  # noqa: E402
+from rotorbayes import inference  # noqa: E402
+from rotorbayes.inference import (
+    arviz_compat,  # noqa: E402
+    posterior,  # noqa: E402
+    sampling,  # noqa: E402
+)
 from rotorbayes.inference.likelihood import LogPosterior  # noqa: E402
 
 
@@ -93,15 +95,15 @@ class Whitened:
         return self.lp(self.z0 + np.atleast_2d(W) @ self.L.T)
 
 
-def run(lp, x, alt: Alt, seed: int, walkers: int, steps: int) -> S.EnsembleRun:
+def run(lp, x, alt: Alt, seed: int, walkers: int, steps: int) -> sampling.EnsembleRun:
     name = f"ensemble{seed // 1000}"
-    if alt.moves in S.MOVES and not alt.whiten:
+    if alt.moves in sampling.MOVES and not alt.whiten:
         # The product's own code path (rotorbayes sample), in memory.
-        return S.run_ensemble(lp, None, name, n_walkers=walkers, n_steps=steps, x_fit=x,
+        return sampling.run_ensemble(lp, None, name, n_walkers=walkers, n_steps=steps, x_fit=x,
                               seed=seed, progress=False, moves=alt.moves, start=alt.start)
     rng = np.random.default_rng(seed)
-    p0 = S.start_walkers(lp, x, walkers, rng, start=alt.start)
-    z0, cov = S.fit_proposal(lp, x)
+    p0 = sampling.start_walkers(lp, x, walkers, rng, start=alt.start)
+    z0, cov = sampling.fit_proposal(lp, x)
     target, L = lp, None
     if alt.whiten:
         L = np.linalg.cholesky(cov)
@@ -110,7 +112,7 @@ def run(lp, x, alt: Alt, seed: int, walkers: int, steps: int) -> S.EnsembleRun:
     if alt.moves == "gauss":
         moves = [(emcee.moves.GaussianMove(cov * 2.38**2 / lp.ndim), 1.0)]
     else:
-        moves = S.emcee_moves(alt.moves)
+        moves = sampling.emcee_moves(alt.moves)
     sampler = emcee.EnsembleSampler(walkers, lp.ndim, target, vectorize=True, moves=moves)
     state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
     t0, c0 = time.perf_counter(), time.process_time()
@@ -123,16 +125,16 @@ def run(lp, x, alt: Alt, seed: int, walkers: int, steps: int) -> S.EnsembleRun:
         tau = emcee.autocorr.integrated_time(chain, tol=0)
     except Exception:  # noqa: BLE001
         tau = np.full(lp.ndim, np.nan)
-    return S.EnsembleRun(name, chain, sampler.get_log_prob(), sampler.acceptance_fraction,
+    return sampling.EnsembleRun(name, chain, sampler.get_log_prob(), sampler.acceptance_fraction,
                          np.asarray(tau, float), moves=alt.name, seconds=wall, cpu_seconds=cpu)
 
 
 def per_walker_ess(lp, runs) -> np.ndarray:
     """arviz bulk ESS with every walker of every ensemble as a chain, after burn-in."""
-    burn, _ = S.burn_thin(runs)
+    burn, _ = sampling.burn_thin(runs)
     Z = np.concatenate([r.chain[burn:] for r in runs], axis=1)  # (steps, chains, ndim)
     post = {f"c{j}": Z[:, :, j].T for j in range(lp.ndim)}
-    s = AZ.summary(AZ.from_groups({"posterior": post}))
+    s = arviz_compat.summary(arviz_compat.from_groups({"posterior": post}))
     return np.array([float(s.loc[f"c{j}", "ess_bulk"]) for j in range(lp.ndim)])
 
 
@@ -142,7 +144,7 @@ def figures(lp, alt: Alt, runs, loads) -> dict:
     ess_tau = np.zeros(lp.ndim)
     for r, st in zip(runs, steps, strict=True):
         ess_tau += np.where(np.isfinite(r.tau) & (r.tau > 0), st * walkers / r.tau, 0.0)
-    ess_bulk, rhat = PO.ess_all_draws(lp, runs)
+    ess_bulk, rhat = posterior.ess_all_draws(lp, runs)
     cons = np.minimum(ess_bulk, ess_tau)
     j = int(np.argmin(cons))
     wall = sum(r.seconds for r in runs)
@@ -191,9 +193,9 @@ def main() -> None:
     t, u = rb.signals.estimation_signal(a.seconds, seed=1)
     sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config=a.case, alpha0=0.0,
                       quantize_angles=True)
-    prob = E.Problem(a.case, [sim.to_experiment(f"{a.case}_1khz_heldout")], base=p)
+    prob = inference.Problem(a.case, [sim.to_experiment(f"{a.case}_1khz_heldout")], base=p)
     t0 = time.perf_counter()
-    res = E.fit(prob, prob.x_from(p))
+    res = inference.fit(prob, prob.x_from(p))
     lp = LogPosterior(prob, res.x, noise=a.noise)
     print(f"{a.case}, {a.seconds:g} s at 1 kHz (held-out smooth-steps input, quantised), "
           f"{prob.n_residuals} residuals; noise {a.noise}: {lp.ndim} coordinates "
@@ -202,7 +204,7 @@ def main() -> None:
     print(f"{len(alts)} alternatives x {a.ensembles} ensembles x {a.walkers} walkers x "
           f"{a.steps} steps = {a.ensembles * a.walkers * a.steps} log-posterior evaluations "
           f"each; {os.cpu_count()} cores, {numba.get_num_threads()} numba threads")
-    S.start_walkers(lp, res.x, 4, np.random.default_rng(12345))  # warm-up
+    sampling.start_walkers(lp, res.x, 4, np.random.default_rng(12345))  # warm-up
     runs: dict[str, list] = {x.name: [] for x in alts}
     loads: dict[str, list] = {x.name: [] for x in alts}
     for e in range(a.ensembles):

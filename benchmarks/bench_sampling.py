@@ -44,8 +44,8 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import rotorbayes as rb  # noqa: E402
-from rotorbayes import inference as E  # noqa: E402
-from rotorbayes.inference import sampling as S  # noqa: E402
+from rotorbayes import inference  # noqa: E402
+from rotorbayes.inference import sampling  # noqa: E402
 from rotorbayes.inference.likelihood import LogPosterior  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +71,7 @@ def main() -> None:
     dt = float(t[1] - t[0])
     sim = rb.simulate(p, u, dt=dt, config="brake", alpha0=0.0, quantize_angles=True)
     ex = sim.to_experiment("brake_1khz")
-    prob = E.Problem("brake", [ex], base=p)
+    prob = inference.Problem("brake", [ex], base=p)
     x = prob.x_from(p)
     lp = LogPosterior(prob, x)
     rng = np.random.default_rng(0)
@@ -168,8 +168,8 @@ def main() -> None:
           f"{'PASS' if t_py / t_res_row >= 400 else 'FAIL'}")
     if a.ess:
         exb = rb.load_example("brake_est")
-        pb = E.Problem("brake", [exb])
-        res = E.fit_from_data(pb).result
+        pb = inference.Problem("brake", [exb])
+        res = inference.fit_from_data(pb).result
         lpb = LogPosterior(pb, res.x)
         t0 = time.perf_counter()
         steps, runs = 500, []
@@ -177,7 +177,7 @@ def main() -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             while True:
-                runs = S.sample(lpb, res.x, Path(tmp), n_walkers=32, n_steps=steps,
+                runs = sampling.sample(lpb, res.x, Path(tmp), n_walkers=32, n_steps=steps,
                                 n_ensembles=2, progress=False)
                 ess = np.zeros(lpb.ndim)
                 for r_ in runs:

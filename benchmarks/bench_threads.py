@@ -31,7 +31,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import rotorbayes as rb  # noqa: E402
-from rotorbayes import inference as E  # noqa: E402
+from rotorbayes import inference  # noqa: E402
 
 
 def python_loop() -> float:
@@ -58,7 +58,7 @@ def main() -> None:
     p = rb.parameters.thesis_set("4.3", "P_ref")
     t, u = rb.signals.estimation_signal(30.0, seed=1)
     sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config="brake", quantize_angles=True)
-    prob = E.Problem("brake", [sim.to_experiment("brake_1khz")], base=p)
+    prob = inference.Problem("brake", [sim.to_experiment("brake_1khz")], base=p)
     x0 = prob.x_from(p)
     rng = np.random.default_rng(0)
     X = x0 * (1 + 0.01 * rng.uniform(-1, 1, size=(a.walkers, x0.size)))

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.model.parameters import resolve
 
 BRAKE = dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05, J_l=0.062, k_alpha=0.118,
@@ -31,16 +31,16 @@ def main(argv=None) -> dict:
     full = resolve(BRAKE, config="brake")
     t, u = rb.signals.estimation_signal(30.0, rate=1000.0, seed=11)
     sim = rb.simulate(full, u, dt=1e-3, config="brake", quantize_angles=True)
-    prob = E.Problem("brake", [sim.to_experiment("brake")])
+    prob = inference.Problem("brake", [sim.to_experiment("brake")])
     x0 = prob.x_from(full)
-    E.fit(prob, x0, uncertainty=False)  # compile and warm
+    inference.fit(prob, x0, uncertainty=False)  # compile and warm
     fit_s, unc_s = [], []
     for _ in range(a.repeat):
         t0 = time.perf_counter()
-        res = E.fit(prob, x0, uncertainty=False)
+        res = inference.fit(prob, x0, uncertainty=False)
         fit_s.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        E.attach_uncertainty(res)
+        inference.attach_uncertainty(res)
         unc_s.append(time.perf_counter() - t0)
     f, s = min(fit_s), min(unc_s)
     infl = np.nanmedian(res.uncertainty.inflation())

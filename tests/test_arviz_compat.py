@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 import pytest
 
-from rotorbayes.inference import arviz_compat as AZ
+from rotorbayes.inference import arviz_compat
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,23 +37,23 @@ COORDS = {"time_exp0": np.arange(7) * 0.1, "time_pred_exp0": np.array([0.0, 0.3,
 def test_round_trip_and_file_layout(tmp_path):
     rng = np.random.default_rng(3)
     g = _groups(rng)
-    idata = AZ.from_groups(g, dims=DIMS, coords=COORDS,
+    idata = arviz_compat.from_groups(g, dims=DIMS, coords=COORDS,
                            attrs={"posterior": {"burn_in_steps": 40}})
     path = tmp_path / "posterior.nc"
-    AZ.save(idata, path)
-    back = AZ.load(path)
-    assert set(AZ.group_names(back)) == set(g)
-    post = AZ.group(back, "posterior")
+    arviz_compat.save(idata, path)
+    back = arviz_compat.load(path)
+    assert set(arviz_compat.group_names(back)) == set(g)
+    post = arviz_compat.group(back, "posterior")
     assert post.sizes["chain"] == 4 and post.sizes["draw"] == 500
     assert np.array_equal(post["a"].values, g["posterior"]["a"])
     assert post.attrs["burn_in_steps"] == 40
-    pp = AZ.group(back, "posterior_predictive")["y_exp0"]
+    pp = arviz_compat.group(back, "posterior_predictive")["y_exp0"]
     assert pp.dims == ("chain", "draw", "time_pred_exp0")
     assert np.allclose(pp["time_pred_exp0"].values, [0.0, 0.3, 0.6])
-    obs = AZ.group(back, "observed_data")["y_exp0"]
+    obs = arviz_compat.group(back, "observed_data")["y_exp0"]
     assert obs.dims == ("time_exp0",) and np.array_equal(obs.values, np.arange(7.0))
     with pytest.raises(KeyError, match="no prior group"):
-        AZ.group(back, "prior")
+        arviz_compat.group(back, "prior")
     # The file itself, read without arviz: one netCDF (HDF5) group per arviz group, so a
     # posterior.nc from one arviz line opens on the other.
     with h5py.File(path, "r") as f:
@@ -64,9 +64,9 @@ def test_round_trip_and_file_layout(tmp_path):
 
 def test_summary_columns_and_values():
     rng = np.random.default_rng(7)
-    idata = AZ.from_groups(_groups(rng), dims=DIMS, coords=COORDS)
-    s = AZ.summary(idata, hdi_prob=0.94)
-    assert list(s.columns) == list(AZ.SUMMARY_COLUMNS)
+    idata = arviz_compat.from_groups(_groups(rng), dims=DIMS, coords=COORDS)
+    s = arviz_compat.summary(idata, hdi_prob=0.94)
+    assert list(s.columns) == list(arviz_compat.SUMMARY_COLUMNS)
     assert set(s.index) == {"a", "b"}
     a = s.loc["a"]
     # Independent normal draws, sd 0.5 around 2: the 94 % HDI is about ±1.88 sd, R-hat about
@@ -76,7 +76,7 @@ def test_summary_columns_and_values():
     assert abs(a["hdi_high"] - (2.0 + 1.88 * 0.5)) < 0.06
     assert abs(a["r_hat"] - 1.0) < 0.01
     assert 1500 < a["ess_bulk"] < 2600 and 1200 < a["ess_tail"] < 2600
-    only = AZ.summary(idata, var_names=["b"])
+    only = arviz_compat.summary(idata, var_names=["b"])
     assert list(only.index) == ["b"]
 
 
@@ -84,15 +84,15 @@ def test_summary_sees_chains_that_disagree():
     rng = np.random.default_rng(11)
     g = _groups(rng)
     g["posterior"]["a"][0] += 3.0  # one chain elsewhere
-    s = AZ.summary(AZ.from_groups(g, dims=DIMS, coords=COORDS))
+    s = arviz_compat.summary(arviz_compat.from_groups(g, dims=DIMS, coords=COORDS))
     assert s.loc["a", "r_hat"] > 1.5 and s.loc["b", "r_hat"] < 1.01
 
 
 def test_import_is_quiet():
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        AZ._AZ = None
-        AZ.arviz()
+        arviz_compat._AZ = None
+        arviz_compat.arviz()
     assert not [w for w in caught if "arviz" in str(w.filename) or "ArviZ" in str(w.message)]
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.cli import main
 from rotorbayes.diagnosis import diagnose
 from rotorbayes.model import Model
@@ -55,7 +55,7 @@ def _hidden(effect):
 
 
 def _floor_ratio(prob, res, val):
-    a = E.assess(res, E.quality(prob, res.x), E.quality(prob, res.x, [val]))
+    a = inference.assess(res, inference.quality(prob, res.x), inference.quality(prob, res.x, [val]))
     return max(c["ratio"] for c in a.channels if c["fitted"] and c["data"] == "validation")
 
 
@@ -64,8 +64,8 @@ def test_hidden_catalogue_effect_is_ranked_first_and_adding_it_reaches_the_floor
     truth, est, val = _hidden(effect)
     without = [effect] if effect.startswith("upper_") else []
     model = Model("coupled", without=without)
-    prob = E.Problem(model, [est])
-    res = E.fit_from_data(prob).result
+    prob = inference.Problem(model, [est])
+    res = inference.fit_from_data(prob).result
     d = diagnose(prob, res.x)
     assert not d.adequate
     top = d.ranking[0]
@@ -80,10 +80,10 @@ def test_hidden_catalogue_effect_is_ranked_first_and_adding_it_reaches_the_floor
         assert any(v == "torsion_rate" for m in d.maps for v, _ in m.ranking[:2])
     # Add it, start from the one-step estimate and the best grid point, refit.
     model2 = Model("coupled") if without else model.with_effects([effect])
-    prob2 = E.Problem(model2, [est], base=prob.params_for(res.x, 0))
+    prob2 = inference.Problem(model2, [est], base=prob.params_for(res.x, 0))
     start = dict(prob.params_for(res.x, 0), **true.nuisance,
                  **{k: v for k, v in true.step.items() if np.isfinite(v)})
-    res2 = E.fit(prob2, prob2.start_vector(start))
+    res2 = inference.fit(prob2, prob2.start_vector(start))
     assert res2.ssr < true.predicted_ssr * 1.01 + 1e-3 * d.ssr
     assert _floor_ratio(prob2, res2, val) < 1.5
     for n, v in HIDDEN[effect].items():
@@ -98,8 +98,8 @@ def test_an_offset_equivalent_to_the_free_parameters_is_said_to_be():
     p = resolve(COUPLED, config="coupled")
     p["u_offset"] = 0.08
     est = _data(p, "est", 5, effects=("voltage_offset",))
-    prob = E.Problem("coupled", [est])
-    res = E.fit_from_data(prob).result
+    prob = inference.Problem("coupled", [est])
+    res = inference.fit_from_data(prob).result
     d = diagnose(prob, res.x)
     # dTc_u absorbs a voltage offset exactly: the fit is at the floor, the diagnosis
     # says the offset cannot be told from the free parameters and quotes the registry.
@@ -112,8 +112,8 @@ def test_an_offset_equivalent_to_the_free_parameters_is_said_to_be():
 def test_controls_without_a_hidden_effect_are_adequate(config, params):
     p = resolve(params, config=config)
     est = _data(p, "est", 5, config=config)
-    prob = E.Problem(config, [est])
-    res = E.fit_from_data(prob).result
+    prob = inference.Problem(config, [est])
+    res = inference.fit_from_data(prob).result
     d = diagnose(prob, res.x)
     assert d.adequate, d.text()
     assert all(s.p_adjusted >= 0.01 for s in d.ranking)
@@ -124,16 +124,16 @@ def test_an_effect_outside_the_catalogue_is_named_by_the_torque_map():
     p = dict(resolve(COUPLED, config="coupled"), a_fric=0.3, phi_fric=0.5)
     est = _data(p, "est", 5, effects=(ANGLE,))
     val = _data(p, "val", 6, effects=(ANGLE,))
-    prob = E.Problem("coupled", [est])
-    res = E.fit_from_data(prob).result
+    prob = inference.Problem("coupled", [est])
+    res = inference.fit_from_data(prob).result
     d = diagnose(prob, res.x)
     assert not d.adequate and d.claimed is None
     lower = next(m for m in d.maps if m.disc == "l")
     assert lower.strongest[0] == "angle_1"
     assert "angle, once per revolution" in d.advice and "docs/effects.md" in d.advice
     # Adding the user effect brings the error to the floor.
-    prob2 = E.Problem(Model("coupled", [ANGLE]), [est], base=prob.params_for(res.x, 0))
-    res2 = E.fit(prob2, prob2.start_vector(prob.params_for(res.x, 0)))
+    prob2 = inference.Problem(Model("coupled", [ANGLE]), [est], base=prob.params_for(res.x, 0))
+    res2 = inference.fit(prob2, prob2.start_vector(prob.params_for(res.x, 0)))
     assert _floor_ratio(prob2, res2, val) < 1.5
     assert abs(res2.values["a_fric"] - 0.3) < 0.01
 
@@ -181,11 +181,11 @@ def test_data_noisier_than_the_encoder_set_their_own_floor():
         t, u = rb.signals.make_signal("est", 30.0, rate=1000.0, seed=5)
         sim = rb.simulate(p, u, dt=1e-3, config="coupled", effects=eff,
                           quantize_angles=True, noise_std=2e-4, seed=3)
-        prob = E.Problem("coupled", [sim.to_experiment("noisy")])
+        prob = inference.Problem("coupled", [sim.to_experiment("noisy")])
         floors, notes = prob.noise_floors()
         assert all(abs(f / 2e-4 - 1) < 0.1 for f in floors.values()), floors
-        res = E.fit_from_data(prob).result
-        a = E.assess(res, E.quality(prob, res.x))
+        res = inference.fit_from_data(prob).result
+        a = inference.assess(res, inference.quality(prob, res.x))
         d = diagnose(prob, res.x)
         assert any("jitters at" in w for w in a.warnings) and "noise floor" in a.verdict
         if not eff:
@@ -221,8 +221,8 @@ def _stribeck_missing_with_every_p(monkeypatch, p_adjusted: float):
 
     D = importlib.import_module("rotorbayes.diagnosis.diagnose")
     _, est, _ = _hidden("lower_stribeck")
-    prob = E.Problem("coupled", [est])
-    res = E.fit_from_data(prob).result
+    prob = inference.Problem("coupled", [est])
+    res = inference.fit_from_data(prob).result
     real = D.score_tests
     monkeypatch.setattr(D, "score_tests", lambda *a, **k: [
         dataclasses.replace(s, p_adjusted=p_adjusted) for s in real(*a, **k)])
@@ -255,7 +255,7 @@ def test_torque_map_bars_a_dependence_by_what_noise_alone_explains_and_tells_apa
     each explained its own part.  The bar is now what the same regression finds in the
     rounding noise alone (correlated like the map's), and two variables are 'together'
     only if they share most of their R²."""
-    from rotorbayes.diagnosis import torque as T
+    from rotorbayes.diagnosis import torque
 
     rng = np.random.default_rng(4)
     n = 20000
@@ -269,9 +269,9 @@ def test_torque_map_bars_a_dependence_by_what_noise_alone_explains_and_tells_apa
             feats = dict(feats, velocity=1.6 + np.sin(ang))
         M = 6e-4 * np.sin(ang) + 4e-4 * (feats["velocity"] - 1.6) + noise()
         R = noise() / np.sqrt(2)
-        ranking = T._rank(M, feats)
-        null, shared = T._null_and_shared(M, R, feats, ranking)
-        m = T.TorqueMap("l", np.zeros(n), M, feats, ranking, float(np.sqrt(np.mean(M**2))),
+        ranking = torque._rank(M, feats)
+        null, shared = torque._null_and_shared(M, R, feats, ranking)
+        m = torque.TorqueMap("l", np.zeros(n), M, feats, ranking, float(np.sqrt(np.mean(M**2))),
                         1.5e-4, null, shared)
         assert ranking[0][0] == "angle_1" and null["angle_1"] < 0.1 * 1.5e-4
         if not collinear:
@@ -282,7 +282,7 @@ def test_torque_map_bars_a_dependence_by_what_noise_alone_explains_and_tells_apa
             assert shared["velocity"] > 0.8 and not m.supports_words
             assert "move together" in m.words() or "hint" in m.words()
     # Without the null (old maps, hand-made ones) the per-sample noise stays the bar.
-    old = T.TorqueMap("l", np.zeros(3), np.zeros(3), {}, [("angle_1", 0.41)], 8.5e-4, 2.8e-4)
+    old = torque.TorqueMap("l", np.zeros(3), np.zeros(3), {}, [("angle_1", 0.41)], 8.5e-4, 2.8e-4)
     assert "a hint" in old.words()
 
 

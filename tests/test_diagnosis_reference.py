@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from refdata import SETS, make_experiment
 
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.diagnosis import diagnose
 from rotorbayes.diagnosis.compare import table, weigh_step
 from rotorbayes.diagnosis.diagnose import is_material
@@ -71,8 +71,8 @@ def control(config: str, hold: str, *, multi: bool = False, signal: str = "steps
     else:
         exps = [make_experiment(config, p, duration=CONTROL_S, hold=hold, seed=1,
                                 signal=signal)]
-    prob = E.Problem(config, exps)
-    res = E.fit_from_data(prob).result
+    prob = inference.Problem(config, exps)
+    res = inference.fit_from_data(prob).result
     return prob, res, diagnose(prob, res.x)
 
 
@@ -83,10 +83,10 @@ def hidden(effect: str):
     ex = make_experiment("coupled", p, duration=HIDDEN_S, hold=hold, seed=3)
     without = [effect] if effect in BASE else []
     model = Model("coupled", without=without)
-    prob = E.Problem(model, [ex])
+    prob = inference.Problem(model, [ex])
     # Two restarts, not six: the fit without the effect cannot reach the floor anyway,
     # and the restarts are most of the test's time.
-    res = E.fit_from_data(prob, restarts=RESTARTS).result
+    res = inference.fit_from_data(prob, restarts=RESTARTS).result
     return prob, res, diagnose(prob, res.x), model, ex
 
 
@@ -156,8 +156,8 @@ def test_the_phantom_is_reported_as_immaterial_never_as_inadequate(monkeypatch):
 
     ex = make_experiment("upper", _base("upper"), duration=CONTROL_S, hold="continuous",
                          seed=1)
-    prob = E.Problem("upper", [ex])
-    res = E.fit_from_data(prob).result
+    prob = inference.Problem("upper", [ex])
+    res = inference.fit_from_data(prob).result
     real = D.score_tests(prob, res.x)
     ratios = prob.rms_over_floor(prob.residuals(res.x))
     worst = max(ratios.values())
@@ -239,10 +239,10 @@ def test_hidden_effect_is_ranked_first_claimed_and_fixed(effect):
     assert d.claimed in (effect, *true.alike), d.text()
     # add it, start from the one-step estimate and the best grid point, refit
     model2 = Model("coupled") if effect in BASE else model.with_effects([effect])
-    prob2 = E.Problem(model2, [ex], base=prob.params_for(res.x, 0))
+    prob2 = inference.Problem(model2, [ex], base=prob.params_for(res.x, 0))
     start = dict(prob.params_for(res.x, 0), **true.nuisance,
                  **{k: v for k, v in true.step.items() if np.isfinite(v)})
-    res2 = E.fit(prob2, prob2.start_vector(start))
+    res2 = inference.fit(prob2, prob2.start_vector(start))
     ratios = prob2.rms_over_floor(prob2.residuals(res2.x))
     assert max(ratios.values()) < 1.5, ratios
     d2 = diagnose(prob2, res2.x)

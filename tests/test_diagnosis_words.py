@@ -22,7 +22,7 @@ import re
 import numpy as np
 import pytest
 
-from rotorbayes.diagnosis import torque as T
+from rotorbayes.diagnosis import torque
 from rotorbayes.diagnosis.diagnose import (
     EXPLAINS,
     FOREIGN,
@@ -38,7 +38,7 @@ from rotorbayes.model import CATALOGUE
 def _map(ranking, rms, noise, disc="l", features=(), null=None):
     z = np.zeros(3)
     feats = {k: z for k in features}
-    return T.TorqueMap(disc, z, z, feats, ranking, rms, noise, dict(null or {}))
+    return torque.TorqueMap(disc, z, z, feats, ranking, rms, noise, dict(null or {}))
 
 
 def _score(effect, p_adj, *, equivalent=False):
@@ -86,7 +86,7 @@ def test_no_missing_torque_only_within_the_noise():
     w = _map([("velocity", 0.06)], 0.0004, 0.00049).words()
     assert "no missing torque" in w and "0.82x the map's noise" in w, w
     # at the threshold the ratio is written with the digits that put it on its side
-    assert T.WITHIN_NOISE == 1.0
+    assert torque.WITHIN_NOISE == 1.0
     w = _map([("velocity", 0.06)], 1.004 * 0.00049, 0.00049).words()
     assert "lacks a torque 1.004x the map's noise" in w, w
     w = _map([("velocity", 0.06)], 0.00049, 0.00049).words()
@@ -104,11 +104,11 @@ def test_a_dependence_under_three_times_the_noise_is_a_hint_beside_a_missing_tor
 
 
 def test_apart_never_writes_two_different_numbers_alike():
-    assert T.apart(17.09, 17.2) == ("17.1", "17.2")
-    assert T.apart(17.09, 17.1) == ("17.09", "17.1")
-    a, b = T.apart(1.2345678, 1.2345679)
+    assert torque.apart(17.09, 17.2) == ("17.1", "17.2")
+    assert torque.apart(17.09, 17.1) == ("17.09", "17.1")
+    a, b = torque.apart(1.2345678, 1.2345679)
     assert float(a) < float(b)
-    assert T.apart(3.0, 3.0) == ("3", "3")
+    assert torque.apart(3.0, 3.0) == ("3", "3")
 
 
 # --------------------------------------------------------------------------------------
@@ -117,8 +117,8 @@ def test_apart_never_writes_two_different_numbers_alike():
 def test_the_map_to_catalogue_table_is_consistent():
     """One table says which catalogue effects test each named dependence; each of them
     produces that dependence (EXPLAINS), and no effect is listed for angle or time."""
-    for var, (by_disc, otherwise) in T.TESTED_BY.items():
-        assert var in T.WORDS and var not in FOREIGN and otherwise
+    for var, (by_disc, otherwise) in torque.TESTED_BY.items():
+        assert var in torque.WORDS and var not in FOREIGN and otherwise
         for disc, effects in by_disc.items():
             assert disc in ("l", "u")
             for e in effects:
@@ -234,16 +234,16 @@ def assert_words_agree(d):
         assert md["words"] == w and w in text
         ratio = m.rms / m.noise_rms
         if "no missing torque" in w:
-            assert ratio <= T.WITHIN_NOISE, w
+            assert ratio <= torque.WITHIN_NOISE, w
         else:
-            assert ratio > T.WITHIN_NOISE and "lacks a torque" in w, w
+            assert ratio > torque.WITHIN_NOISE and "lacks a torque" in w, w
         quoted = float(_RATIO.search(w).group(1))
         assert quoted == pytest.approx(ratio, rel=0.05), w
         if m.supports_words:
             var = m.strongest[0]
-            assert T.WORDS[var][0] in w
+            assert torque.WORDS[var][0] in w
             family = [s for s in d.ranking
-                      if s.effect in T.TESTED_BY.get(var, ({}, ""))[0].get(m.disc, ())]
+                      if s.effect in torque.TESTED_BY.get(var, ({}, ""))[0].get(m.disc, ())]
             named = d.claimed or d.candidate
             if family and not any(j[s.effect]["claimable"] or s.effect == named
                                   for s in family):
@@ -275,14 +275,14 @@ def _string_damping_hidden(k: int, duration: float, seed: int):
     fitted by a model without it, and diagnosed."""
     from refdata import SETS, make_experiment
 
-    from rotorbayes import inference as E
+    from rotorbayes import inference
     from rotorbayes.diagnosis import diagnose
 
     p = dict(SETS["coupled"][k], c_alpha=0.003)
     ex = make_experiment("coupled", p, duration=duration, signal="steps",
                          hold="continuous", seed=seed)
-    prob = E.Problem("coupled", [ex])
-    res = E.fit_from_data(prob, restarts=2).result
+    prob = inference.Problem("coupled", [ex])
+    res = inference.fit_from_data(prob, restarts=2).result
     return diagnose(prob, res.x)
 
 

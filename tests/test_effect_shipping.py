@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes.model import effects as EF
+from rotorbayes import inference
+from rotorbayes.model import effects
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "angle_friction.py"
 
@@ -25,12 +25,12 @@ sys.stdout.buffer.write(pickle.dumps(prob.residuals(x)))
 """
 
 
-def _problem(path: Path) -> E.Problem:
+def _problem(path: Path) -> inference.Problem:
     ex = rb.load_example("coupled_est")
     n = 401
     short = rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n],
                           theta_l=ex.theta_l[:n], name="coupled 2 s", path=ex.path)
-    return E.Problem(rb.Model("coupled", [f"{path}:angle_friction"]), [short])
+    return inference.Problem(rb.Model("coupled", [f"{path}:angle_friction"]), [short])
 
 
 def test_a_worker_without_the_file_runs_the_shipped_code(tmp_path):
@@ -51,10 +51,10 @@ def test_a_worker_without_the_file_runs_the_shipped_code(tmp_path):
 def test_altered_code_is_refused(tmp_path):
     eff_file = tmp_path / "other_effects.py"
     shutil.copy(EXAMPLE, eff_file)
-    eff = EF.load_user_effect(f"{eff_file}:angle_friction")
+    eff = effects.load_user_effect(f"{eff_file}:angle_friction")
     fn, (path, name, code, sha) = eff.__reduce_ex__(4)
-    assert sha == EF.file_sha256(eff_file)
-    with pytest.raises(EF.EffectError, match="arrived altered"):
+    assert sha == effects.file_sha256(eff_file)
+    with pytest.raises(effects.EffectError, match="arrived altered"):
         fn(path, name, code + b"\n# changed\n", sha)
     # The same code arriving again in this process: the effect already loaded.
     assert fn(path, name, code, sha) is eff

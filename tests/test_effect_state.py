@@ -144,15 +144,15 @@ def test_a_state_reset_at_stick_matches_the_reference():
 def test_a_stateful_effect_is_fitted(tmp_path):
     """Recovery (data made by the kernel itself, quantised and noisy): a fit with the
     example frees its parameters and lands near them, at the floor."""
-    from rotorbayes import inference as E
+    from rotorbayes import inference
 
     t, u = rb.signals.estimation_signal(20.0, seed=4)
     truth = dict(thesis_set("4.3", "P_ref"), k_warm=0.0012, tau_warm=1.5)
     ex = rb.simulate(truth, u, dt=1e-3, config="brake", effects=[WARM],
                      quantize_angles=True).to_experiment("warm")
-    prob = E.Problem(Model("brake").with_effects([WARM]), [ex], base=truth)
+    prob = inference.Problem(Model("brake").with_effects([WARM]), [ex], base=truth)
     start = dict(truth, k_warm=0.0008, tau_warm=3.0)
-    res = E.fit(prob, prob.start_vector(start))
+    res = inference.fit(prob, prob.start_vector(start))
     got = prob.params_for(res.x, 0)
     assert abs(got["k_warm"] / truth["k_warm"] - 1) < 0.05, got
     assert abs(got["tau_warm"] / truth["tau_warm"] - 1) < 0.1, got

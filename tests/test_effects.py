@@ -16,7 +16,7 @@ import pytest
 from reference import reference_simulate
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.cli import main
 from rotorbayes.data import LOWER_COUNTS_PER_REV
 from rotorbayes.model import CATALOGUE, Model
@@ -54,20 +54,20 @@ def test_every_catalogue_effect_declares_its_parameters():
 
 def test_add_frees_exactly_the_effect_parameters():
     ex = rb.load_example("coupled_est")
-    base = E.Problem("coupled", [ex])
+    base = inference.Problem("coupled", [ex])
     for name in ("string_damping", "input_delay", "lower_stribeck", "lower_asymmetric_coulomb"):
-        prob = E.Problem("coupled", [ex], effects=[name])
+        prob = inference.Problem("coupled", [ex], effects=[name])
         assert prob.names == base.names + list(CATALOGUE[name].names)
-    user = E.Problem("coupled", [ex], effects=[USER])
+    user = inference.Problem("coupled", [ex], effects=[USER])
     assert user.names == base.names + ["a_fric", "phi_fric"]
 
 
 def test_parameters_of_an_effect_that_is_off_are_refused():
     ex = rb.load_example("coupled_est")
     with pytest.raises(rb.ParameterError, match="string_damping.*is off"):
-        E.Problem("coupled", [ex], free=["J_l", "c_alpha"])
+        inference.Problem("coupled", [ex], free=["J_l", "c_alpha"])
     with pytest.raises(rb.ParameterError, match="--add lower_asymmetric_coulomb"):
-        E.Problem("coupled", [ex], base=thesis_set("5.3", "P"))
+        inference.Problem("coupled", [ex], base=thesis_set("5.3", "P"))
     u = np.zeros(100)
     with pytest.raises(rb.ParameterError, match="lower_stribeck"):
         rb.simulate("thesis:4.3:P_ref", u, dt=1e-3, config="coupled")
@@ -127,7 +127,7 @@ def test_status_travels_on_the_result():
         dict(thesis_set("4.2", "P_ref"), J_l=-1.0), raise_on_failure=False
     )
     assert not s.ok and "invalid parameters" in s.status_message
-    prob = E.Problem("coupled", [rb.load_example("coupled_est")])
+    prob = inference.Problem("coupled", [rb.load_example("coupled_est")])
     x = prob.x_from(dict(prob.base, J_l=-0.01))
     ev = prob.evaluate(x)
     assert not ev.ok and np.all(np.isnan(ev.residuals)) and "invalid" in ev.reasons()[0]
@@ -236,12 +236,12 @@ def test_smooth_in_every_effect_parameter(brake_scan, effect, name, value):
 # ---------------------------------------------------------------------- Jacobian
 def test_jacobian_of_effects_that_are_off():
     ex = rb.load_example("coupled_est")
-    prob = E.Problem("coupled", [ex], base=thesis_set("5.2", "P"))
+    prob = inference.Problem("coupled", [ex], base=thesis_set("5.2", "P"))
     x = prob.x_from(prob.base)
     J, steps = prob.jacobian(x, ["c_alpha", "t_delay", "Ts_l", "ws_l", "J_l"])
     assert steps[0] > 0 and steps[1] > 0  # one-sided, inwards from the null on a bound
     # Against a direct difference with the effect on.
-    on = E.Problem("coupled", [ex], effects=["string_damping"], base=thesis_set("5.2", "P"))
+    on = inference.Problem("coupled", [ex], effects=["string_damping"], base=thesis_set("5.2", "P"))
     x_on = on.x_from(on.base)
     h = 1e-5
     r0 = on.residuals(x_on)

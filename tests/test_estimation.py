@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.model.parameters import ParameterError, thesis_set
 
 
@@ -27,14 +27,14 @@ LOWER4 = ["J_l", "k_alpha", "Tc_l", "b_l"]
 def test_default_free_set_is_what_the_data_determine(coupled_est):
     # theta_u measured: the motor and upper friction are fitted too, from both channels;
     # J_u stays fixed (eq. 5.4) and sets the scale.
-    prob = E.Problem("coupled", [coupled_est])
+    prob = inference.Problem("coupled", [coupled_est])
     assert set(prob.names) == {"k_m", "Tc_u", "dTc_u", "b_u", "db_u", *LOWER4}
     assert prob.channels == ("theta_u", "theta_l")
-    brake = E.Problem("brake", [rb.load_example("brake_est")])
+    brake = inference.Problem("brake", [rb.load_example("brake_est")])
     assert set(brake.names) == {"k_m", "Tc_u", "dTc_u", "b_u", "db_u", *LOWER4, "db_l",
                                 "Ts_l", "ws_l", "delta_l"}
     # With the measured theta_u as input only the lower disc is left, fitted on theta_l.
-    pres = E.Problem("coupled", [coupled_est], prescribed_upper=True)
+    pres = inference.Problem("coupled", [coupled_est], prescribed_upper=True)
     assert pres.names == LOWER4 and pres.channels == ("theta_l",)
 
 
@@ -46,9 +46,9 @@ def coupled_est():
 def test_fit_from_thesis_p0_recovers_the_truth(coupled_est):
     truth = thesis_set("5.2", "P")
     # The thesis's coupled step: the lower disc's four, upper disc fixed, theta_l fitted.
-    prob = E.Problem("coupled", [coupled_est], base=truth, free=LOWER4)
+    prob = inference.Problem("coupled", [coupled_est], base=truth, free=LOWER4)
     assert prob.channels == ("theta_l",)
-    res = E.fit(prob, thesis_set("4.2", "P0"))  # 20-40 % away from the truth
+    res = inference.fit(prob, thesis_set("4.2", "P0"))  # 20-40 % away from the truth
     assert res.success, res.message
     for n, v in res.values.items():
         assert abs(v / truth[n] - 1) < 1e-3, (n, v, truth[n])
@@ -65,10 +65,10 @@ def test_fit_from_thesis_p0_recovers_the_truth(coupled_est):
 def test_quality_reports_channels_and_validation(coupled_est):
     val = rb.load_example("coupled_val")
     truth = thesis_set("5.2", "P")
-    prob = E.Problem("coupled", [coupled_est], base=truth)
+    prob = inference.Problem("coupled", [coupled_est], base=truth)
     x = prob.x_from(truth)
-    est_rows = E.quality(prob, x)
-    val_rows = E.quality(prob, x, [val])
+    est_rows = inference.quality(prob, x)
+    val_rows = inference.quality(prob, x, [val])
     for rows in (est_rows, val_rows):
         ch = rows[0]["channels"]
         assert set(ch) == {"theta_u", "theta_l", "alpha"}
@@ -82,24 +82,25 @@ def test_quality_reports_channels_and_validation(coupled_est):
 def test_several_experiments_with_alpha0_each():
     reps = [_short(rb.load_example(f"brake_rep{i}"), 15.0) for i in range(1, 5)]
     truth = thesis_set("5.4", "P")
-    prob = E.Problem("brake", reps, free=["Ts_l", "alpha0"], base=truth)
+    prob = inference.Problem("brake", reps, free=["Ts_l", "alpha0"], base=truth)
     assert prob.names == ["Ts_l", "alpha0[0]", "alpha0[1]", "alpha0[2]", "alpha0[3]"]
     start = dict(truth, Ts_l=0.26, alpha0=0.0)
-    res = E.fit(prob, start)
+    res = inference.fit(prob, start)
     got = [res.values[f"alpha0[{i}]"] for i in range(4)]
     np.testing.assert_allclose(got, [0.0, 0.9, -1.4, 2.1], atol=2e-3)
     assert abs(res.values["Ts_l"] / truth["Ts_l"] - 1) < 1e-3
     # One shared alpha0 (the thesis's averaged experiment) fits much worse.
-    shared = E.fit(E.Problem("brake", reps, free=["Ts_l"], base=dict(truth, alpha0=0.0)),
+    shared = inference.fit(inference.Problem("brake", reps, free=["Ts_l"], base=dict(truth,
+                                                                                     alpha0=0.0)),
                    {"Ts_l": 0.26})
     assert shared.ssr > 100 * res.ssr
 
 
 def test_lower_disc_with_measured_upper_angle_as_input(coupled_est):
     truth = thesis_set("5.2", "P")
-    prob = E.Problem("coupled", [_short(coupled_est, 15.0)], base=truth,
+    prob = inference.Problem("coupled", [_short(coupled_est, 15.0)], base=truth,
                      prescribed_upper=True)
-    res = E.fit(prob, thesis_set("5.2", "P0"))
+    res = inference.fit(prob, thesis_set("5.2", "P0"))
     v = res.values
     # With theta_u prescribed the lower equation is exactly invariant under scaling
     # J_l, k_alpha, Tc_l, b_l together: only the ratios are identified ...
@@ -112,7 +113,7 @@ def test_lower_disc_with_measured_upper_angle_as_input(coupled_est):
 
 
 def test_channel_weights_and_both_channels(coupled_est):
-    prob = E.Problem("coupled", [coupled_est], channels=("theta_l", "theta_u"),
+    prob = inference.Problem("coupled", [coupled_est], channels=("theta_l", "theta_u"),
                      weights={"theta_u": 0.5}, base=thesis_set("5.2", "P"))
     assert prob.n_residuals == 2 * coupled_est.n
     r = prob.residuals(prob.x_from(prob.base))
@@ -126,23 +127,23 @@ def test_channel_weights_and_both_channels(coupled_est):
 def test_clear_errors(coupled_est):
     upper = rb.load_example("upper_est")
     with pytest.raises(ParameterError, match="valid names are: k_m"):
-        E.Problem("coupled", [coupled_est], free=["J_lower"])
+        inference.Problem("coupled", [coupled_est], free=["J_lower"])
     with pytest.raises(ValueError, match="no theta_l column"):
-        E.Problem("coupled", [upper])
+        inference.Problem("coupled", [upper])
     with pytest.raises(ValueError, match="has a theta_l column"):
-        E.Problem("upper", [coupled_est])
+        inference.Problem("upper", [coupled_est])
     with pytest.raises(ParameterError, match="both fixed and free"):
-        E.Problem("coupled", [coupled_est], free=["J_l", "b_l"], fixed=["b_l"])
-    prob = E.Problem("coupled", [coupled_est])
+        inference.Problem("coupled", [coupled_est], free=["J_l", "b_l"], fixed=["b_l"])
+    prob = inference.Problem("coupled", [coupled_est])
     with pytest.raises(ParameterError, match="outside the bounds"):
-        E.fit(prob, {"J_l": 5.0})
+        inference.fit(prob, {"J_l": 5.0})
     with pytest.raises(ParameterError, match="does not enter the upper configuration"):
-        E.Problem("upper", [upper], free=["k_m", "J_l"])
+        inference.Problem("upper", [upper], free=["k_m", "J_l"])
 
 
 def test_non_convergence_is_reported_and_results_kept(coupled_est):
-    prob = E.Problem("coupled", [_short(coupled_est, 10.0)], base=thesis_set("5.2", "P"))
-    res = E.fit(prob, thesis_set("4.2", "P0"), max_nfev=2)
+    prob = inference.Problem("coupled", [_short(coupled_est, 10.0)], base=thesis_set("5.2", "P"))
+    res = inference.fit(prob, thesis_set("4.2", "P0"), max_nfev=2)
     assert not res.success
     assert "maximum number of evaluations" in res.message
     assert np.all(np.isfinite(res.x)) and res.ssr > 0
@@ -152,9 +153,9 @@ def test_non_convergence_is_reported_and_results_kept(coupled_est):
 def test_multistart_finds_local_minima_in_the_brake_step():
     """Thesis §4.3: far from P_ref the brake fit stops elsewhere; multistart shows it."""
     ex = _short(rb.load_example("brake_est"), 20.0)
-    prob = E.Problem("brake", [ex], base=thesis_set("5.4", "P"),
+    prob = inference.Problem("brake", [ex], base=thesis_set("5.4", "P"),
                      free=["Tc_l", "b_l", "db_l", "Ts_l", "ws_l", "delta_l"])
-    ms = E.multistart(prob, 8, seed=2, progress=False, max_nfev=40)
+    ms = inference.multistart(prob, 8, seed=2, progress=False, max_nfev=40)
     assert len(ms.ssr) + len(ms.failed) == 8 and len(ms.ssr) >= 5
     best = ms.best
     truth = prob.x_from(thesis_set("5.4", "P"))
@@ -171,7 +172,7 @@ def test_describe_spread_names_a_scaling_ridge():
     lam = np.exp(rng.normal(0, 0.15, 20))
     ends = np.c_[0.04 * lam, 0.08 * lam * (1 + 1e-4 * rng.normal(size=20)), 0.017 * lam,
                  np.full(20, 4.3)]
-    text = E.describe_spread(["J_l", "k_alpha", "Tc_l", "k_m"], ends, np.full(20, 1.0))
+    text = inference.describe_spread(["J_l", "k_alpha", "Tc_l", "k_m"], ends, np.full(20, 1.0))
     assert "scaling J_l and k_alpha and Tc_l by a common factor" in text
     assert "Well determined: k_m" in text
     assert "k_alpha/J_l ±0.0 %" in text

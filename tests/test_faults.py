@@ -176,9 +176,9 @@ def _sigint_on_call(monkeypatch, module, name, call=1):
 
 def test_ctrl_c_while_a_finished_fit_writes_its_figures_keeps_the_fit(proj, tmp_path,
                                                                        monkeypatch, capsys):
-    import rotorbayes.commands.fit as C
+    from rotorbayes.commands import fit as commands_fit
 
-    _sigint_on_call(monkeypatch, C, "save_figure_atomic")
+    _sigint_on_call(monkeypatch, commands_fit, "save_figure_atomic")
     out = tmp_path / "f"
     assert main(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out",
                  str(out)]) == EXIT.INTERRUPTED
@@ -196,7 +196,7 @@ def test_a_ctrl_c_that_compiled_code_turns_into_another_error_is_reported_as_the
     ``TypeError: _get_jit_address() missing ...`` (a traceback in 1 of 6 stops in CI).  After
     a Ctrl-C any exception is the stop; without one the same exception is a bug and shows."""
     from rotorbayes import coldstart
-    from rotorbayes.inference import uncertainty as U
+    from rotorbayes.inference import uncertainty
 
     def mangled(*args, **kw):
         if ctrl_c:
@@ -207,7 +207,7 @@ def test_a_ctrl_c_that_compiled_code_turns_into_another_error_is_reported_as_the
                 pass
         raise TypeError("_get_jit_address() missing 1 required positional argument: 'sig'")
 
-    monkeypatch.setattr(U, "hold_shift", mangled)
+    monkeypatch.setattr(uncertainty, "hold_shift", mangled)
     old = signal.signal(signal.SIGINT, coldstart._interrupt)  # the command's own handler
     try:
         args = ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out",
@@ -229,10 +229,10 @@ def test_ctrl_c_in_sample_stops_between_steps_and_resume_finishes(proj, tmp_path
                                                                   monkeypatch, capfd):
     """SIGINT arrives inside a log-posterior evaluation (where emcee would print its
     traceback and the walkers' parameters): the step finishes, is saved, and the run stops."""
-    from rotorbayes.inference import likelihood as L
+    from rotorbayes.inference import likelihood
 
     out = tmp_path / "S"
-    _sigint_on_call(monkeypatch, L.LogPosterior, "__call__", call=30)
+    _sigint_on_call(monkeypatch, likelihood.LogPosterior, "__call__", call=30)
     assert main(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "40",
                  "--ensembles", "1", "--max-draws", "5", "--quiet", "--out", str(out)]) == 130
     cap = capfd.readouterr()
@@ -243,9 +243,9 @@ def test_ctrl_c_in_sample_stops_between_steps_and_resume_finishes(proj, tmp_path
     assert listing(out) == ["chain.h5", "settings.json"]
     # Ctrl-C again, now while the finished chains' figures are written.
     monkeypatch.undo()
-    import rotorbayes.commands.sample as C
+    from rotorbayes.commands import sample
 
-    _sigint_on_call(monkeypatch, C, "_png")  # the first figure (corner.png) is made
+    _sigint_on_call(monkeypatch, sample, "_png")  # the first figure (corner.png) is made
     assert main(["sample", str(out), "--resume", "--quiet"]) == 130
     err = capfd.readouterr().err
     assert "the chains are complete" in err and "written: posterior.nc" in err
@@ -411,7 +411,7 @@ def _fill(disk: Path, leave_kib: int) -> Path:
 
 def test_a_full_disk_is_a_clean_message_and_exit_code_3(proj, tmp_path, monkeypatch, capsys):
     """A real tmpfs mounted by the test."""
-    import rotorbayes.outputs as O
+    from rotorbayes import outputs
 
     with small_disk(tmp_path / "disk", 400) as disk:
         _fill(disk, 60)
@@ -423,7 +423,7 @@ def test_a_full_disk_is_a_clean_message_and_exit_code_3(proj, tmp_path, monkeypa
         assert "nothing was written" in capsys.readouterr().err
         # Past the check (as when another program fills the disk meanwhile): ENOSPC while
         # the figures are written -- exit code 3, and no half-written folder.
-        monkeypatch.setattr(O, "MIN_FREE_BYTES", 0)
+        monkeypatch.setattr(outputs, "MIN_FREE_BYTES", 0)
         assert main(["fit", "--model", "upper", data, "--out", str(disk / "f")]) == 3
         err = capsys.readouterr().err
         assert "disk is full" in err and "Traceback" not in err
@@ -458,9 +458,9 @@ def test_without_preallocation_a_filling_disk_stops_sampling_between_steps(
     watches the free space and stops cleanly, every finished step kept, exit code 3."""
     import threading
 
-    from rotorbayes.inference import sampling as S
+    from rotorbayes.inference import sampling
 
-    monkeypatch.setattr(S, "preallocate", lambda path, nbytes: False)
+    monkeypatch.setattr(sampling, "preallocate", lambda path, nbytes: False)
     with small_disk(tmp_path / "disk", 24_000) as disk:
         out = disk / "S"
 

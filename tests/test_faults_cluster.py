@@ -40,10 +40,10 @@ import pytest
 import rotorbayes as rb
 from rotorbayes import exitcodes as EXIT
 from rotorbayes.cli import main
-from rotorbayes.inference import parallel as P
+from rotorbayes.inference import parallel
 
-ENV = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1", P.TIMEOUT_ENV: "3"}
-ENV.pop(P.SCHEDULER_ENV, None)
+ENV = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1", parallel.TIMEOUT_ENV: "3"}
+ENV.pop(parallel.SCHEDULER_ENV, None)
 #: Seconds a refused scheduler may take, start-up of the interpreter and rotorbayes included
 #: (the wait is 3 s; a loaded 2-core machine needs the rest).
 BOUND = 60.0
@@ -86,7 +86,7 @@ class FakeServer:
                 conn.close()
                 return
             elif self.kind == "handshake":
-                conn.sendall(P._handshake_bytes())
+                conn.sendall(parallel._handshake_bytes())
             self.stop.wait(120)
 
     def close(self) -> None:
@@ -162,8 +162,8 @@ def listing(folder: Path) -> list[str]:
 @pytest.mark.parametrize("server", ["http", "silent", "closer"], indirect=True)
 def test_the_probe_refuses_what_does_not_speak_dask_within_the_wait(server):
     t0 = time.perf_counter()
-    with pytest.raises(P.ClusterError) as e:
-        P.probe_scheduler(server.address, "--scheduler", 2.0)
+    with pytest.raises(parallel.ClusterError) as e:
+        parallel.probe_scheduler(server.address, "--scheduler", 2.0)
     took = time.perf_counter() - t0
     msg = str(e.value)
     assert server.address in msg and "(from --scheduler)" in msg
@@ -177,15 +177,15 @@ def test_the_probe_refuses_what_does_not_speak_dask_within_the_wait(server):
 def test_the_probe_waits_for_a_closed_port_then_names_it():
     address = closed_port()
     t0 = time.perf_counter()
-    with pytest.raises(P.ClusterError, match="no Dask scheduler answered at .* within 1 s"):
-        P.probe_scheduler(address, P.SCHEDULER_ENV, 1.0)
+    with pytest.raises(parallel.ClusterError, match="no Dask scheduler answered at .* within 1 s"):
+        parallel.probe_scheduler(address, parallel.SCHEDULER_ENV, 1.0)
     assert 0.9 < time.perf_counter() - t0 < 6.0
 
 
 def test_the_probe_takes_a_peer_that_speaks_the_handshake():
     s = FakeServer("handshake")
     try:
-        P.probe_scheduler(s.address, "--scheduler", 5.0)  # no error: it answered as Dask
+        parallel.probe_scheduler(s.address, "--scheduler", 5.0)  # no error: it answered as Dask
     finally:
         s.close()
 
@@ -212,11 +212,11 @@ def test_multistart_on_a_scheduler_that_is_not_one_ends_with_exit_3(kind, tmp_pa
 def test_sample_on_a_scheduler_from_the_environment_ends_with_exit_3(server, proj, tmp_path):
     t0 = time.perf_counter()
     p = cli(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "20", "--ensembles",
-             "2", "--quiet", "--out", "S"], tmp_path, env={P.SCHEDULER_ENV: server.address})
+             "2", "--quiet", "--out", "S"], tmp_path, env={parallel.SCHEDULER_ENV: server.address})
     _, err = p.communicate(timeout=BOUND + 60)
     took = time.perf_counter() - t0
     assert_clean_cluster_refusal(p.returncode, err, server.address)
-    assert f"(from {P.SCHEDULER_ENV})" in err and took < BOUND, (took, err)
+    assert f"(from {parallel.SCHEDULER_ENV})" in err and took < BOUND, (took, err)
     assert listing(tmp_path) == []  # the folder of a run that never began is not left
 
 
@@ -260,7 +260,7 @@ def test_a_dask_peer_that_never_takes_the_client_is_exit_3_not_a_hang(tmp_path):
             sys.exit(3)
     """))
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, str(script)], env={**ENV, P.TIMEOUT_ENV: "2"},
+    p = subprocess.run([sys.executable, str(script)], env={**ENV, parallel.TIMEOUT_ENV: "2"},
                        capture_output=True, text=True, timeout=BOUND + 60)
     assert p.returncode == 3, p.stderr
     assert "speaks Dask's protocol but did not take this client" in p.stderr
@@ -299,16 +299,16 @@ def test_the_reserve_holds_the_summary_when_the_disk_fills_at_that_moment(
         proj, tmp_path, monkeypatch, capsys):
     """The red-team case: the disk fills to the last byte after the last step, as the
     summary begins: every file is still written (exit code 0), from the reserve."""
-    from rotorbayes.inference import posterior as PO
+    from rotorbayes.inference import posterior
 
-    made = PO.inference_data
+    made = posterior.inference_data
 
     def filling(*args, **kw):
         fill(disk)
         assert os.statvfs(disk).f_bavail == 0
         return made(*args, **kw)
 
-    monkeypatch.setattr(PO, "inference_data", filling)
+    monkeypatch.setattr(posterior, "inference_data", filling)
     with small_disk(tmp_path / "disk", 16_000) as disk:
         out = disk / "S"
         code = main(["sample", str(proj / "fit"), *SAMPLE, "--out", str(out)])
@@ -317,23 +317,23 @@ def test_the_reserve_holds_the_summary_when_the_disk_fills_at_that_moment(
         assert listing(out) == sorted(["chain.h5", "settings.json", "log.txt", "posterior.nc",
                                        "summary.md", "summary.csv", "corner.png", "trace.png",
                                        "predictive.png", "correlation.png", "warnings.txt"])
-        from rotorbayes.inference import arviz_compat as AZ
+        from rotorbayes.inference import arviz_compat
 
-        AZ.load(out / "posterior.nc")
+        arviz_compat.load(out / "posterior.nc")
 
 
 def test_a_write_that_fails_with_enospc_says_what_was_kept_and_resume_writes_the_rest(
         proj, tmp_path, monkeypatch, capsys):
-    from rotorbayes.inference import sampling as S
+    from rotorbayes.inference import sampling
 
-    real = S.SummaryReserve.write
+    real = sampling.SummaryReserve.write
 
     def failing(self, name, data):
         if name == "corner.png":
             raise OSError(errno.ENOSPC, "No space left on device", str(self.folder / name))
         return real(self, name, data)
 
-    monkeypatch.setattr(S.SummaryReserve, "write", failing)
+    monkeypatch.setattr(sampling.SummaryReserve, "write", failing)
     out = tmp_path / "S"
     assert main(["sample", str(proj / "fit"), *SAMPLE, "--out", str(out)]) == EXIT.ENVIRONMENT
     err = capsys.readouterr().err
@@ -407,11 +407,12 @@ def test_identify_refuses_a_damaged_posterior_with_its_name(proj, post, tmp_path
         nc.unlink()
         nc.mkdir()
     else:
-        from rotorbayes.inference import arviz_compat as AZ
+        from rotorbayes.inference import arviz_compat
 
-        idata = AZ.load(nc)
-        renamed = AZ.group(idata, "posterior").rename({"k_m": "k_x"})
-        AZ.save(AZ.from_groups({"posterior": {v: renamed[v].values for v in renamed}}), nc)
+        idata = arviz_compat.load(nc)
+        renamed = arviz_compat.group(idata, "posterior").rename({"k_m": "k_x"})
+        groups = {"posterior": {v: renamed[v].values for v in renamed}}
+        arviz_compat.save(arviz_compat.from_groups(groups), nc)
     code = main(["identify", str(proj / "fit"), "--posterior", str(s), "--out",
                  str(tmp_path / "i")])
     err = capsys.readouterr().err
@@ -426,12 +427,12 @@ def test_identify_refuses_a_damaged_posterior_with_its_name(proj, post, tmp_path
 
 
 def test_a_posterior_written_in_memory_reads_back_on_this_line(post):
-    from rotorbayes.inference import arviz_compat as AZ
+    from rotorbayes.inference import arviz_compat
 
-    idata = AZ.load(post / "posterior.nc")
+    idata = arviz_compat.load(post / "posterior.nc")
     assert {"posterior", "sample_stats", "log_likelihood", "observed_data",
-            "constant_data"} <= set(AZ.group_names(idata))
-    assert bytes(AZ.to_bytes(idata))[:8] == b"\x89HDF\r\n\x1a\n"
+            "constant_data"} <= set(arviz_compat.group_names(idata))
+    assert bytes(arviz_compat.to_bytes(idata))[:8] == b"\x89HDF\r\n\x1a\n"
 
 
 # ------------------------------------------------------ 4. effect files of others' folders

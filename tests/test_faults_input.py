@@ -26,7 +26,7 @@ import pytest
 
 import rotorbayes as rb
 from rotorbayes import exitcodes as EXIT
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.cli import main
 from rotorbayes.model.parameters import thesis_set
 from rotorbayes.tomlfile import MAX_NESTING, nesting_depth
@@ -330,22 +330,22 @@ def test_a_changed_user_effect_file_needs_trust_for_simulate_and_multistart(
 def test_problem_names_its_bad_arguments(proj):
     ex = rb.load_experiment(proj / "data" / "upper.csv")
     with pytest.raises(ValueError, match="experiments is None.*load_experiment"):
-        E.Problem("coupled", None)
+        inference.Problem("coupled", None)
     with pytest.raises(ValueError, match=r"experiments\[0\] is the path 'a.csv'.*"
                                          r"rotorbayes.load_experiment\('a.csv'\)"):
-        E.Problem("coupled", ["a.csv"])
+        inference.Problem("coupled", ["a.csv"])
     with pytest.raises(ValueError, match="experiments is the path"):
-        E.Problem("upper", str(proj / "data" / "upper.csv"))
+        inference.Problem("upper", str(proj / "data" / "upper.csv"))
     with pytest.raises(ValueError, match=r"free = 'k_m': give a list of names, e.g. "
                                          r"free=\['k_m'\]"):
-        E.Problem("upper", [ex], free="k_m")
+        inference.Problem("upper", [ex], free="k_m")
     with pytest.raises(ValueError, match="base: k_m = 'big' is not a number"):
-        E.Problem("upper", [ex], base={"k_m": "big"})
+        inference.Problem("upper", [ex], base={"k_m": "big"})
     with pytest.raises(ValueError, match="weight of channel theta_u is 1e\\+308"):
-        E.Problem("upper", [ex], weights={"theta_u": 1e308})
+        inference.Problem("upper", [ex], weights={"theta_u": 1e308})
     with pytest.raises(ValueError, match="step 1e-12 s is shorter"):
-        E.Problem("upper", [ex], step=1e-12)
-    prob = E.Problem("upper", [ex])
+        inference.Problem("upper", [ex], step=1e-12)
+    prob = inference.Problem("upper", [ex])
     x = prob.x_from(prob.base)
     for bad in (x[:2], np.r_[x, 1.0], x[:, None]):
         for call in (prob.residuals, prob.evaluate, prob.simulate):
@@ -354,7 +354,7 @@ def test_problem_names_its_bad_arguments(proj):
     with pytest.raises(ValueError, match="one number per free parameter"):
         prob.residuals(["a"] * 5)
     with pytest.raises(ValueError, match="nothing left to fit"):
-        E.fit(E.Problem("upper", [ex], free=[]))
+        inference.fit(inference.Problem("upper", [ex], free=[]))
 
 
 def test_simulate_names_its_bad_arguments_and_accepts_read_only_arrays(tmp_path):

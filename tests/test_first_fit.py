@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.cli import main
 from rotorbayes.data import quantisation_floor
 from rotorbayes.model.parameters import resolve
@@ -90,8 +90,8 @@ def test_data_start_lands_near_the_truth(data):
     finishes the job); the sources say where each value came from."""
     for config in ("coupled", "brake"):
         truth, (est, _) = data[config]
-        prob = E.Problem(config, [rb.load_experiment(est)])
-        ds = E.data_start(prob)
+        prob = inference.Problem(config, [rb.load_experiment(est)])
+        ds = inference.data_start(prob)
         for n in prob.names:
             # An asymmetry is judged against its mean level (dTc_u against Tc_u).
             ref = truth[n[1:]] if n.startswith("d") and n != "delta_l" else truth[n]
@@ -122,9 +122,9 @@ def test_chained_upper_fit_fixes_the_upper_disc(data, tmp_path):
 def test_a_wrong_fixed_value_is_named(data):
     truth, (est, _) = data["coupled"]
     ex = rb.load_experiment(est)
-    prob = E.Problem("coupled", [ex], base=dict(truth, k_m=3.4), fixed=["k_m"])
-    res = E.fit(prob, dict(truth, k_m=3.4))
-    a = E.assess(res, E.quality(prob, res.x), sources={"k_m": "a typo"})
+    prob = inference.Problem("coupled", [ex], base=dict(truth, k_m=3.4), fixed=["k_m"])
+    res = inference.fit(prob, dict(truth, k_m=3.4))
+    a = inference.assess(res, inference.quality(prob, res.x), sources={"k_m": "a typo"})
     assert a.worst_ratio > 3
     assert a.fixed_suspects and a.fixed_suspects[0]["name"] == "k_m"
     # The one-step prediction points back towards the value that made the data.
@@ -139,9 +139,9 @@ def test_estimate_at_a_bound_is_flagged(tmp_path):
     t, u = rb.signals.make_signal("est", 20.0, rate=200.0, seed=2)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     ex = sim.to_experiment("no_coulomb")
-    prob = E.Problem("upper", [ex], free=["k_m", "Tc_u", "b_u"], base=p)
-    res = E.fit(prob, dict(p, Tc_u=0.3))
-    a = E.assess(res, E.quality(prob, res.x))
+    prob = inference.Problem("upper", [ex], free=["k_m", "Tc_u", "b_u"], base=p)
+    res = inference.fit(prob, dict(p, Tc_u=0.3))
+    a = inference.assess(res, inference.quality(prob, res.x))
     assert a.at_bound == ["Tc_u"]
     assert any(w.startswith("Tc_u") and "lower bound 0" in w for w in a.warnings)
     # Near a bound rather than on it: warned when nearer than two standard errors (trial
@@ -155,14 +155,15 @@ def test_estimate_at_a_bound_is_flagged(tmp_path):
         se = np.array(res.stderr, float)
         se[j] = se_j
         near = dataclasses.replace(res, x=x, stderr=se)
-        an = E.assess(near, E.quality(prob, near.x))
+        an = inference.assess(near, inference.quality(prob, near.x))
         assert an.at_bound == [] and (an.near_bound == ["Tc_u"]) is flagged, an.near_bound
         assert any("less than two standard errors" in w for w in an.warnings) is flagged
     # With the thesis's (small, fixed) asymmetry dTc_u the fit stops on the validity
     # constraint Tc_u >= |dTc_u| instead: said as well.
-    prob2 = E.Problem("upper", [ex], free=["k_m", "Tc_u", "b_u"], base=dict(p, dTc_u=-0.0058))
-    res2 = E.fit(prob2, dict(p, Tc_u=0.3, dTc_u=-0.0058))
-    a2 = E.assess(res2, E.quality(prob2, res2.x))
+    prob2 = inference.Problem("upper", [ex], free=["k_m", "Tc_u", "b_u"], base=dict(p,
+                                                                                    dTc_u=-0.0058))
+    res2 = inference.fit(prob2, dict(p, Tc_u=0.3, dTc_u=-0.0058))
+    a2 = inference.assess(res2, inference.quality(prob2, res2.x))
     assert any("validity constraint 'Tc_u must be >= |dTc_u|" in w for w in a2.warnings)
 
 
@@ -170,10 +171,10 @@ def test_a_parameter_without_influence_is_flagged(data):
     truth, (est, _) = data["coupled"]
     ex = rb.load_experiment(est)
     model = rb.Model("coupled", ["examples/angle_friction.py:angle_friction"])
-    prob = E.Problem(model, [ex], free=["J_l", "phi_fric"], base=dict(truth, a_fric=0.0,
+    prob = inference.Problem(model, [ex], free=["J_l", "phi_fric"], base=dict(truth, a_fric=0.0,
                                                                       phi_fric=0.5))
-    res = E.fit(prob, {"J_l": 0.06, "phi_fric": 0.5})
-    a = E.assess(res, E.quality(prob, res.x))
+    res = inference.fit(prob, {"J_l": 0.06, "phi_fric": 0.5})
+    a = inference.assess(res, inference.quality(prob, res.x))
     assert any(w.startswith("phi_fric does not influence") for w in a.warnings)
     assert not any(w.startswith("J_l does not") for w in a.warnings)
 
@@ -200,14 +201,15 @@ def test_multistart_does_not_call_a_fit_far_from_the_floor_well_determined(data)
     truth, (est, _) = data["coupled"]
     ex = rb.load_experiment(est)
     # k_alpha fixed 25 % off: every start agrees, and every one is wrong.
-    prob = E.Problem("coupled", [ex], free=["J_l", "Tc_l", "b_l"],
+    prob = inference.Problem("coupled", [ex], free=["J_l", "Tc_l", "b_l"],
                      base=dict(truth, k_alpha=0.09))
-    ms = E.multistart(prob, 4, seed=1, around=dict(truth, k_alpha=0.09), spread=0.1,
+    ms = inference.multistart(prob, 4, seed=1, around=dict(truth, k_alpha=0.09), spread=0.1,
                       progress=False, max_nfev=40)
     text = ms.summary()
     assert "no estimate here is well determined" in text
     assert "Well determined:" not in text
-    good = E.multistart(E.Problem("coupled", [ex], free=["J_l", "Tc_l"], base=truth), 3,
+    good = inference.multistart(inference.Problem("coupled", [ex], free=["J_l", "Tc_l"],
+                                                  base=truth), 3,
                         seed=1, around=truth, spread=0.1, progress=False, max_nfev=40)
     assert "x the encoder floor." in good.summary()
     assert math.isfinite(quantisation_floor("alpha"))
@@ -235,12 +237,12 @@ def test_a_lower_disc_the_joint_regression_drops_is_rescaled_by_simulation(tmp_p
     sim = rb.simulate(SOFT_STRING, np.asarray(f(t)), dt=1e-3, config="coupled",
                       effects=("upper_asymmetric_coulomb", "upper_asymmetric_viscous"),
                       quantize_angles=True)
-    prob = E.Problem("coupled", [sim.to_experiment("soft_string")],
+    prob = inference.Problem("coupled", [sim.to_experiment("soft_string")],
                      effects=("upper_asymmetric_coulomb", "upper_asymmetric_viscous"))
-    start = E.data_start(prob)
+    start = inference.data_start(prob)
     assert any("too weak in the upper disc's equation" in n for n in start.notes)
     for n in ("J_l", "k_alpha", "Tc_l", "b_l"):
         assert abs(start.values[n] / SOFT_STRING[n] - 1) < 0.2, (n, start.values[n])
-    res = E.fit_from_data(prob, restarts=0).result
-    a = E.assess(res, E.quality(prob, res.x))
+    res = inference.fit_from_data(prob, restarts=0).result
+    a = inference.assess(res, inference.quality(prob, res.x))
     assert a.worst_ratio < 1.5, a.worst_ratio

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from refdata import SETS, make_experiment
 
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.cli import main
 from rotorbayes.data import (
     LOWER_COUNTS_PER_REV,
@@ -144,9 +144,9 @@ def test_fit_without_the_glitches_is_at_the_floor_with_the_clean_estimates(brake
     clean, bad, _ = brake
     fits = {}
     for label, ex in (("clean", clean), ("left out", leave_out_glitches(bad))):
-        prob = E.Problem("brake", [ex])
-        res = E.fit_from_data(prob, restarts=0).result
-        fits[label] = (res, E.assess(res, E.quality(prob, res.x)))
+        prob = inference.Problem("brake", [ex])
+        res = inference.fit_from_data(prob, restarts=0).result
+        fits[label] = (res, inference.assess(res, inference.quality(prob, res.x)))
     res, a = fits["left out"]
     ref, a0 = fits["clean"]
     assert a.worst_ratio <= 1.05 and not a.jitter_floor, a.verdict
@@ -159,11 +159,11 @@ def test_glitches_kept_do_not_raise_the_floor_broadband_noise_does(brake):
     """The floor is raised only for jitter through most of the record, said with the
     evidence (stretches, samples, band)."""
     _, bad, _ = brake
-    floors, notes = E.Problem("brake", [leave_out_glitches(bad, keep=True)]).noise_floors()
+    floors, notes = inference.Problem("brake", [leave_out_glitches(bad, keep=True)]).noise_floors()
     assert notes == []
     assert floors == {c: quantisation_floor(c) for c in ("theta_u", "theta_l")}
     noisy = _clean(noise_std=1e-4, noise_seed=2)
-    floors, notes = E.Problem("brake", [leave_out_glitches(noisy)]).noise_floors()
+    floors, notes = inference.Problem("brake", [leave_out_glitches(noisy)]).noise_floors()
     assert floors["theta_l"] == pytest.approx(1.0e-4, rel=0.15)
     assert len(notes) == 2 and all("jitters at" in w for w in notes)
     assert "8 of 8 stretches" in notes[1] and "Hz" in notes[1] and "samples" in notes[1]

@@ -29,8 +29,8 @@ import pytest
 import refdata
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes.inference import sampling as S
+from rotorbayes import inference
+from rotorbayes.inference import sampling
 from rotorbayes.inference.likelihood import LogPosterior
 from rotorbayes.model.parameters import resolve
 
@@ -95,9 +95,9 @@ def test_standard_errors_cover_on_stick_slip_with_long_holds():
         full = resolve(_perturbed(BRAKE, rng), config="brake")
         t, u = rb.signals.estimation_signal(20.0, rate=1000.0, seed=200 + d, hold=(1.0, 4.0))
         sim = rb.simulate(full, u, dt=1e-3, config="brake", quantize_angles=True)
-        prob = E.Problem("brake", [sim.to_experiment(f"brake{d}")])
+        prob = inference.Problem("brake", [sim.to_experiment(f"brake{d}")])
         x_true = prob.x_from(full)
-        res = E.fit(prob, x_true)
+        res = inference.fit(prob, x_true)
         assert res.uncertainty is not None
         rows.append(_coverage(prob, res, x_true))
     _check(rows, "kernel brake, long holds")
@@ -113,9 +113,9 @@ def test_standard_errors_cover_on_reference_data_with_a_continuous_input(config,
         truth = _perturbed(refdata.SETS[config][d % 2], rng)
         ex = refdata.make_experiment(config, truth, duration=10.0, signal="steps",
                                      hold="continuous", seed=400 + d)
-        prob = E.Problem(config, [ex])
+        prob = inference.Problem(config, [ex])
         x_true = prob.x_from(resolve(truth, config=config))
-        res = E.fit(prob, x_true)
+        res = inference.fit(prob, x_true)
         rows.append(_coverage(prob, res, x_true))
     _check(rows, f"reference {config}, continuous input")
 
@@ -126,8 +126,8 @@ def test_what_the_uncertainty_says_and_stores():
     t, u = rb.signals.estimation_signal(10.0, rate=1000.0, seed=3, hold=(1.0, 3.0))
     full = resolve(BRAKE, config="brake")
     sim = rb.simulate(full, u, dt=1e-3, config="brake", quantize_angles=True)
-    prob = E.Problem("brake", [sim.to_experiment("b")])
-    res = E.fit(prob, prob.x_from(full))
+    prob = inference.Problem("brake", [sim.to_experiment("b")])
+    res = inference.fit(prob, prob.x_from(full))
     unc = res.uncertainty
     ok = np.isfinite(unc.cov)
     assert np.allclose(unc.cov[ok], (unc.cov_noise + unc.cov_model + unc.cov_hold)[ok])
@@ -143,9 +143,9 @@ def test_what_the_uncertainty_says_and_stores():
     d = unc.as_dict()
     assert set(d["parameters"]) == set(prob.names) and d["n_eff"] < unc.n_samples
     # The same data with a wrong friction fixed: far from the floor, said in words.
-    wrong = E.Problem("brake", [sim.to_experiment("b")], free=["k_m", "Tc_u", "b_u"],
+    wrong = inference.Problem("brake", [sim.to_experiment("b")], free=["k_m", "Tc_u", "b_u"],
                       base={**full, "Ts_l": 0.6 * full["Ts_l"]})
-    res_w = E.fit(wrong, wrong.x_from(full))
+    res_w = inference.fit(wrong, wrong.x_from(full))
     assert res_w.uncertainty.misspecified
     assert "conditional on a model these data reject" in res_w.uncertainty.warning()
     assert res_w.uncertainty.shares()["k_m"]["model_error"] > 0.5
@@ -160,15 +160,15 @@ def test_the_robust_posterior_is_as_wide_as_the_honest_standard_errors():
     full = resolve(BRAKE, config="brake")
     sim = rb.simulate(full, u, dt=1e-3, config="brake", quantize_angles=True)
     free = ["Tc_l", "b_l", "Ts_l", "ws_l"]
-    prob = E.Problem("brake", [sim.to_experiment("b")], free=free, base=full)
-    res = E.fit(prob, prob.x_from(full))
+    prob = inference.Problem("brake", [sim.to_experiment("b")], free=free, base=full)
+    res = inference.fit(prob, prob.x_from(full))
     sds = {}
     for noise in ("robust", "floor"):
         lp = LogPosterior(prob, res.x, noise=noise,
                           uncertainty=res.uncertainty if noise == "robust" else None)
-        runs = S.sample(lp, res.x, None, n_walkers=12, n_steps=1500, n_ensembles=1, seed=2,
+        runs = sampling.sample(lp, res.x, None, n_walkers=12, n_steps=1500, n_ensembles=1, seed=2,
                         progress=False)
-        burn, thin = S.burn_thin(runs)
+        burn, thin = sampling.burn_thin(runs)
         X, _, _ = lp.split(runs[0].chain[burn::thin].reshape(-1, lp.ndim))
         sds[noise] = X.std(axis=0)
     ratio = sds["robust"] / res.stderr
@@ -192,9 +192,9 @@ def test_the_robust_posterior_peaks_at_the_fit_when_the_channel_floors_differ():
     p = dict(refdata.SETS["coupled"][1])
     ex = refdata.make_experiment("coupled", p, duration=10.0, signal="steps", seed=21)
     full = resolve(p, config="coupled")
-    prob = E.Problem("coupled", [ex], base=full,
+    prob = inference.Problem("coupled", [ex], base=full,
                      free=["k_m", "Tc_u", "b_u", "J_l", "k_alpha", "Tc_l", "b_l"])
-    res = E.fit(prob, prob.x_from(full))
+    res = inference.fit(prob, prob.x_from(full))
     lp = LogPosterior(prob, res.x, uncertainty=res.uncertainty)
     assert lp.floor["theta_l"] / lp.floor["theta_u"] > 1.2  # the case this is about
     z0 = lp.to_z(res.x)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from refdata import SETS, LaggedInput, make_experiment, make_input
 
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.diagnosis.torque import missing_torque
 from rotorbayes.inference.assess import floor_ratio
 
@@ -26,8 +26,8 @@ def _maps(extra: dict):
     params = dict(SETS["coupled"][0], **extra)
     ex = make_experiment("coupled", params, duration=10.0, signal="steps",
                          hold="continuous", seed=3)
-    prob = E.Problem("coupled", [ex])
-    res = E.fit_from_data(prob, restarts=2).result
+    prob = inference.Problem("coupled", [ex])
+    res = inference.fit_from_data(prob, restarts=2).result
     return {m.disc: m for m in missing_torque(prob, res.x)}, floor_ratio(prob, res.x)
 
 

@@ -23,21 +23,20 @@ import pytest
 
 import rotorbayes as rb
 from rotorbayes import exitcodes as EXIT
-from rotorbayes import inference as E
-from rotorbayes.inference import identify as I
-from rotorbayes.inference import parallel as P
+from rotorbayes import inference
+from rotorbayes.inference import identify, parallel
 from rotorbayes.inference.multistart import _fit_start
 
 distributed = pytest.importorskip("distributed")
 
 
-def small_problem() -> E.Problem:
+def small_problem() -> inference.Problem:
     ex = rb.load_example("upper_est")
     n = int(round(5.0 / ex.dt)) + 1
     assert abs(ex.dt - 0.005) < 1e-12  # 200 Hz
     short = rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None,
                           name="upper 5 s", path=ex.path)
-    return E.Problem("upper", [short])
+    return inference.Problem("upper", [short])
 
 
 def same_fits(a: list, b: list) -> None:
@@ -57,24 +56,24 @@ def same_fits(a: list, b: list) -> None:
 
 
 def test_choose_option_then_environment_then_file_then_default():
-    env = {P.SCHEDULER_ENV: "tcp://env:8786"}
+    env = {parallel.SCHEDULER_ENV: "tcp://env:8786"}
     f = {"scheduler": "tcp://file:8786"}
-    assert P.choose(scheduler="tcp://opt:1", environ=env, file=f).scheduler == "tcp://opt:1"
-    s = P.choose(environ=env, file=f)
-    assert (s.backend, s.scheduler, s.source) == ("dask", "tcp://env:8786", P.SCHEDULER_ENV)
-    s = P.choose(environ={}, file=f)
+    assert parallel.choose(scheduler="tcp://opt:1", environ=env, file=f).scheduler == "tcp://opt:1"
+    s = parallel.choose(environ=env, file=f)
+    assert (s.backend, s.scheduler, s.source) == ("dask", "tcp://env:8786", parallel.SCHEDULER_ENV)
+    s = parallel.choose(environ={}, file=f)
     assert (s.backend, s.scheduler) == ("dask", "tcp://file:8786")
     # An explicit local back-end wins over the variable (the user said so on this command).
-    assert P.choose("serial", environ=env).backend == "serial"
+    assert parallel.choose("serial", environ=env).backend == "serial"
     # dask without an address: a LocalCluster of --workers processes.
-    s = P.choose("dask", 3, environ={})
+    s = parallel.choose("dask", 3, environ={})
     assert (s.backend, s.scheduler, s.n_workers()) == ("dask", None, 3)
     assert "local Dask cluster of 3" in s.describe()
-    s = P.choose(environ={}, file={"backend": "processes", "workers": 2})
+    s = parallel.choose(environ={}, file={"backend": "processes", "workers": 2})
     assert (s.backend, s.n_workers()) == ("processes", 2)
-    assert P.choose(environ={}).backend == P.DEFAULT_BACKEND
+    assert parallel.choose(environ={}).backend == parallel.DEFAULT_BACKEND
     with pytest.raises(ValueError, match="unknown parallel back-end 'gpu'"):
-        P.choose("gpu", environ={})
+        parallel.choose("gpu", environ={})
 
 
 def test_analysis_file_refuses_an_unknown_backend(tmp_path):
@@ -91,8 +90,8 @@ def test_serial_threads_and_processes_agree_bit_for_bit():
     prob = small_problem()
     runs = {}
     for backend in ("serial", "threads", "processes"):
-        with P.open_executor(P.ExecutorSpec(backend, 2)) as ex:
-            runs[backend] = E.multistart(prob, 4, seed=3, progress=False, executor=ex)
+        with parallel.open_executor(parallel.ExecutorSpec(backend, 2)) as ex:
+            runs[backend] = inference.multistart(prob, 4, seed=3, progress=False, executor=ex)
     for backend in ("threads", "processes"):
         same_fits(runs["serial"].fits, runs[backend].fits)
         assert np.array_equal(runs["serial"].clusters, runs[backend].clusters)
@@ -106,8 +105,8 @@ def test_serial_threads_and_processes_agree_bit_for_bit():
 @pytest.fixture(scope="module")
 def cluster():
     """A real LocalCluster: two worker processes, one thread each, kernel warmed."""
-    spec = P.ExecutorSpec("dask", 2)
-    with P.open_executor(spec) as ex:
+    spec = parallel.ExecutorSpec("dask", 2)
+    with parallel.open_executor(spec) as ex:
         yield ex
 
 
@@ -119,20 +118,21 @@ def test_dask_cluster_gives_the_serial_results_bit_for_bit(cluster):
                                __import__("numba").get_num_threads()))
     assert len(info) == 2 and all(v == ("1", "1", 1) for v in info.values())
     plugins = client.run(lambda dask_worker: list(dask_worker.plugins))
-    assert all(P._WarmUp.name in v for v in plugins.values())
+    assert all(parallel._WarmUp.name in v for v in plugins.values())
 
     t0 = time.perf_counter()
-    ms = E.multistart(prob, 4, seed=1, progress=False, executor=cluster)
+    ms = inference.multistart(prob, 4, seed=1, progress=False, executor=cluster)
     took = time.perf_counter() - t0
-    ref = E.multistart(prob, 4, seed=1, progress=False, executor=P.SerialExecutor())
+    ref = inference.multistart(prob, 4, seed=1, progress=False, executor=parallel.SerialExecutor())
     same_fits(ref.fits, ms.fits)
     assert np.array_equal(ref.starts, ms.starts) and ms.ssr.size == 4
     assert took < 60
 
     # Profile-likelihood points: the same Δχ² on the cluster as serially.
     best = ref.best
-    pa = I.profile(prob, best.x, "k_m", n_points=5, span=0.02, executor=cluster)
-    pb = I.profile(prob, best.x, "k_m", n_points=5, span=0.02, executor=P.SerialExecutor())
+    pa = identify.profile(prob, best.x, "k_m", n_points=5, span=0.02, executor=cluster)
+    pb = identify.profile(prob, best.x, "k_m", n_points=5, span=0.02,
+                          executor=parallel.SerialExecutor())
     assert np.array(pa["delta_chi2"]).tobytes() == np.array(pb["delta_chi2"]).tobytes()
     assert np.nanmax(pa["delta_chi2"]) > 0
 
@@ -140,7 +140,7 @@ def test_dask_cluster_gives_the_serial_results_bit_for_bit(cluster):
 def test_shared_data_is_scattered_once_not_sent_with_every_task(cluster):
     prob = small_problem()
     client = cluster._client
-    starts = E.latin_hypercube(prob, 6, np.random.default_rng(0))
+    starts = inference.latin_hypercube(prob, 6, np.random.default_rng(0))
 
     def deps(dask_scheduler):
         return {str(k): ([str(d.key) for d in ts.dependencies],
@@ -148,7 +148,7 @@ def test_shared_data_is_scattered_once_not_sent_with_every_task(cluster):
                 for k, ts in dask_scheduler.tasks.items() if "_fit_start" in str(k)}
 
     scattered = []
-    scatter = P._scatter
+    scatter = parallel._scatter
 
     def _scatter(ex, obj):  # who holds the data the moment it is scattered
         fut = scatter(ex, obj)
@@ -157,8 +157,8 @@ def test_shared_data_is_scattered_once_not_sent_with_every_task(cluster):
 
     seen = None
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(P, "_scatter", _scatter)
-        for _i, (r, _why) in P.run_tasks(_fit_start, list(starts),
+        mp.setattr(parallel, "_scatter", _scatter)
+        for _i, (r, _why) in parallel.run_tasks(_fit_start, list(starts),
                                          shared=(prob, {"uncertainty": False}),
                                          executor=cluster):
             assert r is not None
@@ -179,14 +179,15 @@ def test_a_worker_killed_mid_job_changes_nothing(cluster):
     other worker (the nanny brings a new one up) and every result is the serial one."""
     prob = small_problem()
     client = cluster._client
-    starts = E.latin_hypercube(prob, 16, np.random.default_rng(7))
+    starts = inference.latin_hypercube(prob, 16, np.random.default_rng(7))
     shared = (prob, {"uncertainty": False, "max_nfev": 200})
-    ref = P.map_ordered(_fit_start, list(starts), shared=shared, executor=P.SerialExecutor())
+    ref = parallel.map_ordered(_fit_start, list(starts), shared=shared,
+                               executor=parallel.SerialExecutor())
 
     pids = client.run(os.getpid)
     got: dict[int, tuple] = {}
     killed = {}
-    for i, r in P.run_tasks(_fit_start, list(starts), shared=shared, executor=cluster):
+    for i, r in parallel.run_tasks(_fit_start, list(starts), shared=shared, executor=cluster):
         got[i] = r
         if not killed:
             # At the first result that finds a worker busy (on a fast machine the first
@@ -222,7 +223,7 @@ def test_no_scheduler_at_the_address_is_a_plain_error(tmp_path):
     t0 = time.perf_counter()
     p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
               "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "ms")],
-             env={P.TIMEOUT_ENV: "2"})
+             env={parallel.TIMEOUT_ENV: "2"})
     out, err = p.communicate(timeout=120)
     took = time.perf_counter() - t0
     assert p.returncode == EXIT.ENVIRONMENT, (out, err)
@@ -238,7 +239,7 @@ def real_cluster(folder: Path, workers: int = 1):
     """A real `dask scheduler` and ``workers`` `dask worker` processes (0: none), as a user
     starts them; yields ``(address, scheduler process, processes to stop)``."""
     sched_file = folder / "scheduler.json"
-    env = {**os.environ, **P.WORKER_ENV}
+    env = {**os.environ, **parallel.WORKER_ENV}
     dask_cli = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     sched = subprocess.Popen([*dask_cli, "--scheduler-file", str(sched_file), "--port", "0",
                               "--no-dashboard"], stdout=subprocess.DEVNULL,
@@ -289,7 +290,7 @@ def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path):
     b.write_text('[analysis]\nout = "B"\nconfig = "upper"\ndata = ["example:upper_val"]\n')
     with real_cluster(tmp_path, workers=0) as (address, _, procs):
         p = _cli(["run", str(a), str(b), "--scheduler", address], cwd=tmp_path,
-                 env={P.TIMEOUT_ENV: "3"})
+                 env={parallel.TIMEOUT_ENV: "3"})
         procs.append(p)
         out, err = p.communicate(timeout=180)
         assert p.returncode == EXIT.ENVIRONMENT, (out, err)
@@ -300,13 +301,14 @@ def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path):
 
 @pytest.mark.parametrize("value", ["abc", "0", "-5", "nan", "inf"])
 def test_a_bad_dask_timeout_is_refused_with_its_name(monkeypatch, value):
-    monkeypatch.setenv(P.TIMEOUT_ENV, value)
-    with pytest.raises(P.ClusterError, match=f"{P.TIMEOUT_ENV}='{value}' is not a number"):
-        P.connect_timeout()
-    monkeypatch.setenv(P.TIMEOUT_ENV, " 7.5 ")
-    assert P.connect_timeout() == 7.5
-    monkeypatch.delenv(P.TIMEOUT_ENV)
-    assert P.connect_timeout() == P.CONNECT_TIMEOUT
+    monkeypatch.setenv(parallel.TIMEOUT_ENV, value)
+    with pytest.raises(parallel.ClusterError,
+                       match=f"{parallel.TIMEOUT_ENV}='{value}' is not a number"):
+        parallel.connect_timeout()
+    monkeypatch.setenv(parallel.TIMEOUT_ENV, " 7.5 ")
+    assert parallel.connect_timeout() == 7.5
+    monkeypatch.delenv(parallel.TIMEOUT_ENV)
+    assert parallel.connect_timeout() == parallel.CONNECT_TIMEOUT
 
 
 def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
@@ -315,7 +317,7 @@ def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
         # Through the variable, as a user on a cluster would set it.
         p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "400",
                   "--max-nfev", "30", "--out", str(tmp_path / "ms")],
-                 env={P.SCHEDULER_ENV: address})
+                 env={parallel.SCHEDULER_ENV: address})
         procs.append(p)
         lines = []
 
@@ -328,7 +330,7 @@ def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
         deadline = time.time() + 120
         while not any("done" in s for s in lines) and time.time() < deadline:
             time.sleep(0.2)
-        assert any("on the Dask scheduler at" in s and P.SCHEDULER_ENV in s for s in lines)
+        assert any("on the Dask scheduler at" in s and parallel.SCHEDULER_ENV in s for s in lines)
         assert any("start   1/400 done" in s for s in lines), "".join(lines)
         sched.kill()
         err = p.stderr.read()
@@ -354,13 +356,13 @@ def test_a_study_stage_without_options_uses_the_study_executor(capsys):
     --scheduler) takes it instead of opening its own; a stage's own option wins."""
     from rotorbayes.commands.common import executor
 
-    with P.use_executor(P.ExecutorSpec("serial")) as study_ex:
+    with parallel.use_executor(parallel.ExecutorSpec("serial")) as study_ex:
         with executor() as ex:
             assert ex is study_ex
         with executor("threads", 2, None) as ex:
-            assert ex is not study_ex and P.current_executor() is ex
-        assert P.current_executor() is study_ex
-    assert P.current_executor() is None
+            assert ex is not study_ex and parallel.current_executor() is ex
+        assert parallel.current_executor() is study_ex
+    assert parallel.current_executor() is None
     with executor(file={"backend": "serial"}) as ex:
-        assert isinstance(ex, P.SerialExecutor)
+        assert isinstance(ex, parallel.SerialExecutor)
     assert "parallel tasks run serially in this process" in capsys.readouterr().out

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from rotorbayes import plots as P  # noqa: E402
+from rotorbayes import plots  # noqa: E402
 from rotorbayes.data import quantisation_floor  # noqa: E402
 from rotorbayes.model.parameters import resolve  # noqa: E402
 
@@ -71,7 +71,7 @@ def test_parameter_spread_has_units_and_no_overlap():
     rng = np.random.default_rng(0)
     values = rng.normal(1.0, 0.1, size=(9, len(names)))
     ssr = np.r_[6.7e-6, 6.7e-6, 6.71e-6, 1e-3, 2e-2, 0.5, 3.0, 80.0, 1e4]
-    fig, axes = P.plot_parameter_spread(
+    fig, axes = plots.plot_parameter_spread(
         names, values, ssr, units={"my_gain": "N m/rad"}, reference={"k_m": 1.0},
         noise_floor_ssr=6.5e-6, clusters=[0, 0, 0, 1, 2, 3, 4, 5, 6],
         title="multistart, upper: end points",
@@ -96,14 +96,14 @@ def test_parameter_spread_has_units_and_no_overlap():
 def test_parameter_spread_units_from_registry_for_every_name():
     from rotorbayes.model.parameters import INFO
 
-    assert P.unit_of("alpha0[3]") == INFO["alpha0"].unit == "rad"
-    assert P.unit_of("delta_l") == "-"
-    assert P.unit_of("unknown_thing") == ""
-    assert P.unit_of("k_m", {"k_m": "mN m/V"}) == "mN m/V"
+    assert plots.unit_of("alpha0[3]") == INFO["alpha0"].unit == "rad"
+    assert plots.unit_of("delta_l") == "-"
+    assert plots.unit_of("unknown_thing") == ""
+    assert plots.unit_of("k_m", {"k_m": "mN m/V"}) == "mN m/V"
 
 
 def test_parameter_spread_leaves_out_failed_and_says_so():
-    fig, axes = P.plot_parameter_spread(["k_m"], [[4.0], [5.0], [6.0]], [1.0, np.inf, 2.0])
+    fig, axes = plots.plot_parameter_spread(["k_m"], [[4.0], [5.0], [6.0]], [1.0, np.inf, 2.0])
     assert axes[0, 0].collections[0].get_offsets().shape[0] == 2
     assert "1 failed" in fig.legends[0].get_texts()[0].get_text()
 
@@ -112,7 +112,8 @@ def test_parameter_spread_leaves_out_failed_and_says_so():
 def test_waterfall_absolute_ssr_floor_and_failed_starts():
     ssr = np.array([3e-3, 6.7e-6, np.inf, 6.71e-6, 6.702e-6, np.nan, 12.0])
     floor = 6.54e-6
-    fig, ax = P.plot_waterfall(ssr, noise_floor_ssr=floor, n_failed=2, labels=[2, 0, 9, 0, 0, 9, 1])
+    fig, ax = plots.plot_waterfall(ssr, noise_floor_ssr=floor, n_failed=2, labels=[2, 0, 9, 0, 0,
+                                                                                   9, 1])
     finite = np.sort(ssr[np.isfinite(ssr)])
     ys = np.concatenate([c.get_offsets()[:, 1] for c in ax.collections
                          if c.get_label() and "failed" not in c.get_label()])
@@ -134,9 +135,9 @@ def test_waterfall_absolute_ssr_floor_and_failed_starts():
 
 
 def test_waterfall_all_failed_and_no_floor():
-    fig, ax = P.plot_waterfall([], n_failed=3)
+    fig, ax = plots.plot_waterfall([], n_failed=3)
     assert "3 failed starts (no SSR)" in legend_texts(ax)
-    fig, ax = P.plot_waterfall([5.0])
+    fig, ax = plots.plot_waterfall([5.0])
     assert not [ln for ln in ax.get_lines() if "floor" in ln.get_label()]
     assert legend_texts(ax) == ["1 of 1 starts within 1 % of the best (5 rad²)"]
 
@@ -147,7 +148,7 @@ def test_quantisation_floor_ssr():
                            weights={"theta_u": 1.0, "theta_l": 2.0})
     q_u, q_l = quantisation_floor("theta_u"), quantisation_floor("theta_l")
     want = 2000 * q_u**2 + 2000 * (2 * q_l) ** 2
-    assert P.quantisation_floor_ssr(prob) == pytest.approx(want)
+    assert plots.quantisation_floor_ssr(prob) == pytest.approx(want)
 
 
 # ----------------------------------------------------------------------- stick shading
@@ -162,7 +163,7 @@ def test_fit_legends_list_stick_shading_on_each_shaded_axis():
     t = np.arange(3000) * 1e-2
     meas = {"theta_l": np.sin(t), "alpha": np.cos(t)}
     sim = {"theta_l": np.sin(t) + 1e-3, "alpha": np.cos(t) - 1e-3}
-    fig, axes = P.plot_fit(t, meas, sim, mode=_stick_mode(), title="brake: est data x.csv",
+    fig, axes = plots.plot_fit(t, meas, sim, mode=_stick_mode(), title="brake: est data x.csv",
                            metrics={"theta_l": "R² 0.9990", "alpha": "R² 0.9980"})
     assert len(axes) == 4
     for ax in axes:
@@ -184,7 +185,7 @@ def test_fit_legends_list_stick_shading_on_each_shaded_axis():
 
 def test_no_stick_no_shading_entry():
     t = np.linspace(0, 1, 50)
-    fig, axes = P.plot_fit(t, {"theta_u": t}, {"theta_u": t}, mode=np.ones(50))
+    fig, axes = plots.plot_fit(t, {"theta_u": t}, {"theta_u": t}, mode=np.ones(50))
     assert "lower disc sticks" not in legend_texts(axes[0])
 
 
@@ -199,7 +200,7 @@ def brake_sim():
 
 
 def test_simulation_legends_list_stick_shading(brake_sim):
-    fig, axes = P.plot_simulation(brake_sim)
+    fig, axes = plots.plot_simulation(brake_sim)
     assert fig._suptitle.get_text() == "simulation, brake configuration"
     for ax in axes[1:]:
         assert "lower disc sticks" in legend_texts(ax)
@@ -211,7 +212,8 @@ def test_simulation_legends_list_stick_shading(brake_sim):
 def test_friction_title_and_legend_agree():
     p = resolve("thesis:5.2:P0", config="coupled")
     ref = resolve("thesis:4.3:P0", config="brake")
-    fig, axes = P.plot_friction(p, reference=ref, title="fitted friction, coupled configuration")
+    fig, axes = plots.plot_friction(p, reference=ref,
+                                    title="fitted friction, coupled configuration")
     assert fig._suptitle.get_text() == "fitted friction, coupled configuration"
     for row, disc in enumerate(("upper disc", "lower disc")):
         for ax in axes[row]:
@@ -219,7 +221,7 @@ def test_friction_title_and_legend_agree():
             assert ax.get_title().startswith(disc)
             assert ax.get_xlabel() == r"angular velocity $\omega$ [rad/s]"
             assert ax.get_ylabel() == "friction torque [N m]"
-    fig, axes = P.plot_friction(p, discs=("u",), label="estimated")
+    fig, axes = plots.plot_friction(p, discs=("u",), label="estimated")
     assert fig._suptitle.get_text() == "estimated friction"
     assert legend_texts(axes[0, 0]) == ["upper disc, estimated"]
     assert_no_overlap(fig)
@@ -228,7 +230,7 @@ def test_friction_title_and_legend_agree():
 def test_friction_draws_asymmetry_and_stribeck():
     base = resolve("thesis:5.2:P0", config="coupled")
     p = dict(base, dTc_l=0.004, db_l=-0.003, Ts_l=0.03, ws_l=0.05, delta_l=1.0)
-    fig, axes = P.plot_friction(p, discs=("l",), omega_zoom=0.1, shape="rational")
+    fig, axes = plots.plot_friction(p, discs=("l",), omega_zoom=0.1, shape="rational")
     ax = axes[0, 1]
     neg, pos, stick = ax.get_lines()[:3]
     # slip branches start at the break-away levels -(Ts - dTc) and Ts + dTc
@@ -246,7 +248,7 @@ def test_friction_draws_asymmetry_and_stribeck():
 
 def test_friction_accepts_base_parameters_only():
     p = {"Tc_u": 0.4, "b_u": 2.0, "Tc_l": 0.02, "b_l": 0.01}
-    fig, axes = P.plot_friction(p)
+    fig, axes = plots.plot_friction(p)
     y = axes[1, 1].get_lines()[1].get_ydata()
     assert np.all(np.isfinite(y)) and y[0] == pytest.approx(0.02, rel=1e-6)
     assert not math.isnan(axes[0, 0].get_lines()[0].get_ydata()[0])

@@ -20,15 +20,19 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
-from rotorbayes import numformat as NF  # noqa: E402
+from rotorbayes import numformat  # noqa: E402
 from rotorbayes.data import load_experiment  # noqa: E402
 from rotorbayes.examples import example_path  # noqa: E402
-from rotorbayes.inference import Problem  # noqa: E402
-from rotorbayes.inference import posterior as PO  # noqa: E402
+from rotorbayes.inference import (
+    Problem,  # noqa: E402
+    posterior,  # noqa: E402
+)
 from rotorbayes.inference.likelihood import LogPosterior  # noqa: E402
 from rotorbayes.inference.sampling import EnsembleRun  # noqa: E402
-from rotorbayes.model import Model  # noqa: E402
-from rotorbayes.model import parameters as P  # noqa: E402
+from rotorbayes.model import (
+    Model,  # noqa: E402
+    parameters,  # noqa: E402
+)
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +41,7 @@ def narrow():
     brake record (angles up to 30 rad): its predictive band is about 1e-6 rad."""
     ex = load_experiment(example_path("example:brake_est"))
     prob = Problem(Model("brake"), [ex], free=["Tc_l", "b_l"],
-                   base=P.resolve(None, config="brake"))
+                   base=parameters.resolve(None, config="brake"))
     x = prob.start_vector(prob.base)
     lp = LogPosterior(prob, x, noise="floor")
     z0 = lp.to_z(x)
@@ -54,19 +58,19 @@ def _band(sims):
 
 
 def test_stored_band_is_the_band_of_the_simulations(narrow, monkeypatch):
-    from rotorbayes.inference import arviz_compat as AZ
+    from rotorbayes.inference import arviz_compat
 
     prob, lp, runs = narrow
-    idata = PO.inference_data(lp, runs, max_draws=40)
-    da = AZ.group(idata, "posterior_predictive")["theta_l_exp0"]
+    idata = posterior.inference_data(lp, runs, max_draws=40)
+    da = arviz_compat.group(idata, "posterior_predictive")["theta_l_exp0"]
     stored = da.values.reshape(-1, da.shape[-1])
     assert stored.dtype == np.float64
     # The same draws simulated here, in float64, never stored.
-    post = AZ.group(idata, "posterior")
+    post = arviz_compat.group(idata, "posterior")
     X = np.column_stack([post[n].values.reshape(-1) for n in prob.names])
     R = prob.residuals_batch(X)
     ex = prob.experiments[0]
-    step = max(1, math.ceil(ex.n / PO.PREDICTIVE_POINTS))
+    step = max(1, math.ceil(ex.n / posterior.PREDICTIVE_POINTS))
     j = list(prob.channels).index("theta_l")
     seg = R[:, j * ex.n:(j + 1) * ex.n][:, ::step] / prob.weights["theta_l"]
     direct = ex.theta_l[None, ::step] - seg
@@ -89,15 +93,17 @@ def _band_panel(fig, chan_index=0):
 
 
 def test_predictive_figure_draws_a_resolved_band_and_refuses_rounding(narrow, monkeypatch):
-    from rotorbayes import posterior_figures as PF
+    from rotorbayes import posterior_figures
 
     prob, lp, runs = narrow
-    fig, _ = PF.plot_predictive(PO.inference_data(lp, runs, max_draws=40), prob)
+    fig, _ = posterior_figures.plot_predictive(posterior.inference_data(lp, runs, max_draws=40),
+                                               prob)
     polys, texts = _band_panel(fig, list(prob.channels).index("theta_l"))
     assert polys and "unresolved" not in texts
     # A posterior.nc written with float32 predictions (as before issue 36): unresolved.
-    monkeypatch.setattr(PO, "PREDICTIVE_DTYPE", np.float32)
-    fig, _ = PF.plot_predictive(PO.inference_data(lp, runs, max_draws=40), prob)
+    monkeypatch.setattr(posterior, "PREDICTIVE_DTYPE", np.float32)
+    fig, _ = posterior_figures.plot_predictive(posterior.inference_data(lp, runs, max_draws=40),
+                                               prob)
     k = list(prob.channels).index("theta_l")
     polys, texts = _band_panel(fig, k)
     # Drawn only early in the record, where the angle is small and float32 fine enough.
@@ -108,13 +114,13 @@ def test_predictive_figure_draws_a_resolved_band_and_refuses_rounding(narrow, mo
 
 
 def test_a_band_unresolved_everywhere_is_said_not_drawn(narrow, monkeypatch):
-    from rotorbayes import posterior_figures as PF
+    from rotorbayes import posterior_figures
 
     prob, lp, runs = narrow
-    idata = PO.inference_data(lp, runs, max_draws=40)
-    monkeypatch.setattr(PF, "band_resolution", lambda lo, hi, dtype: (
+    idata = posterior.inference_data(lp, runs, max_draws=40)
+    monkeypatch.setattr(posterior_figures, "band_resolution", lambda lo, hi, dtype: (
         np.full(np.shape(lo), 2e-6), np.zeros(np.shape(lo), bool)))
-    fig, _ = PF.plot_predictive(idata, prob)
+    fig, _ = posterior_figures.plot_predictive(idata, prob)
     polys, texts = _band_panel(fig, 0)
     assert not polys and "94 % predictive band unresolved" in texts and "not drawn" in texts
     legend = " ".join(t.get_text() for t in fig.axes[0].get_legend().get_texts())
@@ -148,14 +154,14 @@ def test_band_resolution_rule():
     (5.0, math.nan, ("5", "—")),
 ])
 def test_mean_to_the_place_of_two_digits_of_the_sd(mean, sd, want):
-    assert NF.mean_sd(mean, sd) == want
+    assert numformat.mean_sd(mean, sd) == want
 
 
 def test_summary_table_reads_the_interval(narrow):
     row = {"parameter": "k_m", "mean": 3.6187654012, "sd": 6.9e-7, "hdi_low": 3.6187641,
            "hdi_high": 3.6187667, "ess_bulk": 400.0, "ess_tau": 500.0, "r_hat": 1.001,
            "tau": 12.0, "unit": "N m/V"}
-    md = PO.table_markdown([row])
+    md = posterior.table_markdown([row])
     assert "| k_m | 3.61876540 | 6.9e-07 | [3.61876410, 3.61876670] |" in md
 
 
@@ -185,6 +191,6 @@ def test_report_prints_each_estimate_to_its_error(tmp_path, capsys):
     doc = json.loads((fit / "fit.json").read_text())
     for n in doc["free"]:
         p = doc["parameters"][n]
-        value, err = (digits(t) for t in NF.mean_sd(p["value"], p["stderr"]))
+        value, err = (digits(t) for t in numformat.mean_sd(p["value"], p["stderr"]))
         assert f'<td class="n">{value}</td><td class="n">{err}</td>' in html, n
     assert "<td class=\"n\">4.3687" in html  # k_m to the place of its error, not 4.369

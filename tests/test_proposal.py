@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 from refdata import SETS, make_experiment
 
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.diagnosis.proposal import (
     EFFECT_NAME,
     DiscProposal,
@@ -56,8 +56,8 @@ def _case(extra: dict):
     params = dict(SETS["coupled"][0], **extra)
     ex = make_experiment("coupled", params, duration=DURATION, seed=SEED)
     va = make_experiment("coupled", params, duration=DURATION, seed=5)
-    prob = E.Problem("coupled", [ex])
-    res = E.fit_from_data(prob, restarts=2).result
+    prob = inference.Problem("coupled", [ex])
+    res = inference.fit_from_data(prob, restarts=2).result
     return prob, res.x, va
 
 
@@ -139,8 +139,8 @@ def test_a_control_proposes_nothing(config):
     """Catalogue physics only (measured on these runs: the brake maps at 0.20x and 0.27x, the upper
     map at 0.74x its noise)."""
     ex = make_experiment(config, dict(SETS[config][0]), duration=DURATION, seed=SEED)
-    prob = E.Problem(config, [ex])
-    x = E.fit_from_data(prob, restarts=2).result.x
+    prob = inference.Problem(config, [ex])
+    x = inference.fit_from_data(prob, restarts=2).result.x
     assert floor_ratio(prob, x) < 1.5
     p = propose(missing_torque(prob, x), catalogue_near_floor=False)
     assert not p.kept, p.words()

@@ -133,7 +133,7 @@ def test_corner_of_a_short_ragged_posterior_logs_nothing(caplog):
     matplotlib.use("Agg")
     import numpy as np
 
-    from rotorbayes.inference import arviz_compat as AZ
+    from rotorbayes.inference import arviz_compat
     from rotorbayes.posterior_figures import plot_corner
 
     rng = np.random.default_rng(0)
@@ -148,7 +148,8 @@ def test_corner_of_a_short_ragged_posterior_logs_nothing(caplog):
     four = _Prob()
     four.names = tuple("abcd")  # no pinned parameter: the contours are drawn
     for n, draws, prob in ((200, post, _Prob()), (40, post, _Prob()), (200, repeated, four)):
-        idata = AZ.from_groups({"posterior": {k: v[:, : n // 2] for k, v in draws.items()}})
+        idata = arviz_compat.from_groups({"posterior": {k: v[:, : n // 2] for k,
+                                                        v in draws.items()}})
         caplog.clear()
         with caplog.at_level("WARNING"):
             fig = plot_corner(idata, prob)

@@ -221,20 +221,22 @@ def test_long_data_screen_the_starts_and_finish_the_best(monkeypatch, capsys):
     """Above LONG_RESIDUALS every start gets a few evaluations and only the best is fitted
     to the end; on the bundled hidden-effect data (made lowering the limit) it lands where
     the full search lands."""
-    import rotorbayes.inference.refit as R
-    from rotorbayes import inference as E
+    from rotorbayes import inference
     from rotorbayes.data import load_experiment
     from rotorbayes.examples import example_path
+    from rotorbayes.inference import refit as inference_refit
 
     ex = load_experiment(example_path("coupled_hidden_est"))
-    prob = E.Problem("coupled", [ex])
-    parent = E.fit_from_data(prob, restarts=0).result
+    prob = inference.Problem("coupled", [ex])
+    parent = inference.fit_from_data(prob, restarts=0).result
     child = prob.like(model=prob.model.with_effects(["lower_asymmetric_coulomb"]),
                       free=[*prob.names, "dTc_l"])
     x0 = child.start_vector({**child.base, **prob.values(parent.x)})
-    full = R.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"], uncertainty=False)
-    monkeypatch.setattr(R, "LONG_RESIDUALS", 0)
-    screened = R.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"], verbose=True,
+    full = inference_refit.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"],
+                                       uncertainty=False)
+    monkeypatch.setattr(inference_refit, "LONG_RESIDUALS", 0)
+    screened = inference_refit.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"],
+                                           verbose=True,
                              uncertainty=False)
     assert "screened" in capsys.readouterr().out
     assert screened.chose.endswith("(screened, then fitted to the end)")

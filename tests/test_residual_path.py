@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.kernel import layout
 from rotorbayes.model.parameters import thesis_set
 
 
-def _by_simulation(prob: E.Problem, x: np.ndarray) -> tuple[np.ndarray, list[int]]:
+def _by_simulation(prob: inference.Problem, x: np.ndarray) -> tuple[np.ndarray, list[int]]:
     """The residual vector the slow way: full simulations, then the subtraction."""
     parts, status = [], []
     for i, (ex, sim) in enumerate(zip(prob.experiments, prob.sims, strict=True)):
@@ -46,24 +46,24 @@ def _problems():
     ex_b2 = _data("brake", brake, seed=5, alpha0=-0.3)
     ex_c = _data("coupled", coupled, rate=200.0)
     return {
-        "brake-two-experiments-both-channels": E.Problem(
+        "brake-two-experiments-both-channels": inference.Problem(
             "brake", [ex_b1, ex_b2], base=brake, channels=("theta_u", "theta_l"),
             weights={"theta_u": 2.5, "theta_l": 0.7},
         ),
-        "brake-lower-channel-then-upper": E.Problem(
+        "brake-lower-channel-then-upper": inference.Problem(
             "brake", [ex_b1], base=brake, channels=("theta_l", "theta_u")
         ),
-        "coupled-200Hz-delay-deadzone": E.Problem(
+        "coupled-200Hz-delay-deadzone": inference.Problem(
             "coupled", [ex_c], base=coupled, effects=["input_delay", "motor_deadzone"],
         ),
-        "upper": E.Problem("upper", [_data("upper", upper)], base=upper),
+        "upper": inference.Problem("upper", [_data("upper", upper)], base=upper),
         # A user effect: the kernel entry point with function arguments (the others use
         # the one without).
-        "brake-user-effect": E.Problem(
+        "brake-user-effect": inference.Problem(
             "brake", [ex_b2], base=dict(brake, a_fric=0.2, phi_fric=0.5), effects=[USER],
             free=["J_l", "Tc_l", "a_fric"],
         ),
-        "prescribed-upper": E.Problem(
+        "prescribed-upper": inference.Problem(
             "brake", [ex_b1], base=dict(brake, alpha0=0.4), prescribed_upper=True,
             effects=["initial_torsion"],
         ),
@@ -137,7 +137,7 @@ def test_a_derived_problem_keeps_every_setting_it_is_not_told_to_change():
     designed experiment) copy their settings: channels, weights, friction shape and step
     survive, the free set and base change as asked, and an unknown setting is refused."""
     brake = thesis_set("4.3", "P_ref")
-    prob = E.Problem("brake", [_data("brake", brake, seconds=2.0)], base=brake,
+    prob = inference.Problem("brake", [_data("brake", brake, seconds=2.0)], base=brake,
                      channels=("theta_l", "theta_u"), weights={"theta_u": 2.5},
                      shape="rational", step=0.009)  # fmt: skip
     sub = prob.like(free=["J_l", "Tc_l"], base=dict(brake, k_m=3.0))

@@ -18,9 +18,8 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import inference as E
-from rotorbayes.inference import identify as I
-from rotorbayes.inference import parallel as P
+from rotorbayes import inference
+from rotorbayes.inference import identify, parallel
 from rotorbayes.inference.taskstore import TaskStore, store_path
 
 
@@ -78,56 +77,56 @@ def test_multistart_killed_then_rerun_skips_finished_starts(tmp_path):
 
 
 def test_a_changed_setting_or_problem_reuses_nothing(tmp_path, capsys):
-    prob = E.Problem("upper", [short_upper()])
+    prob = inference.Problem("upper", [short_upper()])
     folder = tmp_path / ".ms.tasks"
-    with P.use_executor(P.ExecutorSpec("serial")):
-        first = E.multistart(prob, 3, seed=1, max_nfev=10, progress=False, resume=folder)
+    with parallel.use_executor(parallel.ExecutorSpec("serial")):
+        first = inference.multistart(prob, 3, seed=1, max_nfev=10, progress=False, resume=folder)
         assert len(list(folder.glob("*.npz"))) == 3
         # Same problem and settings: every start is read back, bit for bit.
-        again = E.multistart(prob, 3, seed=1, max_nfev=10, progress=True, resume=folder)
+        again = inference.multistart(prob, 3, seed=1, max_nfev=10, progress=True, resume=folder)
         assert "3 of 3 starts had finished in an earlier run" in capsys.readouterr().out
         assert again.ends.tobytes() == first.ends.tobytes()
         assert again.ssr.tobytes() == first.ssr.tobytes()
         assert [f.jac.tobytes() for f in again.fits] == [f.jac.tobytes() for f in first.fits]
         # Another budget: the store is emptied, the starts fitted again.
-        other = E.multistart(prob, 3, seed=1, max_nfev=12, progress=True, resume=folder)
+        other = inference.multistart(prob, 3, seed=1, max_nfev=12, progress=True, resume=folder)
         txt = capsys.readouterr()
         assert "of another problem or other settings" in txt.err
         assert "had finished in an earlier run" not in txt.out
-        fresh = E.multistart(prob, 3, seed=1, max_nfev=12, progress=False)
+        fresh = inference.multistart(prob, 3, seed=1, max_nfev=12, progress=False)
         assert other.ends.tobytes() == fresh.ends.tobytes()
         # Other data (one sample changed): nothing reused either.
         ex = short_upper()
         ex.theta_u[100] += 1e-4
-        prob2 = E.Problem("upper", [ex])
-        E.multistart(prob2, 3, seed=1, max_nfev=12, progress=True, resume=folder)
+        prob2 = inference.Problem("upper", [ex])
+        inference.multistart(prob2, 3, seed=1, max_nfev=12, progress=True, resume=folder)
         txt = capsys.readouterr()
         assert "of another problem or other settings" in txt.err
 
 
 def test_a_damaged_record_is_fitted_again(tmp_path):
-    prob = E.Problem("upper", [short_upper()])
+    prob = inference.Problem("upper", [short_upper()])
     folder = tmp_path / ".ms.tasks"
-    with P.use_executor(P.ExecutorSpec("serial")):
-        first = E.multistart(prob, 2, seed=3, max_nfev=10, progress=False, resume=folder)
+    with parallel.use_executor(parallel.ExecutorSpec("serial")):
+        first = inference.multistart(prob, 2, seed=3, max_nfev=10, progress=False, resume=folder)
         rec = sorted(folder.glob("*.npz"))[0]
         rec.write_bytes(rec.read_bytes()[:50])  # a torn write (cannot happen: renamed whole)
-        again = E.multistart(prob, 2, seed=3, max_nfev=10, progress=False, resume=folder)
+        again = inference.multistart(prob, 2, seed=3, max_nfev=10, progress=False, resume=folder)
     assert again.ends.tobytes() == first.ends.tobytes()
 
 
 def test_profile_points_resume_bit_for_bit(tmp_path):
-    prob = E.Problem("upper", [short_upper()])
-    fit = E.fit(prob, max_nfev=30, uncertainty=False)
+    prob = inference.Problem("upper", [short_upper()])
+    fit = inference.fit(prob, max_nfev=30, uncertainty=False)
     folder = tmp_path / ".id.tasks"
-    with P.use_executor(P.ExecutorSpec("serial")):
-        ref = I.profile(prob, fit.x, "k_m", n_points=5, max_nfev=10)
-        full = I.profile(prob, fit.x, "k_m", n_points=5, max_nfev=10, resume=folder)
+    with parallel.use_executor(parallel.ExecutorSpec("serial")):
+        ref = identify.profile(prob, fit.x, "k_m", n_points=5, max_nfev=10)
+        full = identify.profile(prob, fit.x, "k_m", n_points=5, max_nfev=10, resume=folder)
         files = sorted(folder.glob("*.npz"))
         assert len(files) == 5
         for f in files[:2]:
             f.unlink()  # as if the run had been killed after three points
-        again = I.profile(prob, fit.x, "k_m", n_points=5, max_nfev=10, resume=folder)
+        again = identify.profile(prob, fit.x, "k_m", n_points=5, max_nfev=10, resume=folder)
     assert TaskStore(folder, "another key").reused == 0
     assert not list(folder.glob("*.npz"))  # another key: emptied
     assert np.array(full["delta_chi2"]).tobytes() == np.array(ref["delta_chi2"]).tobytes()
@@ -151,14 +150,14 @@ def test_first_fit_restarts_resume_after_ctrl_c_to_the_uninterrupted_fit(tmp_pat
     restarts around the data start; Ctrl-C during the restarts keeps the fits that had
     finished, and the same command ends with the fit of an uninterrupted run, bit for bit."""
     from rotorbayes.cli import main
-    from rotorbayes.inference import first_fit as F
+    from rotorbayes.inference import first_fit
 
     args = ["fit", "--model", "coupled", "example:coupled_hidden_est", "--restarts", "4"]
     assert main([*args, "--out", str(tmp_path / "ref")]) == 0
     ref = json.loads((tmp_path / "ref" / "fit.json").read_text())
     assert not store_path(tmp_path / "ref").exists()
     out = tmp_path / "f"
-    orig, calls = F._fit_start, []
+    orig, calls = first_fit._fit_start, []
 
     def stopped_at_the_third(*a, **kw):  # the third restart is stopped by a Ctrl-C
         calls.append(1)
@@ -166,14 +165,14 @@ def test_first_fit_restarts_resume_after_ctrl_c_to_the_uninterrupted_fit(tmp_pat
             raise KeyboardInterrupt
         return orig(*a, **kw)
 
-    monkeypatch.setattr(F, "_fit_start", stopped_at_the_third)
+    monkeypatch.setattr(first_fit, "_fit_start", stopped_at_the_third)
     capsys.readouterr()
-    with P.use_executor(P.ExecutorSpec("serial")):  # one restart after the other
+    with parallel.use_executor(parallel.ExecutorSpec("serial")):  # one restart after the other
         assert main([*args, "--out", str(out)]) == 130
     err = capsys.readouterr().err
     assert "nothing was written" in err and "3 fit(s)" in err and "skips them" in err, err
     assert not out.exists() and len(list(store_path(out).glob("*.npz"))) == 3
-    monkeypatch.setattr(F, "_fit_start", orig)
+    monkeypatch.setattr(first_fit, "_fit_start", orig)
     assert main([*args, "--out", str(out)]) == 0
     said = capsys.readouterr().out
     assert "the fit from the data start had finished in an earlier run" in said

@@ -349,8 +349,7 @@ def test_every_form_gives_the_csvs_residuals_bit_for_bit(tmp_path, brake):
     logger's tab CSV in ms: the residual vector at one parameter set equals the plain
     CSV's bit for bit."""
     from rotorbayes.inference import Problem
-    from rotorbayes.model import Model
-    from rotorbayes.model import parameters as P
+    from rotorbayes.model import Model, parameters
 
     _scope_v5(tmp_path / "v5.mat", brake)
     _mat73(tmp_path / "v73.mat", {"ScopeData": _scope(brake, counts=True)})
@@ -369,7 +368,7 @@ def test_every_form_gives_the_csvs_residuals_bit_for_bit(tmp_path, brake):
         (tmp_path / "log.txt", ReadSpec.from_options("t=ms,u=V,theta_u=a,theta_l=b", "ms"),
          load_experiment(tmp_path / "log_si.csv")),
     ]
-    base = P.resolve(None, config="brake")
+    base = parameters.resolve(None, config="brake")
 
     def residuals(ex):
         prob = Problem(Model("brake"), [ex], free=["Tc_l", "b_l"], base=base)

@@ -24,8 +24,7 @@ import pytest
 from test_faults import _short_upper
 
 from rotorbayes.cli import main
-from rotorbayes.inference import parallel as P
-from rotorbayes.inference import sampling as S
+from rotorbayes.inference import parallel, sampling
 from rotorbayes.inference.likelihood import LogPosterior
 from rotorbayes.results import load_fit
 
@@ -57,12 +56,12 @@ def chains(path: Path) -> dict:
 def run(fit, folder, executor, monkeypatch, steps=20, **kw):
     # Re-centre the fit proposal early (main process) and cut the runs into segments of
     # 3 steps, then 1: the chains must not depend on either.
-    monkeypatch.setattr(S, "ADAPT_AT", 12)
-    monkeypatch.setattr(S, "SEGMENT_FIRST", 3)
-    monkeypatch.setattr(S, "SEGMENT_SECONDS", 1e-9)
+    monkeypatch.setattr(sampling, "ADAPT_AT", 12)
+    monkeypatch.setattr(sampling, "SEGMENT_FIRST", 3)
+    monkeypatch.setattr(sampling, "SEGMENT_SECONDS", 1e-9)
     f = load_fit(fit)
     lp = LogPosterior(f.problem, f.x)
-    S.sample(lp, f.x, folder, n_walkers=10, n_steps=steps, n_ensembles=2, seed=3,
+    sampling.sample(lp, f.x, folder, n_walkers=10, n_steps=steps, n_ensembles=2, seed=3,
              progress=False, executor=executor, **kw)
     return chains(folder / "chain.h5"), lp.n_calls
 
@@ -71,14 +70,14 @@ def test_serial_and_threads_give_the_serial_loop_bit_for_bit(fitted, tmp_path, m
     ref, calls = run(fitted, tmp_path / "ref", None, monkeypatch)
     assert all(v[4] == 20 for v in ref.values()) and len(ref) == 2
     assert any(a.startswith("proposal_adapted") for a, _ in ref["ensemble0"][3])
-    got, c1 = run(fitted, tmp_path / "serial", P.SerialExecutor(), monkeypatch)
+    got, c1 = run(fitted, tmp_path / "serial", parallel.SerialExecutor(), monkeypatch)
     assert got == ref and c1 == calls
-    with P.open_executor(P.ExecutorSpec("threads", 2)) as ex:
+    with parallel.open_executor(parallel.ExecutorSpec("threads", 2)) as ex:
         got, c2 = run(fitted, tmp_path / "threads", ex, monkeypatch)
     assert got == ref and c2 == calls
     # Resumed on the executor from a shorter checkpoint of the serial loop: the same.
     run(fitted, tmp_path / "mixed", None, monkeypatch, steps=7)
-    got, _ = run(fitted, tmp_path / "mixed", P.SerialExecutor(), monkeypatch)
+    got, _ = run(fitted, tmp_path / "mixed", parallel.SerialExecutor(), monkeypatch)
     assert got == ref
 
 
@@ -91,7 +90,7 @@ def test_a_local_dask_cluster_gives_the_same_chains_and_gets_the_data_once(
         return [sorted(str(d.key) for d in ts.dependencies)
                 for k, ts in dask_scheduler.tasks.items() if "_run_segment" in str(k)]
 
-    with P.open_executor(P.ExecutorSpec("dask", 2)) as ex:
+    with parallel.open_executor(parallel.ExecutorSpec("dask", 2)) as ex:
         client = ex._client
 
         def look() -> bool:  # asked between segments: which data the segments name
@@ -109,7 +108,7 @@ def test_a_local_dask_cluster_gives_the_same_chains_and_gets_the_data_once(
 def reference(fitted: Path, tmp_path: Path, *, steps: int, ensembles: int, seed: int) -> dict:
     """The chains of an uninterrupted serial run of 10 walkers (what the command runs)."""
     f = load_fit(fitted)
-    S.sample(LogPosterior(f.problem, f.x), f.x, tmp_path / "ref", n_walkers=10,
+    sampling.sample(LogPosterior(f.problem, f.x), f.x, tmp_path / "ref", n_walkers=10,
              n_steps=steps, n_ensembles=ensembles, seed=seed, progress=False)
     return chains(tmp_path / "ref" / "chain.h5")
 
@@ -155,7 +154,7 @@ def test_parallel_sampling_killed_resumes_to_the_uninterrupted_chains(fitted, tm
 
 def wait_until_held(out: Path, steps: int, p: subprocess.Popen) -> None:
     """Wait until the run writing ``out`` holds at least ``steps`` steps (all ensembles)."""
-    while S.steps_held(out / "chain.h5") < steps:
+    while sampling.steps_held(out / "chain.h5") < steps:
         assert p.poll() is None, "the run ended before the kill was due"
         time.sleep(0.01)
     assert p.poll() is None, "the run ended before the kill was due"
@@ -169,7 +168,7 @@ def whole(out: Path) -> Path:
         chains(chain)
         return chain
     except Exception:  # noqa: BLE001 - h5py raises OSError, KeyError, ValueError...
-        return out / S.Snapshot.NAME
+        return out / sampling.Snapshot.NAME
 
 
 @pytest.mark.parametrize("damage", ["overwritten", "truncated"])
@@ -183,11 +182,11 @@ def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_ex
     # most likely because the run had finished (and removed it) during the read of
     # chain.h5 that saw 30 steps held (a read waits for the writer).
     ref = reference(fitted, tmp_path, steps=900, ensembles=2, seed=7)
-    assert not (tmp_path / "ref" / S.Snapshot.NAME).exists()
+    assert not (tmp_path / "ref" / sampling.Snapshot.NAME).exists()
     out = tmp_path / "S"
     p = cli(["sample", str(fitted), "--walkers", "10", "--steps", "900", "--ensembles", "2",
              "--seed", "7", "--max-draws", "5", "--quiet", "--out", str(out)], tmp_path)
-    copy = out / S.Snapshot.NAME
+    copy = out / sampling.Snapshot.NAME
     while not copy.exists():  # the first step is saved and copied
         assert p.poll() is None, "the run ended before the kill was due"
         time.sleep(0.01)
@@ -221,26 +220,26 @@ def test_a_stop_request_ends_between_segments_and_says_where_each_ensemble_is(
     # Stop once both ensembles have saved steps (not after a count of asks: on a fast
     # machine one ensemble's segments came back six times before the other's first).
     saved = set()
-    save = S._save_chunk
+    save = sampling._save_chunk
 
     def saving(path, name, chunk):
         save(path, name, chunk)
         saved.add(name)
 
-    monkeypatch.setattr(S, "_save_chunk", saving)
+    monkeypatch.setattr(sampling, "_save_chunk", saving)
 
     def stop() -> bool:
         return len(saved) == 2
 
-    with P.open_executor(P.ExecutorSpec("threads", 2)) as ex:
-        with pytest.raises(S.SamplingStopped) as info:
+    with parallel.open_executor(parallel.ExecutorSpec("threads", 2)) as ex:
+        with pytest.raises(sampling.SamplingStopped) as info:
             run(fitted, tmp_path / "S", ex, monkeypatch, should_stop=stop)
     held = chains(tmp_path / "S" / "chain.h5")
     n0, n1 = held["ensemble0"][4], held["ensemble1"][4]
     assert 0 < n0 < 20 and 0 < n1 < 20
     assert str(info.value) == (f"ensemble0 stopped after step {n0} of 20, ensemble1 after "
                                f"step {n1}")
-    got, _ = run(fitted, tmp_path / "S", P.SerialExecutor(), monkeypatch)
+    got, _ = run(fitted, tmp_path / "S", parallel.SerialExecutor(), monkeypatch)
     assert got == ref
 
 
@@ -270,7 +269,7 @@ def test_a_reader_of_the_checkpoint_delays_sampling_and_changes_nothing(fitted, 
     out = tmp_path / "S"
     p = cli(["sample", str(fitted), "--walkers", "10", "--steps", "150", "--ensembles", "1",
              "--seed", "4", "--max-draws", "5", "--quiet", "--out", str(out)], tmp_path)
-    while not S.steps_held(out / "chain.h5") and p.poll() is None:
+    while not sampling.steps_held(out / "chain.h5") and p.poll() is None:
         time.sleep(0.02)
     readers = []
     for _ in range(3):  # three readers, each holding the lock for a while mid-run
@@ -289,7 +288,7 @@ def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(fitted, 
             "--quiet"]
     assert main(["sample", str(fitted), *args, "--steps", "20", "--out", str(out)]) == 0
     before = chains(out / "chain.h5")
-    monkeypatch.setattr(S, "LOCK_WAIT", 0.5)
+    monkeypatch.setattr(sampling, "LOCK_WAIT", 0.5)
     reader = hold_open(out / "chain.h5", 60)
     try:
         capsys.readouterr()
@@ -324,7 +323,7 @@ def test_a_lost_scheduler_stops_sampling_cleanly_and_resume_finishes_the_chains(
                 tmp_path)
         procs.append(p)
         deadline = time.time() + 180
-        while not S.steps_held(out / "chain.h5") and p.poll() is None:
+        while not sampling.steps_held(out / "chain.h5") and p.poll() is None:
             assert time.time() < deadline
             time.sleep(0.05)
         sched.kill()

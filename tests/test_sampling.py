@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.cli import main
 from rotorbayes.data import quantisation_floor
 from rotorbayes.inference.likelihood import LogPosterior, Prior, load_priors
@@ -79,7 +79,7 @@ def test_priors_from_toml_and_their_errors(upper_fit, tmp_path):
 
 def test_ar1_likelihood_matches_its_formula():
     ex = rb.load_example("upper_est")
-    prob = E.Problem("upper", [ex])
+    prob = inference.Problem("upper", [ex])
     x = prob.x_from(rb.parameters.thesis_set("5.1", "P"))
     lp = LogPosterior(prob, x, ar1=True)
     sigma, phi = 2e-5, 0.6
@@ -131,7 +131,7 @@ def test_a_killed_run_resumes_exactly_as_an_uninterrupted_one(upper_fit, tmp_pat
 
 
 def test_sample_command_writes_inference_data(upper_fit, tmp_path, capsys):
-    from rotorbayes.inference import arviz_compat as AZ
+    from rotorbayes.inference import arviz_compat
 
     out = tmp_path / "post"
     assert main(["sample", str(upper_fit[1]), "--walkers", "12", "--steps", "80",
@@ -140,15 +140,15 @@ def test_sample_command_writes_inference_data(upper_fit, tmp_path, capsys):
     assert "| k_m |" in text.out and "R-hat" in text.out
     # Too short a run says so, loudly.
     assert "not more than 50 τ" in text.err
-    idata = AZ.load(out / "posterior.nc")
+    idata = arviz_compat.load(out / "posterior.nc")
     for g in ("posterior", "sample_stats", "log_likelihood", "observed_data",
               "constant_data", "posterior_predictive"):
-        assert g in AZ.group_names(idata)
-    post = AZ.group(idata, "posterior")
+        assert g in arviz_compat.group_names(idata)
+    post = arviz_compat.group(idata, "posterior")
     assert post.sizes["chain"] == 2  # two independent ensembles
     assert post.attrs["ensembles"] == 2
-    assert "theta_u_exp0" in AZ.group(idata, "log_likelihood")
-    summ = AZ.summary(idata, var_names=["k_m"])
+    assert "theta_u_exp0" in arviz_compat.group(idata, "log_likelihood")
+    summ = arviz_compat.summary(idata, var_names=["k_m"])
     assert np.isfinite(summ.loc["k_m", "r_hat"])
     assert summ.loc["k_m", "hdi_low"] < summ.loc["k_m", "mean"] < summ.loc["k_m", "hdi_high"]
     truth = upper_fit[0]
@@ -157,11 +157,10 @@ def test_sample_command_writes_inference_data(upper_fit, tmp_path, capsys):
     assert {"ess_bulk", "ess_tail", "ess_tau", "r_hat", "r_hat_kept", "hdi_low",
             "hdi_high"} <= set(header)
     # The table's R-hat is that of every thinned draw after burn-in, not of the 60 kept.
-    from rotorbayes.inference import posterior as PO
-    from rotorbayes.inference import sampling as S
+    from rotorbayes.inference import posterior, sampling
 
-    runs = [S.read_ensemble(out / "chain.h5", f"ensemble{i}") for i in range(2)]
-    _, rhat_all = PO.ess_all_draws(None, runs)
+    runs = [sampling.read_ensemble(out / "chain.h5", f"ensemble{i}") for i in range(2)]
+    _, rhat_all = posterior.ess_all_draws(None, runs)
     row = dict(zip(header, (out / "summary.csv").read_text().splitlines()[1].split(","),
                    strict=True))
     assert row["parameter"] == "k_m"
@@ -181,7 +180,7 @@ def test_r_hat_from_every_draw_is_quiet_on_converged_ensembles_and_loud_on_split
     converged: R-hat of the 2 x 200 draws kept in posterior.nc scatters by about +-0.02.
     From every thinned draw it is quiet on independent draws of one distribution and still
     flags two ensembles 0.4 standard deviations apart (R-hat 1.01 is about 0.3)."""
-    from rotorbayes.inference import posterior as PO
+    from rotorbayes.inference import posterior
     from rotorbayes.inference.sampling import EnsembleRun
 
     def runs(seed, shift=0.0):
@@ -194,13 +193,13 @@ def test_r_hat_from_every_draw_is_quiet_on_converged_ensembles_and_loud_on_split
     kept, every = [], []
     for seed in range(20):
         r = runs(seed)
-        every.append(PO.ess_all_draws(None, r)[1].max())
+        every.append(posterior.ess_all_draws(None, r)[1].max())
         r_kept = [EnsembleRun(x.name, x.chain[::40], x.log_prob[::40], x.acceptance, x.tau)
                   for x in r]  # about the 2 x 200 draws posterior.nc keeps
-        kept.append(PO.ess_all_draws(None, r_kept)[1].max())
+        kept.append(posterior.ess_all_draws(None, r_kept)[1].max())
     assert max(every) < 1.005, max(every)
     assert sum(k >= 1.01 for k in kept) >= 3, kept  # the false alarm the fix removes
-    split = [PO.ess_all_draws(None, runs(seed, shift=0.4))[1].min() for seed in range(5)]
+    split = [posterior.ess_all_draws(None, runs(seed, shift=0.4))[1].min() for seed in range(5)]
     assert min(split) > 1.01, split
 
 

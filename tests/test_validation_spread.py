@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 import rotorbayes as rb
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.inference.assess import Assessment, validation_spread
 from rotorbayes.model.parameters import resolve
 
@@ -37,8 +37,8 @@ def _exp(params, seconds, seed, name, scale=1.0):
 
 def _fit(seconds):
     est = _exp(BRAKE, seconds, 1, "est")
-    prob = E.Problem("brake", [est], base=BRAKE, channels=("theta_u", "theta_l"))
-    return prob, E.fit(prob, prob.start_vector(BRAKE))
+    prob = inference.Problem("brake", [est], base=BRAKE, channels=("theta_u", "theta_l"))
+    return prob, inference.fit(prob, prob.start_vector(BRAKE))
 
 
 def test_the_validation_verdict_compares_the_gap_with_the_estimates_uncertainty():
@@ -48,8 +48,8 @@ def test_the_validation_verdict_compares_the_gap_with_the_estimates_uncertainty(
     other = _exp(dict(BRAKE, k_m=3.1 * 1.03), 6.0, 2, "other motor", scale=1.6)
     ratios = {}
     for ex in (same, other):
-        q_val = E.quality(prob, res.x, [ex])
-        a = E.assess(res, E.quality(prob, res.x), q_val, val_experiments=[ex])
+        q_val = inference.quality(prob, res.x, [ex])
+        a = inference.assess(res, inference.quality(prob, res.x), q_val, val_experiments=[ex])
         ratios[ex.name] = (a.worst_ratio, a.worst_ratio_validation, a.spread, a.verdict)
     w, v, sp, verdict = ratios["same rig"]
     assert w <= 1.5 and v > 3.0, (w, v)  # at the floor here, above it there
@@ -63,15 +63,16 @@ def test_the_validation_verdict_compares_the_gap_with_the_estimates_uncertainty(
     assert sp2 == sp
     assert validation_spread(res, [same], floors) == sp  # fixed seed: reproducible
     # Without the spread (not computed), the words are the former ones.
-    plain = Assessment(channels=E.assess(res, E.quality(prob, res.x),
-                                         E.quality(prob, res.x, [same])).channels)
+    plain = Assessment(channels=inference.assess(res, inference.quality(prob, res.x),
+                                         inference.quality(prob, res.x, [same])).channels)
     assert "does not predict others" in plain.verdict and plain.spread is None
 
 
 def test_parameters_the_estimation_data_leave_undetermined_are_named_instead():
     prob, res = _fit(4.0)  # 4 s: the lower disc's viscous terms are not determined
     same = _exp(BRAKE, 6.0, 2, "same rig", scale=1.6)
-    a = E.assess(res, E.quality(prob, res.x), E.quality(prob, res.x, [same]),
+    a = inference.assess(res, inference.quality(prob, res.x), inference.quality(prob, res.x,
+                                                                                [same]),
                  val_experiments=[same])
     assert a.worst_ratio <= 1.5 < 3.0 < a.worst_ratio_validation
     assert set(a.spread["undetermined"]) >= {"b_l"}

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from refdata import SETS, make_experiment
 
-from rotorbayes import inference as E
+from rotorbayes import inference
 from rotorbayes.cli import main
 from rotorbayes.data import save_experiment
 from rotorbayes.inference.assess import validation_spread
@@ -66,24 +66,24 @@ def _worst(rows, prob) -> float:
 
 
 def test_a_validation_run_is_simulated_with_its_own_torsion(runs):
-    prob = E.Problem("brake", [runs["est_a"], runs["est_b"]])
+    prob = inference.Problem("brake", [runs["est_a"], runs["est_b"]])
     assert "initial_torsion" in prob.model.effect_names  # on with two runs
-    res = E.fit_from_data(prob, restarts=0).result
-    assert _worst(E.quality(prob, res.x), prob) <= 1.0  # the estimation data at the floor
+    res = inference.fit_from_data(prob, restarts=0).result
+    assert _worst(inference.quality(prob, res.x), prob) <= 1.0  # the estimation data at the floor
     vals = [runs["val_unwound"], runs["val_wound"]]
-    rows = E.quality(prob, res.x, vals)
+    rows = inference.quality(prob, res.x, vals)
     for r, truth in zip(rows, (0.0, 0.1), strict=True):
         t = r["validation_alpha0"]
         assert t.how == FITTED_ALONE and abs(t.value - truth) < 2e-4, (t, truth)
         assert "fitted on that run alone" in t.words()
         assert _worst([r], prob) <= VAL_AT_FLOOR, (r["experiment"], _worst([r], prob))
     # Given values are used as they are; a stored record gives the same rows again.
-    given = E.quality(prob, res.x, vals, validation_alpha0=[0.0, 0.1])
+    given = inference.quality(prob, res.x, vals, validation_alpha0=[0.0, 0.1])
     assert [r["validation_alpha0"].how for r in given] == [GIVEN, GIVEN]
     assert [r["validation_alpha0"].value for r in given] == [0.0, 0.1]
     assert _worst(given, prob) <= VAL_AT_FLOOR
     recs = [r["validation_alpha0"].as_dict() for r in rows]
-    again = E.quality(prob, res.x, vals, validation_alpha0=recs)
+    again = inference.quality(prob, res.x, vals, validation_alpha0=recs)
     assert _worst(again, prob) == _worst(rows, prob)
     # Never another experiment's alpha0: the first run's would be thousands of times off.
     p, _ = prob.validation_params(res.x, runs["val_wound"])
@@ -97,10 +97,10 @@ def test_a_validation_run_is_simulated_with_its_own_torsion(runs):
 
 def test_one_run_without_initial_torsion_keeps_the_models_fixed_value(runs):
     truth = resolve(TRUTH, config="brake")
-    prob = E.Problem("brake", [runs["val_unwound"]], base=truth)
+    prob = inference.Problem("brake", [runs["val_unwound"]], base=truth)
     assert "initial_torsion" not in prob.model.effect_names
     x = prob.x_from(truth)
-    (row,) = E.quality(prob, x, [runs["est_a"]])
+    (row,) = inference.quality(prob, x, [runs["est_a"]])
     t = row["validation_alpha0"]
     assert (t.how, t.value) == (FIXED, 0.0)  # as before: the model has no pre-wound string
     assert "initial_torsion is off" in t.words()
