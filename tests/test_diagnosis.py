@@ -138,6 +138,7 @@ def test_an_effect_outside_the_catalogue_is_named_by_the_torque_map():
     assert abs(res2.values["a_fric"] - 0.3) < 0.01
 
 
+@pytest.mark.slow
 def test_cli_fit_diagnose_add_chain(tmp_path, capsys, monkeypatch):
     truth, est, val = _hidden("lower_asymmetric_viscous")
     for ex, name in ((est, "est.csv"), (val, "val.csv")):

@@ -289,6 +289,7 @@ def test_user_effect_fit_recovers_its_parameters(tmp_path, capsys):
     assert rms < 1.5 * FLOOR_L
 
 
+@pytest.mark.slow
 def test_diagnose_tests_a_user_effect_beside_the_catalogue(tmp_path, capsys):
     """Trial 12: a user effect could not be score-tested before a refit, and the refit
     started it at the file's defaults.  `diagnose --add FILE.py:NAME` tests it with the

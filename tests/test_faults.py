@@ -225,6 +225,8 @@ def test_a_ctrl_c_that_compiled_code_turns_into_another_error_is_reported_as_the
     assert listing(tmp_path) == []  # no partial folder either way
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_ctrl_c_in_sample_stops_between_steps_and_resume_finishes(proj, tmp_path,
                                                                   monkeypatch, capfd):
     """SIGINT arrives inside a log-posterior evaluation (where emcee would print its
@@ -279,6 +281,8 @@ def _fit_stopped_by_sigint_says_what_is_on_disk(proj, cwd: Path, delay: float) -
         assert names == [], names
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_fit_stopped_by_sigint_at_random_moments_tells_the_truth(proj, tmp_path):
     """Whatever the moment, what the message says is what is on disk."""
     rng = random.Random(17)
@@ -288,6 +292,8 @@ def test_fit_stopped_by_sigint_at_random_moments_tells_the_truth(proj, tmp_path)
         _fit_stopped_by_sigint_says_what_is_on_disk(proj, tmp_path / f"r{k}", delay)
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_ctrl_c_while_the_command_loads_ends_it_at_once_whatever_the_moment(proj, tmp_path):
     """Stops while numba and the command's modules import: a KeyboardInterrupt raised there
     used to land in importlib's weakref callback ("Exception ignored", the command went on),
@@ -318,6 +324,8 @@ def test_ctrl_c_after_the_command_has_finished_changes_nothing(tmp_path):
     assert "wrote s.csv" in out
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_sample_killed_at_random_moments_resumes_to_exactly_the_steps_asked(proj, tmp_path):
     rng = random.Random(4)
     for k, sig in enumerate((signal.SIGKILL, signal.SIGINT)):
@@ -373,6 +381,8 @@ def test_a_second_process_on_one_result_folder_is_refused_as_busy(proj, post, tm
     assert not (tmp_path / "study").exists()
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_two_samplers_started_together_on_one_folder(proj, tmp_path):
     args = ["sample", str(proj / "fit"), "--walkers", "10", "--steps", "20", "--ensembles",
             "1", "--max-draws", "5", "--quiet", "--out", "S"]

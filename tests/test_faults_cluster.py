@@ -249,13 +249,13 @@ def test_a_dask_peer_that_never_takes_the_client_is_exit_3_not_a_hang(tmp_path):
         import sys
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_faults_cluster import FakeServer
-        from rotorbayes.inference import parallel as P
-        P.CLIENT_GRACE = 2.0
+        from rotorbayes.inference import parallel
+        parallel.CLIENT_GRACE = 2.0
         s = FakeServer("handshake")
         try:
-            with P.open_executor(P.choose(scheduler=s.address)):
+            with parallel.open_executor(parallel.choose(scheduler=s.address)):
                 print("opened")
-        except P.ClusterError as exc:
+        except parallel.ClusterError as exc:
             print(exc, file=sys.stderr)
             sys.exit(3)
     """))
@@ -360,10 +360,10 @@ def test_a_real_enospc_beyond_the_reserve_is_exit_3_never_a_crash(proj, tmp_path
         script.write_text(textwrap.dedent(f"""
             import os, sys
             from rotorbayes.cli import main
-            from rotorbayes.commands import sample as C
-            from rotorbayes.inference import posterior as PO
-            C.summary_sizes = lambda *a, **k: {{n: 0 for n in C.SAMPLE_OUTPUTS}}
-            made = PO.inference_data
+            from rotorbayes.commands import sample
+            from rotorbayes.inference import posterior
+            sample.summary_sizes = lambda *a, **k: {{n: 0 for n in sample.SAMPLE_OUTPUTS}}
+            made = posterior.inference_data
             def filling(*a, **k):
                 st = os.statvfs({str(disk)!r})
                 try:
@@ -373,7 +373,7 @@ def test_a_real_enospc_beyond_the_reserve_is_exit_3_never_a_crash(proj, tmp_path
                 except OSError:
                     pass
                 return made(*a, **k)
-            PO.inference_data = filling
+            posterior.inference_data = filling
             sys.exit(main(["sample", {str(proj / "fit")!r}, *{SAMPLE!r}, "--out", {str(out)!r}]))
         """))
         p = subprocess.run([sys.executable, str(script)], env=ENV, capture_output=True,

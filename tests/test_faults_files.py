@@ -347,6 +347,8 @@ def test_a_changed_data_file_is_refused_by_every_command_that_reads_the_fit(
     assert tree(changed) == before and listing(tmp_path) == []
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_accept_changed_data_says_so_and_the_diagnosis_records_it(changed, tmp_path, capfd):
     fit = tmp_path / "fit"
     shutil.copytree(changed, fit)

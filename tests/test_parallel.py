@@ -311,6 +311,8 @@ def test_a_bad_dask_timeout_is_refused_with_its_name(monkeypatch, value):
     assert parallel.connect_timeout() == parallel.CONNECT_TIMEOUT
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
     """A real `dask scheduler` and `dask worker`; the scheduler is killed mid-job."""
     with real_cluster(tmp_path) as (address, sched, procs):
@@ -340,6 +342,8 @@ def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
         assert not (tmp_path / "ms").exists()
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_multistart_command_on_a_local_dask_cluster(tmp_path):
     out = tmp_path / "ms"
     p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "3",

@@ -121,14 +121,17 @@ def _check_case(extra, truths: dict, tmp_path):
     return est, val
 
 
+@pytest.mark.slow
 def test_a_friction_drift_in_time_is_proposed_and_its_refit_reaches_the_floor(tmp_path):
     _check_case({"drift_Tc_l": 0.0006}, {"t": 0.0006}, tmp_path)
 
 
+@pytest.mark.slow
 def test_a_quadratic_drag_is_proposed_and_its_refit_reaches_the_floor(tmp_path):
     _check_case({"drag_l": 0.004}, {"w2": 0.004}, tmp_path)
 
 
+@pytest.mark.slow
 def test_a_drift_and_a_drag_together_are_both_proposed(tmp_path):
     _check_case({"drift_Tc_l": 0.0006, "drag_l": 0.004}, {"t": 0.0006, "w2": 0.004},
                 tmp_path)
@@ -147,6 +150,7 @@ def test_a_control_proposes_nothing(config):
     assert "noise" in p.reason
 
 
+@pytest.mark.slow
 def test_diagnose_writes_the_proposal_and_its_command_refits_to_the_floor(tmp_path,
                                                                           monkeypatch):
     """The command end to end, as a user runs it: fit, diagnose (the proposal printed and

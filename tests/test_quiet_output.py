@@ -69,6 +69,8 @@ def demo(tmp_path_factory):
     return proc, tmp / "demo"
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_demo_prints_only_its_own_lines(demo):
     proc, _ = demo
     bad = foreign_lines(proc.stdout) + foreign_lines(proc.stderr)
@@ -79,6 +81,8 @@ def test_demo_prints_only_its_own_lines(demo):
     assert "not more than 50" not in proc.stdout + proc.stderr, proc.stderr[-2000:]
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_demo_says_one_headline_number_and_clean_paths(demo):
     proc, _ = demo
     out = proc.stdout
@@ -91,6 +95,8 @@ def test_demo_says_one_headline_number_and_clean_paths(demo):
     assert f"{m.group(1)}x" in diag0, (m.group(1), diag0[:600])
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_demo_report_box_and_badges_agree(demo):
     from rotorbayes.report import write_report
 

@@ -165,6 +165,7 @@ def test_upper_stop_and_stick_time_analytic():
 # --------------------------------------------------------------------------------------
 # 3. stick consistency in the brake configuration
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_brake_lower_stick_consistency():
     t, u = _brake_input(30.0)
     res = reference_simulate(BRAKE, t, u, "brake", dense_output=True)
@@ -202,6 +203,7 @@ def test_brake_lower_stick_consistency():
 # --------------------------------------------------------------------------------------
 # 4. tolerance convergence
 # --------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_brake_tolerance_convergence():
     t, u = _brake_input(10.0)
     r9 = reference_simulate(BRAKE, t, u, "brake", rtol=1e-9, atol=1e-11)
@@ -495,6 +497,7 @@ def test_continuous_input_equal_to_the_interpolant_matches_the_sample_path(confi
     assert len(lin["events"]) >= 4 and "stick" in _kinds(lin, "u")
 
 
+@pytest.mark.slow
 def test_continuous_input_is_converged_and_differs_from_the_interpolant():
     params = dict(BRAKE, t_delay=0.0077, u_deadzone=0.2)
     dt = 1e-2

@@ -119,6 +119,8 @@ def _external(text: str) -> list[str]:
 
 
 # ------------------------------------------------------------------------- plain HTML
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_study_report_holds_every_section_and_embeds_everything(study, report):
     assert report == study / "report.html"
     text = report.read_text()
@@ -154,6 +156,8 @@ def test_study_report_holds_every_section_and_embeds_everything(study, report):
     assert [p.name for p in study.iterdir() if p.name.startswith(".")] == []
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_single_folders_render_what_they_hold(study, tmp_path):
     cases = {
         "fit0": {"verdict", "data", "fit", "diagnosis", "reproducibility"},
@@ -185,6 +189,8 @@ def test_single_folders_render_what_they_hold(study, tmp_path):
     assert "Data hashes (computed now)" in fit1
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_text_from_the_files_is_escaped(study, tmp_path):
     fit = tmp_path / "fit"
     shutil.copytree(study / "fit1", fit)
@@ -205,6 +211,8 @@ def test_text_from_the_files_is_escaped(study, tmp_path):
     assert "<script" not in text
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_a_moved_study_still_finds_its_chain(study, tmp_path):
     """Parent links and run.json's final fit are absolute paths of where the study was made;
     a copied or moved study folder finds its fits by name beside each other."""
@@ -235,6 +243,8 @@ def test_nothing_to_report(tmp_path):
         build_report(tmp_path / "file.txt")
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_report_command(study, tmp_path, capsys):
     out = tmp_path / "study.html"
     assert main(["report", str(study), "--out", str(out)]) == 0
@@ -276,6 +286,8 @@ def _browser_or_fail():
     return sync_playwright
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_report_renders_in_headless_chromium(study, report, tmp_path):
     sync_playwright = _browser_or_fail()
     requests, blocked, errors = [], [], []

@@ -119,6 +119,8 @@ def cli(args, cwd):
                             text=True)
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_parallel_sampling_killed_resumes_to_the_uninterrupted_chains(fitted, tmp_path):
     # 900 steps, not 300: a read of chain.h5 waits for the writer, and a 300-step run once
     # ended during the read that saw the kill's step count (CI on a fast machine).
@@ -171,6 +173,8 @@ def whole(out: Path) -> Path:
         return out / sampling.Snapshot.NAME
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 @pytest.mark.parametrize("damage", ["overwritten", "truncated"])
 def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_exactly(
         fitted, tmp_path, damage, capsys):
@@ -264,6 +268,8 @@ def hold_open(path: Path, seconds: float) -> subprocess.Popen:
     return p
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_a_reader_of_the_checkpoint_delays_sampling_and_changes_nothing(fitted, tmp_path):
     ref = reference(fitted, tmp_path, steps=150, ensembles=1, seed=4)
     out = tmp_path / "S"
@@ -307,6 +313,8 @@ def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(fitted, 
     assert chains(out / "chain.h5") == chains(tmp_path / "ref" / "chain.h5")
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_a_lost_scheduler_stops_sampling_cleanly_and_resume_finishes_the_chains(fitted,
                                                                                tmp_path):
     """A real `dask scheduler` and worker; the scheduler is killed while the ensembles run

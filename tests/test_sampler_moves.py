@@ -34,6 +34,7 @@ def _min_ess_per_eval(runs) -> float:
     return float(np.min(ess)) / evals
 
 
+@pytest.mark.slow
 def test_the_default_moves_mix_better_than_the_stretch_move(upper_lp):
     """Same posterior, start, seeds and evaluations (2 ensembles x 16 walkers x 700 steps):
     the default's slowest coordinate gets at least 4x the effective samples per evaluation

@@ -100,6 +100,8 @@ def _iteration(path):
         return 0
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_a_killed_run_resumes_exactly_as_an_uninterrupted_one(upper_fit, tmp_path):
     fit = upper_fit[1]
     args = ["--walkers", "10", "--steps", "600", "--ensembles", "1", "--seed", "3", "--quiet",

@@ -52,6 +52,8 @@ html = false
 """
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_a_study_runs_and_a_rerun_skips_unchanged_stages(data, capsys):
     f = data / "study.toml"
     f.write_text(STUDY.format(steps=40))
@@ -212,6 +214,8 @@ def test_the_sample_table_chooses_the_moves(tmp_path):
         assert h["ensemble0"].attrs["moves"] == "de-mix"
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 @pytest.mark.parametrize("helps", [True, False])
 def test_a_study_tries_a_candidate_effect_and_keeps_it_only_if_it_helps(data, monkeypatch,
                                                                         helps):

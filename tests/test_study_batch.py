@@ -104,6 +104,8 @@ def test_studies_on_a_local_dask_cluster_match_single_runs(single, tmp_path, cap
     assert estimates(tmp_path / "B") == single["b"]
 
 
+@pytest.mark.slow
+@pytest.mark.every_python
 def test_ctrl_c_stops_every_study_and_the_same_command_continues(tmp_path):
     slow = "[sample]\nwalkers = 16\nsteps = 1500\n"
     files = [analysis(tmp_path, f"{n}.toml", n.upper(), d, slow)
