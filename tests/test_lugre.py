@@ -24,8 +24,7 @@ import pytest
 import rotorbayes as rb
 from rotorbayes import Effect, Parameter
 from rotorbayes.model import Model
-from rotorbayes.model.effects import EffectError
-from rotorbayes.model.laws import LUGRE
+from rotorbayes.model.effects import LUGRE, EffectError
 
 TOL = 1.5e-5
 
