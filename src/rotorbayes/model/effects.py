@@ -540,7 +540,7 @@ LUGRE = Effect(
     "the velocity (frictional memory); steady sliding follows the switch model's "
     "Stribeck curve.",
     parameters=(
-        Parameter("sigma0_l", "N m/rad", 5.0, 2000.0, 2000.0,
+        Parameter("sigma0_l", "N m/rad", 5.0, 700.0, 700.0,
                   "bristle stiffness (pre-sliding displacement Ts_l/sigma0_l)", start=300.0),
         Parameter("sigma1_l", "N m s/rad", 0.0, 10.0, 0.0,
                   "bristle damping", start=0.5),

@@ -30,11 +30,10 @@ resolve only where the pre-sliding displacement is many counts.
 (sigma0_l |omega_l|)`` -- 0.05 N m / (300 N m/rad * 5 rad/s) = 33 us, thirty times shorter
 than a 1 kHz sample.  The kernel's substep rule for an effect state
 (:func:`rotorbayes.kernel.terms.state_step`) follows it, so a simulation costs more the
-stiffer the bristles and the faster the slide; the figures are in ``benchmarks/README.md``
-(``benchmarks/bench_lugre.py``).  Above the bound of ``sigma0_l`` the substeps would fall
-below the rule's floor and the run would stop (``BLOW_UP``) rather than return a wrong
-answer; such a stiffness gives a pre-sliding displacement below the lower encoder's count
-anyway, where the law is the switch model to the data.
+stiffer the bristles and the faster the slide (docs/effects.md has the figures,
+``benchmarks/bench_lugre.py`` measures them).  The bound of ``sigma0_l`` (700 N m/rad) is
+the stiffest at which the kernel was measured within its accuracy target of the
+reference; the creep before break-away there is about one lower-encoder count.
 """
 
 from __future__ import annotations
