@@ -249,8 +249,7 @@ def _comb(Y, S, h, w, K, n_st):
         for a in range(k):
             acc = 0.0
             for j in range(n_st):
-                if w[j] != 0.0:
-                    acc += w[j] * K[j, r, a]
+                acc += w[j] * K[j, r, a]
             Y[r, a] = S[r, a] + h * acc
 
 
@@ -380,7 +379,7 @@ def _guard_grad(disc, mode, y, fm, d, c, cfg, src, idx, tsf, gp):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas_l, w_u,
-                   w_l, r, J, jcol, col_u, col_l):  # fmt: skip
+                   w_l, r, J, jcol, dense, col_u, col_l):  # fmt: skip
     """Residuals and their derivatives at samples ``kout .. k1`` of a segment: the
     solver's quintic Hermite interpolant, and the same interpolant of the sensitivities
     (its weights once per sample, then one sum per parameter)."""
@@ -404,20 +403,29 @@ def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, m
         h01 = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
         h11 = hs * (-4.0 * s3 + 7.0 * s4 - 3.0 * s5)
         h21 = h2 * (0.5 * s3 - s4 + 0.5 * s5)
-        if col_u >= 0:
-            row = col_u + kk
-            r[0, row] = w_u * (meas_u[kk] - _horner5(sf, cu))
-            for a in range(k):
-                J[row, jcol[a]] = -w_u * (h00 * S[0, a] + h10 * dF[0, a] + h20 * dF[1, a]
-                                          + h01 * S1[0, a] + h11 * dFe[0, a]
-                                          + h21 * dFe[1, a])  # fmt: skip
-        if col_l >= 0:
-            row = col_l + kk
-            r[0, row] = w_l * (meas_l[kk] - _horner5(sf, cl))
-            for a in range(k):
-                J[row, jcol[a]] = -w_l * (h00 * S[2, a] + h10 * dF[2, a] + h20 * dF[3, a]
-                                          + h01 * S1[2, a] + h11 * dFe[2, a]
-                                          + h21 * dFe[3, a])  # fmt: skip
+        for ch in range(2):
+            col = col_u if ch == 0 else col_l
+            if col < 0:
+                continue
+            w = w_u if ch == 0 else w_l
+            row = col + kk
+            if ch == 0:
+                r[0, row] = w_u * (meas_u[kk] - _horner5(sf, cu))
+            else:
+                r[0, row] = w_l * (meas_l[kk] - _horner5(sf, cl))
+            i0 = 2 * ch
+            x00, x10, x20 = -w * h00, -w * h10, -w * h20
+            x01, x11, x21 = -w * h01, -w * h11, -w * h21
+            if dense:  # columns 0 .. k-1 in order: a contiguous row, vectorised
+                Jr = J[row]
+                for a in range(k):
+                    Jr[a] = (x00 * S[i0, a] + x10 * dF[i0, a] + x20 * dF[i0 + 1, a]
+                             + x01 * S1[i0, a] + x11 * dFe[i0, a] + x21 * dFe[i0 + 1, a])
+            else:
+                for a in range(k):
+                    J[row, jcol[a]] = (x00 * S[i0, a] + x10 * dF[i0, a] + x20 * dF[i0 + 1, a]
+                                       + x01 * S1[i0, a] + x11 * dFe[i0, a]
+                                       + x21 * dFe[i0 + 1, a])  # fmt: skip
 
 
 @njit(cache=True, error_model="numpy")
@@ -444,9 +452,11 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
             or not h0 > 0.0 or not dt > 0.0 or needs_full_kernel(c) or has_kinks(c)
             or not (cfg == CFG_UPPER or cfg == CFG_COUPLED)):  # fmt: skip
         return BAD_PARAMETERS
+    dense = J.shape[1] == k
     for a in range(k):
         if idx[a] < 0 or idx[a] >= N_PARAMS:
             return BAD_PARAMETERS
+        dense = dense and jcol[a] == a
     q = np.empty(0)
     m = (c, cfg, shape, p, q, False, None, None, None)
     last = n - 1.0
@@ -539,7 +549,7 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
             if kout < n and kout * dt <= lim:
                 k1 = _last_sample(kout, lim, dt, inv_dt, n)
                 _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u,
-                               meas_l, w_u, w_l, r, J, jcol, col_u, col_l)  # fmt: skip
+                               meas_l, w_u, w_l, r, J, jcol, dense, col_u, col_l)  # fmt: skip
                 kout = k1 + 1
             y = y1
             f = fe
