@@ -15,14 +15,13 @@ import warnings
 
 import numpy as np
 import pytest
+from reference import reference_simulate
 
 import rotorbayes as rb
 from rotorbayes import inference as E
 from rotorbayes.inference.problem import SensitivityFallback
 from rotorbayes.kernel import layout as L
 from rotorbayes.kernel import sensitivity as SE
-
-from reference import reference_simulate
 
 DT = 1e-3
 

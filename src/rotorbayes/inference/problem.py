@@ -38,9 +38,10 @@ from ..model.simulate import DEFAULT_STEP, Simulation, Simulator, check_step
 
 CHANNELS = ("theta_u", "theta_l")
 
-#: How :meth:`Problem.jacobian` differentiates unless told: ``'differences'`` (forward
-#: differences) until the kernel's sensitivities cover every configuration and effect.
-JACOBIAN_DEFAULT = "differences"
+#: How :meth:`Problem.jacobian` differentiates unless told: ``'sensitivity'`` (the
+#: kernel's forward sensitivities) where the kernel has them (see
+#: :meth:`Problem.sensitivity_support`), finite differences elsewhere.
+JACOBIAN_DEFAULT = "sensitivity"
 
 
 class SensitivityFallback(UserWarning):
@@ -930,7 +931,7 @@ class Problem:
         r0: np.ndarray | None = None,
         values: Mapping[str, float] | None = None,
         secant: Mapping[str, float] | None = None,
-        method: str = JACOBIAN_DEFAULT,
+        method: str | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Sensitivity of the residuals to any parameters, by forward sensitivities or by
         finite differences.
@@ -954,13 +955,14 @@ class Problem:
             Stribeck velocity and shape, nuisance parameters of an effect that is off).
         secant : mapping, optional
             Absolute steps for some names (a secant instead of a derivative).
-        method : {'sensitivity', 'differences'}
+        method : {'sensitivity', 'differences'}, optional
             ``'sensitivity'``: the kernel's forward sensitivities
-            (:mod:`rotorbayes.kernel.sensitivity`; the exact derivative of the computed
-            residuals, one pass), where they exist for this model and these names (see
-            :meth:`sensitivity_support`); elsewhere finite differences, with a
+            (:mod:`rotorbayes.kernel.sensitivity`; the derivative of the computed
+            residuals in one pass, no step), where they exist for this model and these
+            names (see :meth:`sensitivity_support`); elsewhere finite differences, with a
             :class:`SensitivityFallback` warning that says why.  ``'differences'``:
-            forward differences (``rel_step``).
+            forward differences (``rel_step``).  Default (None):
+            :data:`JACOBIAN_DEFAULT`, falling back to differences without a warning.
 
         Returns
         -------
@@ -977,14 +979,17 @@ class Problem:
         from ..model.simulate import SimulationError
 
         names = list(self.names if names is None else names)
+        asked = method is not None
+        method = JACOBIAN_DEFAULT if method is None else method
         if method not in ("sensitivity", "differences"):
             raise ValueError(f"method = {method!r}: choose 'sensitivity' or 'differences'")
         if method == "sensitivity":
             why = self.sensitivity_support(names, values=values, secant=secant)
             if why is None:
                 return self._jacobian_sensitivity(x, names), np.zeros(len(names))
-            warnings.warn(f"Jacobian by finite differences: {why}", SensitivityFallback,
-                          stacklevel=2)
+            if asked:
+                warnings.warn(f"Jacobian by finite differences: {why}", SensitivityFallback,
+                              stacklevel=2)
         off_effects = []
         for n in names:
             b, _ = local_name(n)

@@ -41,7 +41,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..model.friction import _G_N, G_LO, G_PER_UNIT, SHAPE_EXP, _g_row
+from ..model.friction import SHAPE_EXP, stribeck_g_slope
 from .layout import (
     ALPHA0,
     B_L,
@@ -82,8 +82,8 @@ from .terms import (
     _DSL,
     _DTCL,
     _DTCU,
-    _IJL,
     _IDT,
+    _IJL,
     _IJU,
     _IWSL,
     _KA,
@@ -124,18 +124,8 @@ def _stribeck_d(x, delta, shape, x_cut):
         if x >= x_cut:
             return 0.0, 0.0, 0.0
         lx = math.log(x)
-        v = delta * lx
-        f = (v - G_LO) * G_PER_UNIT
-        if f < 0.0:
-            return 1.0, 0.0, 0.0
-        if f < _G_N:
-            k = int(f)
-            s = f - k
-            c0, c1, c2, c3 = _g_row(k)
-            g = fma(s, fma(s, fma(s, c3, c2), c1), c0)
-            dg = (c1 + s * (2.0 * c2 + 3.0 * s * c3)) * G_PER_UNIT
-            return g, dg * delta / x, dg * lx
-        return 0.0, 0.0, 0.0
+        g, dg = stribeck_g_slope(delta * lx)
+        return g, dg * delta / x, dg * lx
     lx = math.log(x)
     e = math.exp(delta * lx)
     g = 1.0 / (1.0 + e)
