@@ -19,10 +19,17 @@ time ``tau`` moves with the parameters.  From the guard ``g(x(tau), tau, p) = 0`
 state); a disc that sticks has velocity sensitivity exactly 0.
 
 What is not differentiated: the lengths of the Stribeck and approach substeps (continuous
-functions of the state, :func:`rotorbayes.kernel.terms.stribeck_step`), and the
-segment ends of an event inside the interpolant (the samples of a segment that ends at an
-event are interpolated from the sensitivities at fixed time).  Both change the result by
-the order of the method's local error, far below the derivative itself.
+functions of the state and the parameters, :func:`rotorbayes.kernel.terms.stribeck_step`),
+and the segment ends of an event inside the interpolant (the samples of a segment that
+ends at an event are interpolated from the sensitivities at fixed time).  So on stretches
+with Stribeck substeps these are the derivatives of the model's solution rather than of
+the computed residuals: measured against central differences of the kernel itself, they
+differ by below 1e-6 of a column without the Stribeck curve and up to 4e-4 with it (where
+the sensitivities agree with the reference's differences to 1e-5), and
+on the 30 s brake bench by 1.4e-3 of a column at one place (near t = 7.9 s, a smooth
+stretch) -- where they agree with central differences of the independent reference
+(tests/reference.py) to 3e-7 to 1.4e-6, and the kernel's own differences do not (the
+substep rule's dependence on the parameters).
 
 Scope: the plain kernel (no user effects, not the full kernel), the upper and coupled
 (motor-driven: coupled and brake) configurations, no dead zone; parameters
