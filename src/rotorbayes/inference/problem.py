@@ -38,10 +38,14 @@ from ..model.simulate import DEFAULT_STEP, Simulation, Simulator, check_step
 
 CHANNELS = ("theta_u", "theta_l")
 
-#: How :meth:`Problem.jacobian` differentiates unless told: ``'sensitivity'`` (the
-#: kernel's forward sensitivities) where the kernel has them (see
-#: :meth:`Problem.sensitivity_support`), finite differences elsewhere.
-JACOBIAN_DEFAULT = "sensitivity"
+#: How :meth:`Problem.jacobian` differentiates unless told: ``'differences'`` (finite
+#: differences, every model), or ``'sensitivity'`` (the kernel's forward sensitivities where
+#: the kernel has them, see :meth:`Problem.sensitivity_support`; differences elsewhere).
+#: Differences stay the default while the sensitivities cost 11 residual evaluations
+#: against differences' 17 on a 30 s brake Jacobian (not yet the 3 issue 33 asks for), add
+#: 33 s to a cold start, and differ from the differences of the computed residuals where
+#: Stribeck substeps move with the parameters (benchmarks/bench_sensitivity.py).
+JACOBIAN_DEFAULT = "differences"
 
 
 class SensitivityFallback(UserWarning):
