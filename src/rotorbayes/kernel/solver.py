@@ -625,7 +625,7 @@ _SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
 )  # fmt: skip
 
 
-@njit(_SIMULATE_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def simulate_into(
     p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
@@ -684,7 +684,7 @@ _SIMULATE_PLAIN_SIGNATURE = types.UniTuple(types.int64, 2)(
 )  # fmt: skip
 
 
-@njit(_SIMULATE_PLAIN_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def simulate_into_plain(
     p, q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_wu, out_thl, out_wl, out_mu,
     out_ml, events,
@@ -708,7 +708,7 @@ _RESIDUALS_SIGNATURE = types.int64(
 )  # fmt: skip
 
 
-@njit(_RESIDUALS_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def residuals_into(
     p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
@@ -748,7 +748,7 @@ def _batch_scratch(n):
             np.empty((0, 3)))  # fmt: skip
 
 
-@njit(_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def simulate_batch_into(
     P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, out_thu, out_thl, status,
@@ -775,7 +775,7 @@ _SIMULATE_PLAIN_BATCH_SIGNATURE = types.void(
 )  # fmt: skip
 
 
-@njit(_SIMULATE_PLAIN_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def simulate_batch_into_plain(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl, status):
     """:func:`simulate_batch_into` for a model without user-defined effects (see
     :func:`simulate_into_plain`)."""
@@ -797,7 +797,7 @@ _PLAIN_SIGNATURE = types.int64(
 )  # fmt: skip
 
 
-@njit(_PLAIN_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def residuals_into_plain(
     p, q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, r, row, col_u,
     col_l,
@@ -827,7 +827,7 @@ _RESIDUALS_BATCH_SIGNATURE = types.void(
 )  # fmt: skip
 
 
-@njit(_RESIDUALS_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def residuals_batch_into(
     P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
@@ -850,7 +850,7 @@ _PLAIN_BATCH_SIGNATURE = types.void(
 )  # fmt: skip
 
 
-@njit(_PLAIN_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def residuals_batch_into_plain(
     P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
     status,
@@ -869,8 +869,7 @@ def residuals_batch_into_plain(
 # The entry points for a model that needs the full kernel's physics (drive lag, upper
 # Stribeck curve; see terms.lag_of) but has no user effects: the plain entry points'
 # arguments, the marker FULL instead of hook functions (an integer: nothing to unbox per
-# call, where a function argument costs 0.1-0.27 ms).  No signatures: compiled on first
-# use and cached, so commands that never need them never compile them.
+# call, where a function argument costs 0.1-0.27 ms).
 @njit(cache=True, error_model="numpy", nogil=True)
 def simulate_into_full(
     p, q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_wu, out_thl, out_wl, out_mu,
@@ -927,3 +926,42 @@ def residuals_batch_into_full(
             P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
             i, col_u, col_l,
         )  # fmt: skip
+
+
+# ------------------------------------------------------------------ compiled on request
+#: Every entry point and the one signature it is compiled for.  None is compiled when this
+#: module is imported: :func:`entry` compiles one (or loads it from numba's cache) when it
+#: is first asked for, so a command compiles only what it uses (issue 33: all of them at
+#: import took 121 s on 2 cores with a cold cache).  The hooked ones need their signature
+#: (it turns a hook, a numba dispatcher, into a function value of ``HOOK_TYPE``); the
+#: others get it so that each is compiled exactly once, for the types Python passes.
+SIGNATURES = {
+    "simulate_into": _SIMULATE_SIGNATURE,
+    "simulate_into_plain": _SIMULATE_PLAIN_SIGNATURE,
+    "simulate_into_full": _SIMULATE_PLAIN_SIGNATURE,
+    "residuals_into": _RESIDUALS_SIGNATURE,
+    "residuals_into_plain": _PLAIN_SIGNATURE,
+    "residuals_into_full": _PLAIN_SIGNATURE,
+    "simulate_batch_into": _BATCH_SIGNATURE,
+    "simulate_batch_into_plain": _SIMULATE_PLAIN_BATCH_SIGNATURE,
+    "simulate_batch_into_full": _SIMULATE_PLAIN_BATCH_SIGNATURE,
+    "residuals_batch_into": _RESIDUALS_BATCH_SIGNATURE,
+    "residuals_batch_into_plain": _PLAIN_BATCH_SIGNATURE,
+    "residuals_batch_into_full": _PLAIN_BATCH_SIGNATURE,
+}
+
+
+def is_ready(name: str) -> bool:
+    """Whether entry point ``name`` is compiled (or loaded from the cache) in this process."""
+    fn = globals()[name]
+    return SIGNATURES[name].args in fn.overloads
+
+
+def entry(name: str):
+    """The compiled entry point ``name`` (a key of :data:`SIGNATURES`), compiled for its
+    signature, or loaded from numba's cache, on the first request in this process."""
+    fn = globals()[name]
+    sig = SIGNATURES[name]
+    if sig.args not in fn.overloads:
+        fn.compile(sig)
+    return fn
