@@ -617,6 +617,11 @@ def _integrate(
     return status, n_ev
 
 
+# The entry points pass _integrate's flags and channel columns as run-time values
+# (np.bool_(True), np.int64(-1)), not as literals: numba compiles a callee once per literal
+# argument value, so `True` and `False` made the simulation and the residuals two
+# compilations of the whole solver (about 20 s each on 2 cores, issue 33); now a command
+# that simulates and fits compiles it once per kernel (plain, full, with hooks).
 _F1 = types.float64[::1]
 _SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
     _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
@@ -673,8 +678,8 @@ def simulate_into(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        hook_rate, state_reset, True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+        hook_rate, state_reset, np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1), np.int64(-1),
     )  # fmt: skip
 
 
@@ -695,8 +700,8 @@ def simulate_into_plain(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -2,
-        True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+        np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1), np.int64(-1),
     )  # fmt: skip
 
 
@@ -726,7 +731,7 @@ def residuals_into(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        hook_rate, state_reset, False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        hook_rate, state_reset, np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -812,7 +817,7 @@ def residuals_into_plain(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -2,
-        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -879,8 +884,8 @@ def simulate_into_full(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -2,
-        True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+        np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1), np.int64(-1),
     )  # fmt: skip
 
 
@@ -894,7 +899,7 @@ def residuals_into_full(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -2,
-        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -963,5 +968,10 @@ def entry(name: str):
     fn = globals()[name]
     sig = SIGNATURES[name]
     if sig.args not in fn.overloads:
+        if "_batch" in name:
+            # The row's entry point first, fixed to its signature: the batch's parallel
+            # loop calls it with a uint64 row and would otherwise compile the solver again.
+            entry(name.replace("_batch", ""))
         fn.compile(sig)
+        fn.disable_compile()  # as with an eager signature: other types are refused
     return fn
