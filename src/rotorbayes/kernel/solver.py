@@ -678,8 +678,10 @@ def simulate_into(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        hook_rate, state_reset, np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1), np.int64(-1),
+        hook_rate, state_reset, np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu,
+        out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1),
+        np.int64(-1),
     )  # fmt: skip
 
 
@@ -701,7 +703,8 @@ def simulate_into_plain(
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -2,
         np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1), np.int64(-1),
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1),
+        np.int64(-1),
     )  # fmt: skip
 
 
@@ -731,7 +734,8 @@ def residuals_into(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        hook_rate, state_reset, np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        hook_rate, state_reset, np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i,
+        np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -885,7 +889,8 @@ def simulate_into_full(
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -2,
         np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1), np.int64(-1),
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1),
+        np.int64(-1),
     )  # fmt: skip
 
 
