@@ -6,9 +6,12 @@ batches; each plain, full or with user hooks) is compiled by numba when a comman
 uses it (:func:`kernel_entry`) and kept in numba's on-disk cache, so a command compiles
 only what it uses.  With a cold cache (a fresh install, a new Python, an edited kernel)
 :func:`kernel_entry` says what is happening before and how long it took after, on stderr;
-with a warm one it says nothing.  Measured on 2 idle cores (issue 33;
-``benchmarks/bench_coldstart.py``): see the README for the figures.  Before, every entry
-point was compiled at import: 121 s (69 s before the effect state).
+with a warm one it says nothing.  Measured with an empty cache (issue 33;
+``benchmarks/bench_coldstart.py``; CPU seconds of the compiling process, one idle core's
+time): the first ``rotorbayes simulate`` compiles for 26 s (the plain simulation), the
+first ``rotorbayes fit`` for 33 s (the plain residuals, their batch, the simulation; one
+compilation of the solver serves all three).  Before, every entry point was compiled at
+import: 121 s (69 s before the effect state).
 """
 
 from __future__ import annotations
