@@ -19,6 +19,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -118,6 +119,7 @@ _WHAT = {"simulate": "the simulation", "residuals": "the residuals"}
 
 #: The entry points ready in this process, by name (the hot path looks here first).
 _READY: dict = {}
+_COMPILING = threading.Lock()
 
 #: Seconds (wall time) each entry point took to compile in this process (a cold cache only)
 #: ...
@@ -132,6 +134,14 @@ def kernel_entry(name: str, stream=None):
     :data:`rotorbayes.kernel.solver.SIGNATURES`), compiled or loaded from numba's cache on
     its first use in this process.  With a cold cache the compilation is said on stderr
     (``stream``): :data:`MESSAGE` before, the wall time after."""
+    fn = _READY.get(name)
+    if fn is not None:
+        return fn
+    with _COMPILING:  # threads of one process (a multistart) compile and say it once
+        return _compile_entry(name, stream)
+
+
+def _compile_entry(name: str, stream):
     fn = _READY.get(name)
     if fn is not None:
         return fn
