@@ -147,6 +147,13 @@ def warm_kernel() -> None:
                          ("brake", "thesis:4.3:P_ref")):
         with contextlib.suppress(Exception):  # a missing table entry must not stop a worker
             simulate(pset, u, dt=0.005, config=config)
+    # Entry points are compiled (or loaded) on first use: load the residuals' too, which
+    # a worker's fits call, so that no task pays for it.
+    from ..coldstart import kernel_entry
+
+    for name in ("residuals_into_plain", "residuals_batch_into_plain"):
+        with contextlib.suppress(Exception):
+            kernel_entry(name)
 
 
 def _process_initializer() -> None:
