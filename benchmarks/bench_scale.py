@@ -127,13 +127,24 @@ def same(a, b) -> bool:
 
 
 def main() -> None:
+    from threadpoolctl import threadpool_limits
+
+    # One BLAS thread here, as in every worker: numpy may have loaded OpenBLAS before
+    # rotorbayes's import could limit it (numba imports numpy), and an SVD on 16 BLAS
+    # threads rounds otherwise than on one (the end points would differ by back-end).
+    with threadpool_limits(1):
+        _main()
+
+
+def _main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=48)
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dask", action="store_true", help="also a local Dask cluster")
-    ap.add_argument("--skip", default="", help="back-ends to leave out (parts of their labels), separated by ;")
+    ap.add_argument("--skip", default="",
+                    help="back-ends to leave out (parts of their labels), separated by ;")
     ap.add_argument("--json")
     a = ap.parse_args()
     n = a.workers
@@ -153,7 +164,8 @@ def main() -> None:
 
     # 1. one fit
     fits = {}
-    for label, th, blas in (("1 thread", 1, 1), (f"{min(n, maxth)} threads", min(n, maxth), 1)):
+    for label, th, blas in (("1 thread", 1, 1), (f"{min(n, maxth)} threads", min(n, maxth), 1),
+                            (f"{min(n, maxth)} threads + {n} BLAS", min(n, maxth), n)):
         fits[label] = f = one_fit(prob, x0, th, a.repeat, blas)
         print(f"one fit, {label:>22}: {f['wall']:.3f} s (kernel {f['kernel']:.3f} s, "
               f"optimiser and the rest {f['rest']:.3f} s; nfev {f['nfev']}, njev "
