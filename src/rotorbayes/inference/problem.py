@@ -35,6 +35,7 @@ from ..model import effects as _effects
 from ..model.configurations import Model
 from ..model.parameters import INFO, ParameterError, resolve, unknown_name_message
 from ..model.simulate import DEFAULT_STEP, Simulation, Simulator, check_step
+from .parallel import claim_kernel_threads
 
 CHANNELS = ("theta_u", "theta_l")
 
@@ -815,6 +816,7 @@ class Problem:
         """Residual matrix for full parameter sets ``sets[j][i]`` (row j, experiment i),
         simulated in kernel batches; returns ``(R, status[j, i])``."""
         m = len(sets)
+        claim_kernel_threads()  # inside a pool's task: its share of the cores
         R = np.empty((m, self.n_residuals))
         S = np.zeros((m, len(self.experiments)), dtype=np.int64)
         off = 0
