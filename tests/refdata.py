@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
+    "CASES",
     "SETS",
     "MultisineInput",
     "StepsInput",
@@ -97,6 +98,26 @@ SETS: dict[str, list[dict[str, float]]] = {
              J_l=0.025, k_alpha=0.18, Tc_l=0.02, b_l=0.0045, db_l=-0.001,
              Ts_l=0.11, ws_l=3.5, delta_l=2.4),
     ],
+}  # fmt: skip
+
+#: Named reference cases beyond ``SETS``: the configuration, the parameters and the
+#: arguments of :func:`make_experiment` (``CASES[name]["make"]``), so that a kernel test
+#: reuses exactly the experiment the reference was checked on.
+#:
+#: ``lugre``: the lower disc obeys the LuGre law (bristle stiffness ``sigma0_l`` 300
+#: N m/rad, damping ``sigma1_l`` 0.6 N m s/rad; reference ``lower_law="lugre"``, chosen
+#: whenever the parameters hold ``sigma0_l``) with an exponential Stribeck curve and
+#: asymmetric Coulomb and viscous levels; brake configuration, 8 s of the step input of
+#: seed 4 (the lower disc slides both ways and comes to rest between levels).
+CASES: dict[str, dict] = {
+    "lugre": dict(
+        config="brake",
+        params=dict(k_m=2.7, J_u=0.4765, Tc_u=0.61, dTc_u=0.035, b_u=1.4, db_u=0.06,
+                    J_l=0.03, k_alpha=0.11, Tc_l=0.035, dTc_l=0.004, b_l=0.006,
+                    db_l=0.0015, Ts_l=0.12, ws_l=0.8, delta_l=1.7,
+                    sigma0_l=300.0, sigma1_l=0.6),
+        make=dict(duration=8.0, signal="steps", seed=4),
+    ),
 }  # fmt: skip
 
 
@@ -385,6 +406,11 @@ def simulate_reference(
     elif drift_u or drift_l or drag_l:
         def shift(t_, theta_u, omega_u, theta_l, omega_l, v):
             return drift_u * t_, drift_l * t_ + drag_l * omega_l * omega_l
+    if "sigma0_l" in params:
+        # the LuGre lower disc (sigma0_l, sigma1_l): the reference's lower_law="lugre"
+        if state:
+            raise ValueError("the LuGre lower disc cannot be combined with warm_k")
+        state = {"lower_law": "lugre"}
     t0 = time.perf_counter()
     if hold == "continuous":
         res = reference_simulate(params, t, None, config, u_func=drive, u_breaks=f.breaks,
@@ -441,7 +467,9 @@ def make_experiment(
         ``warm_k`` [N m s/rad] and ``warm_tau`` [s], a lower friction that falls as the
         brake warms from sliding and recovers at rest: a state z [N m] with
         ``z' = (warm_k |omega_l| - z) / warm_tau``, ``z(0) = 0``, the lower friction
-        level shifted by ``-z`` (the reference's ``state_rate``).
+        level shifted by ``-z`` (the reference's ``state_rate``); ``sigma0_l`` [N m/rad]
+        and ``sigma1_l`` [N m s/rad], the LuGre lower disc (reference
+        ``lower_law="lugre"``; see ``CASES["lugre"]``).
     duration, rate : length [s] and sampling rate [Hz]; ``duration * rate + 1`` samples.
     signal : {'steps', 'multisine'}
         The input function (:func:`make_input`), drawn with ``seed``.

@@ -42,6 +42,36 @@ Inside a slip mode the friction law is extended smoothly across omega = 0 (the S
 power is continued as an odd function, ``x**delta -> sign(x)*|x|**delta``) so that the
 DOP853 steps that overshoot the zero crossing before the event is located see a smooth
 right-hand side; the extension is only ever evaluated within a single step of the event.
+
+LuGre lower disc (``lower_law="lugre"``)
+----------------------------------------
+The lower disc then has no stick mode.  With its bristle deflection z as a fifth state
+(z(0) = 0) it obeys, always,
+
+    J_l w' = T_e - F,            F  = sigma0 z + sigma1 z' + (b_l + sgn(w) db_l) w
+    z'     = w - sigma0 |w| z / g(w)
+    g(w)   = Tc_l + sgn(w) dTc_l + (Ts_l - Tc_l) exp(-(|w|/ws_l)^delta_l),  sgn(0) = 0
+
+(sigma0 = ``sigma0_l``, sigma1 = ``sigma1_l``; Ts_l = Tc_l without Stribeck; a
+``friction_shift`` dT_l adds to g; T_e is the lower disc's external torque as in the
+switch model, string plus ``extra_torque``).  In steady sliding z = sgn(w) g(w) / sigma0
+and F is the switch model's slip friction; at small torques the disc creeps like a
+spring of stiffness sigma0 (pre-sliding).  The upper disc keeps its switch model.
+
+The right-hand side has kinks at w = 0 (|w| in z' and sgn(w) in the viscous and Coulomb
+terms), so it is integrated in pieces of fixed direction s = sgn(w): on a piece |w| is
+replaced by s w (and the Stribeck power continued as above), a terminal event on s w
+crossing 0 ends the piece, w is set to exactly 0 and the next direction is the sign of
+the acceleration there, (T_e - sigma0 z)/J_l (z' = 0 at w = 0).  If that is 0 to within
+rounding (``_LUGRE_REST``; at rest with nothing pushing, e.g. at t[0], or a disc
+settling on its bristles, where choosing a direction from a net torque of 1e-14 N m made
+the next piece reverse at once, again and again) the piece has s = 0 (the law's value
+at w = 0, exact to O(|w|)) and ends when |w| reaches ``_LUGRE_EPS``.  No mode changes
+at these events: they only keep every solver call on an analytic right-hand side.
+
+The bristle dynamics are stiff while sliding (time constant g / (sigma0 |w|), 1e-5 s for
+sigma0 = 1000 at 5 rad/s), so every solver call then uses ``lugre_method`` (default
+LSODA, see the measurements in ``tests/test_reference_lugre.py``) instead of DOP853.
 """
 
 from __future__ import annotations
@@ -56,6 +86,8 @@ __all__ = ["reference_simulate"]
 
 _TINY = 1e-300  # value returned by event functions at the start of a mode (see _events)
 _MAX_STALLED_EVENTS = 200
+_LUGRE_EPS = 1e-12  # [rad/s] speed at which a LuGre lower disc at rest is said to move
+_LUGRE_REST = 1e-9  # net torque at rest, relative to Ts_l + |dTc_l|, taken as zero
 
 _CONFIGS = ("upper", "coupled", "brake", "prescribed")
 
@@ -357,6 +389,8 @@ def reference_simulate(
     state_rate: Callable | None = None,
     state_z0: float = 0.0,
     state_reset: str | None = None,
+    lower_law: str = "switch",
+    lugre_method: str = "LSODA",
 ) -> dict:
     """Reference (event-driven, exact switching) simulation of the rig.
 
@@ -407,6 +441,15 @@ def reference_simulate(
     state_z0 : z at ``t[0]``.
     state_reset : 'u' or 'l': z is set to exactly 0 at every event at which that disc
         starts to stick (slip -> stick); None: never reset.
+    lower_law : "switch" (default: the switch model above) or "lugre": the lower disc has
+        no stick mode and obeys the LuGre law (module docstring, "LuGre lower disc")
+        with the parameters ``sigma0_l``
+        [N m/rad] and ``sigma1_l`` [N m s/rad] (both required).  Configs "coupled",
+        "brake" and "prescribed" only; not together with ``state_rate``.  With
+        "switch" the results are bitwise those of the version without this option.
+    lugre_method : the ``solve_ivp`` method used for *every* call when
+        ``lower_law="lugre"`` ("LSODA" by default; "Radau", "BDF" or "DOP853" also
+        work, the explicit one slowly: the bristle state is stiff while sliding).
     dense_output : if True, the result also contains ``"sol"``, a callable mapping an
         array of times in [t[0], t[-1]] to a (4, n) array
         [theta_u, omega_u, theta_l, omega_l] (rows of absent discs are NaN).
@@ -419,6 +462,10 @@ def reference_simulate(
     (int arrays at ``t``: 0 stick, +1/-1 slip direction, mode valid just after each
     sample time; None for absent discs), "z" (the state at ``t``, after a reset at a
     sample time; None without ``state_rate``) and "n_solve_ivp" (number of solver calls).
+    With ``lower_law="lugre"`` also "z_bristle" (the bristle deflection z [rad] at ``t``;
+    None otherwise); "mode_l" is then the direction of the lower disc's current smooth
+    piece (+1/-1, 0 only while it is exactly at rest) and the lower disc's "events" are its
+    reversals ('slip+' / 'slip-'; 'stick' when it comes exactly to rest).
     """
     if config not in _CONFIGS:
         raise ValueError(f"config must be one of {_CONFIGS}, got {config!r}")
@@ -457,7 +504,22 @@ def reference_simulate(
     has_z = state_rate is not None
     if state_reset not in (None, "u", "l"):
         raise ValueError("state_reset must be None, 'u' or 'l'")
-    NY = 5 if has_z else 4
+    if lower_law not in ("switch", "lugre"):
+        raise ValueError(f"lower_law must be 'switch' or 'lugre', got {lower_law!r}")
+    lugre = lower_law == "lugre"
+    if lugre:
+        if config == "upper":
+            raise ValueError("lower_law='lugre' needs a lower disc (config 'upper' has none)")
+        if has_z:
+            raise ValueError("lower_law='lugre' cannot be combined with state_rate "
+                             "(the bristle deflection is the reference's only extra state)")
+        s0 = _get(params, "sigma0_l", required=True)
+        s1 = _get(params, "sigma1_l", required=True)
+        if not (s0 > 0.0 and s1 >= 0.0):
+            raise ValueError("lugre: sigma0_l must be positive and sigma1_l non-negative")
+        if not (p["Tc_l"] > abs(p["dTc_l"]) and p["Ts_l"] > abs(p["dTc_l"])):
+            raise ValueError("lugre: Tc_l and Ts_l must exceed |dTc_l| (g(omega) > 0)")
+    NY = 5 if (has_z or lugre) else 4
 
     dt_min = float(np.min(np.diff(t))) if t.size > 1 else 1.0
     tol_bp = 1e-9 * dt_min
@@ -549,7 +611,77 @@ def reference_simulate(
     def te_lower(t_: float, y: list) -> float:
         return -string_torque(t_, y) + extra(t_, y)[1]
 
+    if lugre:
+        sig0, sig1 = s0, s1
+        Tc_l, dTc_l, dS_l = p["Tc_l"], p["dTc_l"], p["Ts_l"] - p["Tc_l"]
+        b_l, db_l, iws_l, dl_l = p["b_l"], p["db_l"], 1.0 / p["ws_l"], p["delta_l"]
+        exp_ = math.exp
+
+        def g_lugre(w: float, sl: int, dT: float) -> float:
+            """g(omega) on a piece of direction sl: |omega| -> sl*omega, the Stribeck power
+            continued as an odd function (smooth across 0, used only near an event)."""
+            if dS_l == 0.0:
+                return Tc_l + sl * dTc_l + dT
+            x = sl * w * iws_l
+            pw = x**dl_l if x >= 0.0 else -((-x) ** dl_l)
+            return Tc_l + sl * dTc_l + dT + dS_l * exp_(-pw)
+
+        def lugre_lower(t_: float, yl: list, sl: int, te: float) -> tuple[float, float]:
+            """(d omega_l/dt, dz/dt) of the LuGre lower disc on a piece of direction sl,
+            given its external torque te (string + extra)."""
+            w, z = yl[3], yl[4]
+            dT = shift(t_, yl)[1] if friction_shift is not None else 0.0
+            zd = w - sig0 * (sl * w) * z / g_lugre(w, sl, dT)
+            f = sig0 * z + sig1 * zd + (b_l + sl * db_l) * w
+            return (te - f) * iJl, zd
+
+        # below this net torque [N m] at omega_l == 0 the direction is left open (s = 0)
+        lugre_thr = _LUGRE_REST * (p["Ts_l"] + abs(p["dTc_l"]))
+
+        def lugre_direction(t_: float, yl: list) -> int:
+            """Direction of the next smooth piece: sgn(omega_l), or at omega_l == 0 the
+            sign of its acceleration there, (T_e - sigma0 z)/J_l (dz/dt = 0 at rest),
+            and 0 if that net torque is within rounding of 0 (a disc settling on its
+            bristles: its direction is then decided by the _LUGRE_EPS events)."""
+            if yl[3] != 0.0:
+                return _sgn(yl[3])
+            net = te_lower(t_, yl) - sig0 * yl[4]
+            return 0 if abs(net) <= lugre_thr else _sgn(net)
+
+    def make_rhs_lugre(mu: int, sl: int) -> Callable:
+        a = seg["a"]
+        sua, sub = seg["ua"], seg["ub"]
+        spa, spb = seg["pa"], seg["pb"]
+        vf = seg["vf"]
+        if config == "prescribed":
+
+            def rhs(t_, yy):
+                yl = yy.tolist()
+                thu = spa + spb * (t_ - a)
+                Tsr = ka * (yl[2] - thu + a0) + ca * (yl[3] - spb)
+                te = -Tsr + (extra(t_, yl)[1] if extra_torque is not None else 0.0)
+                dwl, zd = lugre_lower(t_, yl, sl, te)
+                return [0.0, 0.0, yl[3], dwl, zd]
+        else:
+
+            def rhs(t_, yy):
+                yl = yy.tolist()
+                y0, y1, y2, y3 = yl[:4]
+                Tsr = ka * (y2 - y0 + a0) + ca * (y3 - y1)
+                exu, exl = extra(t_, yl)
+                if mu != 0:
+                    ue = vf(t_) if cont else sua + sub * (t_ - a)
+                    dwu = (km * ue - fr_u(y1, mu) - mu * shift(t_, yl)[0] + Tsr + exu) * iJu
+                else:
+                    dwu = 0.0
+                dwl, zd = lugre_lower(t_, yl, sl, -Tsr + exl)
+                return [y1, dwu, y3, dwl, zd]
+
+        return rhs
+
     def make_rhs(mu: int, ml: int) -> Callable:
+        if lugre:
+            return make_rhs_lugre(mu, ml)
         a = seg["a"]
         sua, sub = seg["ua"], seg["ub"]
         spa, spb = seg["pa"], seg["pb"]
@@ -636,7 +768,27 @@ def reference_simulate(
 
                 add(ev_uhi, +1, "u", "hi")
                 add(ev_ulo, -1, "u", "lo")
-        if has_lower:
+        if lugre:
+            if ml != 0:
+                # a reversal: the right-hand side has a kink at omega_l = 0
+
+                def ev_lz(t_, yy, s=ml):
+                    return _TINY if t_ == t0 else s * yy[3]
+
+                add(ev_lz, -1, "l", "zero")
+            else:
+                # exactly at rest, nothing pushing: leaves rest when |omega_l| reaches
+                # _LUGRE_EPS (the piece's right-hand side is the law's value at omega = 0)
+
+                def ev_lp(t_, yy):
+                    return yy[3] - _LUGRE_EPS
+
+                def ev_lm(t_, yy):
+                    return yy[3] + _LUGRE_EPS
+
+                add(ev_lp, +1, "l", "leave")
+                add(ev_lm, -1, "l", "leave")
+        elif has_lower:
             if ml != 0:
 
                 def ev_l0(t_, yy, s=ml):
@@ -680,7 +832,7 @@ def reference_simulate(
         return "stick" if m == 0 else ("slip+" if m > 0 else "slip-")
 
     # ---- initial state and modes ----------------------------------------------------
-    y = [0.0, 0.0, 0.0, 0.0] + ([float(state_z0)] if has_z else [])
+    y = [0.0, 0.0, 0.0, 0.0] + ([float(state_z0)] if has_z else ([0.0] if lugre else []))
     modes = {"u": 0, "l": 0}
 
     def set_segment(i: int) -> None:
@@ -709,13 +861,17 @@ def reference_simulate(
             if m != 0:
                 modes["u"] = m
                 events.append((t_, "u", kind_of(m)))
-        if has_lower and modes["l"] == 0:
+        if has_lower and not lugre and modes["l"] == 0:
             m = band_mode(te_lower(t_, y), lo_l - shift(t_, y)[1], hi_l + shift(t_, y)[1])
             if m != 0:
                 modes["l"] = m
                 events.append((t_, "l", kind_of(m)))
 
     restick_check(float(t[0]))
+    if lugre:
+        modes["l"] = lugre_direction(float(t[0]), y)
+        if modes["l"] != 0:
+            events.append((float(t[0]), "l", kind_of(modes["l"])))
 
     out_i = 0
     Y[:, 0] = y
@@ -732,6 +888,11 @@ def reference_simulate(
             restick_check(a_i)
         tc = a_i
         while tc < b_i:
+            if lugre:
+                m = lugre_direction(tc, y)
+                if m != modes["l"]:
+                    modes["l"] = m
+                    events.append((tc, "l", kind_of(m)))
             mu, ml = modes["u"], modes["l"]
             rhs = make_rhs(mu, ml)
             span = b_i - tc
@@ -755,7 +916,7 @@ def reference_simulate(
                 rhs,
                 (tc, b_i),
                 np.asarray(y),
-                method="DOP853",
+                method=lugre_method if lugre else "DOP853",
                 rtol=rtol,
                 atol=atol,
                 events=evs,
@@ -799,7 +960,9 @@ def reference_simulate(
                         iw = 1 if disc == "u" else 3
                         y[iw] = 0.0
                 for disc, kind in fired:
-                    if kind == "zero":
+                    if lugre and disc == "l":
+                        m = lugre_direction(tc, y)
+                    elif kind == "zero":
                         if disc == "u":
                             m = band_mode(
                                 te_upper(tc, y), lo_u - shift(tc, y)[0], hi_u + shift(tc, y)[0]
@@ -853,6 +1016,7 @@ def reference_simulate(
         res["mode_l"] = None
 
     res["z"] = Y[4].copy() if has_z else None
+    res["z_bristle"] = Y[4].copy() if lugre else None
     if dense_output:
         res["sol"] = _DenseSolution(pieces, config, t, thp, has_lower)
     return res

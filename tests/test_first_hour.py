@@ -71,3 +71,37 @@ def test_compile_notice_only_with_a_cold_cache(tmp_path, monkeypatch):
     # The kernel is imported already in this process: nothing to compile, nothing said.
     buf = io.StringIO()
     assert coldstart.compile_kernel(buf) is None and buf.getvalue() == ""
+
+
+def test_import_compiles_nothing():
+    # Issue 33: a command compiles only what it uses, so importing compiles nothing (every
+    # entry point used to be compiled at import: 121 s with a cold cache on 2 cores).
+    import subprocess
+
+    code = ("import rotorbayes\nfrom rotorbayes.kernel import solver as S\n"
+            "print(sum(len(getattr(S, n).overloads) for n in S.SIGNATURES),"
+            " len(S._integrate.overloads))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)  # fmt: skip
+    assert out.stdout.split() == ["0", "0"]
+
+
+def test_compile_notice_names_the_entry_point_and_its_time(monkeypatch):
+    from rotorbayes.kernel import solver
+
+    monkeypatch.setattr(coldstart, "_READY", {})
+    monkeypatch.setattr(coldstart, "COMPILE_SECONDS", {})
+    monkeypatch.setattr(coldstart, "cache_is_cold", lambda name="*": True)
+    monkeypatch.setattr(solver, "is_ready", lambda name: False)
+    monkeypatch.setattr(solver, "entry", lambda name: "compiled " + name)
+    buf = io.StringIO()
+    assert coldstart.kernel_entry("residuals_batch_into_plain", buf) == (
+        "compiled residuals_batch_into_plain")
+    line = buf.getvalue()
+    assert line.startswith(coldstart.MESSAGE + " (the residuals in parallel batches, plain "
+                           "kernel), once") and line.rstrip().endswith(" s")
+    assert line.count("\n") == 1 and "took" in line
+    assert set(coldstart.COMPILE_SECONDS) == {"residuals_batch_into_plain"}
+    buf = io.StringIO()  # ready now: nothing said, nothing asked of the solver
+    assert coldstart.kernel_entry("residuals_batch_into_plain", buf).startswith("compiled")
+    assert buf.getvalue() == ""

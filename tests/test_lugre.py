@@ -24,8 +24,7 @@ import pytest
 import rotorbayes as rb
 from rotorbayes import Effect, Parameter
 from rotorbayes.model import Model
-from rotorbayes.model.effects import EffectError
-from rotorbayes.model.laws import LUGRE
+from rotorbayes.model.effects import LUGRE, EffectError
 
 TOL = 1.5e-5
 
@@ -106,3 +105,27 @@ def test_pre_sliding_creep_where_the_switch_model_sticks():
     # Unloaded to zero torque the disc does not come all the way back (the bristles'
     # hysteresis; a linear spring would return to 0): measured 41 % of the peak creep.
     assert lg.theta_l[-1] > 0.25 * lg.theta_l[k]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config,s0", [("brake", 300.0), ("coupled", 100.0)])
+def test_the_law_matches_the_reference(config, s0):
+    """30 s at 1 kHz against the reference's own LuGre integration (LSODA on the smooth
+    lower disc, no stick mode), the upper disc in its switch model in both."""
+    from reference import reference_simulate
+
+    from rotorbayes.model.parameters import thesis_set
+
+    t, u = rb.signals.estimation_signal(30.0, seed=3)
+    if config == "brake":
+        base, effects = dict(thesis_set("4.3", "P_ref")), []
+    else:  # a Stribeck curve the thesis's coupled tables lack
+        base = dict(thesis_set("4.2", "P_ref"), Ts_l=0.06, ws_l=0.8, delta_l=1.7)
+        effects = ["lower_stribeck"]
+    p = dict(base, sigma0_l=s0, sigma1_l=float(np.sqrt(s0 * base["J_l"])))
+    sim = rb.simulate(p, u, dt=1e-3, config=config, effects=[*effects, "lugre"])
+    ref = reference_simulate(p, t, u, config, lower_law="lugre")
+    assert np.max(np.abs(sim.theta_l - ref["theta_l"])) < TOL
+    assert np.max(np.abs(sim.theta_u - ref["theta_u"])) < TOL
+    switch = rb.simulate(base, u, dt=1e-3, config=config, effects=effects)
+    assert np.max(np.abs(sim.theta_l - switch.theta_l)) > 1e-3  # the law matters here

@@ -370,3 +370,30 @@ def test_a_study_stage_without_options_uses_the_study_executor(capsys):
     with executor(file={"backend": "serial"}) as ex:
         assert isinstance(ex, parallel.SerialExecutor)
     assert "parallel tasks run serially in this process" in capsys.readouterr().out
+
+
+def test_the_default_back_end_follows_the_cores():
+    # Measured (benchmarks/bench_scale.py, issue 34): processes pay from a few cores on.
+    import multiprocessing as mp
+
+    assert parallel.default_backend(2) == "threads"
+    want = "processes" if "forkserver" in mp.get_all_start_methods() else "threads"
+    assert parallel.default_backend(16) == want
+
+
+def _threads_in_task(_):
+    import numba
+
+    outside = numba.get_num_threads()
+    parallel.claim_kernel_threads()
+    return outside, numba.get_num_threads()
+
+
+def test_a_lone_task_takes_the_cores_for_its_batches():
+    # One task running: its kernel batches get every core; outside them one thread.
+    import numba
+
+    with parallel.open_executor(parallel.ExecutorSpec("threads", 2)) as ex:
+        outside, inside = ex.submit(_threads_in_task, 0).result()
+    assert outside == 1
+    assert inside == min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS)

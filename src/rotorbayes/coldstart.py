@@ -1,10 +1,17 @@
-"""The first run compiles the integrator; say so once, with the real wall time.
+"""The first run compiles the integrator; say so, with the real wall time.
 
-The kernel's functions are compiled by numba when :mod:`rotorbayes.kernel.solver` is first
-imported and kept in numba's on-disk cache. A cold cache (a fresh install, a new Python, an
-edited kernel) costs about 120 s on 2 idle cores (69 s before the effect state; issue 33);
-:func:`compile_kernel` imports the kernel and, only when no up-to-date cache is found, says
-what is happening before and how long it took after, on stderr.
+Nothing is compiled when rotorbayes is imported.  Each of the solver's entry points
+(:data:`rotorbayes.kernel.solver.SIGNATURES`: a simulation, the residuals, their parallel
+batches; each plain, full or with user hooks) is compiled by numba when a command first
+uses it (:func:`kernel_entry`) and kept in numba's on-disk cache, so a command compiles
+only what it uses.  With a cold cache (a fresh install, a new Python, an edited kernel)
+:func:`kernel_entry` says what is happening before and how long it took after, on stderr;
+with a warm one it says nothing.  Measured with an empty cache (issue 33;
+``benchmarks/bench_coldstart.py``; CPU seconds of the compiling process, one idle core's
+time): the first ``rotorbayes simulate`` compiles for 26 s (the plain simulation), the
+first ``rotorbayes fit`` for 33 s (the plain residuals, their batch, the simulation; one
+compilation of the solver serves all three).  Before, every entry point was compiled at
+import: 121 s (69 s before the effect state).
 """
 
 from __future__ import annotations
@@ -12,6 +19,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -21,8 +29,10 @@ from pathlib import Path
 #: gives its task to another worker.
 PARENT_ENV = "ROTORBAYES_PARENT_PID"
 
-#: The message's first part (tests look for it).
-MESSAGE = "rotorbayes: compiling the integrator, once (numba caches it for later runs) ..."
+#: The notice's first part (tests look for it); the whole line reads "rotorbayes: compiling
+#: the integrator (the residuals, plain kernel), once: numba caches it for later runs ...
+#: took 14 s".
+MESSAGE = "rotorbayes: compiling the integrator"
 
 
 def _cache_dirs(kernel_dir: Path) -> list[Path]:
@@ -58,16 +68,25 @@ def _index_is_current(index: Path, source: Path, numba_version: str | None) -> b
     return tuple(stamp) == (st.st_mtime, st.st_size)
 
 
-def cache_is_cold() -> bool:
-    """True when numba has no cache entry of the solver that matches its source for this
-    Python and this numba (numba would compile on import)."""
-    from importlib.metadata import PackageNotFoundError, version
-
+def _solver_source() -> tuple[Path, Path] | None:
+    """``(kernel folder, solver.py)`` of the installed package, or None."""
     spec = importlib.util.find_spec("rotorbayes.kernel")
     if spec is None or not spec.submodule_search_locations:
-        return False
+        return None
     kernel_dir = Path(next(iter(spec.submodule_search_locations)))
-    source = kernel_dir / "solver.py"
+    return kernel_dir, kernel_dir / "solver.py"
+
+
+def cache_is_cold(name: str = "*") -> bool:
+    """True when numba has no cache entry of the solver's function ``name`` (``"*"``: of
+    any of its functions) that matches its source for this Python and this numba (numba
+    would compile it)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found_source = _solver_source()
+    if found_source is None:
+        return False
+    kernel_dir, source = found_source
     try:
         numba_version = version("numba")
     except PackageNotFoundError:
@@ -76,7 +95,7 @@ def cache_is_cold() -> bool:
     for d in _cache_dirs(kernel_dir):
         if not d.is_dir():
             continue
-        pattern = f"solver.*.{tag}.nbi"
+        pattern = f"solver.{name}-*.{tag}.nbi" if name != "*" else f"solver.*.{tag}.nbi"
         found = d.glob(pattern) if d.name == "__pycache__" else d.rglob(pattern)
         if any(_index_is_current(p, source, numba_version) for p in found):
             return False
@@ -84,23 +103,72 @@ def cache_is_cold() -> bool:
 
 
 def compile_kernel(stream=None) -> float | None:
-    """Import (and so compile, if needed) the kernel; returns the seconds spent compiling,
-    or None when the cache was warm (nothing printed then)."""
+    """Import the kernel.  Nothing is compiled at import any more (see
+    :func:`kernel_entry`), so this returns None and prints nothing; kept for callers that
+    load the package before timing it."""
     if "rotorbayes.kernel.solver" in sys.modules:
         return None
-    cold = cache_is_cold()
-    stream = sys.stderr if stream is None else stream
-    if cold:
-        print(MESSAGE, end="", file=stream, flush=True)
-    t0 = time.perf_counter()
     # The model first: it imports the kernel in the order the package's modules expect.
     importlib.import_module("rotorbayes.model")
     importlib.import_module("rotorbayes.kernel.solver")
+    return None
+
+
+#: What each entry point is, in the compile notice.
+_WHAT = {"simulate": "the simulation", "residuals": "the residuals"}
+
+#: The entry points ready in this process, by name (the hot path looks here first).
+_READY: dict = {}
+_COMPILING = threading.Lock()
+
+#: Seconds (wall time) each entry point took to compile in this process (a cold cache only)
+#: ...
+COMPILE_SECONDS: dict[str, float] = {}
+#: ... and the CPU seconds of this process meanwhile (numba compiles on one core: on a busy
+#: machine this is the figure an idle core would give).
+COMPILE_CPU_SECONDS: dict[str, float] = {}
+
+
+def kernel_entry(name: str, stream=None):
+    """The solver's entry point ``name`` (a key of
+    :data:`rotorbayes.kernel.solver.SIGNATURES`), compiled or loaded from numba's cache on
+    its first use in this process.  With a cold cache the compilation is said on stderr
+    (``stream``): :data:`MESSAGE` before, the wall time after."""
+    fn = _READY.get(name)
+    if fn is not None:
+        return fn
+    with _COMPILING:  # threads of one process (a multistart) compile and say it once
+        return _compile_entry(name, stream)
+
+
+def _compile_entry(name: str, stream):
+    fn = _READY.get(name)
+    if fn is not None:
+        return fn
+    from .kernel import solver
+
+    cold = not solver.is_ready(name) and cache_is_cold(name)
+    stream = sys.stderr if stream is None else stream
+    if cold:
+        what = _WHAT[name.split("_", 1)[0]]
+        if "batch" in name:
+            what += " in parallel batches"
+        flavour = name.rpartition("_")[2]
+        if flavour in ("plain", "full"):
+            what += f", {flavour} kernel"
+        else:
+            what += ", kernel with user effects"
+        print(f"{MESSAGE} ({what}), once: numba caches it for later runs ...", end="",
+              file=stream, flush=True)
+    t0, c0 = time.perf_counter(), time.process_time()
+    fn = solver.entry(name)
     dt = time.perf_counter() - t0
-    if not cold:
-        return None
-    print(f" took {dt:.0f} s", file=stream, flush=True)
-    return dt
+    if cold:
+        COMPILE_SECONDS[name] = dt
+        COMPILE_CPU_SECONDS[name] = time.process_time() - c0
+        print(f" took {dt:.0f} s", file=stream, flush=True)
+    _READY[name] = fn
+    return fn
 
 
 def launched_as_command() -> bool:

@@ -265,6 +265,7 @@ def executor(backend: str | None = None, workers: int | None = None,
         raise Refused(str(exc)) from None
     with parallel.use_executor(spec) as ex:
         # Said once the executor is there (a scheduler answered and has workers).
-        if spec.backend != parallel.DEFAULT_BACKEND or spec.source != "default":
+        # The default is said too where it is not the threads of the 2-core machines.
+        if spec.backend != "threads" or spec.source != "default":
             print(f"parallel tasks run {spec.describe()}", flush=True)
         yield ex

@@ -24,11 +24,10 @@ def effects(name=()) -> Outcome:
     for e in _effects.CATALOGUE.values():
         print(e.describe() + "\n")
     from ..model import CONFIGURATIONS
-    from ..model.laws import LAWS
 
     print("Friction laws to hold against the switch model (--add NAME; not nested in it, so "
           "diagnose never tries them: fit both and compare on validation data):\n")
-    for e in LAWS.values():
+    for e in _effects.LAWS.values():
         print(e.describe() + "\n")
 
     print("Base models (on unless --without NAME):")

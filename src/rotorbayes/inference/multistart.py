@@ -223,6 +223,8 @@ def _fit_start(shared: tuple, x0: np.ndarray) -> tuple[FitResult | None, str]:
     r, why = fit_or_reason(problem, x0, **fit_kw)
     if r is not None and r.jac is not None and r.jac.nbytes > COMPRESS_BYTES:
         r.jac = None
+    if r is not None:
+        r.problem = None  # the caller has it: not sent back from a process or Dask worker
     return r, why
 
 

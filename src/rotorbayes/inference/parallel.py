@@ -37,6 +37,7 @@ import contextvars
 import math
 import os
 import re
+import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import (
     FIRST_COMPLETED,
@@ -55,8 +56,21 @@ from ..exitcodes import EnvironmentFailure
 #: The back-ends :func:`choose` knows.
 BACKENDS = ("serial", "threads", "processes", "dask")
 
+def default_backend(cores: int | None = None) -> str:
+    """The back-end that pays on this machine (issue 34, ``benchmarks/bench_scale.py``): local
+    processes forked from a fork server where there are 4 cores or more (a 48-start brake
+    multistart on 16 cores: 7.9 s against 20.8 s in threads, whose fits hold the GIL in
+    scipy's optimiser), else threads (on 2 cores the pool's start-up is not won back)."""
+    import multiprocessing as mp
+
+    cores = (os.cpu_count() or 1) if cores is None else cores
+    if cores >= 4 and "forkserver" in mp.get_all_start_methods():
+        return "processes"
+    return "threads"
+
+
 #: The default back-end of a command (no option, no variable, no analysis-file entry).
-DEFAULT_BACKEND = "threads"
+DEFAULT_BACKEND = default_backend()
 
 #: The environment variable Dask itself reads for the scheduler's address.
 SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
@@ -147,11 +161,154 @@ def warm_kernel() -> None:
                          ("brake", "thesis:4.3:P_ref")):
         with contextlib.suppress(Exception):  # a missing table entry must not stop a worker
             simulate(pset, u, dt=0.005, config=config)
+    # Entry points are compiled (or loaded) on first use: load the residuals' too, which
+    # a worker's fits call, so that no task pays for it.
+    from ..coldstart import kernel_entry
+
+    for name in ("residuals_into_plain", "residuals_batch_into_plain"):
+        with contextlib.suppress(Exception):
+            kernel_entry(name)
 
 
-def _process_initializer() -> None:
+def _process_initializer(active=None, cap: int = 1) -> None:
+    global _POOL_SHARE
     _ignore_ctrl_c()
     prepare_worker()
+    if active is not None:
+        _POOL_SHARE = _Share(cap, active)
+
+
+# --------------------------------------------------------------------------- thread shares
+#
+# A local pool's tasks (whole fits) each run on one numba thread while the pool is full.
+# When fewer tasks than cores are left (the tail of a multistart: its slowest starts), the
+# cores of the finished ones are idle: every task's kernel batch (its Jacobian's columns)
+# then takes a share of the cores, cores // (tasks running), read again before each batch.
+# The thread count changes no number: every row of a batch is simulated alone.
+
+
+class _Share:
+    """How many tasks of one local pool run now, and how many cores they share."""
+
+    def __init__(self, cap: int, active=None):
+        self.cap = max(1, int(cap))
+        self._value = active  # a multiprocessing Value (process pool) or None (threads)
+        self._lock = threading.Lock()
+        self._n = 0
+
+    def enter(self) -> None:
+        if self._value is None:
+            with self._lock:
+                self._n += 1
+        else:
+            with self._value.get_lock():
+                self._value.value += 1
+
+    def leave(self) -> None:
+        if self._value is None:
+            with self._lock:
+                self._n -= 1
+        else:
+            with self._value.get_lock():
+                self._value.value -= 1
+
+    def threads(self) -> int:
+        n = self._n if self._value is None else self._value.value
+        return max(1, self.cap // max(1, n))
+
+
+#: The share of this process-pool worker (set by its initializer), else None.
+_POOL_SHARE: _Share | None = None
+#: The share of the task this thread runs (a local thread pool's task), else unset.
+_TASK = threading.local()
+
+
+def claim_kernel_threads() -> None:
+    """Before a kernel batch inside a pool's task: take this task's share of the cores as
+    numba threads (see :class:`_Share`); outside a pool's task nothing changes."""
+    share = getattr(_TASK, "share", None)
+    if share is None:
+        return
+    import numba
+
+    n = min(share.threads(), int(numba.config.NUMBA_NUM_THREADS))
+    if n != numba.get_num_threads():
+        numba.set_num_threads(n)
+
+
+def _run_shared(share: _Share | None, fn, /, *args, **kwargs):
+    """A local pool's task: counted as running while it runs, one numba thread outside its
+    kernel batches."""
+    share = share if share is not None else _POOL_SHARE
+    if share is None:
+        return fn(*args, **kwargs)
+    import numba
+
+    old = numba.get_num_threads()
+    _TASK.share = share
+    share.enter()
+    try:
+        numba.set_num_threads(1)
+        return fn(*args, **kwargs)
+    finally:
+        share.leave()
+        _TASK.share = None
+        numba.set_num_threads(old)
+
+
+class _SharingThreadPool(ThreadPoolExecutor):
+    """Local threads whose tasks share the cores' numba threads (:class:`_Share`)."""
+
+    def __init__(self, max_workers: int):
+        super().__init__(max_workers=max_workers)
+        self._share = _Share(os.cpu_count() or max_workers)
+
+    def submit(self, fn, /, *args, **kwargs):
+        return super().submit(_run_shared, self._share, fn, *args, **kwargs)
+
+
+class _SharingProcessPool(ProcessPoolExecutor):
+    """Local processes whose tasks share the cores' numba threads (:class:`_Share`)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        return super().submit(_run_shared, None, fn, *args, **kwargs)
+
+
+#: The module a process pool's fork server imports once (the package, the kernel loaded):
+#: every worker is then a fork of it, ready in milliseconds instead of seconds.
+FORKSERVER_PRELOAD = "rotorbayes.inference._forkserver"
+
+
+#: numba's threading layer in the fork server and so in its workers: ``workqueue`` is
+#: fork-safe (GNU OpenMP is not: numba ends a forked child of a process that loaded a
+#: parallel function under it, "fork() called from a process already using GNU OpenMP");
+#: that it is not thread-safe does not matter in a worker, whose tasks run one at a time.
+FORKSERVER_THREADING_LAYER = "workqueue"
+
+
+def process_context():
+    """The multiprocessing context of local process pools: a fork server that has loaded
+    rotorbayes and the kernel (POSIX), else spawn.  Plain fork of the command's process is
+    not used: it has loaded the kernel under GNU OpenMP, which does not survive a fork."""
+    import multiprocessing as mp
+
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    from multiprocessing import forkserver
+
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload([FORKSERVER_PRELOAD])
+    # The server takes this process's environment when it starts (once per process).
+    saved = os.environ.get("NUMBA_THREADING_LAYER")
+    os.environ["NUMBA_THREADING_LAYER"] = FORKSERVER_THREADING_LAYER
+    try:
+        forkserver.ensure_running()
+    finally:
+        if saved is None:
+            os.environ.pop("NUMBA_THREADING_LAYER", None)
+        else:
+            os.environ["NUMBA_THREADING_LAYER"] = saved
+    return ctx
 
 
 def _ignore_ctrl_c() -> None:
@@ -293,16 +450,18 @@ def open_executor(spec: ExecutorSpec) -> Iterator[Executor]:
     if spec.backend in ("threads", "processes"):
         pool: Executor
         if spec.backend == "threads":
-            pool = ThreadPoolExecutor(max_workers=spec.n_workers())
+            pool = _SharingThreadPool(spec.n_workers())
         else:
-            import multiprocessing as mp
-
             # The pool starts its processes lazily, at a submit, with this process's
-            # environment (BLAS limited to one thread by rotorbayes's import); each
-            # worker limits numba to one thread in its initializer.
-            pool = ProcessPoolExecutor(max_workers=spec.n_workers(),
-                                       mp_context=mp.get_context("spawn"),
-                                       initializer=_process_initializer)
+            # environment (BLAS limited to one thread by rotorbayes's import), forked from
+            # a server that loaded the kernel once (process_context); each worker runs
+            # one numba thread outside its kernel batches, a share of the cores in them.
+            ctx = process_context()
+            n = spec.n_workers()
+            pool = _SharingProcessPool(max_workers=n, mp_context=ctx,
+                                       initializer=_process_initializer,
+                                       initargs=(ctx.Value("i", 0),
+                                                 max(n, os.cpu_count() or n)))
         try:
             yield pool
         finally:

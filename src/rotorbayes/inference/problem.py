@@ -22,6 +22,7 @@ it or through the value it stored.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,8 +35,23 @@ from ..model import effects as _effects
 from ..model.configurations import Model
 from ..model.parameters import INFO, ParameterError, resolve, unknown_name_message
 from ..model.simulate import DEFAULT_STEP, Simulation, Simulator, check_step
+from .parallel import claim_kernel_threads
 
 CHANNELS = ("theta_u", "theta_l")
+
+#: How :meth:`Problem.jacobian` differentiates unless told: ``'differences'`` (finite
+#: differences, every model), or ``'sensitivity'`` (the kernel's forward sensitivities where
+#: the kernel has them, see :meth:`Problem.sensitivity_support`; differences elsewhere).
+#: Differences stay the default while the sensitivities cost 11 residual evaluations
+#: against differences' 17 on a 30 s brake Jacobian (not yet the 3 issue 33 asks for), add
+#: 33 s to a cold start, and differ from the differences of the computed residuals where
+#: Stribeck substeps move with the parameters (benchmarks/bench_sensitivity.py).
+JACOBIAN_DEFAULT = "differences"
+
+
+class SensitivityFallback(UserWarning):
+    """:meth:`Problem.jacobian` was asked for sensitivities and used finite differences
+    (the message says why)."""
 
 #: How a validation experiment's initial torsion was chosen (:attr:`ValidationTorsion.how`).
 FITTED_ALONE = "fitted on that run alone"
@@ -800,6 +816,7 @@ class Problem:
         """Residual matrix for full parameter sets ``sets[j][i]`` (row j, experiment i),
         simulated in kernel batches; returns ``(R, status[j, i])``."""
         m = len(sets)
+        claim_kernel_threads()  # inside a pool's task: its share of the cores
         R = np.empty((m, self.n_residuals))
         S = np.zeros((m, len(self.experiments)), dtype=np.int64)
         off = 0
@@ -834,6 +851,79 @@ class Problem:
         return self.sims[i].simulate(self.params_for(x, i), raise_on_failure=False)
 
     # --------------------------------------------------------------------- Jacobian
+    def sensitivity_support(self, names: Sequence[str] | None = None, *,
+                            values: Mapping[str, float] | None = None,
+                            secant: Mapping[str, float] | None = None) -> str | None:
+        """Why the kernel's forward sensitivities cannot give the Jacobian by ``names``
+        (default: the free parameters) here, in words; ``None`` if they can.
+
+        They exist for the plain kernel (no user effect, no effect of the full kernel, no
+        effect that replaces a friction law), the motor-driven configurations (upper,
+        coupled, brake; not a measured theta_u as input), no dead zone, and the
+        parameters of :data:`rotorbayes.kernel.sensitivity.SUPPORTED` of effects that
+        are on, at the problem's own values (no ``values``, no ``secant``)."""
+        from ..kernel.sensitivity import SUPPORTED
+
+        names = list(self.names if names is None else names)
+        m = self.model
+        if values or secant:
+            return "evaluated at other values or by secants (a score test's steps)"
+        if self.prescribed_upper:
+            return "the measured theta_u drives the lower disc (prescribed upper motion)"
+        if m.user_effects:
+            return "the model has user-defined effects"
+        if m.full_kernel or m.replacing is not None:
+            what = m.replacing.name if m.replacing is not None else "an effect"
+            return f"{what} needs the full kernel, which has no sensitivities yet"
+        for n in names:
+            b, idx = local_name(n)
+            if b not in m.active:
+                return f"{b} belongs to an effect that is off"
+            slot = m.kernel_slot(b)
+            if slot is None or slot[0] != 0 or slot[1] not in SUPPORTED:
+                return f"no sensitivity by {b} in the kernel yet"
+            if idx is not None and not 0 <= idx < len(self.experiments):
+                return f"{n}: no experiment {idx}"
+        if float(self.base.get("u_deadzone", 0.0) or 0.0) != 0.0:
+            return "the input has a dead zone (its kinks move with the parameters)"
+        return None
+
+    def _jacobian_sensitivity(self, x: np.ndarray, names: list[str]) -> np.ndarray:
+        """:meth:`jacobian` by the kernel's forward sensitivities (supported, see
+        :meth:`sensitivity_support`)."""
+        from ..kernel.sensitivity import sensitivities_into
+        from ..model.simulate import SimulationError
+
+        x = self.point(x)
+        J = np.zeros((self.n_residuals, len(names)))
+        r = np.empty((1, self.n_residuals))
+        tsf = not self.model.stribeck
+        off = 0
+        for i, (ex, sim) in enumerate(zip(self.experiments, self.sims, strict=True)):
+            p, _ = self.kernel_vectors(x, i)
+            if p[_layout.U_DEADZONE] != 0.0:
+                raise SimulationError("Jacobian by sensitivities: the input has a dead zone")
+            idx, jcol = [], []
+            for j, n in enumerate(names):
+                b, e = local_name(n)
+                if e is None or e == i:
+                    idx.append(_layout.INDEX[b])
+                    jcol.append(j)
+            cols = self._columns[i] if i in self._columns else self._channel_columns(ex, off)
+            self._columns[i] = cols
+            (mu, wu, cu), (ml, wl, cl) = [
+                (c[0], c[1], c[2]) if c is not None else (np.empty(0), 1.0, -1) for c in cols]
+            st = sensitivities_into(
+                np.ascontiguousarray(p, dtype=float), sim.u, sim.dt, sim.cfg, sim.shape,
+                sim.grid, sim.h0, np.array(idx, dtype=np.int64), tsf, mu, ml, float(wu),
+                float(wl), r, J, np.array(jcol, dtype=np.int64), cu, cl,
+            )  # fmt: skip
+            if st != _layout.OK:
+                raise SimulationError(f"Jacobian: experiment {i} cannot be simulated at the "
+                                      f"point: {_layout.STATUS_MESSAGES[int(st)]}")
+            off += ex.n * len(self.channels)
+        return J
+
     def jacobian(
         self,
         x: np.ndarray,
@@ -843,8 +933,10 @@ class Problem:
         r0: np.ndarray | None = None,
         values: Mapping[str, float] | None = None,
         secant: Mapping[str, float] | None = None,
+        method: str | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Sensitivity of the residuals to any parameters, by finite differences.
+        """Sensitivity of the residuals to any parameters, by forward sensitivities or by
+        finite differences.
 
         Parameters
         ----------
@@ -865,13 +957,21 @@ class Problem:
             Stribeck velocity and shape, nuisance parameters of an effect that is off).
         secant : mapping, optional
             Absolute steps for some names (a secant instead of a derivative).
+        method : {'sensitivity', 'differences'}, optional
+            ``'sensitivity'``: the kernel's forward sensitivities
+            (:mod:`rotorbayes.kernel.sensitivity`; the derivative of the computed
+            residuals in one pass, no step), where they exist for this model and these
+            names (see :meth:`sensitivity_support`); elsewhere finite differences, with a
+            :class:`SensitivityFallback` warning that says why.  ``'differences'``:
+            forward differences (``rel_step``).  Default (None):
+            :data:`JACOBIAN_DEFAULT`, falling back to differences without a warning.
 
         Returns
         -------
         J : array (n_residuals, len(names))
             ``d r / d theta`` in parameter units (``r = y - yhat``).
         steps : array
-            The signed steps used.
+            The signed steps used (zeros for sensitivities).
 
         Raises
         ------
@@ -881,6 +981,17 @@ class Problem:
         from ..model.simulate import SimulationError
 
         names = list(self.names if names is None else names)
+        asked = method is not None
+        method = JACOBIAN_DEFAULT if method is None else method
+        if method not in ("sensitivity", "differences"):
+            raise ValueError(f"method = {method!r}: choose 'sensitivity' or 'differences'")
+        if method == "sensitivity":
+            why = self.sensitivity_support(names, values=values, secant=secant)
+            if why is None:
+                return self._jacobian_sensitivity(x, names), np.zeros(len(names))
+            if asked:
+                warnings.warn(f"Jacobian by finite differences: {why}", SensitivityFallback,
+                              stacklevel=2)
         off_effects = []
         for n in names:
             b, _ = local_name(n)

@@ -617,6 +617,11 @@ def _integrate(
     return status, n_ev
 
 
+# The entry points pass _integrate's flags and channel columns as run-time values
+# (np.bool_(True), np.int64(-1)), not as literals: numba compiles a callee once per literal
+# argument value, so `True` and `False` made the simulation and the residuals two
+# compilations of the whole solver (about 20 s each on 2 cores, issue 33); now a command
+# that simulates and fits compiles it once per kernel (plain, full, with hooks).
 _F1 = types.float64[::1]
 _SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
     _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
@@ -625,7 +630,7 @@ _SIMULATE_SIGNATURE = types.UniTuple(types.int64, 2)(
 )  # fmt: skip
 
 
-@njit(_SIMULATE_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def simulate_into(
     p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
@@ -673,8 +678,10 @@ def simulate_into(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        hook_rate, state_reset, True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+        hook_rate, state_reset, np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu,
+        out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1),
+        np.int64(-1),
     )  # fmt: skip
 
 
@@ -684,7 +691,7 @@ _SIMULATE_PLAIN_SIGNATURE = types.UniTuple(types.int64, 2)(
 )  # fmt: skip
 
 
-@njit(_SIMULATE_PLAIN_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def simulate_into_plain(
     p, q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_wu, out_thl, out_wl, out_mu,
     out_ml, events,
@@ -695,8 +702,9 @@ def simulate_into_plain(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -2,
-        True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+        np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1),
+        np.int64(-1),
     )  # fmt: skip
 
 
@@ -708,7 +716,7 @@ _RESIDUALS_SIGNATURE = types.int64(
 )  # fmt: skip
 
 
-@njit(_RESIDUALS_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def residuals_into(
     p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
@@ -726,7 +734,8 @@ def residuals_into(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
-        hook_rate, state_reset, False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        hook_rate, state_reset, np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i,
+        np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -748,7 +757,7 @@ def _batch_scratch(n):
             np.empty((0, 3)))  # fmt: skip
 
 
-@njit(_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def simulate_batch_into(
     P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, out_thu, out_thl, status,
@@ -775,7 +784,7 @@ _SIMULATE_PLAIN_BATCH_SIGNATURE = types.void(
 )  # fmt: skip
 
 
-@njit(_SIMULATE_PLAIN_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def simulate_batch_into_plain(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl, status):
     """:func:`simulate_batch_into` for a model without user-defined effects (see
     :func:`simulate_into_plain`)."""
@@ -797,7 +806,7 @@ _PLAIN_SIGNATURE = types.int64(
 )  # fmt: skip
 
 
-@njit(_PLAIN_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def residuals_into_plain(
     p, q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, r, row, col_u,
     col_l,
@@ -812,7 +821,7 @@ def residuals_into_plain(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, None, None, None, -2,
-        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -827,7 +836,7 @@ _RESIDUALS_BATCH_SIGNATURE = types.void(
 )  # fmt: skip
 
 
-@njit(_RESIDUALS_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def residuals_batch_into(
     P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
     state_reset, meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
@@ -850,7 +859,7 @@ _PLAIN_BATCH_SIGNATURE = types.void(
 )  # fmt: skip
 
 
-@njit(_PLAIN_BATCH_SIGNATURE, cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, parallel=True, error_model="numpy")
 def residuals_batch_into_plain(
     P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
     status,
@@ -869,8 +878,7 @@ def residuals_batch_into_plain(
 # The entry points for a model that needs the full kernel's physics (drive lag, upper
 # Stribeck curve; see terms.lag_of) but has no user effects: the plain entry points'
 # arguments, the marker FULL instead of hook functions (an integer: nothing to unbox per
-# call, where a function argument costs 0.1-0.27 ms).  No signatures: compiled on first
-# use and cached, so commands that never need them never compile them.
+# call, where a function argument costs 0.1-0.27 ms).
 @njit(cache=True, error_model="numpy", nogil=True)
 def simulate_into_full(
     p, q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_wu, out_thl, out_wl, out_mu,
@@ -880,8 +888,9 @@ def simulate_into_full(
     no_f = np.empty(0)
     return _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -2,
-        True, out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
-        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), 0, -1, -1,
+        np.bool_(True), out_thu, out_wu, out_thl, out_wl, out_mu, out_ml, events,
+        no_f, no_f, 1.0, 1.0, np.empty((0, 0)), np.int64(0), np.int64(-1),
+        np.int64(-1),
     )  # fmt: skip
 
 
@@ -895,7 +904,7 @@ def residuals_into_full(
     no_i = np.empty(0, dtype=np.int8)
     status, _ = _integrate(
         p, q, u, dt, cfg, shape, grid, h0, thp, False, FULL, FULL, FULL, -2,
-        False, no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
+        np.bool_(False), no_f, no_f, no_f, no_f, no_i, no_i, np.empty((0, 3)),
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
@@ -927,3 +936,47 @@ def residuals_batch_into_full(
             P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
             i, col_u, col_l,
         )  # fmt: skip
+
+
+# ------------------------------------------------------------------ compiled on request
+#: Every entry point and the one signature it is compiled for.  None is compiled when this
+#: module is imported: :func:`entry` compiles one (or loads it from numba's cache) when it
+#: is first asked for, so a command compiles only what it uses (issue 33: all of them at
+#: import took 121 s on 2 cores with a cold cache).  The hooked ones need their signature
+#: (it turns a hook, a numba dispatcher, into a function value of ``HOOK_TYPE``); the
+#: others get it so that each is compiled exactly once, for the types Python passes.
+SIGNATURES = {
+    "simulate_into": _SIMULATE_SIGNATURE,
+    "simulate_into_plain": _SIMULATE_PLAIN_SIGNATURE,
+    "simulate_into_full": _SIMULATE_PLAIN_SIGNATURE,
+    "residuals_into": _RESIDUALS_SIGNATURE,
+    "residuals_into_plain": _PLAIN_SIGNATURE,
+    "residuals_into_full": _PLAIN_SIGNATURE,
+    "simulate_batch_into": _BATCH_SIGNATURE,
+    "simulate_batch_into_plain": _SIMULATE_PLAIN_BATCH_SIGNATURE,
+    "simulate_batch_into_full": _SIMULATE_PLAIN_BATCH_SIGNATURE,
+    "residuals_batch_into": _RESIDUALS_BATCH_SIGNATURE,
+    "residuals_batch_into_plain": _PLAIN_BATCH_SIGNATURE,
+    "residuals_batch_into_full": _PLAIN_BATCH_SIGNATURE,
+}
+
+
+def is_ready(name: str) -> bool:
+    """Whether entry point ``name`` is compiled (or loaded from the cache) in this process."""
+    fn = globals()[name]
+    return SIGNATURES[name].args in fn.overloads
+
+
+def entry(name: str):
+    """The compiled entry point ``name`` (a key of :data:`SIGNATURES`), compiled for its
+    signature, or loaded from numba's cache, on the first request in this process."""
+    fn = globals()[name]
+    sig = SIGNATURES[name]
+    if sig.args not in fn.overloads:
+        if "_batch" in name:
+            # The row's entry point first, fixed to its signature: the batch's parallel
+            # loop calls it with a uint64 row and would otherwise compile the solver again.
+            entry(name.replace("_batch", ""))
+        fn.compile(sig)
+        fn.disable_compile()  # as with an eager signature: other types are refused
+    return fn

@@ -35,6 +35,7 @@ from pathlib import Path
 
 from ..kernel.layout import NAMES as BUILTIN_NAMES
 from .info import Parameter
+from .laws import lugre_rate, lugre_torque
 
 #: Configurations with the lower disc.
 LOWER = ("coupled", "brake")
@@ -123,7 +124,7 @@ class Effect:
         bristle deflection that a stop releases); empty: never.
     replaces : str
         ``"l"``: the effect carries the lower disc's whole dry friction (a dynamic friction
-        law such as :data:`rotorbayes.model.laws.LUGRE`).  The kernel then gives that disc
+        law such as :data:`LUGRE`).  The kernel then gives that disc
         no Coulomb or static level (it never sticks: its velocity passes zero like any
         other value; the viscous part stays), and the effect's functions find the levels
         in ``q`` after its own parameters, as ``(Tc_l, dTc_l, Ts_l)`` (``Ts_l = Tc_l``
@@ -530,17 +531,47 @@ _CATALOGUE: tuple[Effect, ...] = (
 CATALOGUE: dict[str, Effect] = {e.name: e for e in _CATALOGUE}
 
 
+#: LuGre dynamic friction on the lower disc (physics: :mod:`rotorbayes.model.laws`).
+LUGRE = Effect(
+    name="lugre",
+    physics="LuGre dynamic friction on the lower disc: the contact's bristles deflect "
+    "before it slides (pre-sliding, a spring of stiffness sigma0_l), so the disc creeps "
+    "under a torque below the static level instead of sticking, and the friction lags "
+    "the velocity (frictional memory); steady sliding follows the switch model's "
+    "Stribeck curve.",
+    parameters=(
+        Parameter("sigma0_l", "N m/rad", 5.0, 700.0, 700.0,
+                  "bristle stiffness (pre-sliding displacement Ts_l/sigma0_l)", start=300.0),
+        Parameter("sigma1_l", "N m s/rad", 0.0, 10.0, 0.0,
+                  "bristle damping", start=0.5),
+    ),
+    signature="theta_l residual at every lower stop and break-away (the disc creeps by "
+    "about Ts_l/sigma0_l where the model holds it still), with the residual's sign "
+    "following the torque's history",
+    configs=("coupled", "brake"),
+    kernel_term="the effect state (terms.state_step substeps the stiff bristles); the "
+    "lower disc's levels reach the law through q (Effect.replaces)",
+    explains=("velocity", "direction", "torsion", "input_history"),
+    torque=lugre_torque,
+    state="bristle",
+    state_rate=lugre_rate,
+    replaces="l",
+)
+
+#: Friction laws shipped to hold against the switch model, by name (``--add NAME`` like a
+#: catalogue effect; not nested in the model, so the diagnosis never tries them).
+LAWS: dict[str, Effect] = {LUGRE.name: LUGRE}
+
+
 class EffectError(ValueError):
     """An effect name, file or definition is invalid."""
 
 
 def get(name: str) -> Effect:
-    """Look a catalogue effect or a shipped friction law (:mod:`.laws`) up by name, with an
-    error that lists both."""
+    """Look a catalogue effect or a shipped friction law (:data:`LAWS`) up by name, with
+    an error that lists both."""
     if name in CATALOGUE:
         return CATALOGUE[name]
-    from .laws import LAWS
-
     if name in LAWS:
         return LAWS[name]
     raise EffectError(

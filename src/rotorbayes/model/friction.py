@@ -125,6 +125,25 @@ def stribeck_g(v):
 
 
 @njit(cache=True, error_model="numpy")
+def stribeck_g_slope(v):
+    """:func:`stribeck_g` (the same operations) and its derivative by ``v``: the table's
+    cubic differentiated, so the forward sensitivities
+    (:mod:`rotorbayes.kernel.sensitivity`) differentiate what the solver computes."""
+    f = (v - G_LO) * G_PER_UNIT
+    if f < 0.0:
+        return 1.0, 0.0
+    if f < _G_N:
+        k = int(f)
+        s = f - k
+        c0, c1, c2, c3 = _g_row(k)
+        g = fma(s, fma(s, fma(s, c3, c2), c1), c0)
+        return g, (c1 + s * (2.0 * c2 + 3.0 * s * c3)) * G_PER_UNIT
+    if f >= _G_N:
+        return 0.0, 0.0
+    return v, v  # NaN stays NaN
+
+
+@njit(cache=True, error_model="numpy")
 def stribeck(x, delta, shape, x_cut):
     """Stribeck decay ``S(x)`` for ``x = |omega| / ws`` (``S(0) = 1``); ``x_cut`` is
     :func:`negligible_x` of ``delta`` (``inf`` to evaluate it everywhere)."""

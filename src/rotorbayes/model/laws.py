@@ -1,4 +1,5 @@
-"""Friction laws shipped with rotorbayes to hold against the switch model.
+"""The physics of the friction laws shipped to hold against the switch model (their
+registry entries, :data:`rotorbayes.model.effects.LAWS`, sit beside the catalogue's).
 
 The model's friction is a *static* switch law: a disc sticks exactly while its torque lies
 in the static band and slips with a friction that depends on its velocity alone.  A
@@ -29,11 +30,10 @@ resolve only where the pre-sliding displacement is many counts.
 (sigma0_l |omega_l|)`` -- 0.05 N m / (300 N m/rad * 5 rad/s) = 33 us, thirty times shorter
 than a 1 kHz sample.  The kernel's substep rule for an effect state
 (:func:`rotorbayes.kernel.terms.state_step`) follows it, so a simulation costs more the
-stiffer the bristles and the faster the slide; the figures are in ``benchmarks/README.md``
-(``benchmarks/bench_lugre.py``).  Above the bound of ``sigma0_l`` the substeps would fall
-below the rule's floor and the run would stop (``BLOW_UP``) rather than return a wrong
-answer; such a stiffness gives a pre-sliding displacement below the lower encoder's count
-anyway, where the law is the switch model to the data.
+stiffer the bristles and the faster the slide (docs/effects.md has the figures,
+``benchmarks/bench_lugre.py`` measures them).  The bound of ``sigma0_l`` (700 N m/rad) is
+the stiffest at which the kernel was measured within its accuracy target of the
+reference; the creep before break-away there is about one lower-encoder count.
 """
 
 from __future__ import annotations
@@ -43,8 +43,6 @@ import math
 from numba import njit
 
 from ..kernel.layout import DELTA_L, WS_L
-from .effects import Effect
-from .info import Parameter
 
 # The law's slice of q: its own parameters, then the lower disc's levels (Effect.replaces).
 _S0, _S1, _TC, _DTC, _TS = range(5)
@@ -79,33 +77,4 @@ def lugre_torque(t, theta_u, omega_u, theta_l, omega_l, v, z, p, q):
     return 0.0, -(q[_S0] * z + q[_S1] * zd)
 
 
-LUGRE = Effect(
-    name="lugre",
-    physics="LuGre dynamic friction on the lower disc: the contact's bristles deflect "
-    "before it slides (pre-sliding, a spring of stiffness sigma0_l), so the disc creeps "
-    "under a torque below the static level instead of sticking, and the friction lags "
-    "the velocity (frictional memory); steady sliding follows the switch model's "
-    "Stribeck curve.",
-    parameters=(
-        Parameter("sigma0_l", "N m/rad", 5.0, 2000.0, 2000.0,
-                  "bristle stiffness (pre-sliding displacement Ts_l/sigma0_l)", start=300.0),
-        Parameter("sigma1_l", "N m s/rad", 0.0, 10.0, 0.0,
-                  "bristle damping", start=0.5),
-    ),
-    signature="theta_l residual at every lower stop and break-away (the disc creeps by "
-    "about Ts_l/sigma0_l where the model holds it still), with the residual's sign "
-    "following the torque's history",
-    configs=("coupled", "brake"),
-    kernel_term="the effect state (terms.state_step substeps the stiff bristles); the "
-    "lower disc's levels reach the law through q (Effect.replaces)",
-    explains=("velocity", "direction", "torsion", "input_history"),
-    torque=lugre_torque,
-    state="bristle",
-    state_rate=lugre_rate,
-    replaces="l",
-)
-
-#: The shipped laws by name (``--add NAME`` like a catalogue effect).
-LAWS: dict[str, Effect] = {LUGRE.name: LUGRE}
-
-__all__ = ["LAWS", "LUGRE", "lugre_level", "lugre_bristle_rate"]
+__all__ = ["lugre_bristle_rate", "lugre_level", "lugre_rate", "lugre_torque"]

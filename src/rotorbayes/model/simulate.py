@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..coldstart import kernel_entry
 from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, Experiment, add_noise, quantize
 from ..kernel import layout as _k
 from ..kernel import solver as _solver
@@ -329,13 +330,14 @@ class Simulator:
         """``(kernel function, experiment arguments)`` for the kernel entry point ``name``:
         without user effects (or a catalogue effect only the full kernel has, see
         ``Model.full_kernel``) its ``_plain`` twin, which takes no hooks (a function
-        argument costs 0.1-0.27 ms per call from Python to type and unbox)."""
+        argument costs 0.1-0.27 ms per call from Python to type and unbox).  Each is
+        compiled on its first use (:func:`rotorbayes.coldstart.kernel_entry`)."""
         a = self._kernel_args()
         if a[7]:
-            return getattr(_solver, name), a
+            return kernel_entry(name), a
         if self.model.full_kernel:
-            return getattr(_solver, name + "_full"), a[:7]
-        return getattr(_solver, name + "_plain"), a[:7]
+            return kernel_entry(name + "_full"), a[:7]
+        return kernel_entry(name + "_plain"), a[:7]
 
     @property
     def t(self) -> np.ndarray:

@@ -1,0 +1,246 @@
+"""Scale: one brake fit on 1 and N numba threads, and a multistart per back-end, side by side.
+
+The problem is issue 34's: the 30 s brake experiment at 1 kHz (thesis table 4.3 P_ref,
+``estimation_signal(30.0, seed=1)``, quantised angles), its 13 default free parameters.
+
+1. **One fit** from a Latin-hypercube start, on 1 numba thread and on N, best of
+   ``--repeat``; the time split into the kernel (residuals at the trial points, the
+   Jacobian's batch) and the rest (scipy's trust-region solver: an SVD of the 60 002 x 13
+   Jacobian per iteration, on one BLAS thread), so the bound on what threads can give is
+   printed beside the figure.
+2. **Pool start-up**: N no-op tasks on a fresh process pool, spawned (each worker imports
+   rotorbayes and loads the kernel) against forked from the fork server that loaded it once.
+3. **A multistart** of ``--starts`` starts (seed 0, Latin hypercube over the bounds) per
+   back-end: serial on 1 numba thread (the reference), serial on N, local threads, local
+   processes as before (spawned, one numba thread per worker) and as now (fork server, the
+   cores shared by the running starts' kernel batches), and a local Dask cluster (``--dask``).
+   Wall time includes starting the pool; starts per second, speed-up over the reference,
+   core efficiency (speed-up / N), whether the end points equal the reference's bit for bit,
+   and the bound the slowest start puts on any back-end (max(sum / N, slowest start)).
+
+    python benchmarks/bench_scale.py [--starts 48] [--workers N] [--dask] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numba
+import numpy as np
+
+import rotorbayes as rb
+from rotorbayes import inference
+from rotorbayes.inference import parallel, problem
+from rotorbayes.inference.multistart import latin_hypercube, multistart
+
+
+def brake_problem(seconds: float) -> inference.Problem:
+    p = rb.parameters.thesis_set("4.3", "P_ref")
+    t, u = rb.signals.estimation_signal(seconds, seed=1)
+    sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config="brake", alpha0=0.0,
+                      quantize_angles=True)
+    return inference.Problem("brake", [sim.to_experiment("brake_1khz")], base=p)
+
+
+class KernelClock:
+    """Seconds spent in the kernel's calls of a fit (residuals and Jacobian batches)."""
+
+    def __init__(self):
+        self.t = 0.0
+        self._res, self._jac = problem.Problem.residuals, problem.Problem.jacobian
+
+    def __enter__(self):
+        clock = self
+
+        def res(self_, *a, **k):
+            s = time.perf_counter()
+            try:
+                return clock._res(self_, *a, **k)
+            finally:
+                clock.t += time.perf_counter() - s
+
+        def jac(self_, *a, **k):
+            s = time.perf_counter()
+            try:
+                return clock._jac(self_, *a, **k)
+            finally:
+                clock.t += time.perf_counter() - s
+
+        problem.Problem.residuals, problem.Problem.jacobian = res, jac
+        return self
+
+    def __exit__(self, *exc):
+        problem.Problem.residuals, problem.Problem.jacobian = self._res, self._jac
+
+
+def one_fit(prob, x0, threads: int, repeat: int, blas: int = 1) -> dict:
+    from threadpoolctl import threadpool_limits
+
+    numba.set_num_threads(threads)
+    best = None
+    for _ in range(repeat):
+        with threadpool_limits(blas), KernelClock() as clock:
+            s = time.perf_counter()
+            r = inference.fit(prob, x0, uncertainty=False)
+            w = time.perf_counter() - s
+        if best is None or w < best["wall"]:
+            best = {"wall": w, "kernel": clock.t, "rest": w - clock.t, "nfev": r.nfev,
+                    "njev": r.njev, "ssr": r.ssr, "x": r.x.tolist()}
+    return best
+
+
+def _noop(i):
+    return os.getpid()
+
+
+def startup(pool_factory, n: int) -> float:
+    s = time.perf_counter()
+    with pool_factory() as ex:
+        list(ex.map(_noop, range(n)))
+    return time.perf_counter() - s
+
+
+def old_process_pool(n: int):
+    """The process pool before issue 34: spawned workers, one numba thread each."""
+    import multiprocessing as mp
+
+    return ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"),
+                               initializer=parallel._process_initializer)
+
+
+def run_multistart(prob, starts: int, executor) -> tuple[float, object]:
+    s = time.perf_counter()
+    res = multistart(prob, starts, seed=0, executor=executor, progress=False)
+    return time.perf_counter() - s, res
+
+
+def same(a, b) -> bool:
+    return (np.array_equal(a.ends, b.ends) and np.array_equal(a.ssr, b.ssr)
+            and sorted(a.failed) == sorted(b.failed))
+
+
+def main() -> None:
+    from threadpoolctl import threadpool_limits
+
+    # One BLAS thread here, as in every worker: numpy may have loaded OpenBLAS before
+    # rotorbayes's import could limit it (numba imports numpy), and an SVD on 16 BLAS
+    # threads rounds otherwise than on one (the end points would differ by back-end).
+    with threadpool_limits(1):
+        _main()
+
+
+def _main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--starts", type=int, default=48)
+    ap.add_argument("--seconds", type=float, default=30.0)
+    ap.add_argument("--workers", type=int, default=os.cpu_count())
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--dask", action="store_true", help="also a local Dask cluster")
+    ap.add_argument("--skip", default="",
+                    help="back-ends to leave out (parts of their labels), separated by ;")
+    ap.add_argument("--json")
+    a = ap.parse_args()
+    n = a.workers
+    skip = set(filter(None, a.skip.split(";")))
+    maxth = int(numba.config.NUMBA_NUM_THREADS)
+    out: dict = {"cores": os.cpu_count(), "workers": n, "numba_threads": maxth,
+                 "cpu": platform.processor() or platform.machine(),
+                 "python": sys.version.split()[0], "numba": numba.__version__}
+    print(f"{os.cpu_count()} cores, {maxth} numba threads, N = {n}, Python "
+          f"{out['python']}, numba {numba.__version__}; load average "
+          f"{os.getloadavg()[0]:.1f}", flush=True)
+    prob = brake_problem(a.seconds)
+    x0 = latin_hypercube(prob, 4, np.random.default_rng(0))[1]
+    inference.fit(prob, x0, uncertainty=False, max_nfev=2)  # the threading layer launched
+    print(f"threading layer {numba.threading_layer()}; {prob.n_residuals} residuals, "
+          f"{len(prob.names)} free", flush=True)
+
+    # 1. one fit
+    fits = {}
+    for label, th, blas in (("1 thread", 1, 1), (f"{min(n, maxth)} threads", min(n, maxth), 1),
+                            (f"{min(n, maxth)} threads + {n} BLAS", min(n, maxth), n)):
+        fits[label] = f = one_fit(prob, x0, th, a.repeat, blas)
+        print(f"one fit, {label:>22}: {f['wall']:.3f} s (kernel {f['kernel']:.3f} s, "
+              f"optimiser and the rest {f['rest']:.3f} s; nfev {f['nfev']}, njev "
+              f"{f['njev']}) x{fits['1 thread']['wall'] / f['wall']:.2f}; same end point "
+              f"as on 1 thread: {f['x'] == fits['1 thread']['x']}", flush=True)
+    out["one_fit"] = fits
+    numba.set_num_threads(maxth)
+
+    # 2. pool start-up
+    if "startup" not in skip:
+        s_old = startup(lambda: old_process_pool(n), n)
+        s_new = startup(lambda: parallel._SharingProcessPool(
+            max_workers=n, mp_context=parallel.process_context(),
+            initializer=parallel._process_initializer), n)
+        s_again = startup(lambda: parallel._SharingProcessPool(
+            max_workers=n, mp_context=parallel.process_context(),
+            initializer=parallel._process_initializer), n)
+        out["startup"] = {"spawn": s_old, "forkserver_first": s_new, "forkserver": s_again}
+        print(f"{n} workers ready: spawned {s_old:.2f} s; forked from the fork server "
+              f"{s_new:.2f} s the first time (the server loads the kernel), {s_again:.2f} s "
+              "after", flush=True)
+
+    # 3. multistart per back-end
+    rows = []
+    numba.set_num_threads(1)
+    wall, ref = run_multistart(prob, a.starts, parallel.SerialExecutor())
+    numba.set_num_threads(maxth)
+    secs = np.array([f.seconds for f in ref.fits])
+    bound = max(secs.sum() / n, secs.max()) if secs.size else float("nan")
+    out["starts_seconds"] = secs.tolist()
+    print(f"reference: {len(ref.fits)} fitted, {len(ref.failed)} failed; per start "
+          f"median {np.median(secs):.2f} s, slowest {secs.max():.2f} s, sum {secs.sum():.1f} s;"
+          f" no back-end on {n} cores beats max(sum / N, slowest) = {bound:.2f} s "
+          f"(x{wall / bound:.1f})", flush=True)
+    rows.append(("serial, 1 numba thread", 1, wall, True))
+
+    def backend(label, cores, make):
+        if any(k in label for k in skip):
+            return
+        try:
+            with make() as ex:
+                w, r = run_multistart(prob, a.starts, ex)
+        except Exception as exc:  # noqa: BLE001 - a back-end that fails is reported
+            print(f"{label}: failed: {type(exc).__name__}: {exc}", flush=True)
+            return
+        rows.append((label, cores, w, same(r, ref)))
+        print(f"{label}: {w:.2f} s", flush=True)
+
+    backend(f"serial, {maxth} numba threads", maxth, lambda: parallel.open_executor(
+        parallel.ExecutorSpec("serial")))
+    backend(f"threads, {n} (shared cores)", n, lambda: parallel.open_executor(
+        parallel.ExecutorSpec("threads", n)))
+    backend(f"processes, {n}, spawned (before)", n, lambda: old_process_pool(n))
+    backend(f"processes, {n}, fork server + shared cores", n, lambda: parallel.open_executor(
+        parallel.ExecutorSpec("processes", n)))
+    if a.dask:
+        backend(f"dask LocalCluster, {n} workers", n, lambda: parallel.open_executor(
+            parallel.ExecutorSpec("dask", n)))
+
+    print(f"\n{a.starts}-start multistart, brake {a.seconds:g} s at 1 kHz, "
+          f"{os.cpu_count()} cores:\n")
+    print("| back-end | wall s | starts/s | vs 1 core | core efficiency | bit-identical |")
+    print("|---|---|---|---|---|---|")
+    base = rows[0][2]
+    out["multistart"] = []
+    for label, cores, w, ok in rows:
+        sp = base / w
+        print(f"| {label} | {w:.2f} | {a.starts / w:.2f} | {sp:.2f}x | "
+              f"{100 * sp / cores:.0f} % | {'yes' if ok else 'NO'} |")
+        out["multistart"].append({"backend": label, "cores": cores, "wall": w,
+                                  "starts_per_s": a.starts / w, "speedup": sp,
+                                  "identical": ok})
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(out, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

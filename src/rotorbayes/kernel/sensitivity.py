@@ -1,0 +1,607 @@
+"""Forward sensitivities of the plain kernel's residuals (issue 33, first stage).
+
+The derivative of the computed residuals by chosen built-in parameters, integrated with
+the state by the solver's own scheme: every Runge-Kutta stage of
+:func:`rotorbayes.kernel.solver._rk5` is differentiated (the stage's state sensitivity
+``dY_i = S + h sum_j a_ij dK_j``, its rate ``dK_i = f_x(Y_i) dY_i + f_p(Y_i)``), and the
+samples come from the derivative of the same quintic Hermite interpolant (linear in its
+end values, so its derivative is the interpolant of the end sensitivities).  For a fixed
+step grid this is the exact derivative of the computed residuals, with no step-size
+error.
+
+At an event (a disc stops, reverses, or its torque leaves the static band) the event
+time ``tau`` moves with the parameters.  From the guard ``g(x(tau), tau, p) = 0``::
+
+    dtau/dp = -(g_x S- + g_p) / (g_x f- + g_t)
+    S+      = S- + (f- - f+) dtau/dp
+
+(``f-`` the right-hand side in the old modes, ``f+`` in the new ones, both at the event
+state); a disc that sticks has velocity sensitivity exactly 0.
+
+What is not differentiated: the lengths of the Stribeck and approach substeps (continuous
+functions of the state and the parameters, :func:`rotorbayes.kernel.terms.stribeck_step`),
+and the segment ends of an event inside the interpolant (the samples of a segment that
+ends at an event are interpolated from the sensitivities at fixed time).  So on stretches
+with Stribeck substeps these are the derivatives of the model's solution rather than of
+the computed residuals: measured against central differences of the kernel itself, they
+differ by below 1e-6 of a column without the Stribeck curve and up to 4e-4 with it (where
+the sensitivities agree with the reference's differences to 1e-5), and
+on the 30 s brake bench by 1.4e-3 of a column at one place (near t = 7.9 s, a smooth
+stretch) -- where they agree with central differences of the independent reference
+(tests/reference.py) to 3e-7 to 1.4e-6, and the kernel's own differences do not (the
+substep rule's dependence on the parameters).
+
+Scope: the plain kernel (no user effects, not the full kernel), the upper and coupled
+(motor-driven: coupled and brake) configurations, no dead zone; parameters
+:data:`SUPPORTED`.  :meth:`rotorbayes.Problem.jacobian` falls back to finite differences
+for anything else, and says so.
+
+The state part of every step is the solver's own arithmetic operation for operation, so
+the residuals written beside the Jacobian are those of
+:func:`rotorbayes.kernel.solver.residuals_into_plain`, bit for bit (tested).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..model.friction import SHAPE_EXP, stribeck_g_slope
+from .layout import (
+    ALPHA0,
+    B_L,
+    B_U,
+    BAD_PARAMETERS,
+    BLOW_UP,
+    C_ALPHA,
+    CFG_COUPLED,
+    CFG_UPPER,
+    DB_L,
+    DB_U,
+    DELTA_L,
+    DTC_L,
+    DTC_U,
+    J_L,
+    J_U,
+    K_ALPHA,
+    K_M,
+    N_PARAMS,
+    OK,
+    TC_L,
+    TC_U,
+    TOO_MANY_EVENTS,
+    TS_L,
+    U_OFFSET,
+    WS_L,
+)  # fmt: skip
+from .numerics import fma
+from .solver import _MAX_EVENTS_PER_STEP, _VMAX, _horner5, _last_sample, _locate, _quintic
+from .terms import (
+    _A0,
+    _BL,
+    _BU,
+    _CA,
+    _DBL,
+    _DBU,
+    _DL,
+    _DSL,
+    _DTCL,
+    _DTCU,
+    _IDT,
+    _IJL,
+    _IJU,
+    _IWSL,
+    _KA,
+    _KM,
+    _TCL,
+    _TCU,
+    _TDEL,
+    _TSL,
+    _XCUT,
+    approach_step,
+    delay_samples,
+    derived,
+    drive,
+    guards,
+    has_kinks,
+    interp,
+    modes_at_rest,
+    needs_full_kernel,
+    stribeck_step,
+    violations,
+)  # fmt: skip
+
+#: The built-in parameters the kernel differentiates by (positions in
+#: :data:`rotorbayes.kernel.layout.NAMES`): the base model, the lower Stribeck curve, the
+#: asymmetries, the string's pre-torsion and damping, and the voltage offset.
+SUPPORTED = (K_M, J_U, TC_U, DTC_U, B_U, DB_U, J_L, K_ALPHA, TC_L, DTC_L, B_L, DB_L, TS_L,
+             WS_L, DELTA_L, ALPHA0, C_ALPHA, U_OFFSET)  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _stribeck_d(x, delta, shape, x_cut):
+    """``S(x)`` as :func:`rotorbayes.model.friction.stribeck` computes it (the same
+    operations), with ``dS/dx`` and ``dS/ddelta`` of that computation (the table's cubic
+    differentiated for the exponential shape)."""
+    if x <= 0.0:
+        return 1.0, 0.0, 0.0
+    if shape == SHAPE_EXP:
+        if x >= x_cut:
+            return 0.0, 0.0, 0.0
+        lx = math.log(x)
+        g, dg = stribeck_g_slope(delta * lx)
+        return g, dg * delta / x, dg * lx
+    lx = math.log(x)
+    e = math.exp(delta * lx)
+    g = 1.0 / (1.0 + e)
+    q = -g * g * e
+    return g, q * delta / x, q * lx
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl):
+    """The right-hand side (as :func:`rotorbayes.kernel.terms.rhs` computes it in the plain
+    kernel, operation for operation) and its derivative along the state sensitivities
+    ``Y`` (4 x k): ``out[r, a] = sum_j d f_r / d x_j Y[j, a] + d f_r / d p_idx[a]``.
+    ``pu``, ``pl``: scratch of length N_PARAMS (zero outside the entries set here)."""
+    v = d[1]
+    ts = 0.0
+    da = 0.0
+    dw = 0.0
+    if cfg != CFG_UPPER:
+        da = thl - thu + c[_A0]
+        dw = wl - wu
+        ts = fma(c[_KA], da, c[_CA] * dw)
+    te_u = fma(c[_KM], v, ts)
+    te_l = -ts
+    k = idx.shape[0]
+    dthu = 0.0
+    dwu = 0.0
+    a_thu = a_wu = a_thl = a_wl = 0.0
+    b_thu = b_wu = b_thl = b_wl = 0.0
+    su = mu != 0
+    if su:
+        s = float(mu)
+        bu = c[_BU] + s * c[_DBU]
+        T = fma(bu, s * wu, c[_TCU] + 0.0 + s * c[_DTCU])
+        f = s * T
+        dthu = wu
+        dwu = (te_u - f) * c[_IJU]
+        iju = c[_IJU]
+        ka = c[_KA] * iju if cfg != CFG_UPPER else 0.0
+        ca = c[_CA] * iju if cfg != CFG_UPPER else 0.0
+        a_thu, a_wu, a_thl, a_wl = -ka, -ca - bu * iju, ka, ca
+        pu[K_M] = v * iju
+        pu[J_U] = -dwu * iju
+        pu[TC_U] = -s * iju
+        pu[DTC_U] = -iju
+        pu[B_U] = -wu * iju
+        pu[DB_U] = -s * wu * iju
+        pu[K_ALPHA] = da * iju
+        pu[ALPHA0] = ka
+        pu[C_ALPHA] = dw * iju
+        pu[U_OFFSET] = c[_KM] * iju
+    dthl = 0.0
+    dwl = 0.0
+    sl = ml != 0 and cfg != CFG_UPPER
+    if sl:
+        s = float(ml)
+        bl = c[_BL] + s * c[_DBL]
+        T = fma(bl, s * wl, c[_TCL] + 0.0 + s * c[_DTCL])
+        ds = c[_DSL]
+        x = abs(wl) * c[_IWSL]
+        g, gx, gd = _stribeck_d(x, c[_DL], shape, c[_XCUT])
+        if ds != 0.0:
+            T = fma(ds, g, T)
+        f = s * T
+        dthl = wl
+        dwl = (te_l - f) * c[_IJL]
+        ijl = c[_IJL]
+        sw = 1.0 if wl > 0.0 else (-1.0 if wl < 0.0 else 0.0)
+        fw = bl + s * ds * gx * sw * c[_IWSL]
+        ka = c[_KA] * ijl
+        ca = c[_CA] * ijl
+        b_thu, b_wu, b_thl, b_wl = ka, ca, -ka, -ca - fw * ijl
+        pl[J_L] = -dwl * ijl
+        pl[K_ALPHA] = -da * ijl
+        pl[ALPHA0] = -ka
+        pl[C_ALPHA] = -dw * ijl
+        pl[TC_L] = -s * (1.0 - g) * ijl
+        pl[DTC_L] = -ijl
+        pl[B_L] = -wl * ijl
+        pl[DB_L] = -s * wl * ijl
+        pl[TS_L] = -s * g * ijl
+        pl[WS_L] = s * ds * gx * x * c[_IWSL] * ijl
+        pl[DELTA_L] = -s * ds * gd * ijl
+        if tsf:  # Ts_l follows Tc_l (no Stribeck effect): one parameter
+            pl[TC_L] += pl[TS_L]
+    for a in range(k):
+        i = idx[a]
+        y0 = Y[0, a]
+        y1 = Y[1, a]
+        y2 = Y[2, a]
+        y3 = Y[3, a]
+        if su:
+            out[0, a] = y1
+            out[1, a] = a_thu * y0 + a_wu * y1 + a_thl * y2 + a_wl * y3 + pu[i]
+        else:
+            out[0, a] = 0.0
+            out[1, a] = 0.0
+        if sl:
+            out[2, a] = y3
+            out[3, a] = b_thu * y0 + b_wu * y1 + b_thl * y2 + b_wl * y3 + pl[i]
+        else:
+            out[2, a] = 0.0
+            out[3, a] = 0.0
+    return dthu, dwu, dthl, dwl
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _comb(Y, S, h, w, K, n_st):
+    """``Y = S + h * sum_j w[j] * K[j]`` over the first ``n_st`` stage rates."""
+    k = S.shape[1]
+    for r in range(4):
+        for a in range(k):
+            acc = 0.0
+            for j in range(n_st):
+                acc += w[j] * K[j, r, a]
+            Y[r, a] = S[r, a] + h * acc
+
+
+@njit(cache=True, error_model="numpy")
+def _rk5_sens(t, h, y, mu, ml, k1, S, S1, K, Y, c, cfg, shape, src, idx, tsf, pu, pl):
+    """:func:`rotorbayes.kernel.solver._rk5` (the same operations in the plain kernel)
+    and its sensitivities: ``K[0]`` holds the rate's sensitivity at the start (in);
+    ``S1`` receives the sensitivity at the end.  Returns the state and drive at the end."""
+    thu, wu, thl, wl = y
+    a1, a2, a3, a4 = k1
+    d_q = drive(t + 0.25 * h, c, cfg, src, None)
+    d_m = drive(t + 0.5 * h, c, cfg, src, None)
+    d_3q = drive(t + 0.75 * h, c, cfg, src, None)
+    d_1 = drive(t + h, c, cfg, src, None)
+    q = 0.25 * h
+    _comb(Y, S, h, (0.25, 0.0, 0.0, 0.0, 0.0), K, 1)
+    b1, b2, b3, b4 = _rhs_d(fma(q, a1, thu), fma(q, a2, wu), fma(q, a3, thl), fma(q, a4, wl),
+                            mu, ml, d_q, c, cfg, shape, idx, tsf, Y, K[1], pu, pl)  # fmt: skip
+    e = 0.125 * h
+    _comb(Y, S, h, (0.125, 0.125, 0.0, 0.0, 0.0), K, 2)
+    c1, c2, c3, c4 = _rhs_d(
+        fma(e, a1 + b1, thu), fma(e, a2 + b2, wu), fma(e, a3 + b3, thl), fma(e, a4 + b4, wl),
+        mu, ml, d_q, c, cfg, shape, idx, tsf, Y, K[2], pu, pl,
+    )  # fmt: skip
+    hh = 0.5 * h
+    _comb(Y, S, h, (0.0, -0.5, 1.0, 0.0, 0.0), K, 3)
+    e1, e2, e3, e4 = _rhs_d(
+        fma(h, c1, fma(-hh, b1, thu)), fma(h, c2, fma(-hh, b2, wu)),
+        fma(h, c3, fma(-hh, b3, thl)), fma(h, c4, fma(-hh, b4, wl)),
+        mu, ml, d_m, c, cfg, shape, idx, tsf, Y, K[3], pu, pl,
+    )  # fmt: skip
+    r = 0.1875 * h
+    zz = 0.5625 * h
+    _comb(Y, S, h, (0.1875, 0.0, 0.0, 0.5625, 0.0), K, 4)
+    f1, f2, f3, f4 = _rhs_d(
+        fma(zz, e1, fma(r, a1, thu)), fma(zz, e2, fma(r, a2, wu)),
+        fma(zz, e3, fma(r, a3, thl)), fma(zz, e4, fma(r, a4, wl)),
+        mu, ml, d_3q, c, cfg, shape, idx, tsf, Y, K[4], pu, pl,
+    )  # fmt: skip
+    s = h / 7.0
+    _comb(Y, S, h, (-3.0 / 7.0, 2.0 / 7.0, 12.0 / 7.0, -12.0 / 7.0, 8.0 / 7.0), K, 5)
+    g1, g2, g3, g4 = _rhs_d(
+        fma(s * 8.0, f1, fma(s, 2.0 * b1 + 12.0 * (c1 - e1) - 3.0 * a1, thu)),
+        fma(s * 8.0, f2, fma(s, 2.0 * b2 + 12.0 * (c2 - e2) - 3.0 * a2, wu)),
+        fma(s * 8.0, f3, fma(s, 2.0 * b3 + 12.0 * (c3 - e3) - 3.0 * a3, thl)),
+        fma(s * 8.0, f4, fma(s, 2.0 * b4 + 12.0 * (c4 - e4) - 3.0 * a4, wl)),
+        mu, ml, d_1, c, cfg, shape, idx, tsf, Y, K[5], pu, pl,
+    )  # fmt: skip
+    k = h / 90.0
+    n = S.shape[1]
+    for rr in range(4):
+        for a in range(n):
+            S1[rr, a] = S[rr, a] + (h / 90.0) * (
+                7.0 * (K[0, rr, a] + K[5, rr, a]) + 32.0 * (K[2, rr, a] + K[4, rr, a])
+                + 12.0 * K[3, rr, a])  # fmt: skip
+    return (
+        fma(k * 7.0, g1, fma(k, 7.0 * a1 + 32.0 * (c1 + f1) + 12.0 * e1, thu)),
+        fma(k * 7.0, g2, fma(k, 7.0 * a2 + 32.0 * (c2 + f2) + 12.0 * e2, wu)),
+        fma(k * 7.0, g3, fma(k, 7.0 * a3 + 32.0 * (c3 + f3) + 12.0 * e3, thl)),
+        fma(k * 7.0, g4, fma(k, 7.0 * a4 + 32.0 * (c4 + f4) + 12.0 * e4, wl)),
+    ), d_1
+
+
+@njit(cache=True, error_model="numpy")
+def _guard_grad(disc, mode, y, fm, d, c, cfg, src, idx, tsf, gp):
+    """The guard of ``disc`` (mode ``mode`` before the event) at the event state ``y``:
+    its gradient in the state ``(gx0..gx3)``, its time derivative along the old motion
+    ``g_x f- + g_t``, and its parameter derivatives into ``gp`` (one per ``idx``)."""
+    k = idx.shape[0]
+    for a in range(k):
+        gp[a] = 0.0
+    if mode != 0:  # a slipping disc: g = mode * omega
+        s = float(mode)
+        if disc == 0:
+            return 0.0, s, 0.0, 0.0, s * fm[1]
+        return 0.0, 0.0, 0.0, s, s * fm[3]
+    # A sticking disc: the distance of its external torque to the nearer band edge.
+    ka = c[_KA] if cfg != CFG_UPPER else 0.0
+    ca = c[_CA] if cfg != CFG_UPPER else 0.0
+    da = y[2] - y[0] + c[_A0] if cfg != CFG_UPPER else 0.0
+    dw = y[3] - y[1] if cfg != CFG_UPPER else 0.0
+    v = d[1]
+    ts = fma(ka, da, ca * dw) if cfg != CFG_UPPER else 0.0
+    sg = 1.0 if disc == 0 else -1.0  # te = k_m v + ts (upper), -ts (lower)
+    te = fma(c[_KM], v, ts) if disc == 0 else -ts
+    if disc == 0:
+        hi = c[_TCU] + c[_DTCU]
+        lo = -(c[_TCU] - c[_DTCU])
+    else:
+        hi = c[_TSL] + c[_DTCL]
+        lo = -(c[_TSL] - c[_DTCL])
+    upper_edge = hi - te < te - lo
+    e = -1.0 if upper_edge else 1.0  # g = e * te + (hi or -lo)
+    tx0, tx1, tx2, tx3 = -sg * ka, -sg * ca, sg * ka, sg * ca
+    tt = 0.0
+    if disc == 0:
+        dv = interp(d[0] - c[_TDEL], src, c[_IDT])[1]
+        tt = c[_KM] * dv
+    gdot = e * (tx0 * fm[0] + tx1 * fm[1] + tx2 * fm[2] + tx3 * fm[3] + tt)
+    for a in range(k):
+        i = idx[a]
+        te_p = 0.0
+        if i == K_ALPHA:
+            te_p = sg * da
+        elif i == ALPHA0:
+            te_p = sg * ka
+        elif i == C_ALPHA:
+            te_p = sg * dw
+        elif disc == 0 and i == K_M:
+            te_p = v
+        elif disc == 0 and i == U_OFFSET:
+            te_p = c[_KM]
+        edge_p = 0.0  # d(hi)/dp on the upper edge, d(-lo)/dp on the lower one
+        if disc == 0:
+            if i == TC_U:
+                edge_p = 1.0
+            elif i == DTC_U:
+                edge_p = 1.0 if upper_edge else -1.0
+        else:
+            if i == TS_L or (tsf and i == TC_L):
+                edge_p = 1.0
+            elif i == DTC_L:
+                edge_p = 1.0 if upper_edge else -1.0
+        gp[a] = e * te_p + edge_p
+    return e * tx0, e * tx1, e * tx2, e * tx3, gdot
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas_l, w_u,
+                   w_l, r, J, jcol, dense, col_u, col_l):  # fmt: skip
+    """Residuals and their derivatives at samples ``kout .. k1`` of a segment: the
+    solver's quintic Hermite interpolant, and the same interpolant of the sensitivities
+    (its weights once per sample, then one sum per parameter)."""
+    k = S.shape[1]
+    hs = seg
+    h2 = seg * seg
+    inv = 1.0 / seg if seg > 0.0 else 0.0
+    cu = _quintic(seg, y[0], f[0], f[1], y1[0], fe[0], fe[1])
+    cl = _quintic(seg, y[2], f[2], f[3], y1[2], fe[2], fe[3])
+    for kk in range(kout, k1 + 1):
+        sf = (kk * dt - t) * inv if seg > 0.0 else 1.0
+        if sf > 1.0:
+            sf = 1.0
+        s2 = sf * sf
+        s3 = s2 * sf
+        s4 = s3 * sf
+        s5 = s4 * sf
+        h00 = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
+        h10 = hs * (sf - 6.0 * s3 + 8.0 * s4 - 3.0 * s5)
+        h20 = h2 * (0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5)
+        h01 = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
+        h11 = hs * (-4.0 * s3 + 7.0 * s4 - 3.0 * s5)
+        h21 = h2 * (0.5 * s3 - s4 + 0.5 * s5)
+        for ch in range(2):
+            col = col_u if ch == 0 else col_l
+            if col < 0:
+                continue
+            w = w_u if ch == 0 else w_l
+            row = col + kk
+            if ch == 0:
+                r[0, row] = w_u * (meas_u[kk] - _horner5(sf, cu))
+            else:
+                r[0, row] = w_l * (meas_l[kk] - _horner5(sf, cl))
+            i0 = 2 * ch
+            x00, x10, x20 = -w * h00, -w * h10, -w * h20
+            x01, x11, x21 = -w * h01, -w * h11, -w * h21
+            if dense:  # columns 0 .. k-1 in order: a contiguous row, vectorised
+                Jr = J[row]
+                for a in range(k):
+                    Jr[a] = (x00 * S[i0, a] + x10 * dF[i0, a] + x20 * dF[i0 + 1, a]
+                             + x01 * S1[i0, a] + x11 * dFe[i0, a] + x21 * dFe[i0 + 1, a])
+            else:
+                for a in range(k):
+                    J[row, jcol[a]] = (x00 * S[i0, a] + x10 * dF[i0, a] + x20 * dF[i0 + 1, a]
+                                       + x01 * S1[i0, a] + x11 * dFe[i0, a]
+                                       + x21 * dFe[i0 + 1, a])  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l, w_u, w_l,
+                       r, J, jcol, col_u, col_l):  # fmt: skip
+    """Residuals of one experiment and their derivatives by the parameters ``p[idx]``.
+
+    The arguments are :func:`rotorbayes.kernel.solver.residuals_into_plain`'s (``r`` of
+    shape ``(1, n_residuals)``, row 0) and: ``idx`` (int64) the positions in ``p`` to
+    differentiate by, each one of :data:`SUPPORTED`; ``tsf`` whether ``Ts_l`` follows
+    ``Tc_l`` (no Stribeck effect: the derivative by ``Tc_l`` moves both); ``J``
+    (n_residuals x m) receives ``d r / d p[idx[a]]`` in column ``jcol[a]`` (rows as
+    ``r``'s columns; rows of samples only, other rows untouched).
+
+    Returns the status code (:data:`rotorbayes.kernel.layout.STATUS_MESSAGES`); the plain
+    kernel's code for a model it cannot differentiate is ``BAD_PARAMETERS`` (a dead zone,
+    a configuration other than upper or coupled, the full kernel's physics).
+    """
+    n = u.shape[0]
+    k = idx.shape[0]
+    bad = violations(p, cfg)
+    c = derived(p, dt)
+    if (bad.any() or grid.shape[0] < 2 or not grid[0] == 0.0 or not grid[-1] >= n - 1.0
+            or not h0 > 0.0 or not dt > 0.0 or needs_full_kernel(c) or has_kinks(c)
+            or not (cfg == CFG_UPPER or cfg == CFG_COUPLED)):  # fmt: skip
+        return BAD_PARAMETERS
+    dense = J.shape[1] == k
+    for a in range(k):
+        if idx[a] < 0 or idx[a] >= N_PARAMS:
+            return BAD_PARAMETERS
+        dense = dense and jcol[a] == a
+    q = np.empty(0)
+    m = (c, cfg, shape, p, q, False, None, None, None)
+    last = n - 1.0
+    inv_dt = 1.0 / dt
+    dly = delay_samples(c, cfg)
+    n_hold = int(math.floor(dly / h0))
+    jj = 0 if dly - n_hold * h0 > 1e-9 else 1
+    src = u
+    pu = np.zeros(N_PARAMS)
+    pl = np.zeros(N_PARAMS)
+    S = np.zeros((4, k))
+    S1 = np.zeros((4, k))
+    Sev = np.zeros((4, k))
+    dF = np.zeros((4, k))
+    dFe = np.zeros((4, k))
+    K = np.zeros((6, 4, k))
+    Y = np.zeros((4, k))
+    gp = np.zeros(k)
+    y = (0.0, 0.0, 0.0, 0.0)
+    d1 = drive(0.0, c, cfg, src, None)
+    mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], 0.0, d1, m)
+    f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, d1, c, cfg, shape, idx, tsf, S, dF, pu, pl)
+    status = OK
+    if col_u >= 0:
+        r[0, col_u] = w_u * (meas_u[0] - y[0])
+        for a in range(k):
+            J[col_u, jcol[a]] = 0.0
+    if col_l >= 0:
+        r[0, col_l] = w_l * (meas_l[0] - y[2])
+        for a in range(k):
+            J[col_l, jcol[a]] = 0.0
+    kout = 1
+    t_end = 0.0
+    s_end = 0.0
+    while s_end < last:
+        t = t_end
+        if jj <= n_hold:
+            s_end = min(dly - (n_hold - jj) * h0, last)
+        else:
+            s_end = min(dly + grid[jj - n_hold], last)
+        jj += 1
+        t_end = s_end * dt
+        n_step_ev = 0
+        while True:
+            t_tgt = t_end
+            t_sub = t + min(stribeck_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg, None),
+                            approach_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
+                                          t_tgt - t))  # fmt: skip
+            if t_sub < t_tgt:
+                t_tgt = t_sub
+            rem = t_tgt - t
+            K[0, :, :] = dF
+            y1, d1 = _rk5_sens(t, rem, y, mu, ml, f, S, S1, K, Y, c, cfg, shape, src, idx,
+                               tsf, pu, pl)  # fmt: skip
+            gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], 0.0, mu, ml, d1, m)
+            seg = rem
+            ok_step = gu1 >= 0.0 and gl1 >= 0.0
+            disc = -1
+            de = d1
+            if not ok_step:
+                d0 = drive(t, c, cfg, src, None)
+                gu0, gl0 = guards(y[0], y[1], y[2], y[3], 0.0, mu, ml, d0, m)
+                f1 = _rhs_d(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, c, cfg, shape, idx, tsf,
+                            S1, dFe, pu, pl)  # fmt: skip
+                y5 = (y[0], y[1], y[2], y[3], 0.0)
+                y15 = (y1[0], y1[1], y1[2], y1[3], 0.0)
+                f5 = (f[0], f[1], f[2], f[3], 0.0)
+                f15 = (f1[0], f1[1], f1[2], f1[3], 0.0)
+                y_ev, d_ev = y15, d1
+                for dsc in range(2):
+                    g1 = gu1 if dsc == 0 else gl1
+                    if g1 < 0.0:
+                        g0 = gu0 if dsc == 0 else gl0
+                        tl, yl, dl = _locate(t, rem, max(g0, 0.0), g1, dsc, y5, mu, ml, f5,
+                                             y15, d1, f15, m, src)  # fmt: skip
+                        if disc < 0 or tl < seg:
+                            seg = tl
+                            disc = dsc
+                            y_ev, d_ev = yl, dl
+                # The sensitivities at the event: the step of the located length again.
+                K[0, :, :] = dF
+                y1, de = _rk5_sens(t, seg, y, mu, ml, f, S, S1, K, Y, c, cfg, shape, src,
+                                   idx, tsf, pu, pl)  # fmt: skip
+                y1 = (y_ev[0], y_ev[1], y_ev[2], y_ev[3])
+                de = d_ev
+            fe = _rhs_d(y1[0], y1[1], y1[2], y1[3], mu, ml, de, c, cfg, shape, idx, tsf, S1,
+                        dFe, pu, pl)  # fmt: skip
+            t_seg = t + seg
+            lim = t_seg + 1e-9 * dt
+            if kout < n and kout * dt <= lim:
+                k1 = _last_sample(kout, lim, dt, inv_dt, n)
+                _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u,
+                               meas_l, w_u, w_l, r, J, jcol, dense, col_u, col_l)  # fmt: skip
+                kout = k1 + 1
+            y = y1
+            f = fe
+            S, S1 = S1, S
+            dF, dFe = dFe, dF
+            t = t_seg
+            if ok_step:
+                if t_tgt >= t_end:
+                    break
+                continue
+            # The event: the disc whose guard fired is at zero velocity now.
+            old = mu if disc == 0 else ml
+            gx0, gx1, gx2, gx3, gdot = _guard_grad(disc, old, y, f, de, c, cfg, src, idx,
+                                                   tsf, gp)  # fmt: skip
+            if disc == 0:
+                y = (y[0], 0.0, y[2], y[3])
+            else:
+                y = (y[0], y[1], y[2], 0.0)
+            new_u, new_l = modes_at_rest(y[0], y[1], y[2], y[3], 0.0, de, m)
+            if disc == 0:
+                mu = new_u
+                new = mu
+            else:
+                ml = new_l
+                new = ml
+            fm = f
+            Sev[:, :] = S
+            f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, de, c, cfg, shape, idx, tsf, Sev, dF,
+                       pu, pl)  # fmt: skip
+            # S+ = S- + (f- - f+) dtau/dp,  dtau/dp = -(g_x S- + g_p) / (g_x f- + g_t).
+            if gdot != 0.0:
+                for a in range(k):
+                    num = gx0 * S[0, a] + gx1 * S[1, a] + gx2 * S[2, a] + gx3 * S[3, a] + gp[a]
+                    dtau = -num / gdot
+                    S[0, a] += (fm[0] - f[0]) * dtau
+                    S[1, a] += (fm[1] - f[1]) * dtau
+                    S[2, a] += (fm[2] - f[2]) * dtau
+                    S[3, a] += (fm[3] - f[3]) * dtau
+            if new == 0:  # a sticking disc's velocity is held: so is its sensitivity
+                wr = 1 if disc == 0 else 3
+                for a in range(k):
+                    S[wr, a] = 0.0
+            f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, de, c, cfg, shape, idx, tsf, S, dF,
+                       pu, pl)  # fmt: skip
+            n_step_ev += 1
+            if n_step_ev > _MAX_EVENTS_PER_STEP:
+                status = TOO_MANY_EVENTS
+                break
+            if t_end - t <= 1e-12 * dt:
+                break
+        if status == OK and not (
+            abs(y[1]) < _VMAX and abs(y[3]) < _VMAX and math.isfinite(y[0])
+            and math.isfinite(y[2])
+        ):  # fmt: skip
+            status = BLOW_UP
+        if status != OK:
+            break
+    return status
