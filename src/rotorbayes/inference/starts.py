@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from ..model.effects import typical_start
 from .problem import Problem, local_name
 
 #: Parameters the regression estimates, with the equation they enter.
@@ -128,10 +127,6 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
             elif n in free and n in active:
                 unknown.append(n)
     out = DataStart(values=dict(base), source={})
-    for e in problem.model.added:  # off a null (a bound, or a law's stiffest end)
-        for n, v in typical_start(e, out.values).items():
-            if n in free and n != "Ts_l":
-                out.values[n] = v
     for n in problem.names:
         out.source[local_name(n)[0]] = "start value (not reached by the regression)"
     if not unknown:
