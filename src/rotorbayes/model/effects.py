@@ -531,7 +531,7 @@ _CATALOGUE: tuple[Effect, ...] = (
 CATALOGUE: dict[str, Effect] = {e.name: e for e in _CATALOGUE}
 
 
-#: LuGre dynamic friction on the lower disc (physics: :mod:`rotorbayes.model.laws`).
+#: LuGre dynamic friction on the lower disc; its equations are in :mod:`rotorbayes.model.laws`.
 LUGRE = Effect(
     name="lugre",
     physics="LuGre dynamic friction on the lower disc: the contact's bristles deflect "
