@@ -46,6 +46,7 @@ class Fisher:
 
 def _weights(problem: Problem) -> np.ndarray:
     floors, _ = problem.noise_floors()
+    assert problem.channels is not None  # Problem's constructor chose them
     w = []
     for ex in problem.experiments:
         for c in problem.channels:
@@ -167,7 +168,7 @@ def profile(
         for i, v in enumerate(grid):
             keys[i] = fingerprint(name, float(v), max_nfev)
             hit, rec = store.get(_point_index(keys[i]), keys[i])
-            if hit:
+            if hit and rec is not None:
                 values[i] = float(rec["chi2"])
     todo = [i for i in range(len(grid)) if i not in values]
     tasks = run_tasks(_profile_point, [grid[i] for i in todo],

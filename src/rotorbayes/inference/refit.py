@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.configurations import Model
 from .assess import floor_ratio
 from .least_squares import FitResult
 from .multistart import _fit_start
@@ -120,10 +121,12 @@ def added_names(problem: Problem, effects=None) -> list[str]:
 
 def _new_effects(problem: Problem, effects=None) -> list:
     """The added effects of the problem's model that ``effects`` names (all when None)."""
+    model = problem.model
+    assert isinstance(model, Model)  # Problem's constructor built it from a name
     if effects is None:
-        return list(problem.model.added)
+        return list(model.added)
     want = {e if isinstance(e, str) else e.name for e in effects}
-    return [e for e in problem.model.added if e.name in want]
+    return [e for e in model.added if e.name in want]
 
 
 def _put(problem: Problem, x: np.ndarray, values: Mapping[str, float]) -> np.ndarray | None:
@@ -165,7 +168,7 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
         add("the diagnosis's one-step estimate", _put(problem, x_parent, diagnosed))
     add("the effect's typical start", x_parent)
     # The parent itself (the effect at its null): the refit never ends above the parent.
-    nulls = {}
+    nulls: dict[str, float | None] = {}
     pv = problem.params_for(x_parent, 0)
     for e in new:
         for p in e.parameters:
@@ -173,8 +176,9 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
                 continue
             v = pv.get("Tc_l") if p.name == "Ts_l" else p.null
             nulls.update({n: v for n in names if local_name(n)[0] == p.name})
-    if nulls and all(v is not None and math.isfinite(v) for v in nulls.values()):
-        add("the effect off (the parent fit itself)", _put(problem, x_parent, nulls))
+    known = {n: v for n, v in nulls.items() if v is not None and math.isfinite(v)}
+    if nulls and len(known) == len(nulls):
+        add("the effect off (the parent fit itself)", _put(problem, x_parent, known))
     # Spread over the nuisance shape parameters (no gradient at the null: the optimiser
     # keeps whatever it starts with unless the data pull hard).
     spread: list[dict[str, float]] = [{}]
@@ -182,6 +186,7 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
         for p in e.parameters:
             if not p.nuisance or p.name not in names:
                 continue
+            grid: tuple[float, ...]
             if p.name == "ws_l":
                 grid = WS_STARTS
             elif p.name == "delta_l":
@@ -348,8 +353,10 @@ def diagnosis_prediction(doc: Mapping | None, effects: list[str]) -> float | Non
 
 def effect_names(problem: Problem) -> list[str]:
     """Names of the added effects as the command line writes them."""
+    model = problem.model
+    assert isinstance(model, Model)  # Problem's constructor built it from a name
     return [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
-            for e in problem.model.added]
+            for e in model.added]
 
 
 __all__ = ["Refit", "RefitStart", "added_names", "diagnosis_prediction", "effect_names",
