@@ -38,10 +38,16 @@ Found 6 errors in 6 files (checked 87 source files)
 
 
 def test_errors_are_counted_per_subpackage_and_pending_file(tc):
-    assert tc.count(REPORT) == Counter({
-        "model": 1, "io": 1, "(top level)": 1, "inference/problem.py": 1,
-        "inference": 1, "kernel": 1,
-    })
+    assert tc.count(REPORT) == Counter(
+        {
+            "model": 1,
+            "io": 1,
+            "(top level)": 1,
+            "inference/problem.py": 1,
+            "inference": 1,
+            "kernel": 1,
+        }
+    )
 
 
 def test_strict_subpackages_allow_no_error_whatever_the_baseline(tc):

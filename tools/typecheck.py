@@ -130,8 +130,11 @@ def main(argv: list[str] | None = None) -> int:
                 baseline[key] = max(n, baseline.get(key, 0))
         print(f"(no baseline section for {here}: held to the largest recorded counts)")
     else:
-        print(f"typecheck FAILED: no baseline {BASELINE.relative_to(ROOT)}; record one with "
-              "`python tools/typecheck.py --update`", file=sys.stderr)
+        print(
+            f"typecheck FAILED: no baseline {BASELINE.relative_to(ROOT)}; record one with "
+            "`python tools/typecheck.py --update`",
+            file=sys.stderr,
+        )
         return 2
     failures, lower = check(counts, baseline)
 
@@ -152,16 +155,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.update:
         sections[here] = {k: n for k, n in sorted(counts.items()) if n}
         BASELINE.write_text(json.dumps(dict(sorted(sections.items())), indent=2) + "\n")
-        print(f"baseline written: {BASELINE.relative_to(ROOT)}, section {here!r} "
-              f"({total} error(s) in all)")
+        print(
+            f"baseline written: {BASELINE.relative_to(ROOT)}, section {here!r} "
+            f"({total} error(s) in all)"
+        )
         return 0
     print(
         f"typecheck passed: no error in {', '.join(s + '/' for s in STRICT)} "
         f"(pending: {len(PENDING)} file(s)); {total} error(s) in all, none above the baseline"
     )
     if lower:
-        print(f"Fewer errors than the baseline ({here}); lower it with "
-              "`python tools/typecheck.py --update` on this interpreter:")
+        print(
+            f"Fewer errors than the baseline ({here}); lower it with "
+            "`python tools/typecheck.py --update` on this interpreter:"
+        )
         for line in lower:
             print(f"  {line}")
     return 0
