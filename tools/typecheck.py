@@ -5,10 +5,10 @@
 
 Rules
 -----
-* ``kernel/`` and ``inference/`` have no mypy error at all, except the files listed in
+* ``kernel/`` and ``inference/`` have no mypy error at all, except the modules listed in
   :data:`PENDING` (see there).
 * Every other subpackage (``model``, ``io``, ``commands``, ...; the package's top-level modules
-  count as ``(top level)``) and every file in :data:`PENDING` may have at most the number of
+  count as ``(top level)``) and every module in :data:`PENDING` may have at most the number of
   errors recorded in ``tools/typecheck_baseline.json``. A count above its baseline fails; a
   count below it passes and says to lower the baseline (``--update``), so a fix stays fixed.
 
@@ -38,16 +38,18 @@ BASELINE = ROOT / "tools" / "typecheck_baseline.json"
 # Subpackages that must have no error at all.
 STRICT = ("kernel", "inference")
 
-# Files of the strict subpackages still counted against the baseline rather than held at zero:
-# they are being rewritten on other branches (the Problem/LogPosterior split, the sampling
-# subpackage, the executor layer, the least-squares loop), and their errors are fixed when
-# those rewrites land. Remove a file from this list once it has no error.
+# Modules of the strict subpackages still counted against the baseline rather than held at
+# zero (temporarily): they are being rewritten on other branches (the Problem/LogPosterior
+# split, the sampling subpackage, the executor layer, the least-squares loop), and their
+# errors are fixed when those rewrites land. Each is a module path without ".py": it covers
+# the module file and, if the module becomes a subpackage, every file in it (sampling.py and
+# a sampling/ folder count as one). Remove a module from this list once it has no error.
 PENDING = (
-    "inference/problem.py",
-    "inference/likelihood.py",
-    "inference/least_squares.py",
-    "inference/sampling.py",
-    "inference/parallel.py",
+    "inference/problem",
+    "inference/likelihood",
+    "inference/least_squares",
+    "inference/sampling",
+    "inference/parallel",
 )
 
 _ERROR = re.compile(r"^(?P<path>[^:\n]+\.pyi?):\d+(?::\d+)?: error: ", re.MULTILINE)
@@ -61,8 +63,9 @@ def area(path: str) -> str:
     if not rel.startswith(prefix):
         return rel
     rel = rel[len(prefix) :]
-    if rel in PENDING:
-        return rel
+    for module in PENDING:
+        if rel == module + ".py" or rel.startswith(module + "/"):
+            return module
     head, sep, _ = rel.partition("/")
     return head if sep else _TOP
 
@@ -162,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(
         f"typecheck passed: no error in {', '.join(s + '/' for s in STRICT)} "
-        f"(pending: {len(PENDING)} file(s)); {total} error(s) in all, none above the baseline"
+        f"(pending: {len(PENDING)} module(s)); {total} error(s) in all, none above the baseline"
     )
     if lower:
         print(
