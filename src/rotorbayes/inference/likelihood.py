@@ -27,6 +27,13 @@ log-posterior, all rows in one parallel kernel batch (emcee's ``vectorize=True``
     optionally AR(1) errors ``e_t = φ e_{t-1} + ε_t`` with ``φ`` sampled on (−1, 1).
 * a parameter set the integrator cannot simulate gives ``-inf`` and is counted
   (``n_failed``), never a plausible number.
+
+Each of these is a piece of its own, and :class:`LogPosterior` composes them (as PINTS
+composes ``LogPosterior(log_likelihood, log_prior)``): the log-likelihood, one class per
+noise model (:mod:`.noise_models`), the prior (:class:`LogPrior`), the coordinates
+(:class:`~.coordinates.LogCoordinates`) and the curvature adjustment
+(:class:`~.coordinates.CurvatureAdjustment`).  ``LogPosterior(problem, x_fit, noise=...)``
+chooses the pieces for a fit as above.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ from .problem import Problem
 LOG_2PI = math.log(2 * math.pi)
 #: The range of a sampled noise scale σ [rad] (its prior is 1/σ within it).
 SIGMA_RANGE = (1e-8, 10.0)
-#: The largest |φ| of an AR(1) coefficient (its prior is uniform within it).
+#: The largest ``|φ|`` of an AR(1) coefficient (its prior is uniform within it).
 PHI_LIMIT = 0.999
 
 

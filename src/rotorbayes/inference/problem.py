@@ -17,6 +17,10 @@ The residual is ``r = concat over experiments e and channels c of w_c (y_ec - yh
 torsion too: :meth:`Problem.validation_params` decides it (fitted on that run alone, given,
 or the model's fixed value), and every command that evaluates validation data goes through
 it or through the value it stored.
+
+The free parameters themselves -- their names, bounds and the map between the vector ``x``
+and parameter values -- are a :class:`~rotorbayes.inference.parameter_map.ParameterMap`
+the problem holds (:attr:`Problem.parameters`).
 """
 
 from __future__ import annotations
