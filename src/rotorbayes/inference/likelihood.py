@@ -245,6 +245,21 @@ class LogPosterior:
         AR(1) errors per channel (then σ is the innovation scale and is sampled).
     """
 
+    problem: Problem
+    likelihood: GaussianLogLikelihood
+    prior: LogPrior
+    transform: LogCoordinates
+    adjustment: CurvatureAdjustment | None
+    k: int
+    floor: dict[str, float]
+    floor_notes: list[str]
+    coord_names: list[str]
+    ndim: int
+    noise: str
+    z_fit: np.ndarray | None
+    n_failed: int
+    n_calls: int
+
     def __init__(self, log_likelihood, log_prior=None, *, transform=None, adjustment=None,
                  priors=None, noise: str | None = None, ar1: bool = False, uncertainty=None):
         if isinstance(log_likelihood, Problem):
@@ -459,7 +474,7 @@ class LogPosterior:
         (σ of the likelihood), each with a finite log-posterior."""
         x_fit = np.asarray(x_fit, float)
         Hz = self._precision_iid(x_fit)
-        if self.adjust is not None:
+        if self.adjustment is not None:
             # The adjusted likelihood's curvature: Cᵀ H C.
             Hz = self.adjustment.curvature(Hz)
         lam, V = np.linalg.eigh(0.5 * (Hz + Hz.T))

@@ -166,7 +166,10 @@ class ParameterMap:
         ``q0`` at the fixed values; ``slot(base_name)`` is a parameter's place in them
         (``(0, index)`` in ``p``, ``(1, index)`` in ``q``), ``None`` where it has none (then
         no template either: the long way is the only right one)."""
-        pa, pf, qa, qf = [], [], [], []
+        pa: list[int] = []
+        pf: list[int] = []
+        qa: list[int] = []
+        qf: list[int] = []
         for j, n in enumerate(self.names):
             base, idx = local_name(n)
             if idx is not None and idx != i:

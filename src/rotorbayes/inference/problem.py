@@ -30,6 +30,7 @@ import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -209,8 +210,8 @@ def free_names(m: Model, free: Sequence[str] | None, fixed: Sequence[str]) -> li
         fitted_effects = [
             e for e in m.base_effects if e.name in cfg.fitted_effects
         ] + list(m.added)  # fmt: skip
-        for e in fitted_effects:
-            out += [p for p in e.names if p not in out]
+        for eff in fitted_effects:
+            out += [p for p in eff.names if p not in out]
         if m.prescribed_upper:
             out = [n for n in out if n not in UPPER_PARAMETERS]
         out = [n for n in out if n not in fixed]
@@ -445,7 +446,7 @@ class Problem:
         return self.model.prescribed_upper
 
     @property
-    def effects(self):
+    def effects(self) -> tuple[str, ...]:
         """The names of the model's effects that are on."""
         return self.model.effect_names
 
@@ -572,10 +573,11 @@ class Problem:
         (``like(free=[...], base=...)``). Every derived problem (an effect added, a
         parameter profiled, an experiment designed) is made here, so a new setting is
         carried over in one place, not at every call site."""
-        kw = {"model": self.model, "experiments": self.experiments,
-              "free": list(self.names_base()), "base": self.base, "channels": self.channels,
-              "weights": self.weights, "shape": self.shape, "step": self.step,
-              "run_starts": self.run_starts}  # fmt: skip
+        kw: dict[str, Any] = {
+            "model": self.model, "experiments": self.experiments,
+            "free": list(self.names_base()), "base": self.base, "channels": self.channels,
+            "weights": self.weights, "shape": self.shape, "step": self.step,
+            "run_starts": self.run_starts}  # fmt: skip
         unknown = sorted(set(changes) - set(kw))
         if unknown:
             raise TypeError(f"Problem.like: no setting {', '.join(unknown)}")
