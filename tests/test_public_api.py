@@ -178,3 +178,32 @@ def test_the_sampling_and_identifiability_examples_run(tmp_path, monkeypatch, br
                 block = block.replace(a, b)
             exec(compile(block, md, "exec"), {})
     assert (tmp_path / "post").is_dir()
+
+
+def test_every_field_of_a_problem_holds_its_declared_type(brake):
+    """Loose inputs (a tuple of experiments, a list of channels, no weights, a named set)
+    are normalised by the constructor: each field then holds the one type it declares."""
+    import dataclasses
+    import typing
+
+    prob = inf.Problem("brake", tuple(brake), channels=["theta_l"], base="thesis:4.3:P_ref",
+                       fixed=["dTc_u"], run_starts={"alpha0[1]": 0.1})
+    hints = typing.get_type_hints(inf.Problem)
+    for f in dataclasses.fields(inf.Problem):
+        want = hints[f.name]
+        value = getattr(prob, f.name)
+        origin = typing.get_origin(want)
+        if origin is None:
+            assert isinstance(value, want), (f.name, want, value)
+        elif origin in (list, dict, tuple):
+            assert isinstance(value, origin), (f.name, want, value)
+            args = typing.get_args(want)
+            items = value.items() if origin is dict else [(v,) for v in value]
+            for item in items:
+                for v, t in zip(item, args, strict=False):
+                    if t is not Ellipsis:
+                        assert isinstance(v, t), (f.name, want, v)
+        else:  # an optional value (step): one of the two
+            assert isinstance(value, tuple(a for a in typing.get_args(want))), (f.name, value)
+    assert [f.name for f in dataclasses.fields(inf.Problem)][:2] == ["model", "experiments"]
+    assert isinstance(prob.parameters, inf.ParameterMap)
