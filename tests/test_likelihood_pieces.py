@@ -151,6 +151,8 @@ def test_composition_checks_its_pieces(prob):
         LogPosterior(lik, transform=LogCoordinates([True]))
     with pytest.raises(TypeError, match="pieces"):
         LogPosterior(lik, noise="floor")
+    with pytest.raises(TypeError, match="compose it"):
+        LogPosterior(prob, prob.start_vector(prob.base), transform=LogCoordinates([]))
     lp = LogPosterior(lik)  # defaults: uniform priors, no log coordinates
     assert lp.coord_names == prob.names and lp.noise == "floor" and lp.adjust is None
 

@@ -169,8 +169,8 @@ def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
 
 
 class LogPrior:
-    """The prior of a problem's free parameters: independent :class:`Prior` s (uniform
-    within the physical bounds unless given) and the validity constraints between
+    """The prior of a problem's free parameters: independent priors (:class:`Prior`,
+    uniform within the physical bounds unless given) and the validity constraints between
     parameters (a point that breaks one is impossible).
 
     Parameters
@@ -263,6 +263,11 @@ class LogPosterior:
     def __init__(self, log_likelihood, log_prior=None, *, transform=None, adjustment=None,
                  priors=None, noise: str | None = None, ar1: bool = False, uncertainty=None):
         if isinstance(log_likelihood, Problem):
+            if transform is not None or adjustment is not None:
+                raise TypeError("the posterior of a fit, LogPosterior(problem, x_fit, ...), "
+                                "chooses its coordinates and adjustment itself; to give "
+                                "them, compose it: LogPosterior(log_likelihood, log_prior, "
+                                "transform=..., adjustment=...)")
             self._init_for_fit(log_likelihood, log_prior, priors=priors,
                                noise="robust" if noise is None else noise, ar1=ar1,
                                uncertainty=uncertainty)
