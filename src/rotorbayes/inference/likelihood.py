@@ -42,6 +42,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -245,21 +246,6 @@ class LogPosterior:
         AR(1) errors per channel (then σ is the innovation scale and is sampled).
     """
 
-    problem: Problem
-    likelihood: GaussianLogLikelihood
-    prior: LogPrior
-    transform: LogCoordinates
-    adjustment: CurvatureAdjustment | None
-    k: int
-    floor: dict[str, float]
-    floor_notes: list[str]
-    coord_names: list[str]
-    ndim: int
-    noise: str
-    z_fit: np.ndarray | None
-    n_failed: int
-    n_calls: int
-
     def __init__(self, log_likelihood, log_prior=None, *, transform=None, adjustment=None,
                  priors=None, noise: str | None = None, ar1: bool = False, uncertainty=None):
         if isinstance(log_likelihood, Problem):
@@ -280,6 +266,35 @@ class LogPosterior:
         self.noise = ("sampled" if isinstance(log_likelihood, SampledSigmaLogLikelihood)
                       else "robust" if adjustment is not None else "floor")
         self.z_fit = None if adjustment is None else adjustment.z_fit
+
+    def _compose(self, log_likelihood, log_prior, transform, adjustment) -> None:
+        problem = log_likelihood.problem
+        self.likelihood: GaussianLogLikelihood = log_likelihood
+        self.prior: LogPrior = LogPrior(problem) if log_prior is None else log_prior
+        k = len(problem.names)
+        self.transform: LogCoordinates = (LogCoordinates(np.zeros(k, bool)) if transform is None
+                                          else transform)
+        self.adjustment: CurvatureAdjustment | None = adjustment
+        if self.prior.problem is not problem:
+            raise ValueError("the log prior and the log-likelihood belong to different "
+                             "problems; build both from the same Problem")
+        if len(self.transform) != k:
+            raise ValueError(f"the coordinates have {len(self.transform)} entries, the "
+                             f"problem {k} free parameters")
+        if adjustment is not None and adjustment.z_fit.size != k:
+            raise ValueError(f"the adjustment has {adjustment.z_fit.size} coordinates, the "
+                             f"problem {k} free parameters")
+        self.problem = problem
+        self.k: int = k
+        floor, notes = problem.noise_floors()
+        self.floor: dict[str, float] = floor
+        self.floor_notes: list[str] = notes
+        self.coord_names = (self.transform.names(problem.names)
+                            + log_likelihood.noise_names())
+        self.ndim = len(self.coord_names)
+        self.n_failed = 0
+        self.n_calls = 0
+        self.uncertainty: Any = None  # the fit's honest covariance, robust noise only
 
     @classmethod
     def for_fit(cls, problem: Problem, x_fit, *, priors=None, noise: str = "robust",
@@ -318,32 +333,6 @@ class LogPosterior:
             self.uncertainty = uncertainty or self._fit_uncertainty(x_fit)
             self.adjustment = CurvatureAdjustment.matching(
                 self.z_fit, self._precision_iid(x_fit), self.target_cov_z(x_fit))
-
-    def _compose(self, log_likelihood, log_prior, transform, adjustment) -> None:
-        problem = log_likelihood.problem
-        self.likelihood = log_likelihood
-        self.prior = LogPrior(problem) if log_prior is None else log_prior
-        k = len(problem.names)
-        self.transform = LogCoordinates(np.zeros(k, bool)) if transform is None else transform
-        self.adjustment = adjustment
-        if self.prior.problem is not problem:
-            raise ValueError("the log prior and the log-likelihood belong to different "
-                             "problems; build both from the same Problem")
-        if len(self.transform) != k:
-            raise ValueError(f"the coordinates have {len(self.transform)} entries, the "
-                             f"problem {k} free parameters")
-        if adjustment is not None and adjustment.z_fit.size != k:
-            raise ValueError(f"the adjustment has {adjustment.z_fit.size} coordinates, the "
-                             f"problem {k} free parameters")
-        self.problem = problem
-        self.k = k
-        self.floor, self.floor_notes = problem.noise_floors()
-        self.coord_names = (self.transform.names(problem.names)
-                            + log_likelihood.noise_names())
-        self.ndim = len(self.coord_names)
-        self.n_failed = 0
-        self.n_calls = 0
-        self.uncertainty = None
 
     # ------------------------------------------------------------ the pieces' words
     @property
