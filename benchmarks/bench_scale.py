@@ -169,25 +169,30 @@ def main() -> None:
 
 def _main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--starts", type=int, default=48)
-    ap.add_argument("--seconds", type=float, default=30.0)
+    ap.add_argument("--starts", type=int)
+    ap.add_argument("--seconds", type=float)
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dask", action="store_true", help="also a local Dask cluster")
     ap.add_argument("--skip", default="",
                     help="back-ends to leave out (parts of their labels), separated by ;")
-    ap.add_argument("--ensembles", type=int, default=4)
-    ap.add_argument("--walkers", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=40)
+    ap.add_argument("--ensembles", type=int)
+    ap.add_argument("--walkers", type=int)
+    ap.add_argument("--steps", type=int)
     ap.add_argument("--quick", action="store_true",
                     help="10 s of data, 16 starts, 2 ensembles of 20 steps")
     ap.add_argument("--json")
     a = ap.parse_args()
     n = a.workers
     skip = set(filter(None, a.skip.split(";")))
+    # The sizes not given: issue 34's, or --quick's (any of them can still be given).
+    size = (dict(seconds=10.0, starts=16, ensembles=2, walkers=16, steps=20) if a.quick else
+            dict(seconds=30.0, starts=48, ensembles=4, walkers=32, steps=40))
+    for k, v in size.items():
+        if getattr(a, k) is None:
+            setattr(a, k, v)
     if a.quick:
-        a.seconds, a.starts, a.repeat = 10.0, 16, 1
-        a.ensembles, a.walkers, a.steps = 2, 16, 20
+        a.repeat = 1
         skip |= {"startup", "before", "serial, "}
     maxth = int(numba.config.NUMBA_NUM_THREADS)
     out: dict = {"cores": os.cpu_count(), "workers": n, "numba_threads": maxth,

@@ -23,8 +23,9 @@ and the analysis file; :func:`open_executor` builds it (and tears it down);
 :func:`use_executor` makes it the default of every algorithm for the length of a command.
 Algorithms take ``executor=None`` (meaning: the current one) and never know where they run.
 
-Every worker runs one task at a time with one numba and one BLAS thread (no
-oversubscription), and warms the compiled kernel once before its first task.  Data shared by
+Every worker runs its tasks with one BLAS thread and one numba thread outside their kernel
+batches, a share of its cores inside them (no oversubscription), and warms the compiled
+kernel once before its first task.  Data shared by
 all tasks (the problem: experiments, model) are sent once per worker (``shared=``): Dask
 scatters them, the local pools pass them by reference (threads) or with each task
 (processes).
@@ -65,11 +66,12 @@ PROCESSES_FROM_CORES = 4
 #: tasks that simulate at least this many residuals in all per evaluation (tasks x residuals
 #: of each task's problem), threads for less: the fork server's start (2 s on an idle
 #: machine, 6 s loaded) is won back only by long work.  Measured on 2 loaded cores with
-#: ``benchmarks/bench_scale.py`` (benchmarks/README.md), brake multistarts of 16 starts:
-#: 10 s of data at 1 kHz (16 x 20 002 = 320 000 residuals) threads 5.6 s against processes
-#: 7.3 s (and 6.7 s against 9.6 s in a second run); 30 s (16 x 60 002 = 960 000) processes
-#: 19.1 s against threads 23.2 s.  The threshold lies between the two.
-PROCESSES_FROM_RESIDUALS = 600_000
+#: ``benchmarks/bench_scale.py`` (benchmarks/README.md), brake multistarts at 1 kHz:
+#: 16 starts of 10 s (16 x 20 002 = 320 000 residuals) threads 5.6 s against processes
+#: 7.3 s, and 6.7 s against 9.6 s in a second run; 16 starts of 30 s (960 000) once
+#: processes 19.1 s against threads 23.2 s, once threads 18.1 s against processes 25.2 s;
+#: 48 starts of 30 s (2 880 000) processes 73.2 s against threads 77.5 s.
+PROCESSES_FROM_RESIDUALS = 1_000_000
 
 
 def default_backend(cores: int | None = None, tasks: int | None = None,
