@@ -75,3 +75,18 @@ def test_one_blas_thread_when_numpy_was_imported_first():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={**env, "OPENBLAS_NUM_THREADS": "2"}, timeout=300)
     assert out.stdout.strip().splitlines()[-1] == "[2]", out.stderr
+
+
+def test_a_command_says_the_default_it_took_and_why(tmp_path, capsys):
+    from rotorbayes.cli import main
+
+    out = tmp_path / "ms"
+    assert main(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
+                 "--max-nfev", "3", "--out", str(out)]) in (0, 1)
+    said = [ln for ln in capsys.readouterr().out.splitlines()
+            if ln.startswith("parallel tasks run")]
+    assert len(said) == 1, said
+    cores = os.cpu_count() or 1
+    assert f"(the default on {cores} core" in said[0] and "bench_scale.py" in said[0]
+    if cores < parallel.PROCESSES_FROM_CORES:
+        assert " for 2 tasks x " in said[0]  # weighed by the work
