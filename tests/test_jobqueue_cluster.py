@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -60,11 +61,13 @@ def jobqueue(tmp_path_factory):
                                                       env.get("PYTHONPATH")]))
     log = open(folder / "job.log", "w")  # noqa: SIM115 - the job's output, closed below
     job = subprocess.Popen(["bash", str(script)], stdout=log, stderr=subprocess.STDOUT,
-                           env=env)
+                           env=env, start_new_session=True)
     try:
         yield cluster.scheduler_address
     finally:
-        job.kill()
+        # The whole job (bash, the nanny, the worker), as a batch system ends one.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(job.pid, signal.SIGKILL)
         job.wait(timeout=30)
         log.close()
         with contextlib.suppress(Exception):
