@@ -46,7 +46,6 @@ class Fisher:
 
 def _weights(problem: Problem) -> np.ndarray:
     floors, _ = problem.noise_floors()
-    assert problem.channels is not None  # Problem's constructor chose them
     w = []
     for ex in problem.experiments:
         for c in problem.channels:

@@ -274,7 +274,6 @@ def multistart(
     check_fittable(problem)  # nothing free, or too few samples: said before any work
     rng = np.random.default_rng(seed)
     if isinstance(around, Mapping):
-        assert isinstance(problem.base, dict)  # completed by Problem's constructor
         around = problem.x_from({**problem.base, **around})
     starts = latin_hypercube(problem, n_starts, rng, around=around, spread=spread)
     t0 = time.perf_counter()

@@ -103,7 +103,6 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
     # The draws are simulated a few at a time (long data: the residuals of every draw at
     # once would not fit in memory); only what is stored is kept.
     chunk = logpost.row_chunk()
-    assert prob.weights is not None  # Problem's constructor set every channel's weight
     for r0 in range(0, n_rows, chunk):
         r1 = min(n_rows, r0 + chunk)
         R = prob.residuals_batch(X[r0:r1])

@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model.configurations import Model
 from .assess import floor_ratio
 from .least_squares import FitResult
 from .multistart import _fit_start
@@ -121,12 +120,10 @@ def added_names(problem: Problem, effects=None) -> list[str]:
 
 def _new_effects(problem: Problem, effects=None) -> list:
     """The added effects of the problem's model that ``effects`` names (all when None)."""
-    model = problem.model
-    assert isinstance(model, Model)  # Problem's constructor built it from a name
     if effects is None:
-        return list(model.added)
+        return list(problem.model.added)
     want = {e if isinstance(e, str) else e.name for e in effects}
-    return [e for e in model.added if e.name in want]
+    return [e for e in problem.model.added if e.name in want]
 
 
 def _put(problem: Problem, x: np.ndarray, values: Mapping[str, float]) -> np.ndarray | None:
@@ -353,10 +350,8 @@ def diagnosis_prediction(doc: Mapping | None, effects: list[str]) -> float | Non
 
 def effect_names(problem: Problem) -> list[str]:
     """Names of the added effects as the command line writes them."""
-    model = problem.model
-    assert isinstance(model, Model)  # Problem's constructor built it from a name
     return [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
-            for e in model.added]
+            for e in problem.model.added]
 
 
 __all__ = ["Refit", "RefitStart", "added_names", "diagnosis_prediction", "effect_names",

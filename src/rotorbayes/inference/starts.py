@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from ..model.configurations import Model
 from .problem import Problem, local_name
 
 #: Parameters the regression estimates, with the equation they enter.
@@ -111,14 +110,10 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         ``values`` is a complete parameter set; ``source[name]`` says "data: ...",
         "fixed" or "start value".
     """
-    # Problem's constructor turned a configuration name into a Model and completed the base
-    # values into a dict.
-    model = problem.model
-    assert isinstance(model, Model) and isinstance(problem.base, dict)
     base = dict(problem.base if base is None else base)
     free = {local_name(n)[0] for n in problem.names}
-    active = model.active
-    has_lower = model.configuration.has_lower
+    active = problem.model.active
+    has_lower = problem.model.configuration.has_lower
     stribeck_on = "Ts_l" in active
     upper_free = [n for n in UPPER_TERMS if n in free and n in active]
     # Upper rows need the motor model: not with the measured theta_u prescribed.
@@ -312,7 +307,7 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         """Values and their sources from regression estimates, moved inside the bounds."""
         values, source = dict(out.values), dict(out.source)
         for n, v in est.items():
-            info = model.info[n]
+            info = problem.model.info[n]
             lo, hi = info.lower, info.upper
             margin = 1e-3 * (hi - lo)
             note = how[n]
@@ -336,7 +331,7 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         return values, source
 
     out.values, out.source = finish(est, how)
-    info_j, info_k = (model.info.get(n) for n in ("J_l", "k_alpha"))
+    info_j, info_k = (problem.model.info.get(n) for n in ("J_l", "k_alpha"))
     if (info_j is not None and info_k is not None
             and {"J_l", "k_alpha"} <= set(names) and not torsion_offsets and Au
             and (est["J_l"] <= info_j.lower + 1e-3 * (info_j.upper - info_j.lower)
@@ -393,9 +388,7 @@ def _rescale_lower(problem: Problem, names: list, rows, est: dict, how: dict, fi
             return math.inf
         return float(r @ r) if np.all(np.isfinite(r)) else math.inf
 
-    model = problem.model
-    assert isinstance(model, Model)  # Problem's constructor built it from a name
-    info = model.info["J_l"]
+    info = problem.model.info["J_l"]
     lo, hi = info.lower, info.upper
     scales = np.geomspace(max(lo, 1e-9) * 1.01, hi * 0.99, 25)
     base_values, _ = finish(est, how)
