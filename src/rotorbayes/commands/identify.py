@@ -9,8 +9,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..exitcodes import Refused
-from ..outputs import output_folder, save_figure_atomic, write_text_atomic
+from ..io.outputs import output_folder, save_figure_atomic, write_text_atomic
+from ..util.exitcodes import Refused
 from .common import Outcome, csv_list, executor, strict_json
 from .options import add_changed_data_option, add_parallel_options, add_trust_option, ranged
 
@@ -41,7 +41,7 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
     each, run where ``backend``/``workers``/``scheduler`` say), and with ``posterior`` (a
     sample folder) a corner plot, ``multistart``'s end points on it; written into ``out``.
     ``Outcome.doc`` is identify.json's document."""
-    from ..results import load_fit
+    from ..inference.results import load_fit
 
     a = SimpleNamespace(**locals())  # the steps below read the options by name
     result = load_fit(fit, trust_effects=trust_effects,
@@ -96,7 +96,7 @@ def _profiles_into(a, prob, fit, profiles, se, ex, doc) -> None:
     """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
     from ..inference import identify as inference_identify
     from ..inference.taskstore import store_path
-    from ..numformat import fmt_interval_at
+    from ..util.numformat import fmt_interval_at
 
     for n in profiles:
         t0 = time.perf_counter()
@@ -126,7 +126,7 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:
     for w in words:
         print("  " + w)
     doc = {"fit": str(fit.folder), "fisher": F.as_dict(), "words": words, "profiles": []}
-    from .. import posterior_figures
+    from ..figures import posterior as posterior_figures
 
     save_figure_atomic(posterior_figures.plot_fisher(F)[0], out / "fisher.png")
     written = ["identify.json", "fisher.png"]

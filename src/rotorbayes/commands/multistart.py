@@ -8,9 +8,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .. import exitcodes as EXIT
-from ..exitcodes import Interrupted
-from ..outputs import InterruptGuard, output_folder, save_figure_atomic
+from ..io.outputs import InterruptGuard, output_folder, save_figure_atomic
+from ..util import exitcodes as EXIT
+from ..util.exitcodes import Interrupted
 from .common import (
     Outcome,
     executor,
@@ -63,8 +63,8 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     a.data = [data] if isinstance(data, str) else list(data)
     a.read = read_spec(columns, time_unit, angle_unit, counts_per_rev)
     from .. import inference
+    from ..figures.plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
     from ..inference.taskstore import remove_store, store_path
-    from ..plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
     guard = InterruptGuard()
     with guard, output_folder(a.out, a.force,

@@ -11,9 +11,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .. import exitcodes as EXIT
-from ..exitcodes import Interrupted, Refused
-from ..outputs import InterruptGuard
+from ..io.outputs import InterruptGuard
+from ..util import exitcodes as EXIT
+from ..util.exitcodes import Interrupted, Refused
 from .common import Outcome
 from .options import (
     MAX_STEPS,
@@ -134,7 +134,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
     for bit; without them they run one after the other in this process, as before.
     """
     a = SimpleNamespace(**locals())  # the steps below read the options by name
-    from ..outputs import clean_stale, folder_lock, follow_link
+    from ..io.outputs import clean_stale, folder_lock, follow_link
 
     src = Path(a.source)
     if a.resume:
@@ -163,7 +163,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
 def _check_sample_target(a, out: Path) -> None:
     if a.resume:
         return
-    from ..outputs import check_replaceable
+    from ..io.outputs import check_replaceable
 
     # Never the working folder, a folder of the user's own files or one holding an input,
     # --force or not (without --force, a result folder is refused below, with its hint).
@@ -179,8 +179,8 @@ def _sample_locked(a, src: Path, out: Path) -> int:
 
     from ..inference import sampling
     from ..inference.likelihood import LogPosterior, load_priors
-    from ..outputs import check_free_space
-    from ..results import load_fit
+    from ..inference.results import load_fit
+    from ..io.outputs import check_free_space
 
     if a.resume:
         settings = _read_settings(src)
@@ -355,7 +355,7 @@ def _write_sample_outputs(a, out: Path, lp, fit, runs, guard, reserve=None) -> i
     :class:`~rotorbayes.inference.sampling.SummaryReserve`); Ctrl-C between two files
     stops with a true account of what is on disk, and so does a write that fails (exit
     code 3: the chains are complete, ``--resume`` writes the rest)."""
-    from .. import posterior_figures
+    from ..figures import posterior as posterior_figures
     from ..inference import arviz_compat, posterior, sampling
 
     if reserve is None:

@@ -26,7 +26,7 @@
 * A full disk never damages the checkpoint: ``chain.h5`` owns the blocks of its coming
   steps before they are written (:func:`preallocate`), and where that is impossible a disk
   that is nearly full ends the run between two steps
-  (:class:`~rotorbayes.exitcodes.EnvironmentFailure`).
+  (:class:`~rotorbayes.util.exitcodes.EnvironmentFailure`).
 * **One loop** (:func:`sample`): every ensemble is a chain of segments of steps, run by an
   executor (:mod:`~rotorbayes.inference.parallel`; without one, the serial executor: one
   ensemble after the other, one step a segment, in this process) and appended to

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...outputs import write_text_atomic
+from ...io.outputs import write_text_atomic
 from .disk import free_bytes, unlink
 from .locks import open_h5
 from .moves import LEGACY_MOVES

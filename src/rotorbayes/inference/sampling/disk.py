@@ -8,7 +8,7 @@ import math
 import os
 from pathlib import Path
 
-from ...exitcodes import EnvironmentFailure
+from ...util.exitcodes import EnvironmentFailure
 
 
 def chain_bytes(n_walkers: int, ndim: int, n_steps: int, n_ensembles: int) -> int:

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ...exitcodes import EnvironmentFailure
+from ...util.exitcodes import EnvironmentFailure
 from .. import parallel
 from ..likelihood import LogPosterior
 from . import disk
