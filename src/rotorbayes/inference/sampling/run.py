@@ -32,7 +32,9 @@ from .store import EnsembleRun, H5Store, MemoryStore, _Store
 #: Steps of an ensemble's first segment on a pool or cluster; later segments aim at
 #: :data:`SEGMENT_SECONDS` of work each (at most :data:`SEGMENT_MAX` steps), so a Ctrl-C
 #: waits little and the checkpoint is written often. In this process (the serial executor)
-#: every segment is one step: nothing is sent anywhere, so nothing is saved by longer ones.
+#: every segment is one step, as every step is written or a stop may be asked after it; a
+#: run in memory that nothing may stop runs in one segment (to the re-centring, then the
+#: end), which spares emcee's set-up of every step.
 SEGMENT_FIRST, SEGMENT_SECONDS, SEGMENT_MAX = 5, 2.0, 500
 #: Seconds between two additions of the sampling's wall and CPU time to a group's totals
 #: (and at the end of each ensemble), so a killed run loses at most these few seconds.
@@ -229,7 +231,8 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
     step (the only writer) and sends the ensemble's next segment. A segment never crosses
     :data:`~.moves.ADAPT_AT`, where the fit proposal is re-centred here from the stored
     chain. The serial executor (``executor`` None) runs one ensemble after the other, one
-    step a segment; any other runs them all at once. The log-posterior (the data) goes to
+    step a segment (in memory with no ``should_stop``: one segment); any other runs them
+    all at once. The log-posterior (the data) goes to
     every worker once (Dask scatters it; threads share it; a process pool gets it with
     each segment, not with each step). ``should_stop`` is asked after every saved segment
     and while waiting: the segments still running are dropped (their steps were never
@@ -287,7 +290,9 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
     def submit(name: str) -> None:
         a = active[name]
         if in_process:
-            n = 1
+            # Step by step where something happens between steps (a step written, a stop
+            # asked); in memory with nothing to ask, to the re-centring or the end.
+            n = 1 if path is not None or should_stop is not None else n_steps
         elif a.per_step is None:
             n = SEGMENT_FIRST
         else:
