@@ -217,6 +217,7 @@ class _Ensemble:
     per_step: float | None = None
     wall: float = 0.0  # sampling time not yet added to the group's totals
     cpu: float = 0.0
+    keep: dict = field(default_factory=dict)  # the emcee sampler, in this process
 
 
 def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job], *,
@@ -301,7 +302,10 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
         if a.seg.proposal is not None and not a.adapted and a.done < adapt_at:
             n = min(n, adapt_at - a.done)  # the proposal is re-centred at ADAPT_AT
         a.seg.n = n
-        futures[executor.submit(_run_segment, shared, a.seg)] = name
+        if in_process:
+            futures[executor.submit(_run_segment, shared, a.seg, a.keep)] = name
+        else:
+            futures[executor.submit(_run_segment, shared, a.seg)] = name
 
     def add_seconds(names) -> None:
         for name in names:

@@ -58,9 +58,14 @@ class _Chunk:
     failed: int
 
 
-def _run_segment(logpost: LogPosterior, seg: _Segment) -> _Chunk:
+def _run_segment(logpost: LogPosterior, seg: _Segment, keep: dict | None = None) -> _Chunk:
     """Run one segment (a task on a worker): emcee from the state the segment carries,
-    the steps kept in memory and returned; nothing is written here."""
+    the steps kept in memory and returned; nothing is written here.
+
+    ``keep`` (in this process only, an ensemble's own dict): the emcee sampler is kept there
+    and used again by the ensemble's next segment with the same moves and proposal, which
+    spares emcee's set-up of every one-step segment (the state and the random state come
+    from the segment all the same)."""
     if os.getpid() != seg.origin:
         # A worker process runs one task per core: the walkers in one numba thread (the
         # count is per thread, and a Dask task's thread is not the one set up at start).
@@ -76,8 +81,15 @@ def _run_segment(logpost: LogPosterior, seg: _Segment) -> _Chunk:
     else:
         state = emcee.State(seg.coords, log_prob=seg.log_prob, random_state=seg.random_state)
     n_walkers = state.coords.shape[0]
-    sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
-                                    moves=emcee_moves(seg.moves, seg.proposal))
+    kind = (id(logpost), seg.moves, id(seg.proposal), n_walkers)
+    if keep is not None and keep.get("kind") == kind:
+        sampler = keep["sampler"]
+        sampler.reset()
+    else:
+        sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
+                                        moves=emcee_moves(seg.moves, seg.proposal))
+        if keep is not None:
+            keep.update(kind=kind, sampler=sampler, proposal=seg.proposal)
     backend = sampler.backend
     chain = np.empty((seg.n, n_walkers, logpost.ndim))
     logp = np.empty((seg.n, n_walkers))
