@@ -66,17 +66,21 @@ class FitProposalMove(emcee.moves.MHMove):
     (resumed bit for bit)."""
 
     def __init__(self, mean, cov, nu: float = 5.0, scale: float = 1.2):
+        self.nu, self.scale = float(nu), float(scale)
+        self._centre(mean, cov)
+        super().__init__(self._propose, ndim=self.mean.size)
+
+    def _centre(self, mean, cov) -> None:
         self.mean = np.asarray(mean, float)
         lam, V = np.linalg.eigh(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
         lam = np.maximum(lam, 1e-300)
-        self.root = V * (scale * np.sqrt(lam))  # cov * scale² = root rootᵀ
-        self.inv_root = (V / (scale * np.sqrt(lam))).T
-        self.nu, self.scale = float(nu), float(scale)
-        super().__init__(self._propose, ndim=self.mean.size)
+        self.root = V * (self.scale * np.sqrt(lam))  # cov * scale² = root rootᵀ
+        self.inv_root = (V / (self.scale * np.sqrt(lam))).T
 
     def set(self, mean, cov) -> None:
         """Another centre and covariance (the same ``nu`` and ``scale``)."""
-        self.__init__(mean, cov, self.nu, self.scale)
+        self._centre(mean, cov)
+        super().__init__(self._propose, ndim=self.mean.size)
 
     def _log_q(self, x: np.ndarray) -> np.ndarray:
         y = (x - self.mean) @ self.inv_root.T
@@ -96,9 +100,13 @@ def emcee_moves(name: str, proposal: tuple[np.ndarray, np.ndarray] | None = None
     mean and covariance of :class:`FitProposalMove`, for moves that use it)."""
     if name not in MOVES:
         raise ValueError(f"moves {name!r}: choose one of {', '.join(MOVES)}")
+    def fit_move():
+        if proposal is None:
+            raise ValueError(f"moves {name!r}: the fit proposal needs a mean and covariance")
+        return FitProposalMove(*proposal)
+
     make = {"stretch": emcee.moves.StretchMove, "de": emcee.moves.DEMove,
-            "snooker": emcee.moves.DESnookerMove,
-            "fit": lambda: FitProposalMove(*proposal)}
+            "snooker": emcee.moves.DESnookerMove, "fit": fit_move}
     return [(make[kind](), weight) for kind, weight in MOVES[name][0]]
 
 

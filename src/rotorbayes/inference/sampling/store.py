@@ -89,6 +89,8 @@ class _Store:
 class H5Store(_Store):
     """The groups of ``chain.h5`` (every opening waits out another reader's lock)."""
 
+    path: Path
+
     def __init__(self, path: Path):
         self.path = Path(path)
 
