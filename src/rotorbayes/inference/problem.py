@@ -895,7 +895,10 @@ class Problem:
         from ..model.simulate import SimulationError
 
         x = self.point(x)
-        J = np.zeros((self.n_residuals, len(names)))
+        # Fortran order: the kernel writes each column down the samples (vectorised,
+        # sequential stores).  Not zeroed where every column is written whole.
+        whole = len(self.experiments) == 1 or all(local_name(n)[1] is None for n in names)
+        J = (np.empty if whole else np.zeros)((len(names), self.n_residuals)).T
         r = np.empty((1, self.n_residuals))
         tsf = not self.model.stribeck
         off = 0
