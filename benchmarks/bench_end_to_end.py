@@ -77,14 +77,13 @@ def _fit_agreement(a: Path, b: Path) -> str:
 
 
 def _multistart_agreement(a: Path, b: Path) -> str:
-    ends = []
+    best = []
     for f in (a, b):
         doc = json.loads((f / "multistart.json").read_text())
-        ssr = [e.get("ssr", float("inf")) if isinstance(e, dict) else float("inf")
-               for e in doc.get("ends", [])]
-        ends.append(min(ssr) if ssr else float("nan"))
-    rel = abs(ends[0] - ends[1]) / max(abs(ends[1]), 1e-300)
-    return f"best SSR {ends[0]:.6g} vs {ends[1]:.6g} (relative difference {rel:.1e})"
+        ssr = [v for v in doc["ssr"] if v is not None]
+        best.append(min(ssr) if ssr else float("nan"))
+    rel = abs(best[0] - best[1]) / max(abs(best[1]), 1e-300)
+    return f"best SSR {best[0]:.6g} vs {best[1]:.6g} (relative difference {rel:.1e})"
 
 
 def _diagnose_agreement(a: Path, b: Path) -> str:
@@ -97,12 +96,9 @@ def _diagnose_agreement(a: Path, b: Path) -> str:
 
 
 def _design_agreement(a: Path, b: Path) -> str:
-    da = json.loads((a / "design.json").read_text())
-    db = json.loads((b / "design.json").read_text())
-    ka = {k: v for k, v in da.items() if isinstance(v, int | float)}
-    kb = {k: v for k, v in db.items() if isinstance(v, int | float)}
-    common = sorted(set(ka) & set(kb))[:4]
-    return "design.json: " + ", ".join(f"{k} {ka[k]:.4g} vs {kb[k]:.4g}" for k in common)
+    va, vb = (min(st["value"] for st in json.loads((f / "design.json").read_text())["starts"])
+              for f in (a, b))
+    return f"design.json: best objective {va:.6g} vs {vb:.6g}"
 
 
 def main() -> None:
