@@ -250,7 +250,7 @@ def _comb(Y, S, h, w, K, n_st):
             Y[r, a] = S[r, a] + h * acc
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _rk5_sens(t, h, y, mu, ml, k1, S, S1, K, Y, c, cfg, shape, src, idx, tsf, pu, pl):
     """:func:`rotorbayes.kernel.solver._rk5` (the same operations in the plain kernel)
     and its sensitivities: ``K[0]`` holds the rate's sensitivity at the start (in);
