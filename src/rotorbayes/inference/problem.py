@@ -42,7 +42,7 @@ CHANNELS = ("theta_u", "theta_l")
 #: How :meth:`Problem.jacobian` differentiates unless told: ``'differences'`` (finite
 #: differences, every model), or ``'sensitivity'`` (the kernel's forward sensitivities where
 #: the kernel has them, see :meth:`Problem.sensitivity_support`; differences elsewhere).
-#: Differences stay the default while the sensitivities cost 7.6 to 9.3 residual
+#: Differences stay the default while the sensitivities cost 8 to 9 residual
 #: evaluations against differences' 12 or more on a 30 s brake Jacobian (not yet the 3
 #: aimed at), leave every command measured end to end about as fast as before
 #: (benchmarks/bench_end_to_end.py: the Jacobian is not what they wait for), add 33 s to a
