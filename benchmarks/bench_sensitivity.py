@@ -7,7 +7,9 @@ each (minimum and median per call):
 
 * ``Problem.residuals``;
 * ``Problem.jacobian(method="sensitivity")``: the kernel's forward sensitivities;
-* ``Problem.jacobian(method="differences")``: forward differences (14 residual vectors).
+* ``Problem.jacobian(method="differences")``: forward differences (14 residual vectors);
+* the sensitivity kernel with nothing written (no residual, no Jacobian entry): its
+  integration alone.
 
 It also prints how far the two Jacobians differ, column by column (relative to the
 column's largest entry; the differences carry their own step error, so this is a sanity
@@ -43,10 +45,28 @@ def main() -> None:
     ex = rb.simulate(p, u, dt=dt, config="brake", alpha0=0.0, quantize_angles=True)
     prob = inference.Problem("brake", [ex.to_experiment("brake_1khz")], base=p)
     x = prob.x_from(p)
+    # The sensitivity kernel alone, with no residual and no Jacobian entry written (both
+    # channels' columns -1): the integration's share of a Jacobian.
+    from rotorbayes.inference.problem import local_name
+    from rotorbayes.kernel import layout
+    from rotorbayes.kernel.sensitivity import sensitivities_into
+
+    sim = prob.sims[0]
+    kp = np.ascontiguousarray(prob.kernel_vectors(x, 0)[0], dtype=float)
+    idx = np.array([layout.INDEX[local_name(n)[0]] for n in prob.names], dtype=np.int64)
+    J0 = np.zeros((idx.size, prob.n_residuals)).T
+    r0 = np.empty((1, prob.n_residuals))
+
+    def integration_only():
+        sensitivities_into(kp, sim.u, sim.dt, sim.cfg, sim.shape, sim.grid, sim.h0, idx,
+                           not prob.model.stribeck, np.empty(0), np.empty(0), 1.0, 1.0, r0,
+                           J0, np.arange(idx.size, dtype=np.int64), -1, -1)  # fmt: skip
+
     calls = {
         "residuals": lambda: prob.residuals(x),
         "jacobian (sensitivity)": lambda: prob.jacobian(x, method="sensitivity"),
         "jacobian (differences)": lambda: prob.jacobian(x, method="differences"),
+        "sensitivities, no output": integration_only,
     }
     for f in calls.values():  # compile and warm up
         f()
@@ -63,7 +83,7 @@ def main() -> None:
           f"residuals; {a.rounds} x {a.repeats} calls each, alternating")
     for k, v in times.items():
         med = statistics.median(v)
-        print(f"  {k:<24} min {1e3 * min(v):8.3f} ms  median {1e3 * med:8.3f} ms  = "
+        print(f"  {k:<26} min {1e3 * min(v):8.3f} ms  median {1e3 * med:8.3f} ms  = "
               f"{min(v) / base:5.2f} x residuals (median {med / base_med:5.2f})")
     Js, _ = prob.jacobian(x, method="sensitivity")
     Jd, _ = prob.jacobian(x, method="differences")

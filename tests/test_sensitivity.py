@@ -45,7 +45,7 @@ def _kernel(prob, kp, names):
                                   for c in prob._channel_columns(prob.experiments[0], 0)]
     idx = np.array([layout.INDEX[n] for n in names], dtype=np.int64)
     r = np.empty((1, prob.n_residuals))
-    J = np.zeros((prob.n_residuals, len(names)))
+    J = np.zeros((len(names), prob.n_residuals)).T  # Fortran order, as Problem.jacobian's
     st = sensitivity.sensitivities_into(kp, sim.u, sim.dt, sim.cfg, sim.shape, sim.grid, sim.h0,
                                         idx,
                                not prob.model.stribeck, mu, ml, float(wu), float(wl), r, J,

@@ -48,10 +48,12 @@ CHANNELS = ("theta_u", "theta_l")
 #: How :meth:`Problem.jacobian` differentiates unless told: ``'differences'`` (finite
 #: differences, every model), or ``'sensitivity'`` (the kernel's forward sensitivities where
 #: the kernel has them, see :meth:`Problem.sensitivity_support`; differences elsewhere).
-#: Differences stay the default while the sensitivities cost 11 residual evaluations
-#: against differences' 17 on a 30 s brake Jacobian (not yet the 3 issue 33 asks for), add
-#: 33 s to a cold start, and differ from the differences of the computed residuals where
-#: Stribeck substeps move with the parameters (benchmarks/bench_sensitivity.py).
+#: Differences stay the default while the sensitivities cost 8 to 9 residual
+#: evaluations against differences' 12 or more on a 30 s brake Jacobian (not yet the 3
+#: aimed at), leave every command measured end to end about as fast as before
+#: (benchmarks/bench_end_to_end.py: the Jacobian is not what they wait for), add 33 s to a
+#: cold start, and differ from the differences of the computed residuals where Stribeck
+#: substeps move with the parameters (benchmarks/bench_sensitivity.py).
 JACOBIAN_DEFAULT = "differences"
 
 
@@ -894,7 +896,10 @@ class Problem:
         from ..model.simulate import SimulationError
 
         x = self.point(x)
-        J = np.zeros((self.n_residuals, len(names)))
+        # Fortran order: the kernel writes each column down the samples (vectorised,
+        # sequential stores).  Not zeroed where every column is written whole.
+        whole = len(self.experiments) == 1 or all(local_name(n)[1] is None for n in names)
+        J = (np.empty if whole else np.zeros)((len(names), self.n_residuals)).T
         r = np.empty((1, self.n_residuals))
         tsf = not self.model.stribeck
         off = 0

@@ -376,56 +376,66 @@ def _guard_grad(disc, mode, y, fm, d, c, cfg, src, idx, tsf, gp):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas_l, w_u,
-                   w_l, r, J, jcol, dense, col_u, col_l):  # fmt: skip
+                   w_l, r, JT, jcol, col_u, col_l, X):  # fmt: skip
     """Residuals and their derivatives at samples ``kout .. k1`` of a segment: the
-    solver's quintic Hermite interpolant, and the same interpolant of the sensitivities
-    (its weights once per sample, then one sum per parameter)."""
+    solver's quintic Hermite interpolant, and the same interpolant of the sensitivities.
+
+    The six Hermite weights of each sample go to the scratch ``X`` first (6 x at least
+    the segment's samples); then each column of ``J`` is written down the samples, one
+    sum of six products per entry, into ``JT`` (the transposed Jacobian: a row per
+    column of ``J``).  With ``J`` in Fortran order, as :meth:`rotorbayes.Problem.jacobian`
+    allocates it, ``JT`` is contiguous along the samples, the loop is vectorised and the
+    stores are sequential (row by row, 13 scattered stores per sample, writing ``J`` took
+    twice as long as integrating the sensitivities)."""
     k = S.shape[1]
     hs = seg
     h2 = seg * seg
     inv = 1.0 / seg if seg > 0.0 else 0.0
     cu = _quintic(seg, y[0], f[0], f[1], y1[0], fe[0], fe[1])
     cl = _quintic(seg, y[2], f[2], f[3], y1[2], fe[2], fe[3])
-    for kk in range(kout, k1 + 1):
+    ns = k1 + 1 - kout
+    for i in range(ns):
+        kk = kout + i
         sf = (kk * dt - t) * inv if seg > 0.0 else 1.0
         if sf > 1.0:
             sf = 1.0
+        if col_u >= 0:
+            r[0, col_u + kk] = w_u * (meas_u[kk] - _horner5(sf, cu))
+        if col_l >= 0:
+            r[0, col_l + kk] = w_l * (meas_l[kk] - _horner5(sf, cl))
         s2 = sf * sf
         s3 = s2 * sf
         s4 = s3 * sf
         s5 = s4 * sf
-        h00 = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
-        h10 = hs * (sf - 6.0 * s3 + 8.0 * s4 - 3.0 * s5)
-        h20 = h2 * (0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5)
-        h01 = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
-        h11 = hs * (-4.0 * s3 + 7.0 * s4 - 3.0 * s5)
-        h21 = h2 * (0.5 * s3 - s4 + 0.5 * s5)
-        for ch in range(2):
-            col = col_u if ch == 0 else col_l
-            if col < 0:
-                continue
-            w = w_u if ch == 0 else w_l
-            row = col + kk
-            if ch == 0:
-                r[0, row] = w_u * (meas_u[kk] - _horner5(sf, cu))
-            else:
-                r[0, row] = w_l * (meas_l[kk] - _horner5(sf, cl))
-            i0 = 2 * ch
-            x00, x10, x20 = -w * h00, -w * h10, -w * h20
-            x01, x11, x21 = -w * h01, -w * h11, -w * h21
-            if dense:  # columns 0 .. k-1 in order: a contiguous row, vectorised
-                Jr = J[row]
-                for a in range(k):
-                    Jr[a] = (x00 * S[i0, a] + x10 * dF[i0, a] + x20 * dF[i0 + 1, a]
-                             + x01 * S1[i0, a] + x11 * dFe[i0, a] + x21 * dFe[i0 + 1, a])
-            else:
-                for a in range(k):
-                    J[row, jcol[a]] = (x00 * S[i0, a] + x10 * dF[i0, a] + x20 * dF[i0 + 1, a]
-                                       + x01 * S1[i0, a] + x11 * dFe[i0, a]
-                                       + x21 * dFe[i0 + 1, a])  # fmt: skip
+        X[0, i] = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
+        X[1, i] = hs * (sf - 6.0 * s3 + 8.0 * s4 - 3.0 * s5)
+        X[2, i] = h2 * (0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5)
+        X[3, i] = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
+        X[4, i] = hs * (-4.0 * s3 + 7.0 * s4 - 3.0 * s5)
+        X[5, i] = h2 * (0.5 * s3 - s4 + 0.5 * s5)
+    for ch in range(2):
+        col = col_u if ch == 0 else col_l
+        if col < 0:
+            continue
+        w = -(w_u if ch == 0 else w_l)
+        i0 = 2 * ch
+        # Unsigned indices (as the solver's): no negative-index wraparound per store, so
+        # the loop down the samples is vectorised.
+        row = np.uint64(col + kout)
+        for a in range(k):
+            v0 = w * S[i0, a]
+            v1 = w * dF[i0, a]
+            v2 = w * dF[i0 + 1, a]
+            v3 = w * S1[i0, a]
+            v4 = w * dFe[i0, a]
+            v5 = w * dFe[i0 + 1, a]
+            c = jcol[a]
+            for i in range(np.uint64(ns)):
+                JT[c, row + i] = (v0 * X[0, i] + v1 * X[1, i] + v2 * X[2, i]
+                                  + v3 * X[3, i] + v4 * X[4, i] + v5 * X[5, i])  # fmt: skip
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l, w_u, w_l,
                        r, J, jcol, col_u, col_l):  # fmt: skip
     """Residuals of one experiment and their derivatives by the parameters ``p[idx]``.
@@ -435,7 +445,8 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     differentiate by, each one of :data:`SUPPORTED`; ``tsf`` whether ``Ts_l`` follows
     ``Tc_l`` (no Stribeck effect: the derivative by ``Tc_l`` moves both); ``J``
     (n_residuals x m) receives ``d r / d p[idx[a]]`` in column ``jcol[a]`` (rows as
-    ``r``'s columns; rows of samples only, other rows untouched).
+    ``r``'s columns; rows of samples only, other rows untouched); any memory order, the
+    fastest Fortran order (a column contiguous).
 
     Returns the status code (:data:`rotorbayes.kernel.layout.STATUS_MESSAGES`); the plain
     kernel's code for a model it cannot differentiate is ``BAD_PARAMETERS`` (a dead zone,
@@ -449,11 +460,15 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
             or not h0 > 0.0 or not dt > 0.0 or needs_full_kernel(c) or has_kinks(c)
             or not (cfg == CFG_UPPER or cfg == CFG_COUPLED)):  # fmt: skip
         return BAD_PARAMETERS
-    dense = J.shape[1] == k
     for a in range(k):
         if idx[a] < 0 or idx[a] >= N_PARAMS:
             return BAD_PARAMETERS
-        dense = dense and jcol[a] == a
+    # The most samples a segment holds: a step of the grid (or of the held start).
+    cap = h0
+    for j in range(1, grid.shape[0]):
+        cap = max(cap, grid[j] - grid[j - 1])
+    X = np.empty((6, min(int(cap) + 2, n)))
+    JT = J.T
     q = np.empty(0)
     m = (c, cfg, shape, p, q, False, None, None, None)
     last = n - 1.0
@@ -480,11 +495,11 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     if col_u >= 0:
         r[0, col_u] = w_u * (meas_u[0] - y[0])
         for a in range(k):
-            J[col_u, jcol[a]] = 0.0
+            JT[jcol[a], col_u] = 0.0
     if col_l >= 0:
         r[0, col_l] = w_l * (meas_l[0] - y[2])
         for a in range(k):
-            J[col_l, jcol[a]] = 0.0
+            JT[jcol[a], col_l] = 0.0
     kout = 1
     t_end = 0.0
     s_end = 0.0
@@ -546,7 +561,7 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
             if kout < n and kout * dt <= lim:
                 k1 = _last_sample(kout, lim, dt, inv_dt, n)
                 _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u,
-                               meas_l, w_u, w_l, r, J, jcol, dense, col_u, col_l)  # fmt: skip
+                               meas_l, w_u, w_l, r, JT, jcol, col_u, col_l, X)  # fmt: skip
                 kout = k1 + 1
             y = y1
             f = fe
