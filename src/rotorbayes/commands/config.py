@@ -123,12 +123,13 @@ class ExecutorOptions:
         return (self.backend, self.workers, self.scheduler) != (None, None, None)
 
     @contextlib.contextmanager
-    def open(self) -> Iterator[Any]:
+    def open(self, file: dict | None = None) -> Iterator[Any]:
         """The executor for the length of a command
-        (:func:`rotorbayes.commands.common.executor`)."""
+        (:func:`rotorbayes.commands.common.executor`; ``file``: an analysis file's
+        [parallel] table, used where these options say nothing)."""
         from .common import executor
 
-        with executor(self.backend, self.workers, self.scheduler) as ex:
+        with executor(self.backend, self.workers, self.scheduler, file=file) as ex:
             yield ex
 
 
