@@ -7,8 +7,8 @@ import time
 from pathlib import Path
 
 import rotorbayes as rb
-from rotorbayes import plots
-from rotorbayes.metrics import channel_fit
+from rotorbayes.figures import plots
+from rotorbayes.util.metrics import channel_fit
 
 
 class Report:

@@ -37,7 +37,8 @@ from pathlib import Path
 import numpy as np
 
 import rotorbayes as rb
-from rotorbayes import inference, plots
+from rotorbayes import inference
+from rotorbayes.figures import plots
 from rotorbayes.model.parameters import INFO, TABLE_FREE, thesis_set
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

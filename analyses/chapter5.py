@@ -36,9 +36,10 @@ import sys
 from pathlib import Path
 
 import rotorbayes as rb
-from rotorbayes import inference, plots
-from rotorbayes.metrics import aicc, channel_fit
+from rotorbayes import inference
+from rotorbayes.figures import plots
 from rotorbayes.model.parameters import INFO, TABLE_FREE, thesis_set
+from rotorbayes.util.metrics import aicc, channel_fit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import (  # noqa: E402

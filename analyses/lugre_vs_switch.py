@@ -33,7 +33,7 @@ sys.path.insert(0, str(HERE.parent / "tests"))
 
 import refdata  # noqa: E402  (the reference lives with the tests)
 
-from rotorbayes.data import save_experiment  # noqa: E402
+from rotorbayes.io.measurements import save_experiment  # noqa: E402
 
 CLI = "import sys; from rotorbayes.cli import main; sys.exit(main(sys.argv[1:]))"
 

@@ -34,7 +34,7 @@ sys.path.insert(0, str(HERE.parent / "tests"))
 
 import refdata  # noqa: E402  (the reference lives with the tests)
 
-from rotorbayes.data import save_experiment  # noqa: E402
+from rotorbayes.io.measurements import save_experiment  # noqa: E402
 
 S0, S1 = refdata.SETS["coupled"]
 #: case -> (parameter set, the hidden effect's parameters, alpha0 of the estimation run)

@@ -2,7 +2,7 @@
 process with a fresh, empty ``NUMBA_CACHE_DIR`` (a fresh install), and the benchmark reports
 its wall time and what it compiled: the lines the command itself prints with a cold cache
 ("rotorbayes: compiling the integrator (...) ... took N s", one per kernel entry point it
-uses; :mod:`rotorbayes.coldstart`).
+uses; :mod:`rotorbayes.util.coldstart`).
 
 The commands (issue 33: "the first command on a fresh machine compiles in at most 20 s on
 these 2 cores; a command compiles only what it uses"):

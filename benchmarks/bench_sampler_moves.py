@@ -55,11 +55,7 @@ import numpy as np  # noqa: E402
 
 import rotorbayes as rb  # noqa: E402
 from rotorbayes import inference  # noqa: E402
-from rotorbayes.inference import (
-    arviz_compat,  # noqa: E402
-    posterior,  # noqa: E402
-    sampling,  # noqa: E402
-)
+from rotorbayes.inference import arviz_compat, posterior, sampling
 from rotorbayes.inference.likelihood import LogPosterior  # noqa: E402
 
 

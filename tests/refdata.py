@@ -15,7 +15,7 @@ ways (``hold``):
   rotorbayes assumes between samples).
 
 The simulation uses nothing from rotorbayes.  rotorbayes is used only to hand the result
-over as a :class:`rotorbayes.data.Experiment` (the object a ``Problem`` takes).
+over as a :class:`rotorbayes.io.measurements.Experiment` (the object a ``Problem`` takes).
 
 Results are cached on disk (``tests/.refcache``, or the folder in the environment variable
 ``ROTORBAYES_REFCACHE``), keyed by a hash of every argument and of the source of
@@ -451,7 +451,7 @@ def make_experiment(
     atol: float = 1e-12,
     cache: bool = True,
 ):
-    """One experiment made by the reference, as a :class:`rotorbayes.data.Experiment`.
+    """One experiment made by the reference, as a :class:`rotorbayes.io.measurements.Experiment`.
 
     Parameters
     ----------
@@ -487,10 +487,10 @@ def make_experiment(
 
     Returns
     -------
-    rotorbayes.data.Experiment
+    rotorbayes.io.measurements.Experiment
         With ``meta`` recording how it was made (``Problem(config, [exp])`` takes it).
     """
-    from rotorbayes.data import Experiment
+    from rotorbayes.io.measurements import Experiment
 
     p = dict(params)
     if alpha0 is not None:

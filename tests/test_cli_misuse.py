@@ -17,7 +17,7 @@ import pytest
 
 import rotorbayes as rb
 from rotorbayes.cli import build_parser, main
-from rotorbayes.outputs import (
+from rotorbayes.io.outputs import (
     MARKER,
     OutputError,
     output_folder,
@@ -504,7 +504,7 @@ def test_no_partial_folders_anywhere_after_the_misuse_tests(tmp_path):
 def test_a_data_warning_is_one_line_of_ours_once(tmp_path):
     """A file above the rig's ±5 V reads as one `rotorbayes fit: warning: ...` line (not
     Python's form with the source file and code line), once, on screen and in log.txt."""
-    src = rb.examples.example_path("upper_est").read_text().splitlines()
+    src = rb.io.examples.example_path("upper_est").read_text().splitlines()
     first = next(i for i, line in enumerate(src) if line and line[0].isdigit())
     cells = src[first + 100].split(",")
     cells[1] = "6.5"

@@ -1,4 +1,5 @@
-"""Contract tests for rotorbayes.data: file format, every refusal, round-trip, synthetic noise."""
+"""Contract tests for rotorbayes.io.measurements: file format, every refusal, round-trip,
+synthetic noise."""
 
 import math
 import os
@@ -10,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rotorbayes import data
-from rotorbayes.data import (
+from rotorbayes.io import measurements as data
+from rotorbayes.io.measurements import (
     LOWER_COUNTS_PER_REV,
     UPPER_COUNTS_PER_REV,
     DataFileError,
@@ -388,8 +389,9 @@ def test_header_without_line_break_is_not_called_truncated(tmp_path):
 
 
 def test_bundled_examples_end_with_a_line_break():
-    examples = Path(data.__file__).parent / "data" / "examples"
-    files = sorted(examples.glob("*.csv"))
+    from rotorbayes.io.examples import EXAMPLES
+
+    files = sorted(EXAMPLES.glob("*.csv"))
     assert files
     for path in files:
         assert path.read_bytes().endswith(b"\n"), path

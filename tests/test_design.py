@@ -28,8 +28,8 @@ from rotorbayes.design import (
     write_design,
 )
 from rotorbayes.design.information import Frame
+from rotorbayes.io.outputs import OutputError
 from rotorbayes.model import effects as _effects
-from rotorbayes.outputs import OutputError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from refdata import SETS, quantize  # noqa: E402

@@ -69,6 +69,6 @@ def test_api_reference_documents_the_public_modules(site):
     for obj in ("rotorbayes.inference.problem.Problem", "rotorbayes.inference.identify.fisher",
                 "rotorbayes.inference.likelihood.load_priors",
                 "rotorbayes.inference.sampling.sample", "rotorbayes.diagnosis.diagnose.diagnose",
-                "rotorbayes.model.effects.Effect", "rotorbayes.data.load_experiment",
-                "rotorbayes.results.load_fit", "rotorbayes.rigfiles.ReadSpec"):
+                "rotorbayes.model.effects.Effect", "rotorbayes.io.measurements.load_experiment",
+                "rotorbayes.inference.results.load_fit", "rotorbayes.io.rigfiles.ReadSpec"):
         assert f'id="{obj}"' in api, f"{obj} is not in the API reference"

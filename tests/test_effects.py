@@ -18,7 +18,7 @@ from reference import reference_simulate
 import rotorbayes as rb
 from rotorbayes import inference
 from rotorbayes.cli import main
-from rotorbayes.data import LOWER_COUNTS_PER_REV
+from rotorbayes.io.measurements import LOWER_COUNTS_PER_REV
 from rotorbayes.model import CATALOGUE, Model
 from rotorbayes.model.effects import EffectError
 from rotorbayes.model.parameters import INFO, thesis_set

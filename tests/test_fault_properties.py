@@ -19,9 +19,9 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from rotorbayes.data import DataFileError, DataWarning, load_experiment  # noqa: E402
+from rotorbayes.commands.study.analysis import AnalysisError, load_analysis  # noqa: E402
+from rotorbayes.io.measurements import DataFileError, DataWarning, load_experiment  # noqa: E402
 from rotorbayes.model.parameters import INFO, ParameterError, load_toml  # noqa: E402
-from rotorbayes.study import AnalysisError, load_analysis  # noqa: E402
 
 # CI explores the same examples on every run (a red CI is a change's fault, not a new
 # draw); a developer's run explores new ones each time and hypothesis keeps what failed.

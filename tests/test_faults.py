@@ -1,5 +1,5 @@
 """Never lose a result (issue 17): faults, races and hostile input end in a clear message, an
-exit code that says which kind of failure it was (``rotorbayes.exitcodes``), and no lost,
+exit code that says which kind of failure it was (``rotorbayes.util.exitcodes``), and no lost,
 overwritten or half-written result.
 
 Covered: real processes stopped by SIGINT/SIGKILL at random moments, concurrent runs on one
@@ -28,8 +28,8 @@ import h5py
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import exitcodes as EXIT
 from rotorbayes.cli import main
+from rotorbayes.util import exitcodes as EXIT
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
@@ -195,8 +195,8 @@ def test_a_ctrl_c_that_compiled_code_turns_into_another_error_is_reported_as_the
     """numba's unboxing of a function argument turned a KeyboardInterrupt into
     ``TypeError: _get_jit_address() missing ...`` (a traceback in 1 of 6 stops in CI).  After
     a Ctrl-C any exception is the stop; without one the same exception is a bug and shows."""
-    from rotorbayes import coldstart
     from rotorbayes.inference import uncertainty
+    from rotorbayes.util import coldstart
 
     def mangled(*args, **kw):
         if ctrl_c:
@@ -348,7 +348,7 @@ def test_sample_killed_at_random_moments_resumes_to_exactly_the_steps_asked(proj
 @contextlib.contextmanager
 def folder_lock(folder: Path):
     """Another process holds the lock of ``folder`` while the block runs."""
-    code = ("import sys; from rotorbayes.outputs import folder_lock\n"
+    code = ("import sys; from rotorbayes.io.outputs import folder_lock\n"
             f"with folder_lock({str(folder)!r}):\n"
             "    print('held', flush=True); sys.stdin.read()\n")
     p = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE,
@@ -421,7 +421,7 @@ def _fill(disk: Path, leave_kib: int) -> Path:
 
 def test_a_full_disk_is_a_clean_message_and_exit_code_3(proj, tmp_path, monkeypatch, capsys):
     """A real tmpfs mounted by the test."""
-    from rotorbayes import outputs
+    from rotorbayes.io import outputs
 
     with small_disk(tmp_path / "disk", 400) as disk:
         _fill(disk, 60)
@@ -584,7 +584,7 @@ def test_analysis_files_with_bad_values_are_refused_before_any_work(proj, tmp_pa
     assert main(["sample", str(proj / "fit"), "--max-draws", "0", "--out",
                  str(tmp_path / "S")]) == EXIT.REFUSED
     f.write_bytes(("\ufeff" + good + "[report]\nhtml = false\n").encode())
-    from rotorbayes.study import load_analysis
+    from rotorbayes.commands.study.analysis import load_analysis
 
     assert load_analysis(f).table("analysis")["config"] == "upper"  # a BOM is fine
 
@@ -634,7 +634,7 @@ def _fit_naming_effect(proj, folder: Path, eff: Path) -> Path:
 
 
 def test_a_changed_or_missing_effect_file_is_not_run_without_trust(proj, tmp_path, capsys):
-    from rotorbayes.results import ResultError, check_effect_files
+    from rotorbayes.inference.results import ResultError, check_effect_files
 
     eff = tmp_path / "eff.py"
     eff.write_text(EFFECT.format(name="my_effect"))
@@ -676,7 +676,7 @@ def test_an_effect_whose_name_differs_from_its_variable_is_found_again(tmp_path)
 
 
 def test_an_analysis_file_is_validated_without_running_its_effect_files(proj, tmp_path):
-    from rotorbayes.study import load_analysis
+    from rotorbayes.commands.study.analysis import load_analysis
 
     eff = tmp_path / "eff.py"
     eff.write_text(EFFECT.format(name="my_effect"))
@@ -708,7 +708,7 @@ def test_report_never_echoes_a_file_a_hostile_fit_json_names(proj, tmp_path):
 
 # ------------------------------------------------------------------------- 11. minor
 def test_stale_partial_folders_are_removed_and_said(tmp_path, capsys):
-    from rotorbayes.outputs import output_folder
+    from rotorbayes.io.outputs import output_folder
 
     stale = tmp_path / ".res.partial-dead1234"
     stale.mkdir()
@@ -730,7 +730,7 @@ def test_stale_partial_folders_are_removed_and_said(tmp_path, capsys):
 
 
 def test_absurd_numbers_in_a_csv_are_named_as_such(tmp_path):
-    from rotorbayes.data import DataFileError, load_experiment
+    from rotorbayes.io.measurements import DataFileError, load_experiment
 
     base = "t,u,theta_u\n" + "".join(f"{k / 200},0.1,0\n" for k in range(20))
     for col, val, needle in (("theta_u", "1e308", "no experiment reaches it"),

@@ -38,9 +38,9 @@ from pathlib import Path
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import exitcodes as EXIT
 from rotorbayes.cli import main
 from rotorbayes.inference import parallel
+from rotorbayes.util import exitcodes as EXIT
 
 ENV = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1", parallel.TIMEOUT_ENV: "3"}
 ENV.pop(parallel.SCHEDULER_ENV, None)
@@ -465,7 +465,7 @@ def forged(proj, folder: Path) -> tuple[Path, Path]:
 
 def test_a_fit_json_of_another_user_does_not_run_its_effect_file(proj, tmp_path, monkeypatch,
                                                                   capsys):
-    from rotorbayes.results import ResultError, check_effect_files
+    from rotorbayes.inference.results import ResultError, check_effect_files
 
     fit, eff = forged(proj, tmp_path / "theirs")
     doc = json.loads((fit / "fit.json").read_text())
@@ -491,7 +491,7 @@ def test_a_fit_json_of_another_user_does_not_run_its_effect_file(proj, tmp_path,
 
 def test_a_folder_unpacked_from_an_archive_does_not_run_its_effect_file(proj, tmp_path,
                                                                          capsys):
-    from rotorbayes.results import check_effect_files
+    from rotorbayes.inference.results import check_effect_files
 
     fit, eff = forged(proj, tmp_path / "made")
     old = time.time() - 3 * 86400
@@ -513,7 +513,7 @@ def test_a_folder_unpacked_from_an_archive_does_not_run_its_effect_file(proj, tm
 
 
 def test_a_fit_json_others_may_change_does_not_run_its_effect_file(proj, tmp_path):
-    from rotorbayes.results import ResultError, check_effect_files
+    from rotorbayes.inference.results import ResultError, check_effect_files
 
     fit, _ = forged(proj, tmp_path / "shared")
     doc = json.loads((fit / "fit.json").read_text())

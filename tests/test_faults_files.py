@@ -1,5 +1,5 @@
 """Files and folders as a careless or hostile user gives them (issue 31, round two): the red
-team's cases, each refused with one clear message and exit code 2 (``rotorbayes.exitcodes``)
+team's cases, each refused with one clear message and exit code 2 (``rotorbayes.util.exitcodes``)
 before anything is read whole, written or lost.
 
 Covered:
@@ -33,10 +33,10 @@ from pathlib import Path
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import exitcodes as EXIT
 from rotorbayes.cli import main
-from rotorbayes.data import DataFileError, load_experiment
-from rotorbayes.outputs import MARKER, OutputError, output_folder
+from rotorbayes.io.measurements import DataFileError, load_experiment
+from rotorbayes.io.outputs import MARKER, OutputError, output_folder
+from rotorbayes.util import exitcodes as EXIT
 
 FAST = ["--max-nfev", "3"]
 ENV = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}

@@ -1,5 +1,5 @@
 """Hostile and careless input, round two (issue 31): every case a red team tried ends in one
-clear message with the documented exit code (``rotorbayes.exitcodes``: 2 = refused input),
+clear message with the documented exit code (``rotorbayes.util.exitcodes``: 2 = refused input),
 never a traceback, a Python warning or a silently wrong result.
 
 Covered: recursion bombs (TOML and JSON nested 100 000 deep) wherever a file is read; the
@@ -25,11 +25,11 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import exitcodes as EXIT
 from rotorbayes import inference
 from rotorbayes.cli import main
+from rotorbayes.io.tomlfile import MAX_NESTING, nesting_depth
 from rotorbayes.model.parameters import thesis_set
-from rotorbayes.tomlfile import MAX_NESTING, nesting_depth
+from rotorbayes.util import exitcodes as EXIT
 
 ROOT = Path(__file__).resolve().parents[1]
 DEEP = 100_000  # the red team's nesting depth

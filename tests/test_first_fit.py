@@ -18,7 +18,7 @@ import pytest
 import rotorbayes as rb
 from rotorbayes import inference
 from rotorbayes.cli import main
-from rotorbayes.data import quantisation_floor
+from rotorbayes.io.measurements import quantisation_floor
 from rotorbayes.model.parameters import resolve
 
 # Unlike the thesis: k_m 3.1 (thesis 4.3-4.6), Tc_u 0.62 (0.38-0.48), b_u 1.7 (2.4-2.6),

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from rotorbayes import coldstart
 from rotorbayes.inference.assess import Assessment
-from rotorbayes.numformat import fmt_value, significant_digits
+from rotorbayes.util import coldstart
+from rotorbayes.util.numformat import fmt_value, significant_digits
 
 
 def _row(data, ratio, fitted=True):

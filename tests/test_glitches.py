@@ -19,7 +19,9 @@ from refdata import SETS, make_experiment
 
 from rotorbayes import inference
 from rotorbayes.cli import main
-from rotorbayes.data import (
+from rotorbayes.io.examples import example_names, load_example
+from rotorbayes.io.glitches import find_glitches
+from rotorbayes.io.measurements import (
     LOWER_COUNTS_PER_REV,
     UPPER_COUNTS_PER_REV,
     Experiment,
@@ -28,8 +30,6 @@ from rotorbayes.data import (
     quantisation_floor,
     save_experiment,
 )
-from rotorbayes.examples import example_names, load_example
-from rotorbayes.glitches import find_glitches
 
 Q = {"theta_u": 2 * math.pi / UPPER_COUNTS_PER_REV, "theta_l": 2 * math.pi / LOWER_COUNTS_PER_REV}
 CPR = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}

@@ -116,7 +116,7 @@ def test_inference_data_in_blocks_holds_the_pointwise_sums(monkeypatch):
 
 
 def test_long_lines_are_drawn_as_their_envelope():
-    from rotorbayes.plots import MAX_LINE_POINTS, envelope
+    from rotorbayes.figures.plots import MAX_LINE_POINTS, envelope
 
     t = np.arange(600_001) * 1e-3
     y = np.sin(t) + np.random.default_rng(0).normal(size=t.size)

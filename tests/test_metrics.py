@@ -1,4 +1,4 @@
-"""Contract tests for rotorbayes.metrics: hand-computed values, §6.2's point, refusals."""
+"""Contract tests for rotorbayes.util.metrics: hand-computed values, §6.2's point, refusals."""
 
 import math
 import re
@@ -6,7 +6,7 @@ import re
 import numpy as np
 import pytest
 
-from rotorbayes.metrics import (
+from rotorbayes.util.metrics import (
     ChannelFit,
     aicc,
     bic,

@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 import rotorbayes as rb
-from rotorbayes import exitcodes as EXIT
 from rotorbayes import inference
 from rotorbayes.inference import identify, parallel
 from rotorbayes.inference.multistart import _fit_start
+from rotorbayes.util import exitcodes as EXIT
 
 distributed = pytest.importorskip("distributed")
 
@@ -77,7 +77,7 @@ def test_choose_option_then_environment_then_file_then_default():
 
 
 def test_analysis_file_refuses_an_unknown_backend(tmp_path):
-    from rotorbayes.study import AnalysisError, load_analysis
+    from rotorbayes.commands.study.analysis import AnalysisError, load_analysis
 
     f = tmp_path / "a.toml"
     f.write_text('[analysis]\nout = "o"\nconfig = "upper"\ndata = ["example:upper_est"]\n'

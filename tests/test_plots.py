@@ -12,8 +12,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from rotorbayes import plots  # noqa: E402
-from rotorbayes.data import quantisation_floor  # noqa: E402
+from rotorbayes.figures import plots  # noqa: E402
+from rotorbayes.io.measurements import quantisation_floor  # noqa: E402
 from rotorbayes.model.parameters import resolve  # noqa: E402
 
 

@@ -20,19 +20,13 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
-from rotorbayes import numformat  # noqa: E402
-from rotorbayes.data import load_experiment  # noqa: E402
-from rotorbayes.examples import example_path  # noqa: E402
-from rotorbayes.inference import (
-    Problem,  # noqa: E402
-    posterior,  # noqa: E402
-)
+from rotorbayes.inference import Problem, posterior
 from rotorbayes.inference.likelihood import LogPosterior  # noqa: E402
 from rotorbayes.inference.sampling import EnsembleRun  # noqa: E402
-from rotorbayes.model import (
-    Model,  # noqa: E402
-    parameters,  # noqa: E402
-)
+from rotorbayes.io.examples import example_path  # noqa: E402
+from rotorbayes.io.measurements import load_experiment  # noqa: E402
+from rotorbayes.model import Model, parameters
+from rotorbayes.util import numformat  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +87,7 @@ def _band_panel(fig, chan_index=0):
 
 
 def test_predictive_figure_draws_a_resolved_band_and_refuses_rounding(narrow, monkeypatch):
-    from rotorbayes import posterior_figures
+    from rotorbayes.figures import posterior as posterior_figures
 
     prob, lp, runs = narrow
     fig, _ = posterior_figures.plot_predictive(posterior.inference_data(lp, runs, max_draws=40),
@@ -114,7 +108,7 @@ def test_predictive_figure_draws_a_resolved_band_and_refuses_rounding(narrow, mo
 
 
 def test_a_band_unresolved_everywhere_is_said_not_drawn(narrow, monkeypatch):
-    from rotorbayes import posterior_figures
+    from rotorbayes.figures import posterior as posterior_figures
 
     prob, lp, runs = narrow
     idata = posterior.inference_data(lp, runs, max_draws=40)
@@ -128,7 +122,7 @@ def test_a_band_unresolved_everywhere_is_said_not_drawn(narrow, monkeypatch):
 
 
 def test_band_resolution_rule():
-    from rotorbayes.posterior_figures import RESOLVED_SPACINGS, band_resolution
+    from rotorbayes.figures.posterior import RESOLVED_SPACINGS, band_resolution
 
     lo = np.array([0.0, 30.0, 30.0, 30.0])
     hi = np.array([0.0, 30.0 + 1e-6, 30.0 + 1e-12, 31.0])

@@ -160,7 +160,7 @@ def test_diagnose_writes_the_proposal_and_its_command_refits_to_the_floor(tmp_pa
     import shlex
 
     from rotorbayes.cli import main
-    from rotorbayes.data import save_experiment
+    from rotorbayes.io.measurements import save_experiment
 
     params = dict(SETS["coupled"][0], drift_Tc_l=0.0006)
     save_experiment(make_experiment("coupled", params, duration=DURATION, seed=SEED),

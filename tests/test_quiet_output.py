@@ -139,8 +139,8 @@ def test_corner_of_a_short_ragged_posterior_logs_nothing(caplog):
     matplotlib.use("Agg")
     import numpy as np
 
+    from rotorbayes.figures.posterior import plot_corner
     from rotorbayes.inference import arviz_compat
-    from rotorbayes.posterior_figures import plot_corner
 
     rng = np.random.default_rng(0)
     post = {"k_m": 4.3687 + 3e-6 * rng.standard_normal((2, 100)),

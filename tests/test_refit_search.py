@@ -21,7 +21,6 @@ import pytest
 from refdata import SETS, make_experiment
 
 from rotorbayes.cli import main
-from rotorbayes.data import save_experiment
 from rotorbayes.inference import Problem
 from rotorbayes.inference.refit import (
     added_names,
@@ -29,6 +28,7 @@ from rotorbayes.inference.refit import (
     prediction_note,
     refit_starts,
 )
+from rotorbayes.io.measurements import save_experiment
 
 STRIBECK = dict(SETS["coupled"][0], Ts_l=0.07, ws_l=0.5, delta_l=1.6)
 
@@ -95,7 +95,7 @@ def test_stribeck_refit_lands_where_the_one_step_start_does_not(stribeck_files, 
 
 # ----------------------------------------------------------------- the search, no fitting
 def _coupled_problem(effects):
-    from rotorbayes.data import Experiment
+    from rotorbayes.io.measurements import Experiment
 
     t = np.arange(2001) / 1000.0
     u = 2.0 * np.sin(2 * np.pi * 0.5 * t)
@@ -222,9 +222,9 @@ def test_long_data_screen_the_starts_and_finish_the_best(monkeypatch, capsys):
     to the end; on the bundled hidden-effect data (made lowering the limit) it lands where
     the full search lands."""
     from rotorbayes import inference
-    from rotorbayes.data import load_experiment
-    from rotorbayes.examples import example_path
     from rotorbayes.inference import refit as inference_refit
+    from rotorbayes.io.examples import example_path
+    from rotorbayes.io.measurements import load_experiment
 
     ex = load_experiment(example_path("coupled_hidden_est"))
     prob = inference.Problem("coupled", [ex])

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from rotorbayes.cli import main
-from rotorbayes.examples import example_path
+from rotorbayes.io.examples import example_path
 from rotorbayes.report import SECTIONS, ReportError, build_report, write_report
 from rotorbayes.report.html import HINTS
 

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import scipy.io
 
-from rotorbayes import exitcodes as EXIT
 from rotorbayes.cli import main
-from rotorbayes.data import DataFileError, load_experiment, quantize
-from rotorbayes.examples import example_path
-from rotorbayes.rigfiles import DEFAULT_COUNTS_PER_REV, ReadSpec
+from rotorbayes.io.examples import example_path
+from rotorbayes.io.measurements import DataFileError, load_experiment, quantize
+from rotorbayes.io.rigfiles import DEFAULT_COUNTS_PER_REV, ReadSpec
+from rotorbayes.util import exitcodes as EXIT
 
 SIGNALS = ("t", "u", "theta_u", "theta_l")
 
@@ -264,7 +264,7 @@ def test_cli_fit_of_mat_equals_csv_bit_for_bit_and_is_read_again(tmp_path, brake
         "angle_unit": "counts", "counts_per_rev": {}}
     assert "read" not in dc["data_files"][0]
     # Later commands read the file the same way: the same residuals at the estimates.
-    from rotorbayes.results import load_fit
+    from rotorbayes.inference.results import load_fit
 
     fm, fc = load_fit(tmp_path / "fm"), load_fit(tmp_path / "fc")
     assert np.array_equal(fm.problem.residuals(fm.x), fc.problem.residuals(fc.x))
@@ -288,7 +288,7 @@ def test_cli_refuses_bad_mapping_and_simulate_reads_mat_input(tmp_path, brake, c
 
 
 def test_analysis_file_reads_a_mat_file(tmp_path, brake):
-    from rotorbayes.study import AnalysisError, load_analysis, read_spec
+    from rotorbayes.commands.study.analysis import AnalysisError, load_analysis, read_spec
 
     _scope_v5(tmp_path / "run.mat", brake)
     cols = ", ".join(f'{k} = "{v}"' for k, v in ReadSpec.from_options(SCOPE).columns.items())
@@ -305,7 +305,7 @@ def test_analysis_file_reads_a_mat_file(tmp_path, brake):
 
 
 def test_run_fits_a_mat_file_as_its_analysis_file_says(tmp_path, brake, capsys):
-    from rotorbayes.study import _command_line
+    from rotorbayes.commands.study.analysis import _command_line
 
     _scope_v5(tmp_path / "run.mat", brake)
     cols = ", ".join(f'{k} = "{v}"' for k, v in ReadSpec.from_options(SCOPE).columns.items())

@@ -26,7 +26,7 @@ from test_faults import _short_upper
 from rotorbayes.cli import main
 from rotorbayes.inference import parallel, sampling
 from rotorbayes.inference.likelihood import LogPosterior
-from rotorbayes.results import load_fit
+from rotorbayes.inference.results import load_fit
 
 ENV = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
 

@@ -18,8 +18,8 @@ import pytest
 import rotorbayes as rb
 from rotorbayes import inference
 from rotorbayes.cli import main
-from rotorbayes.data import quantisation_floor
 from rotorbayes.inference.likelihood import LogPosterior, Prior, load_priors
+from rotorbayes.io.measurements import quantisation_floor
 
 
 def _short_upper(tmp_path, seconds=5.0):
@@ -41,7 +41,7 @@ def upper_fit(tmp_path_factory):
 
 
 def test_log_posterior_is_the_gaussian_likelihood_at_the_floor(upper_fit):
-    from rotorbayes.results import load_fit
+    from rotorbayes.inference.results import load_fit
 
     fit = load_fit(upper_fit[1])
     lp = LogPosterior(fit.problem, fit.x)
@@ -60,7 +60,7 @@ def test_log_posterior_is_the_gaussian_likelihood_at_the_floor(upper_fit):
 
 
 def test_priors_from_toml_and_their_errors(upper_fit, tmp_path):
-    from rotorbayes.results import load_fit
+    from rotorbayes.inference.results import load_fit
 
     fit = load_fit(upper_fit[1])
     f = tmp_path / "p.toml"

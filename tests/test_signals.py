@@ -1,10 +1,10 @@
-"""Contract tests for rotorbayes.signals: grid, reproducibility, bounds, bandwidth, levels."""
+"""Contract tests for rotorbayes.model.signals: grid, reproducibility, bounds, bandwidth, levels."""
 
 import numpy as np
 import pytest
 
-from rotorbayes import signals
-from rotorbayes.signals import estimation_signal, make_signal, validation_signal
+from rotorbayes.model import signals
+from rotorbayes.model.signals import estimation_signal, make_signal, validation_signal
 
 KINDS = ["est", "val"]
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from rotorbayes.cli import main
-from rotorbayes.study_batch import StudyTask, run_one
+from rotorbayes.commands.study.batch import StudyTask, run_one
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 

@@ -24,11 +24,11 @@ from refdata import SETS, make_experiment
 
 from rotorbayes import inference
 from rotorbayes.cli import main
-from rotorbayes.data import save_experiment
 from rotorbayes.inference.assess import validation_spread
 from rotorbayes.inference.problem import FITTED_ALONE, FIXED, GIVEN, ValidationTorsion
+from rotorbayes.inference.results import load_fit
+from rotorbayes.io.measurements import save_experiment
 from rotorbayes.model.parameters import ParameterError, resolve
-from rotorbayes.results import load_fit
 
 TRUTH = dict(SETS["brake"][0])
 #: (name, input seed, initial torsion [rad]) of the runs.
@@ -222,7 +222,7 @@ def test_a_torsion_the_model_cannot_take_is_refused(files, tmp_path, capsys):
 
 
 def test_an_analysis_file_gives_validation_torsions(files, tmp_path):
-    from rotorbayes.study import AnalysisError, load_analysis
+    from rotorbayes.commands.study.analysis import AnalysisError, load_analysis
 
     text = (f'[analysis]\nout = "out"\nconfig = "brake"\n'
             f'data = ["{files["est_a"]}", "{files["est_b"]}"]\n'

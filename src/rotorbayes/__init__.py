@@ -11,8 +11,11 @@ The pipeline, one subpackage per stage: :mod:`rotorbayes.model` (parameters, eff
 configurations, simulation) -> :mod:`rotorbayes.kernel` (compiled terms and solver) ->
 :mod:`rotorbayes.inference` (problems, least squares, multistart, the likelihood and
 sampling, identifiability, the parallel map) -> :mod:`rotorbayes.diagnosis` (verdict,
-missing effects, missing torque, comparisons) -> :mod:`rotorbayes.study` (a whole study
-from an analysis file).
+missing effects, missing torque, comparisons) -> :mod:`rotorbayes.commands` (the command
+line, and a whole study from an analysis file in :mod:`rotorbayes.commands.study`).
+Beside the pipeline: :mod:`rotorbayes.io` (measurement files, rig files, result folders),
+:mod:`rotorbayes.figures`, :mod:`rotorbayes.report` and :mod:`rotorbayes.util` (exit codes,
+number formats, fit metrics, the first compile).
 See ``docs/model.md`` for the equations and ``docs/effects.md`` for the effects.
 """
 
@@ -29,18 +32,19 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # The kernel compiles on first import (tens of seconds with a cold numba cache): said once.
-from .coldstart import compile_kernel as _compile_kernel
-from .coldstart import interrupted_while_loading as _interrupted_while_loading
-from .coldstart import stop_at_once_while_loading as _stop_at_once_while_loading
+from .util.coldstart import compile_kernel as _compile_kernel
+from .util.coldstart import interrupted_while_loading as _interrupted_while_loading
+from .util.coldstart import stop_at_once_while_loading as _stop_at_once_while_loading
 
 _stop_at_once_while_loading()  # the command only: a Ctrl-C while loading ends it at once
 
 try:
     _compile_kernel()
 
-    from . import data, signals  # noqa: E402
-    from .data import Experiment, load_experiment, save_experiment
-    from .examples import example_names, load_example
+    from .io import measurements as data
+    from .io.examples import example_names, load_example
+    from .io.measurements import Experiment, load_experiment, save_experiment
+    from .io.rigfiles import ReadSpec
     from .model import (
         CONFIGS,
         NAMES,
@@ -53,9 +57,9 @@ try:
         Simulator,
         effects,
         parameters,
+        signals,
         simulate,
     )  # fmt: skip
-    from .rigfiles import ReadSpec
 except KeyboardInterrupt:
     # A Ctrl-C while the command line loads (numba's import, a cold compile) is an ordinary
     # stop of the command, not a crash: exit 130 with a word, no traceback.  Python code
@@ -63,7 +67,7 @@ except KeyboardInterrupt:
     _interrupted_while_loading()
     raise
 
-__version__ = "0.3.0"
+from .util import __version__ as __version__  # noqa: E402
 
 __all__ = [
     "CONFIGS", "NAMES", "Effect", "Experiment", "Model", "Parameter", "ParameterError", "ReadSpec",

@@ -12,14 +12,14 @@ Each command is a module of :mod:`rotorbayes.commands`, named after it, with
 This module only parses the arguments, calls that function with every option the parser
 produced (a missing or extra keyword is a TypeError at once, never a silently ignored
 option), appends what the command printed to ``log.txt`` in the folder it wrote, and turns
-exceptions into messages and exit codes (:mod:`rotorbayes.exitcodes`).
+exceptions into messages and exit codes (:mod:`rotorbayes.util.exitcodes`).
 
 Adding a command ``NAME``
 -------------------------
 1. Write ``src/rotorbayes/commands/NAME.py`` with ``HELP``, ``add_arguments(parser)`` and
    ``def NAME(...) -> Outcome`` (see ``commands/report.py`` for a small one; shared option
    groups and number types are in :mod:`rotorbayes.commands.options`).  Raise
-   :class:`~rotorbayes.exitcodes.Refused` for bad input (exit code 2, no traceback).
+   :class:`~rotorbayes.util.exitcodes.Refused` for bad input (exit code 2, no traceback).
 2. Add ``"NAME"`` to :data:`COMMANDS` below.  Nothing else here changes; the docs' command
    reference (``docs/cli.md``) is generated from this parser.
 """
@@ -34,11 +34,10 @@ import sys
 import warnings
 from pathlib import Path
 
-from . import exitcodes as EXIT
-from .data import DataFileError
+from .io.measurements import DataFileError
+from .io.outputs import OutputError
 from .model import ParameterError, SimulationError
-from .outputs import OutputError
-from .results import ResultError
+from .util import exitcodes as EXIT
 
 DESCRIPTION = (
     "Bayesian parameter inference for the TU Eindhoven drill-string rig. The loop: fit "
@@ -66,8 +65,10 @@ COMMANDS = (
 )
 
 #: Errors that are the user's input (exit code 2): printed as one line, no traceback.
+#: (A result folder that cannot be read, rotorbayes.inference.results.ResultError, is a
+#: ValueError.)
 REFUSED = (EXIT.Refused, DataFileError, ParameterError, ValueError, FileExistsError,
-           SimulationError, ResultError, OutputError)
+           SimulationError, OutputError)
 
 
 def command_module(name: str):
@@ -110,7 +111,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``rotorbayes`` parser: one subcommand per entry of :data:`COMMANDS`."""
-    from . import __version__
+    from .util import __version__
 
     ap = _Parser(prog="rotorbayes", description=DESCRIPTION)
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
@@ -210,8 +211,8 @@ def _own_warnings(cmd: str):
 
 
 def main(argv=None) -> int:
-    """Run one command; its exit code (:mod:`rotorbayes.exitcodes`)."""
-    from . import coldstart
+    """Run one command; its exit code (:mod:`rotorbayes.util.exitcodes`)."""
+    from .util import coldstart
 
     coldstart.end_with_parent()  # a study started by `run a.toml b.toml` ends with its starter
     try:
@@ -230,7 +231,7 @@ def _main(argv=None) -> int:
         print("rotorbayes: interrupted (Ctrl-C) while starting; nothing was written",
               file=sys.stderr)
         return EXIT.INTERRUPTED
-    from . import coldstart
+    from .util import coldstart
 
     coldstart.loaded()  # a Ctrl-C is each command's own business from here on
     a._argv = list(sys.argv[1:] if argv is None else argv)

@@ -8,10 +8,10 @@ One module per command, named after it, each with
 * a public function of the command's name (``fit.fit``, ``sample.sample``, ...) that takes
   plain arguments, prints what the command prints, writes what it writes and returns an
   :class:`~rotorbayes.commands.common.Outcome` (exit code, the folder written, its main
-  document).  Bad input raises :class:`~rotorbayes.exitcodes.Refused` or a ``ValueError``
+  document).  Bad input raises :class:`~rotorbayes.util.exitcodes.Refused` or a ``ValueError``
   naming the file or value (a measurement file, a parameter set, an output folder that
   holds results: ``rotorbayes.cli.REFUSED`` lists them), Ctrl-C
-  :class:`~rotorbayes.exitcodes.Interrupted`.
+  :class:`~rotorbayes.util.exitcodes.Interrupted`.
 
 For example::
 
@@ -28,8 +28,8 @@ executor; ``fit``, ``multistart``, ``sample`` and ``identify`` build one from th
 keywords and ``execute`` it).
 :mod:`rotorbayes.cli` is only the table of these commands and the exit codes.
 
-The package imports none of its modules here: :mod:`rotorbayes.study` calls the fit,
-diagnose, compare, sample and identify functions, and the ``run`` and ``demo`` commands
-call the study.
+The package imports none of its modules here: :mod:`rotorbayes.commands.study.analysis`
+calls the fit, diagnose, compare, sample and identify functions, and the ``run`` and
+``demo`` commands call the study.
 """
 

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import exitcodes as EXIT
-from ..data import Experiment, load_experiment
-from ..examples import example_path
-from ..exitcodes import Refused
+from ..io.examples import example_path
+from ..io.measurements import Experiment, load_experiment
+from ..io.tomlfile import loads_json
 from ..model import parameters as _params
-from ..tomlfile import loads_json
+from ..util import exitcodes as EXIT
+from ..util.exitcodes import Refused
 
 
 @dataclass
@@ -28,7 +28,7 @@ class Outcome:
     Attributes
     ----------
     exit_code : int
-        The command's exit code (:mod:`rotorbayes.exitcodes`): 0 done, 1 ran but the fit
+        The command's exit code (:mod:`rotorbayes.util.exitcodes`): 0 done, 1 ran but the fit
         did not converge.
     folder : Path or None
         The result folder the command wrote (the command line appends what it printed to
@@ -52,8 +52,8 @@ def data_path(name: str) -> str:
 def load_experiments(paths: Sequence[str], config: str, *,
                      keep_glitches: bool = False, read=None) -> list[Experiment]:
     """The measurement files (or ``example:NAME``), checked, their glitches left out
-    (kept with ``keep_glitches``; :func:`rotorbayes.data.leave_out_glitches`), read as
-    ``read`` says (:class:`~rotorbayes.rigfiles.ReadSpec`; a bundled example is always a
+    (kept with ``keep_glitches``; :func:`rotorbayes.io.measurements.leave_out_glitches`), read as
+    ``read`` says (:class:`~rotorbayes.io.rigfiles.ReadSpec`; a bundled example is always a
     plain CSV); a file whose header names another configuration gets a warning."""
     exps = []
     for p in paths:
@@ -71,7 +71,7 @@ def load_experiments(paths: Sequence[str], config: str, *,
 def say_glitches(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()
                  ) -> None:
     """Print the glitches found in the data (each named; left out or kept), if any."""
-    from ..glitches import glitch_lines
+    from ..io.glitches import glitch_lines
 
     for line in glitch_lines([("estimation", e) for e in estimation]
                              + [("validation", e) for e in validation]):
@@ -81,7 +81,7 @@ def say_glitches(estimation: Sequence[Experiment], validation: Sequence[Experime
 def glitch_record(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()
                   ) -> dict:
     """The glitches found in the data, for a result document (fit.json's ``"glitches"``)."""
-    from ..glitches import glitch_record as record
+    from ..io.glitches import glitch_record as record
 
     return record([("estimation", e) for e in estimation]
                   + [("validation", e) for e in validation])
@@ -108,13 +108,14 @@ def fit_json(spec: str | None) -> dict | None:
 def fit_effects(spec: str | None, config: str | None, trust: bool = False) -> list[str]:
     """The effects switched on in the fit a ``--p0``/``--params``/``--around`` value
     ``spec`` points to (a fit folder or its fit.json) -- catalogue names and user effect
-    files, the files checked before any import (:func:`rotorbayes.results.check_effect_files`:
+    files, the files checked before any import
+    (:func:`rotorbayes.inference.results.check_effect_files`:
     gone, changed or unrecorded files are refused unless ``trust``) -- when it is a fit of
     ``config``; empty for anything else (a named set, a TOML file, another configuration)."""
     doc = fit_json(spec)
     if doc is None or not isinstance(doc, dict) or doc.get("config") != config:
         return []
-    from ..results import check_effect_files
+    from ..inference.results import check_effect_files
 
     where = Path(spec) / "fit.json" if Path(spec).is_dir() else Path(spec)
     return check_effect_files(doc, where, trust)
@@ -126,7 +127,7 @@ def param_spec(spec: str | None):
     if spec is None:
         return None
     if spec.endswith(".json"):
-        from ..results import ResultError, fit_values
+        from ..inference.results import ResultError, fit_values
 
         p = Path(spec)
         if p.is_dir():

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..outputs import output_folder, save_figure_atomic, write_text_atomic
+from ..io.outputs import output_folder, save_figure_atomic, write_text_atomic
 from .common import Outcome, strict_json
 from .options import add_changed_data_option, add_trust_option
 
@@ -28,7 +28,7 @@ def compare(fits, *, out: str | None = None, force: bool = False,
     the chain of --p0 parents of one): compare.json and figures in ``out`` (default: the
     last fit's compare/ folder, made again each time).  ``Outcome.doc`` is compare.json's
     document."""
-    from ..results import load_fit
+    from ..inference.results import load_fit
 
     fits = [fits] if isinstance(fits, str) else list(fits)
     given = fits

@@ -135,7 +135,7 @@ class ExecutorOptions:
 
 @dataclass(frozen=True)
 class FitFolderOptions:
-    """How an earlier fit folder is read again (:func:`rotorbayes.results.load_fit`):
+    """How an earlier fit folder is read again (:func:`rotorbayes.inference.results.load_fit`):
     ``trust_effects`` imports user effect files that changed since the fit (or were not
     hashed), ``accept_changed_data`` uses data files whose SHA-256 changed since."""
 
@@ -144,7 +144,7 @@ class FitFolderOptions:
 
     def load(self, folder):
         """The fit in ``folder`` (a :class:`rotorbayes.results.FitResult`)."""
-        from ..results import load_fit
+        from ..inference.results import load_fit
 
         return load_fit(folder, trust_effects=self.trust_effects,
                         accept_changed_data=self.accept_changed_data)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ..exitcodes import Refused
+from ..util.exitcodes import Refused
 from .common import Outcome
 
 HELP = ("the whole story on the bundled hidden-effect data: fit, diagnose, add effects, "
@@ -25,7 +25,7 @@ def demo(*, out: str = "rotorbayes-demo", force: bool = False, quiet: bool = Fal
     identifiability and an HTML report.  ``Outcome.doc`` is the study's run record."""
     from importlib.resources import files
 
-    from ..study import run
+    from .study.analysis import run
 
     path = files("rotorbayes") / "data" / "demo.toml"
     out = Path(out)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ..design.core import DEFAULT_EVALS, NO_INPUT
 from ..design.inputs import FAMILIES, MAX_BAND_HZ
-from ..signals import MAX_VOLTAGE
+from ..model.signals import MAX_VOLTAGE
 from .common import Outcome, csv_list
 from .config import ExecutorOptions
 from .options import add_changed_data_option, add_parallel_options, add_trust_option, ranged
@@ -79,7 +79,7 @@ def design(fit: str, *, out: str, separate: str | None = None, params: str | Non
     (:func:`rotorbayes.design.design_input`, :func:`rotorbayes.design.write_into`).
     ``Outcome.doc`` is design.json."""
     from ..design import design_input, write_into
-    from ..outputs import output_folder
+    from ..io.outputs import output_folder
 
     for name, v in (("--duration", duration), ("--rate", rate)):
         if v is not None and not (math.isfinite(v) and v > 0):

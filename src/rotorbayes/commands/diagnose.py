@@ -6,9 +6,9 @@ import math
 import sys
 from pathlib import Path
 
-from ..exitcodes import Interrupted, Refused
 from ..inference.assess import VALIDATION_NOTE
-from ..outputs import InterruptGuard, save_figure_atomic, write_text_atomic
+from ..io.outputs import InterruptGuard, save_figure_atomic, write_text_atomic
+from ..util.exitcodes import Interrupted, Refused
 from .common import Outcome, say_glitches, strict_json
 from .options import add_changed_data_option, add_trust_option, ranged
 
@@ -63,8 +63,8 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     document."""
     from ..diagnosis import diagnose as run_diagnosis
     from ..diagnosis.figures import plot_candidates, plot_torque_map
-    from ..outputs import folder_lock
-    from ..results import load_fit
+    from ..inference.results import load_fit
+    from ..io.outputs import folder_lock
 
     result = load_fit(fit, trust_effects=trust_effects,
                       accept_changed_data=accept_changed_data)
@@ -296,7 +296,7 @@ def _with_refit_command(advice: str, folder: Path, doc: dict,
     import shlex
 
     from ..diagnosis.diagnose import REFIT_TOKEN
-    from ..examples import EXAMPLES
+    from ..io.examples import EXAMPLES
 
     def here(entry: dict) -> str:
         path = str(entry.get("path", ""))

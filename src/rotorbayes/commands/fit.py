@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import exitcodes as EXIT
-from ..exitcodes import Interrupted, Refused
+from ..io.outputs import InterruptGuard, output_folder, save_figure_atomic
 from ..model import SimulationError
 from ..model import effects as _effects
 from ..model import parameters as _params
-from ..outputs import InterruptGuard, output_folder, save_figure_atomic
+from ..util import exitcodes as EXIT
+from ..util.exitcodes import Interrupted, Refused
 from .common import (
     Outcome,
     csv_list,
@@ -96,7 +96,7 @@ def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
     has a pre-wound string).  With ``p0`` and effects added, ``search``
     fits from several starts of the added parameters (:mod:`rotorbayes.inference.refit`)
     and keeps the best.  ``columns``, ``time_unit``, ``angle_unit`` and ``counts_per_rev``
-    say how to read a rig's own files (:class:`rotorbayes.rigfiles.ReadSpec`; every data
+    say how to read a rig's own files (:class:`rotorbayes.io.rigfiles.ReadSpec`; every data
     and validation file alike); fit.json records them, so later commands read the files
     the same way.  The folder appears only when the fit has finished
     (``force`` replaces an earlier one).  ``Outcome.doc`` is the fit.json document;
@@ -277,7 +277,7 @@ def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> 
 
 def _fmt_params(prob, names, x, se=None, x0=None, at_bound=(), near_bound=()) -> str:
     rows = [f"{'parameter':<12} {'estimate':>12} {'std. error':>12} {'start':>12}  unit"]
-    from ..numformat import mean_sd
+    from ..util.numformat import mean_sd
 
     for i, n in enumerate(names):
         # The standard error to two significant digits and the estimate to the same
@@ -324,7 +324,7 @@ def _uncertainty_words(res) -> str:
 
 
 def _quality_table(rows, label: str) -> str:
-    from ..metrics import ChannelFit, fit_table
+    from ..util.metrics import ChannelFit, fit_table
 
     out = []
     for r in rows:
@@ -355,12 +355,12 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
          guard=None) -> dict:
     """Fit, print and write fit.json + figures; returns the JSON document.
 
-    ``guard`` (an :class:`~rotorbayes.outputs.InterruptGuard`) is started once the fit has
+    ``guard`` (an :class:`~rotorbayes.io.outputs.InterruptGuard`) is started once the fit has
     finished: a Ctrl-C after that keeps the result.
     """
     from .. import inference
-    from ..plots import plot_fit, plot_friction
-    from ..results import data_record
+    from ..figures.plots import plot_fit, plot_friction
+    from ..inference.results import data_record
     from .common import glitch_record, say_glitches
 
     pr = options.problem
@@ -397,7 +397,7 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
             (p0_params.get(n) or p0_params.get(inference.local_name(n)[0])
              or {"status": "off"}).get("status") != "off")
             else "the effect's default" for n in prob.names}
-        from ..results import diagnosis_starts
+        from ..inference.results import diagnosis_starts
 
         # The effects new to this fit: those --add names, and any whose parameters the
         # --p0 fit did not have (their start is the effect's default).

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exitcodes import Refused
-from ..outputs import output_folder, save_figure_atomic, write_text_atomic
+from ..io.outputs import output_folder, save_figure_atomic, write_text_atomic
+from ..util.exitcodes import Refused
 from .common import Outcome, csv_list, strict_json
 from .config import ExecutorOptions, FitFolderOptions, IdentifyOptions
 from .options import add_changed_data_option, add_parallel_options, add_trust_option, ranged
@@ -104,7 +104,7 @@ def _profiles_into(a: IdentifyOptions, prob, fit, profiles, se, ex, doc) -> None
     """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
     from ..inference import identify as inference_identify
     from ..inference.taskstore import store_path
-    from ..numformat import fmt_interval_at
+    from ..util.numformat import fmt_interval_at
 
     for n in profiles:
         t0 = time.perf_counter()
@@ -135,7 +135,7 @@ def _identify_into(a: IdentifyOptions, fit, prob, profiles, out: Path,
     for w in words:
         print("  " + w)
     doc = {"fit": str(fit.folder), "fisher": F.as_dict(), "words": words, "profiles": []}
-    from .. import posterior_figures
+    from ..figures import posterior as posterior_figures
 
     save_figure_atomic(posterior_figures.plot_fisher(F)[0], out / "fisher.png")
     written = ["identify.json", "fisher.png"]

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import exitcodes as EXIT
-from ..exitcodes import Interrupted
-from ..outputs import InterruptGuard, output_folder, save_figure_atomic
+from ..io.outputs import InterruptGuard, output_folder, save_figure_atomic
+from ..util import exitcodes as EXIT
+from ..util.exitcodes import Interrupted
 from .common import (
     Outcome,
     glitch_record,
@@ -80,8 +80,8 @@ def execute(options: MultistartOptions) -> Outcome:
     """:func:`multistart` with its options as one
     :class:`~rotorbayes.commands.config.MultistartOptions` (the form the study builds)."""
     from .. import inference
+    from ..figures.plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
     from ..inference.taskstore import remove_store, store_path
-    from ..plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
 
     o, pr = options, options.problem
     guard = InterruptGuard()

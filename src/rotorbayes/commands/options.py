@@ -124,7 +124,7 @@ def add_fit_options(p) -> None:
 
 
 def add_read_options(p, *, angles: bool = True) -> None:
-    """How to read a rig's own data files (:class:`rotorbayes.rigfiles.ReadSpec`): the
+    """How to read a rig's own data files (:class:`rotorbayes.io.rigfiles.ReadSpec`): the
     file's names of the signals and their units; ``angles=False`` for a file of t and u."""
     sigs = "t=NAME,u=NAME" + (",theta_u=NAME,theta_l=NAME" if angles else "")
     p.add_argument("--columns", metavar=sigs,
@@ -146,10 +146,10 @@ def add_read_options(p, *, angles: bool = True) -> None:
 
 
 def read_spec(columns=None, time_unit=None, angle_unit=None, counts_per_rev=None):
-    """The :class:`~rotorbayes.rigfiles.ReadSpec` the read options give; Refused naming
+    """The :class:`~rotorbayes.io.rigfiles.ReadSpec` the read options give; Refused naming
     the option for a bad value."""
-    from ..exitcodes import Refused
-    from ..rigfiles import FormatProblem, ReadSpec
+    from ..io.rigfiles import FormatProblem, ReadSpec
+    from ..util.exitcodes import Refused
 
     try:
         return ReadSpec.from_options(columns, time_unit, angle_unit, counts_per_rev)

@@ -19,7 +19,7 @@ def params(name: str | None = None) -> Outcome:
 
     A fit with user effects shows their parameters too, as fit.json records them (value and
     unit): showing them imports no effect file (effect files are code; commands that
-    simulate check them first, see :func:`rotorbayes.results.check_effect_files`).
+    simulate check them first, see :func:`rotorbayes.inference.results.check_effect_files`).
     """
     if name:
         raw = param_spec(name)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ..exitcodes import Refused
+from ..util.exitcodes import Refused
 from .common import Outcome
 
 HELP = ("report.html: one self-contained HTML page (figures embedded) for a study folder or "

@@ -26,20 +26,21 @@ def add_arguments(r) -> None:
 def run(analysis: str | list[str], *, force: bool = False, quiet: bool = False,
         backend: str | None = None, workers: int | None = None,
         scheduler: str | None = None) -> Outcome:
-    """Run the study the analysis file ``analysis`` describes (:func:`rotorbayes.study.run`)
+    """Run the study the analysis file ``analysis`` describes
+    (:func:`rotorbayes.commands.study.analysis.run`)
     with one executor for its parallel tasks (the options, else the file's [parallel]
     table).  ``Outcome.doc`` is the run record (run.json).
 
     Several files are independent studies, one task each on the executor
-    (:mod:`rotorbayes.study_batch`); ``Outcome.doc`` is then ``{"studies": [...]}``."""
+    (:mod:`rotorbayes.commands.study.batch`); ``Outcome.doc`` is then ``{"studies": [...]}``."""
     files = [analysis] if isinstance(analysis, (str, Path)) else list(analysis)
     if len(files) > 1:
-        from ..study_batch import run_studies
+        from .study.batch import run_studies
 
         return run_studies(files, force=force, quiet=quiet, backend=backend,
                            workers=workers, scheduler=scheduler)
-    from ..study import load_analysis
-    from ..study import run as run_study
+    from .study.analysis import load_analysis
+    from .study.analysis import run as run_study
 
     t0 = time.perf_counter()
     where = ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler)

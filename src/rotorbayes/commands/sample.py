@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import exitcodes as EXIT
-from ..exitcodes import Interrupted, Refused
-from ..outputs import InterruptGuard
+from ..io.outputs import InterruptGuard
+from ..util import exitcodes as EXIT
+from ..util.exitcodes import Interrupted, Refused
 from .common import Outcome
 from .config import ExecutorOptions, FitFolderOptions, SampleOptions
 from .options import (
@@ -146,7 +146,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
 def execute(options: SampleOptions) -> Outcome:
     """:func:`sample` with its options as one
     :class:`~rotorbayes.commands.config.SampleOptions` (the form the study builds)."""
-    from ..outputs import clean_stale, folder_lock, follow_link
+    from ..io.outputs import clean_stale, folder_lock, follow_link
 
     a = options
     src = Path(a.source)
@@ -176,7 +176,7 @@ def execute(options: SampleOptions) -> Outcome:
 def _check_sample_target(a: SampleOptions, out: Path) -> None:
     if a.resume:
         return
-    from ..outputs import check_replaceable
+    from ..io.outputs import check_replaceable
 
     # Never the working folder, a folder of the user's own files or one holding an input,
     # --force or not (without --force, a result folder is refused below, with its hint).
@@ -192,7 +192,7 @@ def _sample_locked(a: SampleOptions, src: Path, out: Path) -> int:
 
     from ..inference import sampling
     from ..inference.likelihood import LogPosterior, load_priors
-    from ..outputs import check_free_space
+    from ..io.outputs import check_free_space
 
     if a.resume:
         settings = _read_settings(src)
@@ -363,7 +363,7 @@ def _write_sample_outputs(a: SampleOptions, out: Path, lp, fit, runs, guard, res
     :class:`~rotorbayes.inference.sampling.SummaryReserve`); Ctrl-C between two files
     stops with a true account of what is on disk, and so does a write that fails (exit
     code 3: the chains are complete, ``--resume`` writes the rest)."""
-    from .. import posterior_figures
+    from ..figures import posterior as posterior_figures
     from ..inference import arviz_compat, posterior, sampling
 
     if reserve is None:

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import save_experiment
-from ..exitcodes import Refused
+from ..io.measurements import save_experiment
+from ..io.outputs import check_output_file
 from ..model import SimulationError
 from ..model import parameters as _params
-from ..outputs import check_output_file
+from ..util.exitcodes import Refused
 from .common import Outcome, fit_effects, resolve_values
 from .options import (
     CONFIGS,
@@ -66,17 +66,23 @@ def add_arguments(s) -> None:
 def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
     """Read ``t,u`` (and possibly more columns) from a CSV or MATLAB ``.mat`` file.
 
-    ``read`` (a :class:`~rotorbayes.rigfiles.ReadSpec`) names the file's columns of t and
+    ``read`` (a :class:`~rotorbayes.io.rigfiles.ReadSpec`) names the file's columns of t and
     u and the unit of t (s or ms), as for measurement files; a CSV may be separated by
     commas, semicolons or tabs (then with decimal commas).  The time column gets the
-    checks of a measurement file (:mod:`rotorbayes.data`): finite, strictly increasing,
+    checks of a measurement file (:mod:`rotorbayes.io.measurements`): finite, strictly increasing,
     uniformly sampled, in seconds (a step of ``MAX_SAMPLE_INTERVAL`` or more, or a record
     longer than ``MAX_DURATION``, is refused), and a last line without its line break (a
     truncated file) is refused; messages name the file and the line (a .mat file: the
     sample).
     """
-    from .. import rigfiles
-    from ..data import MAX_ABS_INPUT, DataFileError, RowProblem, check_data_file, check_time_unit
+    from ..io import rigfiles
+    from ..io.measurements import (
+        MAX_ABS_INPUT,
+        DataFileError,
+        RowProblem,
+        check_data_file,
+        check_time_unit,
+    )
 
     read = rigfiles.ReadSpec() if read is None else read
     p = Path(path)
@@ -152,7 +158,7 @@ def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
 
 def _input_csv(p: Path, lines: list[str], read) -> tuple[list, list, list]:
     """t, u and their line numbers from the lines of a CSV input file."""
-    from .. import rigfiles
+    from ..io import rigfiles
 
     numbered = [(k, ln) for k, ln in enumerate(lines, start=1)
                 if ln.strip() and not ln.lstrip().startswith("#")]
@@ -223,10 +229,10 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
     switches effects on; ``quantize`` rounds to encoder counts, ``noise`` adds Gaussian
     noise [rad]; ``plot`` also saves a figure. ``Outcome.doc`` holds the file's header.
     """
+    from ..io.outputs import tmp_name
     from ..model import Model
     from ..model import simulate as run_simulation
-    from ..outputs import tmp_name
-    from ..signals import make_signal
+    from ..model.signals import make_signal
 
     # Everything the user can get wrong is checked before the simulation.
     if not input_file and (columns or time_unit):
@@ -293,7 +299,7 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
         if fig_path is not None:
             import matplotlib.pyplot as plt
 
-            from ..plots import plot_simulation
+            from ..figures.plots import plot_simulation
 
             fig, _ = plot_simulation(sim)
             fig_tmp = tmp_name(fig_path)

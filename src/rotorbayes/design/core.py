@@ -2,7 +2,7 @@
 separates candidate effects (issue 20).
 
 :func:`design_input` takes a fit (a folder written by ``rotorbayes fit``, a
-:class:`~rotorbayes.results.LoadedFit`, a :class:`~rotorbayes.inference.FitResult` or a
+:class:`~rotorbayes.inference.results.LoadedFit`, a :class:`~rotorbayes.inference.FitResult` or a
 ``(problem, x)`` pair) and a target:
 
 * ``"sloppiest"`` (default) — the fit's sloppiest Fisher direction: minimise the predicted
@@ -34,14 +34,19 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
-from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, Experiment, quantisation_floor
-from ..data import quantize as _quantize
 from ..inference.least_squares import fit as _fit
 from ..inference.parallel import run_tasks
 from ..inference.problem import Problem, local_name
+from ..io.measurements import (
+    LOWER_COUNTS_PER_REV,
+    UPPER_COUNTS_PER_REV,
+    Experiment,
+    quantisation_floor,
+)
+from ..io.measurements import quantize as _quantize
 from ..model import effects as _effects
+from ..model.signals import MAX_VOLTAGE, estimation_signal
 from ..model.simulate import SimulationError
-from ..signals import MAX_VOLTAGE, estimation_signal
 from . import ties as _ties
 from .information import Frame, separation_gap
 from .inputs import FAMILIES, MAX_BAND_HZ, DesignInputError, make_family
@@ -103,7 +108,7 @@ class DesignResult:
 # ------------------------------------------------------------------------------ inputs
 def _as_fit(fit, trust_effects: bool = False,
             accept_changed_data: bool = False) -> tuple[Problem, np.ndarray, str]:
-    from ..results import LoadedFit, load_fit
+    from ..inference.results import LoadedFit, load_fit
 
     if isinstance(fit, (str, Path)):
         lf = load_fit(fit, trust_effects=trust_effects,
@@ -396,7 +401,7 @@ def design_input(
     executor, workers : where the starts run (default: the current executor, else
         ``workers`` local threads; serial for one).
     trust_effects, accept_changed_data : for a fit folder, as
-        :func:`rotorbayes.results.load_fit` (its effect files, its changed data files).
+        :func:`rotorbayes.inference.results.load_fit` (its effect files, its changed data files).
 
     Returns
     -------

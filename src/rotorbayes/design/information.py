@@ -25,8 +25,8 @@ import math
 
 import numpy as np
 
-from ..data import Experiment
 from ..inference.problem import Problem, local_name
+from ..io.measurements import Experiment
 
 
 def _relative_scale(problem: Problem, names: list[str], x: np.ndarray) -> np.ndarray:

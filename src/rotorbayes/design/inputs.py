@@ -1,6 +1,6 @@
 """The input families a design searches: smoothed steps and a tapered multisine.
 
-Both respect the rig as :mod:`rotorbayes.signals` does: ``|u| <= max_volts <= 5 V`` (the
+Both respect the rig as :mod:`rotorbayes.model.signals` does: ``|u| <= max_volts <= 5 V`` (the
 amplifier), essentially no energy above ``band_hz`` (default 5 Hz, thesis §3.2), exactly
 0 V at the first and the last sample with a smooth ramp (the rig starts at rest, and the
 experiment ends at rest), and the time grid ``arange(n) / rate`` with ``t[-1] = duration``.
@@ -8,7 +8,7 @@ experiment ends at rest), and the time grid ``arange(n) / rate`` with ``t[-1] = 
 A family maps a vector ``z`` in the box ``[lower, upper]`` to the sampled input ``u``:
 
 * :class:`Steps` — ``m`` levels ``z_k * max_volts`` (``-1 <= z_k <= 1``) held for equal
-  times, joined by the Hann-smoothed step of :func:`rotorbayes.signals.estimation_signal`
+  times, joined by the Hann-smoothed step of :func:`rotorbayes.model.signals.estimation_signal`
   (a transition of ``2 / band_hz`` s that never overshoots its levels).  ``u = B z``: the
   basis ``B`` is built once, so an input costs one matrix-vector product.
 * :class:`Multisine` — ``g * max_volts * e(t) * sum_k a_k sin(2 pi f_k t + phi_k) / peak``
@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..signals import MAX_VOLTAGE
-from ..signals import smooth_step as _smooth_step
+from ..model.signals import MAX_VOLTAGE
+from ..model.signals import smooth_step as _smooth_step
 
 #: Highest band limit a design may use [Hz]: the thesis's signals stay below 5 Hz, faster
 #: inputs risk damaging the set-up (thesis §3.2).

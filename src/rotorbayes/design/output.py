@@ -1,6 +1,6 @@
 """The ``next/`` folder of a design: ``u.csv``, ``design.json``, ``design.txt``, a figure.
 
-Written like every result folder (:func:`rotorbayes.outputs.output_folder`): built in a
+Written like every result folder (:func:`rotorbayes.io.outputs.output_folder`): built in a
 hidden temporary sibling under the folder's lock and moved into place whole; a folder that
 holds results is refused unless ``force``.
 """
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..outputs import output_folder, save_figure_atomic, write_text_atomic
+from ..io.outputs import output_folder, save_figure_atomic, write_text_atomic
 from .core import DesignResult
 
 
@@ -43,8 +43,8 @@ def input_csv(t: np.ndarray, u: np.ndarray) -> str:
 def plot_design(res: DesignResult):
     """Input (designed and the estimation input), predicted angles, and what the new
     experiment would see of the target, in floor units.  Returns ``(fig, axes)``."""
-    from ..plots import legend_outside as _legend_outside
-    from ..plots import pyplot
+    from ..figures.plots import legend_outside as _legend_outside
+    from ..figures.plots import pyplot
 
     plt = pyplot()
     resp = {k: v for k, v in res.responses.items() if k not in ("difference", "channels")}
@@ -113,7 +113,7 @@ def write_into(res: DesignResult, folder: Path, *, command: str = "") -> None:
 def write_design(res: DesignResult, out: str | Path, *, force: bool = False,
                  command: str = "") -> Path:
     """Write the ``next/`` folder (module docstring); returns its path.  A folder that holds
-    results is refused (:class:`~rotorbayes.outputs.OutputError`) unless ``force``."""
+    results is refused (:class:`~rotorbayes.io.outputs.OutputError`) unless ``force``."""
     out = Path(out)
     with output_folder(out, force) as tmp:
         write_into(res, tmp, command=command)

@@ -29,12 +29,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from .. import metrics as _metrics
-from ..data import quantisation_floor
 from ..inference.assess import NEAR_FLOOR
 from ..inference.least_squares import quality
 from ..inference.problem import ValidationTorsion
 from ..inference.starts import derivatives
+from ..io.measurements import quantisation_floor
+from ..util import metrics as _metrics
 from .diagnose import LEVEL, MATERIAL_FLOOR_UNITS, MATERIAL_FRACTION, is_material
 
 #: z of the two-sided 99 % band of a white residual's correlations.
@@ -217,7 +217,8 @@ def weigh_step(step: dict) -> dict:
 
 
 def compare_fits(fits) -> dict:
-    """Before/after table of loaded fits (:class:`rotorbayes.results.LoadedFit`), in order."""
+    """Before/after table of loaded fits (:class:`rotorbayes.inference.results.LoadedFit`),
+    in order."""
     out = {"fits": [], "steps": []}
     prev = {}
     for f in fits:

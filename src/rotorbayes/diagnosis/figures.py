@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..plots import pyplot
+from ..figures.plots import pyplot
 from .diagnose import LEVEL
 
 _LABEL = {

@@ -522,7 +522,7 @@ def write_effect_file(p: Proposal, folder, command: str) -> str:
     ``proposal.py``; it is rewritten to the name chosen."""
     from pathlib import Path
 
-    from ..outputs import write_text_atomic
+    from ..io.outputs import write_text_atomic
 
     folder = Path(folder)
     stem, suffix = FILE_NAME.rsplit(".", 1)

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ..data import quantisation_floor
 from ..inference.problem import Problem, local_name
+from ..io.measurements import quantisation_floor
 from ..model import effects as _effects
 
 #: Stribeck grid (velocity rad/s, shape) of the sup-score test.

@@ -435,7 +435,12 @@ def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
     have some); its noise level is what rounding alone does to a balance.  ``floors``:
     the noise floor per channel (default :meth:`Problem.noise_floors`).
     """
-    from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, quantisation_floor, quantize
+    from ..io.measurements import (
+        LOWER_COUNTS_PER_REV,
+        UPPER_COUNTS_PER_REV,
+        quantisation_floor,
+        quantize,
+    )
 
     rng = np.random.default_rng(seed)
     if floors is None:

@@ -1,7 +1,7 @@
 """How good a fit is and what to distrust: the verdict printed with every result.
 
 * per experiment and channel, the residual RMS as a multiple of the encoder quantisation
-  floor (:func:`rotorbayes.data.quantisation_floor`, thesis §2.2) on estimation and
+  floor (:func:`rotorbayes.io.measurements.quantisation_floor`, thesis §2.2) on estimation and
   validation data;
 * a warning for every estimate at or near a bound (and what that usually means), every
   free parameter the residual does not depend on, every fixed parameter that would lower
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..data import quantisation_floor
+from ..io.measurements import quantisation_floor
 from ..kernel.terms import CONSTRAINTS
 from .problem import local_name
 

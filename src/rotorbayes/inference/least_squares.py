@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from .. import metrics as _metrics
-from ..data import Experiment
+from ..io.measurements import Experiment
 from ..model.parameters import ParameterError
 from ..model.simulate import SimulationError, Simulator
+from ..util import metrics as _metrics
 from .problem import Problem
 from .uncertainty import Uncertainty, col_norms, fit_uncertainty
 

@@ -112,7 +112,7 @@ def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
         k_alpha = { dist = "normal", mean = 0.080, sd = 0.004 }
         J_l = { dist = "loguniform", lower = 0.01, upper = 0.2 }
     """
-    from ..tomlfile import read_toml
+    from ..io.tomlfile import read_toml
 
     p = Path(path)
     doc = read_toml(p, ParameterError, "priors file",

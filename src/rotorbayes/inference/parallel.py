@@ -51,7 +51,7 @@ from concurrent.futures import wait as _wait
 from dataclasses import dataclass
 from typing import Any
 
-from ..exitcodes import EnvironmentFailure
+from ..util.exitcodes import EnvironmentFailure
 
 #: The back-ends :func:`choose` knows.
 BACKENDS = ("serial", "threads", "processes", "dask")
@@ -163,7 +163,7 @@ def warm_kernel() -> None:
             simulate(pset, u, dt=0.005, config=config)
     # Entry points are compiled (or loaded) on first use: load the residuals' too, which
     # a worker's fits call, so that no task pays for it.
-    from ..coldstart import kernel_entry
+    from ..util.coldstart import kernel_entry
 
     for name in ("residuals_into_plain", "residuals_batch_into_plain"):
         with contextlib.suppress(Exception):

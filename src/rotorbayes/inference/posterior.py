@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from ..numformat import fmt_interval_at, mean_sd, sd_place
+from ..util.numformat import fmt_interval_at, mean_sd, sd_place
 from . import arviz_compat
 from .likelihood import LogPosterior
 from .sampling import EnsembleRun, burn_thin

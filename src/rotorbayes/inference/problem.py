@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import Experiment
+from ..io.measurements import Experiment
 from ..kernel import layout as _layout
 from ..model import effects as _effects
 from ..model.configurations import Model
@@ -465,15 +465,15 @@ class Problem:
         ``noise_std`` given: ``sqrt(q²/12 + noise_std²)``.  Otherwise the encoder
         quantisation floor ``q/√12``, raised only for broad-band jitter: where the measured
         angles jitter clearly more than that (above
-        :data:`~rotorbayes.data.JITTER_FACTOR` x the quantisation floor) through most of
-        the record (:meth:`rotorbayes.data.Jitter.broadband`), the data carry other noise
+        :data:`~rotorbayes.io.measurements.JITTER_FACTOR` x the quantisation floor) through most of
+        the record (:meth:`rotorbayes.io.measurements.Jitter.broadband`), the data carry other noise
         and its typical jitter is the floor.  The notes say so with the evidence (how many
         stretches and samples, which band), so a verdict is never "far from the floor"
         only because the encoder is not the only noise.  Glitches (single samples far off,
-        :mod:`rotorbayes.glitches`) never raise the floor: the loader leaves them out, and
+        :mod:`rotorbayes.io.glitches`) never raise the floor: the loader leaves them out, and
         those kept with ``--keep-glitches`` raise a few stretches only.
         """
-        from ..data import jitter_evidence, quantisation_floor
+        from ..io.measurements import jitter_evidence, quantisation_floor
 
         cache = self.__dict__.setdefault("_floors_cache", {})
         if noise_std in cache:  # the data do not change: compute the jitter once

@@ -145,7 +145,7 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
     parameters at their typical start) with the added parameters varied.
 
     ``diagnosed`` holds the diagnosis's one-step estimates and best nuisance grid point
-    (:func:`rotorbayes.results.diagnosis_starts`), empty when there is no diagnosis;
+    (:func:`rotorbayes.inference.results.diagnosis_starts`), empty when there is no diagnosis;
     ``effects`` names the effects new to this fit (default every added one: effects the
     parent had keep its values).
     """

@@ -26,7 +26,7 @@
 * A full disk never damages the checkpoint: ``chain.h5`` owns the blocks of its coming
   steps before they are written (:func:`preallocate`), and where that is impossible a disk
   that is nearly full ends the run between two steps
-  (:class:`~rotorbayes.exitcodes.EnvironmentFailure`).
+  (:class:`~rotorbayes.util.exitcodes.EnvironmentFailure`).
 """
 
 from __future__ import annotations
@@ -45,8 +45,8 @@ from pathlib import Path
 import emcee
 import numpy as np
 
-from ..exitcodes import EnvironmentFailure
-from ..outputs import write_text_atomic
+from ..io.outputs import write_text_atomic
+from ..util.exitcodes import EnvironmentFailure
 from .likelihood import LogPosterior
 
 

@@ -69,8 +69,8 @@ def problem_fingerprint(problem) -> str:
     """The hash of everything a fit of ``problem`` depends on: data, model, effects (user
     effect files by their SHA-256), free set, fixed values, bounds, channels, weights, the
     integrator's step and the rotorbayes version."""
-    from .. import __version__
     from ..model import effects as _effects
+    from ..util import __version__
 
     m = problem.model
     data = [[ex.t, ex.u, ex.theta_u, ex.theta_l if ex.theta_l is not None else "none"]

@@ -328,7 +328,7 @@ def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, fl
     ``A⁺ Jᵀ e`` is applied to each error.  Returns the covariance of those estimates
     (parameter units), or ``None`` when the fit cannot be simulated.
     """
-    from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, quantize
+    from ..io.measurements import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, quantize
 
     counts = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}
     rng = np.random.default_rng(seed)

@@ -216,7 +216,7 @@ def load_toml(path: str | Path, _chain: tuple[str, ...] = ()) -> dict[str, float
     table, and optionally ``base = "thesis:4.2:P0"`` naming the set (or another parameter
     file) it overrides. A chain of ``base`` files that comes back to a file is an error.
     """
-    from ..tomlfile import read_toml
+    from ..io.tomlfile import read_toml
 
     path = Path(path)
     here = str(path.resolve())

@@ -17,10 +17,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..coldstart import kernel_entry
-from ..data import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, Experiment, add_noise, quantize
+from ..io.measurements import (
+    LOWER_COUNTS_PER_REV,
+    UPPER_COUNTS_PER_REV,
+    Experiment,
+    add_noise,
+    quantize,
+)
 from ..kernel import layout as _k
 from ..kernel import solver as _solver
+from ..util.coldstart import kernel_entry
 from .configurations import CONFIGS, Model, check_config
 from .friction import shape_code
 from .parameters import NAMES, ParameterError, resolve
@@ -331,7 +337,7 @@ class Simulator:
         without user effects (or a catalogue effect only the full kernel has, see
         ``Model.full_kernel``) its ``_plain`` twin, which takes no hooks (a function
         argument costs 0.1-0.27 ms per call from Python to type and unbox).  Each is
-        compiled on its first use (:func:`rotorbayes.coldstart.kernel_entry`)."""
+        compiled on its first use (:func:`rotorbayes.util.coldstart.kernel_entry`)."""
         a = self._kernel_args()
         if a[7]:
             return kernel_entry(name), a

@@ -19,9 +19,9 @@ from pathlib import Path
 
 from ..inference.identify import profile_interval
 from ..inference.problem import ValidationTorsion
-from ..numformat import fmt_interval_at, mean_sd, sd_place
-from ..outputs import write_text_atomic
-from ..results import file_sha256
+from ..inference.results import file_sha256
+from ..io.outputs import write_text_atomic
+from ..util.numformat import fmt_interval_at, mean_sd, sd_place
 from .discover import FitInfo, Found, ReportError, discover, read_json
 from .markup import (
     CSS,
@@ -163,7 +163,7 @@ def _worst(doc: dict) -> float | None:
 
 def _example_or_path(spec: str) -> Path:
     if spec.startswith("example:"):
-        from ..examples import example_path
+        from ..io.examples import example_path
 
         return Path(example_path(spec))
     return Path(spec)
@@ -300,7 +300,7 @@ def _owned_data(fit, spec: str, sha: str) -> bool:
 
 def _recorded_read(fit, spec: str):
     """How the fit read the data file ``spec`` (its recorded names and units)."""
-    from ..rigfiles import ReadSpec
+    from ..io.rigfiles import ReadSpec
 
     if fit is None:
         return None
@@ -312,7 +312,7 @@ def _recorded_read(fit, spec: str):
 
 
 def _data(f: Found) -> Raw | None:
-    from ..data import load_experiment
+    from ..io.measurements import load_experiment
 
     run = f.run or {}
     fit = f.final
@@ -935,7 +935,7 @@ def _render(found: Found) -> Report:
 
 def _page(found: Found, bodies: dict[str, Raw], absent: dict[str, str],
           sections: list[str]) -> str:
-    from .. import __version__
+    from ..util import __version__
 
     kinds = {"study": "study", "fit": "fit folder", "compare": "compare folder",
              "sample": "posterior sample folder", "identify": "identifiability folder"}

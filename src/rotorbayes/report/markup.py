@@ -55,7 +55,7 @@ def num(x, digits: int = 4) -> Raw:
 
 
 def digits(text: str) -> Raw:
-    """A number already written with its digits (``rotorbayes.numformat``: ``4.3687027``,
+    """A number already written with its digits (``rotorbayes.util.numformat``: ``4.3687027``,
     ``4.8e-06``) as a table shows numbers: a true minus, powers of ten as ``4.8 × 10⁻⁶``."""
     mant, e, exp = str(text).partition("e")
     out = esc(mant).replace("-", "−")

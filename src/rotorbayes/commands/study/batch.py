@@ -29,9 +29,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .coldstart import PARENT_ENV
-from .commands.common import Outcome, executor
-from .exitcodes import BUSY, ENVIRONMENT, INTERRUPTED, Interrupted, Refused
+from ...util.coldstart import PARENT_ENV
+from ...util.exitcodes import BUSY, ENVIRONMENT, INTERRUPTED, Interrupted, Refused
+from ..common import Outcome, executor
 
 
 @dataclass(frozen=True)
@@ -142,8 +142,8 @@ def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
     study ended with 0, 130 after a Ctrl-C, else the highest of the studies' codes
     (a study killed by a signal counts as 3). ``Outcome.doc``: ``{"studies": [...]}``, one
     row per file with its exit code, seconds, host and message."""
-    from .inference import parallel
-    from .study import load_analysis
+    from ...inference import parallel
+    from .analysis import load_analysis
 
     analyses = [load_analysis(f) for f in files]  # AnalysisError: refused, nothing run
     seen: dict[Path, Path] = {}

@@ -30,9 +30,9 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .model import effects as _effects
-from .model.parameters import INFO, ParameterError
-from .outputs import write_text_atomic
+from ...io.outputs import write_text_atomic
+from ...model import effects as _effects
+from ...model.parameters import INFO, ParameterError
 
 #: Tables and keys the analysis file may hold (key -> expected type(s)).
 SCHEMA: dict[str, dict[str, tuple]] = {
@@ -126,8 +126,8 @@ class Analysis:
 
 def read_spec(a: Analysis):
     """How the analysis file's data are read (``columns``, ``time_unit``, ``angle_unit``,
-    ``counts_per_rev`` of ``[analysis]``: :class:`~rotorbayes.rigfiles.ReadSpec`)."""
-    from .rigfiles import FormatProblem, ReadSpec
+    ``counts_per_rev`` of ``[analysis]``: :class:`~rotorbayes.io.rigfiles.ReadSpec`)."""
+    from ...io.rigfiles import FormatProblem, ReadSpec
 
     an = a.table("analysis")
     try:
@@ -162,8 +162,8 @@ def _check_validate_alpha0(p, an: dict) -> None:
 
 def load_analysis(path: str | Path) -> Analysis:
     """Read and validate an analysis file (see the module docstring)."""
-    from .examples import example_path
-    from .tomlfile import read_toml, read_toml_text
+    from ...io.examples import example_path
+    from ...io.tomlfile import read_toml, read_toml_text
 
     p = Path(path)
     doc = read_toml(p, AnalysisError, "analysis file",
@@ -247,7 +247,7 @@ def load_analysis(path: str | Path) -> Analysis:
     if "noise" in s and s["noise"] not in ("robust", "floor", "sampled"):
         raise _err(p, "sample", f"noise = {s['noise']!r}; choose robust, floor or sampled")
     if "moves" in s:
-        from .inference.sampling import MOVES
+        from ...inference.sampling import MOVES
 
         if s["moves"] not in MOVES:
             raise _err(p, "sample", f"moves = {s['moves']!r}; choose one of "
@@ -262,7 +262,7 @@ def load_analysis(path: str | Path) -> Analysis:
         if not isinstance(spec, dict):
             raise _err(p, "priors", f"{n} must be a table like {{ dist = \"normal\", "
                        "mean = 0.08, sd = 0.004 }")
-        from .inference.likelihood import check_prior_spec
+        from ...inference.likelihood import check_prior_spec
 
         try:
             check_prior_spec(spec, n)
@@ -279,7 +279,7 @@ def load_analysis(path: str | Path) -> Analysis:
             raise _err(p, "identify", f"profiles: unknown parameter {n!r}")
     if "design" in doc:
         _check_design(p, a.table("design"), an["config"])
-    from .inference.parallel import BACKENDS
+    from ...inference.parallel import BACKENDS
 
     backend = a.table("parallel").get("backend")
     if backend is not None and backend not in BACKENDS:
@@ -289,8 +289,8 @@ def load_analysis(path: str | Path) -> Analysis:
 
 def _check_design(p: Path, d: dict, config: str) -> None:
     """The ``[design]`` table's values, checked like ``rotorbayes design``'s options."""
-    from .design.inputs import FAMILIES, MAX_BAND_HZ
-    from .signals import MAX_VOLTAGE
+    from ...design.inputs import FAMILIES, MAX_BAND_HZ
+    from ...model.signals import MAX_VOLTAGE
 
     if d.get("params") and d.get("separate"):
         raise _err(p, "design", "give either params or separate, not both (neither: the "
@@ -337,8 +337,8 @@ def _sha(data: bytes) -> str:
 
 
 def _file_sha(spec: str) -> str:
-    from .data import measurement_sha256
-    from .examples import example_path
+    from ...io.examples import example_path
+    from ...io.measurements import measurement_sha256
 
     path = example_path(spec) if spec.startswith("example:") else Path(spec)
     # Read in blocks, a regular file only (a pipe or /dev/zero is refused by name).
@@ -348,7 +348,7 @@ def _file_sha(spec: str) -> str:
 def _versions() -> dict:
     import importlib.metadata as md
 
-    from . import __version__
+    from ...util import __version__
 
     out = {"python": sys.version.split()[0], "rotorbayes": __version__}
     for pkg in ("numpy", "scipy", "numba", "emcee", "arviz", "corner", "h5py",
@@ -385,7 +385,7 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
     ``out`` overrides the file's output folder (the demo writes into the current folder);
     ``force`` reruns every stage even if its inputs are unchanged.
     """
-    from .outputs import clean_stale, folder_lock
+    from ...io.outputs import clean_stale, folder_lock
 
     a = load_analysis(path)
     out = Path(out) if out is not None else a.out
@@ -393,7 +393,7 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        from .exitcodes import EnvironmentFailure, describe_environment
+        from ...util.exitcodes import EnvironmentFailure, describe_environment
 
         raise EnvironmentFailure(f"{a.path}: [analysis] out: cannot create {out.parent} ("
                                  f"{describe_environment(exc, '')})") from None
@@ -522,13 +522,13 @@ def _stage_functions() -> dict:
     """Each stage command's function of its keywords: the commands with typed options are
     run from their options object (:mod:`rotorbayes.commands.config`), built from the
     same keywords the stage's command line shows."""
-    from .commands import config
-    from .commands import fit as fit_command
-    from .commands import identify as identify_command
-    from .commands import sample as sample_command
-    from .commands.compare import compare as compare_command
-    from .commands.design import design as design_command
-    from .commands.diagnose import diagnose as diagnose_command
+    from .. import config
+    from .. import fit as fit_command
+    from .. import identify as identify_command
+    from .. import sample as sample_command
+    from ..compare import compare as compare_command
+    from ..design import design as design_command
+    from ..diagnose import diagnose as diagnose_command
 
     def typed(module, cls):
         return lambda **options: module.execute(config.from_keywords(cls, **options))
@@ -541,7 +541,7 @@ def _stage_functions() -> dict:
 
 
 def _stages(run: StudyRun) -> dict:  # noqa: C901
-    from .exitcodes import Interrupted
+    from ...util.exitcodes import Interrupted
 
     a, path, out, record, old, log = (run.analysis, run.path, run.out, run.record, run.old,
                                       run.log)
@@ -626,7 +626,7 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
     added: list[str] = []
     rejected: list[dict] = []
     if "diagnose" in a.doc:
-        from .diagnosis.diagnose import is_material
+        from ...diagnosis.diagnose import is_material
 
         noise = {"noise": float(dg["noise_std"])} if dg.get("noise_std") else {}
         tried = None  # (effect, worst RMS/floor before it, the fit before it): a candidate
@@ -732,7 +732,7 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
     _write_record(run.record_path, record)
     if a.table("report").get("html", True):
         try:
-            from .report.html import build_report
+            from ...report.html import build_report
         except ImportError:
             print("\n(report: the HTML report module is not available in this version)",
                   file=tee)

@@ -5,7 +5,7 @@ A measurement needs four signals: the time ``t`` [s], the motor voltage ``u`` [V
 two disc angles ``theta_u``, ``theta_l`` [rad].  A rig's logger names them as it likes
 (``Time``, ``Volt``, ``ScopeData.signals(2).values(:,1)``) and writes time in s or ms and
 angles in rad, degrees or encoder counts.  A :class:`ReadSpec` says all of that once;
-:func:`rotorbayes.data.load_experiment` reads with it, and a fit records it (fit.json's
+:func:`rotorbayes.io.measurements.load_experiment` reads with it, and a fit records it (fit.json's
 ``data_files[i].read``) so that every later command reads the file the same way.
 
 Names in a ``.mat`` file

@@ -145,7 +145,7 @@ def _compile_entry(name: str, stream):
     fn = _READY.get(name)
     if fn is not None:
         return fn
-    from .kernel import solver
+    from ..kernel import solver
 
     cold = not solver.is_ready(name) and cache_is_cold(name)
     stream = sys.stderr if stream is None else stream

@@ -17,12 +17,12 @@
 
 * :func:`folder_lock` is the one lock of a result folder (``flock`` on a hidden sibling file
   ``.NAME.lock``): a second process that wants the same folder is refused at once with
-  :class:`~rotorbayes.exitcodes.Busy`. :func:`output_folder` takes it, and under it removes
+  :class:`~rotorbayes.util.exitcodes.Busy`. :func:`output_folder` takes it, and under it removes
   the ``.NAME.partial-*`` folders an earlier killed run left behind (and says so).
 * :class:`InterruptGuard` turns Ctrl-C into a flag while results are being written, so an
   interrupt after the work is done keeps the work.
 * :func:`check_free_space` refuses, before any work, a folder whose disk cannot hold the
-  results (:class:`~rotorbayes.exitcodes.EnvironmentFailure`, exit code 3).
+  results (:class:`~rotorbayes.util.exitcodes.EnvironmentFailure`, exit code 3).
 
 Errors a user can fix (the path is a file, a folder holds earlier results, a parent folder is
 missing) raise :class:`OutputError` with the path and the fix in the message.
@@ -43,7 +43,7 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-from .exitcodes import Busy, EnvironmentFailure, describe_environment
+from ..util.exitcodes import Busy, EnvironmentFailure, describe_environment
 
 __all__ = [
     "OutputError",

@@ -44,7 +44,7 @@ def unit_of(name: str, units: Mapping[str, str] | None = None) -> str:
     """Unit of a parameter for axis labels: from ``units`` if given there, else from
     :data:`rotorbayes.model.parameters.INFO` (per-experiment names such as ``alpha0[1]``
     take their base name's unit); ``''`` if unknown."""
-    from .model.parameters import INFO
+    from ..model.parameters import INFO
 
     if units and name in units:
         return units[name]
@@ -222,7 +222,7 @@ def plot_fit(
 def _friction_params(params: Mapping[str, float]) -> dict[str, float]:
     """Complete a parameter mapping for :func:`friction_curve` (effects that are off
     at their null value)."""
-    from .model.parameters import INFO
+    from ..model.parameters import INFO
 
     out = {n: INFO[n].null for n in ("dTc_u", "db_u", "dTc_l", "db_l", "Ts_l", "ws_l",
                                      "delta_l", "dTs_u", "ws_u", "delta_u")}
@@ -266,7 +266,7 @@ def plot_friction(
     """
     from matplotlib.ticker import MaxNLocator
 
-    from .model.friction import friction_curve
+    from ..model.friction import friction_curve
 
     plt = pyplot()
     sets = [(label, _friction_params(params), "-", "tab:blue")]
@@ -348,7 +348,7 @@ def plot_waterfall(
         ``len(MultistartResult.failed)``).
     noise_floor_ssr : float, optional
         The SSR that encoder quantisation alone leaves (sum over residuals of the squared
-        weighted floor, see :func:`rotorbayes.data.quantisation_floor`), drawn as a
+        weighted floor, see :func:`rotorbayes.io.measurements.quantisation_floor`), drawn as a
         labelled horizontal line.
     near : float
         Relative margin above the best SSR counted as "as good" in the legend (1 %).
@@ -490,7 +490,7 @@ def quantisation_floor_ssr(problem) -> float:
     for each experiment and fitted channel, ``n × (weight × q/√12)²`` (thesis §2.2;
     ``q`` the encoder step).  For :func:`plot_waterfall` and
     :func:`plot_parameter_spread`."""
-    from .data import quantisation_floor
+    from ..io.measurements import quantisation_floor
 
     return float(sum(
         ex.n * (problem.weights[c] * quantisation_floor(c)) ** 2

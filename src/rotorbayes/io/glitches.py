@@ -36,9 +36,9 @@ more bad samples within 13 are not a spike: nothing is found there, and they are
 measured.
 
 This module does the arithmetic on one channel's array;
-:func:`rotorbayes.data.leave_out_glitches` applies it to an
-:class:`~rotorbayes.data.Experiment`, and :func:`rotorbayes.data.load_experiment` does so by
-default.
+:func:`rotorbayes.io.measurements.leave_out_glitches` applies it to an
+:class:`~rotorbayes.io.measurements.Experiment`, and
+:func:`rotorbayes.io.measurements.load_experiment` does so by default.
 """
 
 from __future__ import annotations

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import DataFileError, load_experiment, measurement_sha256
-from .model.configurations import CONFIGURATIONS, Model
+from ..io.measurements import DataFileError, load_experiment, measurement_sha256
+from ..model.configurations import CONFIGURATIONS, Model
 
 
 class ResultError(ValueError):
@@ -66,7 +66,7 @@ class LoadedFit:
     def validation_quality(self) -> list[dict]:
         """:func:`~rotorbayes.inference.quality` rows of the validation data, each run with
         the alpha0 the fit decided for it: the figures ``fit`` printed."""
-        from .inference import quality
+        from . import quality
 
         if not self.validation:
             return []
@@ -77,7 +77,7 @@ class LoadedFit:
         """The validation data's headline as ``fit`` gives it -- the worst fitted channel's
         RMS over its noise floor, each run with the initial torsion the fit decided for it
         -- with those records and a text to print; None without validation data."""
-        from .inference.assess import channel_rows
+        from .assess import channel_rows
 
         rows = self.validation_quality()
         if not rows:
@@ -268,12 +268,13 @@ def data_path(spec: str, doc: dict, index: int, key: str, fit_json: Path) -> Pat
 
 def data_record(paths: list, fit_folder: Path, read=None) -> list[dict]:
     """What a fit records of its data files: absolute path, path relative to the fit
-    folder, SHA-256, and how it was read (``read``, a :class:`~rotorbayes.rigfiles.ReadSpec`:
+    folder, SHA-256, and how it was read (``read``, a :class:`~rotorbayes.io.rigfiles.ReadSpec`:
     the file's names of the signals and its units; a bundled example is a plain CSV).
     ``paths`` holds paths or the experiments read from them
-    (:class:`~rotorbayes.data.Experiment`): then the SHA-256 is that of the bytes that were
-    read and fitted (a .mat file's bytes, as a CSV's), not of the file as it may be now."""
-    from .examples import EXAMPLES
+    (:class:`~rotorbayes.io.measurements.Experiment`): then the SHA-256 is that of the bytes
+    that were read and fitted (a .mat file's bytes, as a CSV's), not of the file as it may
+    be now."""
+    from ..io.examples import EXAMPLES
 
     out = []
     for p in paths:
@@ -289,8 +290,8 @@ def data_record(paths: list, fit_folder: Path, read=None) -> list[dict]:
 
 def recorded_read(doc: dict, key: str, index: int, where: Path):
     """How data file ``index`` of ``key`` ("data" or "validation") was read by the fit
-    (its :class:`~rotorbayes.rigfiles.ReadSpec`; the plain CSV where none is recorded)."""
-    from .rigfiles import FormatProblem, ReadSpec
+    (its :class:`~rotorbayes.io.rigfiles.ReadSpec`; the plain CSV where none is recorded)."""
+    from ..io.rigfiles import FormatProblem, ReadSpec
 
     recs = doc.get(f"{key}_files")
     rec = recs[index] if isinstance(recs, list) and index < len(recs) else None
@@ -356,9 +357,9 @@ FIX_OR_REFIT = ("the file was edited or damaged: correct the value in it, or fit
 
 def read_fit_json(path: str | Path) -> dict:
     """The JSON object in a fit.json (or a file given as one), its nesting checked before
-    it is parsed (:func:`rotorbayes.tomlfile.check_nesting`); :class:`ResultError` naming
+    it is parsed (:func:`rotorbayes.io.tomlfile.check_nesting`); :class:`ResultError` naming
     the file for anything else."""
-    from .tomlfile import loads_json
+    from ..io.tomlfile import loads_json
 
     path = Path(path)
     try:
@@ -408,7 +409,7 @@ def fit_values(doc: dict, path: str | Path, info=None) -> dict[str, float | None
     built-in parameters' when None, a user effect's parameters then only finite), ``None``
     for ``Ts_l`` without a Stribeck peak.  :class:`ResultError` names the file, the
     parameter and the value, and says what to do."""
-    from .model.parameters import INFO
+    from ..model.parameters import INFO
 
     path = Path(path)
     params = doc.get("params")
@@ -423,7 +424,7 @@ def fit_values(doc: dict, path: str | Path, info=None) -> dict[str, float | None
 def fit_estimates(doc: dict, path: str | Path, names, info=None) -> list[float]:
     """The estimates of the free parameters ``names`` (``alpha0[1]`` included) from
     fit.json's ``estimates``, checked as :func:`fit_values` checks values."""
-    from .model.parameters import INFO
+    from ..model.parameters import INFO
 
     path = Path(path)
     est = doc.get("estimates")
@@ -452,7 +453,7 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False,
     ``accept_changed_data`` (then it is used, said on stderr and listed in
     :attr:`LoadedFit.changed_data`).
     """
-    from .inference import Problem
+    from . import Problem
 
     path = fit_json_path(spec)
     doc = read_fit_json(path)
@@ -519,7 +520,7 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False,
 def _validation_alpha0(doc: dict, path: Path, val: list) -> list:
     """fit.json's ``validation_alpha0``, checked: one record per validation file (or none
     at all, from an older rotorbayes)."""
-    from .inference.problem import ValidationTorsion
+    from .problem import ValidationTorsion
 
     recs = doc.get("validation_alpha0")
     if recs is None or recs == []:
@@ -561,7 +562,7 @@ def diagnosis_starts(spec: str | Path | None, effects) -> dict[str, float]:
     path = folder / "diagnosis.json"
     if not path.exists():
         return {}
-    from .tomlfile import loads_json
+    from ..io.tomlfile import loads_json
 
     try:
         doc = loads_json(path.read_text(), path, ResultError, "diagnosis.json")

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from importlib.resources import files
 from pathlib import Path
 
-from .data import Experiment, load_experiment
+from .measurements import Experiment, load_experiment
 
-#: Folder of the bundled example CSV files.
-EXAMPLES = Path(__file__).parent / "data" / "examples"
+#: Folder of the bundled example CSV files: the package data, found through
+#: importlib.resources (an installed rotorbayes is a folder on disk, as numba's cache needs).
+EXAMPLES = Path(str(files("rotorbayes") / "data" / "examples"))
 
 
 def example_names() -> list[str]:
@@ -25,6 +27,6 @@ def example_path(name: str) -> Path:
 
 
 def load_example(name: str) -> Experiment:
-    """Load a bundled example as an :class:`~rotorbayes.data.Experiment`."""
+    """Load a bundled example as an :class:`~rotorbayes.io.measurements.Experiment`."""
     p = example_path(name)
     return load_experiment(p, expect_lower=not p.stem.startswith("upper"))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .inference import arviz_compat
+from ..inference import arviz_compat
 from .plots import pyplot
 
 
@@ -100,7 +100,7 @@ def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
     import corner
     from matplotlib.ticker import ScalarFormatter
 
-    from .numformat import fmt_value
+    from ..util.numformat import fmt_value
 
     names = list(prob.names)
     post = arviz_compat.group(idata, "posterior")

@@ -38,7 +38,7 @@ A rig's own files
 ``.mat`` files (v5 and v7.3, recognised by their content), CSV files separated by
 semicolons or tabs with decimal commas, other columns and a logger's units row, with the
 file's names of the signals and its units of time (s, ms) and angle (rad, deg, encoder
-counts) declared (:mod:`rotorbayes.rigfiles`).  The declared conversions are applied
+counts) declared (:mod:`rotorbayes.io.rigfiles`).  The declared conversions are applied
 before the checks above, which then hold as for a CSV in SI units; undeclared
 milliseconds, degrees or counts are refused, and the message names the option
 (``--time-unit``, ``--angle-unit``) that declares them.  A ``.mat`` file's problems name
@@ -48,7 +48,7 @@ Glitches
 --------
 Encoder lines pick up spikes: a sample (or a burst of up to three within 13 samples) that
 reads tens to hundreds of counts off while its neighbours read right. :func:`load_experiment`
-finds them (:mod:`rotorbayes.glitches`), names each in :attr:`Experiment.glitches` (channel,
+finds them (:mod:`rotorbayes.io.glitches`), names each in :attr:`Experiment.glitches` (channel,
 time, sample, size in counts, the measured value) and leaves it out: the sample then holds
 the cubic through its neighbours, so it carries no weight of its own and every figure
 computed from the data stays consistent. ``keep_glitches=True`` (``--keep-glitches`` of
@@ -375,7 +375,7 @@ class Experiment:
     meta : dict of str to str
         Free-form metadata, written as ``# key: value`` comment lines.
     glitches : tuple of Glitch or None
-        The glitches found in the angles (:mod:`rotorbayes.glitches`): samples that jump
+        The glitches found in the angles (:mod:`rotorbayes.io.glitches`): samples that jump
         against their neighbours by far more than the discs can move.  Each says whether
         it was left out (the arrays hold the cubic through its neighbours there) or kept
         (the arrays hold the measured value).  ``None``: not looked for (an experiment
@@ -933,7 +933,7 @@ def load_experiment(
         ``ROTORBAYES_MAX_DATA_MB`` (MB) and ``ROTORBAYES_MAX_DATA_ROWS``, else
         :data:`MAX_DATA_BYTES` (1 GB) and :data:`MAX_DATA_ROWS` (10 million).
     read : ReadSpec or mapping, optional
-        How to read a rig's own file (:mod:`rotorbayes.rigfiles`): the file's names of the
+        How to read a rig's own file (:mod:`rotorbayes.io.rigfiles`): the file's names of the
         signals and its units of time (s, ms) and angle (rad, deg, encoder counts).  A
         MATLAB ``.mat`` file (v5 or v7.3) is recognised by its content; a CSV may be
         separated by commas, semicolons or tabs (then a decimal comma is read too).
@@ -943,7 +943,7 @@ def load_experiment(
     -------
     Experiment
         With ``name`` the file stem, ``path`` the file, ``meta`` from the comment lines,
-        ``glitches`` the glitches found (see :mod:`rotorbayes.glitches`) and ``sha256`` the
+        ``glitches`` the glitches found (see :mod:`rotorbayes.io.glitches`) and ``sha256`` the
         SHA-256 of the bytes read (the file is read once).
 
     Raises
@@ -1367,7 +1367,7 @@ def leave_out_glitches(exp: Experiment, *, keep: bool = False) -> Experiment:
 
     A glitch is a sample, or a burst of up to three within 13 samples, that jumps against
     its neighbours by far more than the discs can move (encoder lines pick up such spikes;
-    :mod:`rotorbayes.glitches` says how they are found). Left out, a glitch's sample holds
+    :mod:`rotorbayes.io.glitches` says how they are found). Left out, a glitch's sample holds
     the cubic through its neighbours (rounded to whole encoder counts for count data), so
     it carries no information of its own and every figure computed from the data stays
     consistent; the measured value stays in the :class:`Glitch` record.
