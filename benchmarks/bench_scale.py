@@ -17,13 +17,27 @@ The problem is issue 34's: the 30 s brake experiment at 1 kHz (thesis table 4.3 
    Wall time includes starting the pool; starts per second, speed-up over the reference,
    core efficiency (speed-up / N), whether the end points equal the reference's bit for bit,
    and the bound the slowest start puts on any back-end (max(sum / N, slowest start)).
+4. **sample's ensembles** (``--ensembles``, ``--walkers``, ``--steps``, from the best start's
+   end point) per back-end: the serial loop on 1 numba thread (the reference) and on N (the
+   command's default: the walkers are one kernel batch), and the ensembles as concurrent
+   tasks in threads, processes and on Dask; ensembles per second, walker evaluations per
+   second, speed-up, core efficiency and whether the chains equal the reference's bit for
+   bit.
 
-    python benchmarks/bench_scale.py [--starts 48] [--workers N] [--dask] [--json out.json]
+Both tables are printed side by side at the end, with the back-end a command's default
+would pick for the multistart here and why.  ``--quick`` (about a minute on 2 cores):
+the brake experiment cut to 10 s, 16 starts, 2 ensembles of 2 x (coordinates) walkers x 20
+steps, one
+repeat, no pool start-up and no "before" rows.
+
+    python benchmarks/bench_scale.py [--quick] [--starts 48] [--workers N] [--dask]
+                                     [--json out.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -125,6 +139,24 @@ def same(a, b) -> bool:
             and sorted(a.failed) == sorted(b.failed))
 
 
+def chains(path) -> bytes:
+    """Every ensemble's chain and log-probabilities in ``chain.h5``, as bytes."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return b"".join(np.asarray(f[k][d][: int(f[k].attrs["iteration"])]).tobytes()
+                        for k in sorted(f) for d in ("chain", "log_prob"))
+
+
+def run_sample(lp, x, folder, a, executor) -> tuple[float, bytes]:
+    from rotorbayes.inference import sampling
+
+    s = time.perf_counter()
+    sampling.sample(lp, x, folder, n_walkers=a.walkers, n_steps=a.steps,
+                    n_ensembles=a.ensembles, seed=0, progress=False, executor=executor)
+    return time.perf_counter() - s, chains(folder / "chain.h5")
+
+
 def main() -> None:
     from threadpoolctl import threadpool_limits
 
@@ -137,17 +169,31 @@ def main() -> None:
 
 def _main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--starts", type=int, default=48)
-    ap.add_argument("--seconds", type=float, default=30.0)
+    ap.add_argument("--starts", type=int)
+    ap.add_argument("--seconds", type=float)
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dask", action="store_true", help="also a local Dask cluster")
     ap.add_argument("--skip", default="",
                     help="back-ends to leave out (parts of their labels), separated by ;")
+    ap.add_argument("--ensembles", type=int)
+    ap.add_argument("--walkers", type=int)
+    ap.add_argument("--steps", type=int)
+    ap.add_argument("--quick", action="store_true",
+                    help="10 s of data, 16 starts, 2 ensembles of 20 steps")
     ap.add_argument("--json")
     a = ap.parse_args()
     n = a.workers
     skip = set(filter(None, a.skip.split(";")))
+    # The sizes not given: issue 34's, or --quick's (any of them can still be given).
+    size = (dict(seconds=10.0, starts=16, ensembles=2, walkers=16, steps=20) if a.quick else
+            dict(seconds=30.0, starts=48, ensembles=4, walkers=32, steps=40))
+    for k, v in size.items():
+        if getattr(a, k) is None:
+            setattr(a, k, v)
+    if a.quick:
+        a.repeat = 1
+        skip |= {"startup", "before", "serial, "}
     maxth = int(numba.config.NUMBA_NUM_THREADS)
     out: dict = {"cores": os.cpu_count(), "workers": n, "numba_threads": maxth,
                  "cpu": platform.processor() or platform.machine(),
@@ -163,8 +209,9 @@ def _main() -> None:
 
     # 1. one fit
     fits = {}
-    for label, th, blas in (("1 thread", 1, 1), (f"{min(n, maxth)} threads", min(n, maxth), 1),
-                            (f"{min(n, maxth)} threads + {n} BLAS", min(n, maxth), n)):
+    kinds = [("1 thread", 1, 1), (f"{min(n, maxth)} threads", min(n, maxth), 1),
+             (f"{min(n, maxth)} threads + {n} BLAS", min(n, maxth), n)]
+    for label, th, blas in kinds[:2] if a.quick else kinds:
         fits[label] = f = one_fit(prob, x0, th, a.repeat, blas)
         print(f"one fit, {label:>22}: {f['wall']:.3f} s (kernel {f['kernel']:.3f} s, "
               f"optimiser and the rest {f['rest']:.3f} s; nfev {f['nfev']}, njev "
@@ -224,6 +271,48 @@ def _main() -> None:
         backend(f"dask LocalCluster, {n} workers", n, lambda: parallel.open_executor(
             parallel.ExecutorSpec("dask", n)))
 
+    # 4. sample's ensembles per back-end
+    import tempfile
+    from pathlib import Path
+
+    from rotorbayes.inference.likelihood import LogPosterior
+
+    lp = LogPosterior(prob, ref.best.x)
+    a.walkers = max(a.walkers, 2 * lp.ndim)  # emcee's moves need twice the coordinates
+    srows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        numba.set_num_threads(1)
+        sw, sref = run_sample(lp, ref.best.x, Path(tmp) / "ref", a, None)
+        numba.set_num_threads(maxth)
+        srows.append(("serial loop, 1 numba thread", 1, sw, True))
+        print(f"sample, serial loop on 1 numba thread: {sw:.2f} s", flush=True)
+
+        def sample_backend(label, cores, make):
+            if any(k in label for k in skip):
+                return
+            folder = Path(tmp) / f"s{len(srows)}"
+            try:
+                with make() as ex:
+                    w, c = run_sample(lp, ref.best.x, folder, a, ex)
+            except Exception as exc:  # noqa: BLE001 - a back-end that fails is reported
+                print(f"sample, {label}: failed: {type(exc).__name__}: {exc}", flush=True)
+                return
+            srows.append((label, cores, w, c == sref))
+            print(f"sample, {label}: {w:.2f} s", flush=True)
+
+        sample_backend(f"serial loop, {maxth} numba threads (the default)", maxth,
+                       contextlib.nullcontext)
+        sample_backend(f"threads, {n} (shared cores)", n, lambda: parallel.open_executor(
+            parallel.ExecutorSpec("threads", n)))
+        sample_backend(f"processes, {n}, fork server + shared cores", n,
+                       lambda: parallel.open_executor(parallel.ExecutorSpec("processes", n)))
+        if a.dask:
+            sample_backend(f"dask LocalCluster, {n} workers", n, lambda: parallel.open_executor(
+                parallel.ExecutorSpec("dask", n)))
+
+    per = prob.n_residuals
+    print(f"\nthe default here for this multistart: {parallel.default_backend(None, a.starts, per)}"
+          f" ({parallel.default_reason(None, a.starts, per)})")
     print(f"\n{a.starts}-start multistart, brake {a.seconds:g} s at 1 kHz, "
           f"{os.cpu_count()} cores:\n")
     print("| back-end | wall s | starts/s | vs 1 core | core efficiency | bit-identical |")
@@ -237,6 +326,22 @@ def _main() -> None:
         out["multistart"].append({"backend": label, "cores": cores, "wall": w,
                                   "starts_per_s": a.starts / w, "speedup": sp,
                                   "identical": ok})
+    evals = a.ensembles * a.walkers * a.steps
+    print(f"\nsample, {a.ensembles} ensembles of {a.walkers} walkers x {a.steps} steps "
+          f"(brake {a.seconds:g} s), {os.cpu_count()} cores:\n")
+    print("| back-end | wall s | ensembles/s | walker evaluations/s | vs 1 core | "
+          "core efficiency | bit-identical |")
+    print("|---|---|---|---|---|---|---|")
+    sbase = srows[0][2]
+    out["sample"] = []
+    for label, cores, w, ok in srows:
+        sp = sbase / w
+        print(f"| {label} | {w:.2f} | {a.ensembles / w:.3f} | {evals / w:.0f} | {sp:.2f}x | "
+              f"{100 * sp / cores:.0f} % | {'yes' if ok else 'NO'} |")
+        out["sample"].append({"backend": label, "cores": cores, "wall": w,
+                              "ensembles_per_s": a.ensembles / w, "evals_per_s": evals / w,
+                              "speedup": sp, "identical": ok})
+    print(f"\nload average after: {os.getloadavg()[0]:.1f}")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=1)

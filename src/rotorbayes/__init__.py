@@ -20,12 +20,24 @@ See ``docs/model.md`` for the equations and ``docs/effects.md`` for the effects.
 """
 
 import os as _os
+import sys as _sys
 
 # The integrator's batches run on numba's threads; a BLAS pool on the same two cores would
-# fight them (the linear algebra here is small).  Set before NumPy loads, unless the user
-# chose otherwise.
-for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+# fight them (the linear algebra here is small), and an SVD on several BLAS threads rounds
+# otherwise than on one (a fit's end point would differ from its workers').  Set before
+# NumPy loads, unless the user chose otherwise; where NumPy is loaded already (a script that
+# imported it first), its BLAS is limited in place.
+_BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_blas_chosen = any(_v in _os.environ for _v in _BLAS_VARS)
+for _v in _BLAS_VARS:
     _os.environ.setdefault(_v, "1")
+if "numpy" in _sys.modules and not _blas_chosen:
+    try:
+        from threadpoolctl import threadpool_limits as _threadpool_limits
+
+        _threadpool_limits(limits=1, user_api="blas")
+    except ImportError:  # pragma: no cover - installed with scikit-learn, a dependency
+        pass
 # numba's OpenMP threads (the batch kernels) would otherwise spin after every parallel call
 # and take a core from the user's own code for a while (measured: 5.7 ms of CPU in the
 # 0.2 s after a call, none with passive waiting; benchmarks/bench_threads.py).

@@ -264,9 +264,10 @@ def executor(backend: str | None = None, workers: int | None = None,
         spec = parallel.choose(*opts, file=file)
     except ValueError as exc:
         raise Refused(str(exc)) from None
-    with parallel.use_executor(spec) as ex:
-        # Said once the executor is there (a scheduler answered and has workers).
-        # The default is said too where it is not the threads of the 2-core machines.
-        if spec.backend != "threads" or spec.source != "default":
+    with parallel.use_executor(spec, say=lambda line: print(line, flush=True)) as ex:
+        # Said once the executor is there (a scheduler answered and has workers); the
+        # default says itself which back-end it takes and why (on a small machine at the
+        # first batch of tasks, whose size decides it).
+        if not spec.auto:
             print(f"parallel tasks run {spec.describe()}", flush=True)
         yield ex

@@ -164,11 +164,21 @@ def read_spec(columns=None, time_unit=None, angle_unit=None, counts_per_rev=None
 def add_parallel_options(p, what: str, backend_help: str | None = None) -> None:
     """Where the independent tasks run (rotorbayes.inference.parallel); ``backend_help``
     replaces the ``--backend`` help for a command whose default differs."""
-    from ..inference.parallel import BACKENDS, DEFAULT_BACKEND, SCHEDULER_ENV
+    from ..inference.parallel import (
+        BACKENDS,
+        DEFAULT_BACKEND,
+        PROCESSES_FROM_RESIDUALS,
+        SCHEDULER_ENV,
+        default_backend,
+    )
 
+    # A small machine's default takes processes for long work (parallel.DefaultPool).
+    long = (", processes for long work" if DEFAULT_BACKEND == "threads" and default_backend(
+        None, 1, PROCESSES_FROM_RESIDUALS) == "processes" else "")
     p.add_argument("--backend", choices=BACKENDS, default=None,
                    help=backend_help or f"where the {what} run: serial, local threads "
-                   f"(default {DEFAULT_BACKEND!r}), local processes, or dask (a local Dask "
+                   f"(default {DEFAULT_BACKEND!r}{long}; the command says which), local "
+                   "processes, or dask (a local Dask "
                    "cluster of --workers processes, or the scheduler given by --scheduler or "
                    f"{SCHEDULER_ENV})")
     p.add_argument("--workers", type=ranged(int, ge=1, le=256, why=" (parallel workers)"),

@@ -1,6 +1,7 @@
 """Inference: problems, least squares, multistart and the parallel map layer.
 
 * :mod:`.problem` — :class:`Problem`: residuals, status and Jacobians for any parameters;
+* :mod:`.parameter_map` — :class:`ParameterMap`: free names, bounds, the vector ``x``;
 * :mod:`.least_squares` — :func:`fit` (the thesis's lsqnonlin method), :func:`quality`;
 * :mod:`.starts` — starts from the data (the equations of motion as a regression);
 * :mod:`.first_fit` — :func:`fit_from_data`: data start, fit, restarts if not at the floor;
@@ -21,6 +22,7 @@ from .least_squares import (
     quality,
 )
 from .multistart import MultistartResult, cluster_ends, describe_spread, latin_hypercube, multistart
+from .parameter_map import ParameterMap
 from .problem import CHANNELS, Evaluation, Problem, local_name
 from .starts import DataStart, data_start
 from .uncertainty import Uncertainty, fit_uncertainty
@@ -28,7 +30,7 @@ from .uncertainty import Uncertainty, fit_uncertainty
 __all__ = [
     "Assessment", "DataStart", "FirstFit", "StartError", "assess", "data_start",
     "fit_from_data", "CHANNELS", "Evaluation", "FAIL_RESIDUAL", "FitResult",
-    "MultistartResult",
+    "MultistartResult", "ParameterMap",
     "Problem", "cluster_ends", "describe_spread", "fit", "latin_hypercube",
     "local_name", "multistart", "quality", "Uncertainty", "attach_uncertainty",
     "fit_uncertainty",

@@ -32,7 +32,7 @@ from .multistart import (
     kept_fits,
     latin_hypercube,
 )
-from .parallel import SerialExecutor, current_executor, progress, run_tasks
+from .parallel import DefaultPool, SerialExecutor, current_executor, progress, run_tasks
 from .problem import Problem
 from .starts import DataStart, data_start
 
@@ -158,7 +158,7 @@ def fit_from_data(
     best = res
     if 8 * problem.n_residuals * len(problem.names) > LOCAL_PARALLEL_BYTES and isinstance(
             executor if executor is not None else current_executor(),
-            ThreadPoolExecutor | type(None)):
+            ThreadPoolExecutor | DefaultPool | type(None)):
         # Long data on this machine: one restart at a time (each holds its own Jacobian).
         executor, workers = SerialExecutor(), 1
         res.jac = None  # not held while the restarts run theirs; computed again if kept

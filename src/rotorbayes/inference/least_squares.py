@@ -233,8 +233,7 @@ def check_fittable(problem: Problem) -> None:
 
 def _scale(problem: Problem, x0: np.ndarray) -> np.ndarray:
     """Typical magnitudes of the free parameters (for the optimiser's variables)."""
-    width = problem.upper - problem.lower
-    return np.maximum(np.abs(x0), 1e-3 * width)
+    return problem.parameters.scale(x0)
 
 
 def fit(

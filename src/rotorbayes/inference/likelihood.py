@@ -27,6 +27,13 @@ log-posterior, all rows in one parallel kernel batch (emcee's ``vectorize=True``
     optionally AR(1) errors ``e_t = φ e_{t-1} + ε_t`` with ``φ`` sampled on (−1, 1).
 * a parameter set the integrator cannot simulate gives ``-inf`` and is counted
   (``n_failed``), never a plausible number.
+
+Each of these is a piece of its own, and :class:`LogPosterior` composes them (as PINTS
+composes ``LogPosterior(log_likelihood, log_prior)``): the log-likelihood, one class per
+noise model (:mod:`.noise_models`), the prior (:class:`LogPrior`), the coordinates
+(:class:`~.coordinates.LogCoordinates`) and the curvature adjustment
+(:class:`~.coordinates.CurvatureAdjustment`).  ``LogPosterior(problem, x_fit, noise=...)``
+chooses the pieces for a fit as above.
 """
 
 from __future__ import annotations
@@ -35,13 +42,19 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..model.parameters import ParameterError
+from .coordinates import CurvatureAdjustment, LogCoordinates
+from .noise_models import (
+    AR1LogLikelihood,
+    GaussianLogLikelihood,
+    SampledSigmaLogLikelihood,
+)
 from .problem import Problem, local_name
 
-LOG_2PI = math.log(2 * math.pi)
 #: The likelihoods :class:`LogPosterior` offers (module docstring).
 NOISE_MODELS = ("robust", "floor", "sampled")
 #: Residual memory of one kernel batch of walkers [bytes]: long data are simulated a few
@@ -156,8 +169,66 @@ def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
     return out
 
 
+class LogPrior:
+    """The prior of a problem's free parameters: independent priors (:class:`Prior`,
+    uniform within the physical bounds unless given) and the validity constraints between
+    parameters (a point that breaks one is impossible).
+
+    Parameters
+    ----------
+    problem : Problem
+    priors : mapping, optional
+        ``{name: Prior}`` by parameter (``alpha0`` for every ``alpha0[i]``) or free name.
+    """
+
+    def __init__(self, problem: Problem, priors: Mapping[str, Prior] | None = None):
+        self.problem = problem
+        self.priors: dict[str, Prior] = {}
+        for j, n in enumerate(problem.names):
+            b, _ = local_name(n)
+            pr = (priors or {}).get(b) or (priors or {}).get(n)
+            self.priors[n] = pr or Prior("uniform", problem.lower[j], problem.upper[j])
+
+    def density(self, X: np.ndarray) -> np.ndarray:
+        """The sum of the parameters' log priors per row of free vectors ``X``."""
+        lp = np.zeros(X.shape[0])
+        for j, n in enumerate(self.problem.names):
+            lp += self.priors[n].logpdf(X[:, j])
+        return lp
+
+    def constrained(self, X: np.ndarray, lp: np.ndarray) -> np.ndarray:
+        """``lp`` with ``-inf`` for every finite row whose parameters break a validity
+        constraint (checked before any simulation)."""
+        ok = np.isfinite(lp)
+        for i in np.flatnonzero(ok):
+            if self.problem.model.problems(self.problem.params_for(X[i], 0)):
+                lp[i] = -np.inf
+        return lp
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return self.constrained(X, self.density(X))
+
+
+#: The noise model of each ``noise`` name (AR(1) errors: :class:`AR1LogLikelihood`).
+NOISE_CLASSES = {"robust": GaussianLogLikelihood, "floor": GaussianLogLikelihood,
+                 "sampled": SampledSigmaLogLikelihood}
+
+
 class LogPosterior:
-    """Vectorised log-posterior over sampling coordinates (see the module docstring).
+    """Vectorised log-posterior over sampling coordinates (see the module docstring),
+    composed of a log-likelihood (one class per noise model, :mod:`.noise_models`), a
+    log prior (:class:`LogPrior`), the coordinates (:class:`.coordinates.LogCoordinates`)
+    and, optionally, the curvature adjustment
+    (:class:`.coordinates.CurvatureAdjustment`).
+
+    Two ways to build one:
+
+    * ``LogPosterior(problem, x_fit, *, priors=None, noise="robust", ar1=False,
+      uncertainty=None)`` — the posterior of a fit, every piece chosen as the module
+      docstring says (:meth:`for_fit`);
+    * ``LogPosterior(log_likelihood, log_prior=None, *, transform=None, adjustment=None)``
+      — composed from pieces (defaults: uniform priors within the bounds, no log
+      coordinates, no adjustment).
 
     Parameters
     ----------
@@ -175,26 +246,71 @@ class LogPosterior:
         AR(1) errors per channel (then σ is the innovation scale and is sampled).
     """
 
-    def __init__(self, problem: Problem, x_fit, *, priors=None, noise: str = "robust",
-                 ar1: bool = False, uncertainty=None):
+    def __init__(self, log_likelihood, log_prior=None, *, transform=None, adjustment=None,
+                 priors=None, noise: str | None = None, ar1: bool = False, uncertainty=None):
+        if isinstance(log_likelihood, Problem):
+            if transform is not None or adjustment is not None:
+                raise TypeError("the posterior of a fit, LogPosterior(problem, x_fit, ...), "
+                                "chooses its coordinates and adjustment itself; to give "
+                                "them, compose it: LogPosterior(log_likelihood, log_prior, "
+                                "transform=..., adjustment=...)")
+            self._init_for_fit(log_likelihood, log_prior, priors=priors,
+                               noise="robust" if noise is None else noise, ar1=ar1,
+                               uncertainty=uncertainty)
+            return
+        if priors is not None or noise is not None or ar1 or uncertainty is not None:
+            raise TypeError("priors, noise, ar1 and uncertainty choose the pieces of a fit's "
+                            "posterior, LogPosterior(problem, x_fit, ...); a posterior "
+                            "composed of pieces takes the pieces themselves")
+        self._compose(log_likelihood, log_prior, transform, adjustment)
+        self.noise = ("sampled" if isinstance(log_likelihood, SampledSigmaLogLikelihood)
+                      else "robust" if adjustment is not None else "floor")
+        self.z_fit = None if adjustment is None else adjustment.z_fit
+
+    def _compose(self, log_likelihood, log_prior, transform, adjustment) -> None:
+        problem = log_likelihood.problem
+        self.likelihood: GaussianLogLikelihood = log_likelihood
+        self.prior: LogPrior = LogPrior(problem) if log_prior is None else log_prior
+        k = len(problem.names)
+        self.transform: LogCoordinates = (LogCoordinates(np.zeros(k, bool)) if transform is None
+                                          else transform)
+        self.adjustment: CurvatureAdjustment | None = adjustment
+        if self.prior.problem is not problem:
+            raise ValueError("the log prior and the log-likelihood belong to different "
+                             "problems; build both from the same Problem")
+        if len(self.transform) != k:
+            raise ValueError(f"the coordinates have {len(self.transform)} entries, the "
+                             f"problem {k} free parameters")
+        if adjustment is not None and adjustment.z_fit.size != k:
+            raise ValueError(f"the adjustment has {adjustment.z_fit.size} coordinates, the "
+                             f"problem {k} free parameters")
+        self.problem = problem
+        self.k: int = k
+        floor, notes = problem.noise_floors()
+        self.floor: dict[str, float] = floor
+        self.floor_notes: list[str] = notes
+        self.coord_names = (self.transform.names(problem.names)
+                            + log_likelihood.noise_names())
+        self.ndim = len(self.coord_names)
+        self.n_failed = 0
+        self.n_calls = 0
+        self.uncertainty: Any = None  # the fit's honest covariance, robust noise only
+
+    @classmethod
+    def for_fit(cls, problem: Problem, x_fit, *, priors=None, noise: str = "robust",
+                ar1: bool = False, uncertainty=None) -> LogPosterior:
+        """The posterior of the fit ``x_fit`` of ``problem`` (the class docstring's
+        first form)."""
+        return cls(problem, x_fit, priors=priors, noise=noise, ar1=ar1,
+                   uncertainty=uncertainty)
+
+    def _init_for_fit(self, problem: Problem, x_fit, *, priors, noise: str, ar1: bool,
+                      uncertainty) -> None:
         if noise not in NOISE_MODELS:
             raise ValueError(f"noise must be one of {', '.join(NOISE_MODELS)}, not {noise!r}")
-        self.problem = problem
-        self.noise = "sampled" if ar1 else noise
-        self.ar1 = ar1
         x_fit = np.asarray(x_fit, float)
-        self.k = len(problem.names)
-        self.log = np.array([
-            problem.lower[j] >= 0 and x_fit[j] > 0 for j in range(self.k)
-        ])
-        self.priors = {}
-        for j, n in enumerate(problem.names):
-            b, _ = local_name(n)
-            pr = (priors or {}).get(b) or (priors or {}).get(n)
-            self.priors[n] = pr or Prior("uniform", problem.lower[j], problem.upper[j])
-        self.channels = list(problem.channels)
         # The noise floor of each channel (quantisation, or the data's jitter if larger).
-        self.floor, self.floor_notes = problem.noise_floors()
+        floor, _ = problem.noise_floors()
         # The σ of each channel in the Gaussian that is evaluated (fixed σ, no AR(1)): the
         # floor; for ``robust`` noise one scale for every *weighted* residual, so that the
         # Gaussian peaks where the fit does.  The honest covariance is that of the fit's
@@ -202,34 +318,56 @@ class LogPosterior:
         # centred on the fit if the adjusted likelihood's maximum is the fit's minimum.
         # With the floors instead (unequal floors, unit weights) its maximum sat elsewhere
         # and C⁻¹ moved it further: 2-9 honest sd from the fit on reference data.
-        self.sigma = dict(self.floor)
-        if self.noise == "robust":
+        sigma = dict(floor)
+        if noise == "robust" and not ar1:
             w = problem.weights
-            common = math.exp(float(np.mean([math.log(self.floor[c] * w[c])
-                                             for c in self.channels])))
-            self.sigma = {c: common / w[c] for c in self.channels}
-        names = [f"log_{n}" if lg else n for n, lg in zip(problem.names, self.log, strict=True)]
-        if self.noise == "sampled":
-            names += [f"log_sigma_{c}" for c in self.channels]
-        if ar1:
-            names += [f"phi_{c}" for c in self.channels]
-        self.coord_names = names
-        self.ndim = len(names)
-        # Residual index ranges per experiment and channel.
-        self.segments = []
-        off = 0
-        for ex in problem.experiments:
-            for c in problem.channels:
-                self.segments.append((c, off, off + ex.n))
-                off += ex.n
-        self.n_failed = 0
-        self.n_calls = 0
-        self.uncertainty = None
+            common = math.exp(float(np.mean([math.log(floor[c] * w[c])
+                                             for c in problem.channels])))
+            sigma = {c: common / w[c] for c in problem.channels}
+        kind = AR1LogLikelihood if ar1 else NOISE_CLASSES[noise]
+        self._compose(kind(problem, sigma), LogPrior(problem, priors),
+                      LogCoordinates.for_fit(problem.lower, x_fit), None)
+        self.noise = "sampled" if ar1 else noise
         self.z_fit = self.to_z(x_fit)[: self.k]
-        self.adjust = None  # C of the curvature adjustment (k x k), robust noise only
         if self.noise == "robust":
             self.uncertainty = uncertainty or self._fit_uncertainty(x_fit)
-            self.adjust = self._adjustment(x_fit)
+            self.adjustment = CurvatureAdjustment.matching(
+                self.z_fit, self._precision_iid(x_fit), self.target_cov_z(x_fit))
+
+    # ------------------------------------------------------------ the pieces' words
+    @property
+    def ar1(self) -> bool:
+        """Whether the errors are AR(1)."""
+        return isinstance(self.likelihood, AR1LogLikelihood)
+
+    @property
+    def log(self) -> np.ndarray:
+        """Which free parameters are sampled as their logarithm."""
+        return self.transform.log
+
+    @property
+    def priors(self) -> dict[str, Prior]:
+        """The prior of every free parameter."""
+        return self.prior.priors
+
+    @property
+    def channels(self) -> list[str]:
+        return self.likelihood.channels
+
+    @property
+    def segments(self) -> list[tuple[str, int, int]]:
+        """``(channel, first, end)`` of every experiment's and channel's residuals."""
+        return self.likelihood.segments
+
+    @property
+    def sigma(self) -> dict[str, float]:
+        """The σ per channel of the Gaussian evaluated (the start where σ is sampled)."""
+        return self.likelihood.sigma
+
+    @property
+    def adjust(self) -> np.ndarray | None:
+        """``C`` of the curvature adjustment (k x k), None without one."""
+        return None if self.adjustment is None else self.adjustment.C
 
     # ------------------------------------------------------------ robust adjustment
     def _fit_uncertainty(self, x_fit):
@@ -239,7 +377,7 @@ class LogPosterior:
         return fit_uncertainty(self.problem, x_fit, J)
 
     def _precision_iid(self, x_fit):
-        """Fisher information of the i.i.d. floor likelihood in sampling coordinates (one
+        """Fisher information of the i.i.d. likelihood in sampling coordinates (one
         Jacobian per point, kept; segment by segment, no weighted copy of it: long data)."""
         x_fit = np.asarray(x_fit, float)
         key = x_fit.tobytes()
@@ -252,97 +390,43 @@ class LogPosterior:
             Js = J[a:b]
             H += (Js.T @ Js) / (self.sigma[c] * self.problem.weights[c]) ** 2
         del J
-        d = np.where(self.log, x_fit, 1.0)  # dθ/dz
+        d = self.transform.derivative(x_fit)  # dθ/dz
         H *= np.outer(d, d)
         self._precision_cache = (key, H)
         return H.copy()
 
     def target_cov_z(self, x_fit) -> np.ndarray:
         """The honest covariance in sampling coordinates (``inf`` where undetermined)."""
-        x = np.asarray(x_fit, float)
-        d = np.where(self.log, x, 1.0)
+        d = self.transform.derivative(x_fit)
         return self.uncertainty.cov / np.outer(d, d)
-
-    def _adjustment(self, x_fit):
-        """``C`` with ``Cᵀ H C = V⁻¹``: H the i.i.d. precision, V the honest covariance,
-        both in sampling coordinates.  Directions the data do not determine (or whose honest
-        variance is not finite) keep ``C = I``."""
-        x_fit = np.asarray(x_fit, float)
-        H = self._precision_iid(x_fit)
-        V = self.target_cov_z(x_fit)
-        k = self.k
-        bad = ~np.all(np.isfinite(V), axis=0) | ~np.isfinite(np.diag(V))
-        C = np.eye(k)
-        ok = ~bad
-        if ok.sum() == 0:
-            return C
-        Hs = H[np.ix_(ok, ok)]
-        Vs = V[np.ix_(ok, ok)]
-        lam, U = np.linalg.eigh(0.5 * (Hs + Hs.T))
-        good = lam > 1e-12 * max(lam.max(), 1e-300)
-        if not good.all():
-            return C  # an exact symmetry among the determined ones: leave the model's shape
-        W = (U * np.sqrt(lam)).T  # H = WᵀW
-        Wi = U / np.sqrt(lam)  # W⁻¹
-        S = W @ Vs @ W.T  # target in the frame where the i.i.d. posterior is N(0, I)
-        mu, Q = np.linalg.eigh(0.5 * (S + S.T))
-        mu = np.maximum(mu, 1e-300)
-        Cw = (Q / np.sqrt(mu)) @ Q.T  # S^(-1/2)
-        C[np.ix_(ok, ok)] = Wi @ Cw @ W
-        return C
 
     def evaluation_points(self, Z: np.ndarray) -> np.ndarray:
         """Where the likelihood is evaluated for coordinates ``Z`` (the adjustment)."""
-        if self.adjust is None:
+        if self.adjustment is None:
             return Z
-        Z = np.array(Z, float, copy=True)
-        Z[:, : self.k] = self.z_fit + (Z[:, : self.k] - self.z_fit) @ self.adjust.T
-        return Z
+        return self.adjustment.points(Z)
 
     # ------------------------------------------------------------------ coordinates
     def to_z(self, x: np.ndarray, sigma: Mapping | None = None, phi: Mapping | None = None):
-        x = np.asarray(x, float)
-        z = [math.log(v) if lg else float(v) for v, lg in zip(x, self.log, strict=True)]
-        if self.noise == "sampled":
-            z += [math.log((sigma or self.floor)[c]) for c in self.channels]
-        if self.ar1:
-            z += [float((phi or {}).get(c, 0.0)) for c in self.channels]
-        return np.array(z)
+        """The coordinates of the free vector ``x`` (and of the noise parameters ``sigma``,
+        ``phi`` per channel where they are sampled; default the floor and 0)."""
+        return np.array(self.transform.to_z(x) + self.likelihood.noise_z(sigma, phi))
 
     def split(self, Z: np.ndarray):
         """Parameters, σ per channel and φ per channel of coordinate rows ``Z``."""
         Z = np.atleast_2d(Z)
-        X = Z[:, : self.k].copy()
-        X[:, self.log] = np.exp(X[:, self.log])
-        k = self.k
-        if self.noise == "sampled":
-            S = np.exp(Z[:, k : k + len(self.channels)])
-            k += len(self.channels)
-        else:
-            S = np.tile([self.sigma[c] for c in self.channels], (Z.shape[0], 1))
-        P = Z[:, k : k + len(self.channels)] if self.ar1 else np.zeros_like(S)
+        X = self.transform.to_x(Z[:, : self.k])
+        S, P = self.likelihood.noise_of(Z[:, self.k :])
         return X, S, P
 
     def log_prior(self, Z: np.ndarray) -> np.ndarray:
+        """The log prior of coordinate rows ``Z``: the parameters' prior, the coordinates'
+        log-Jacobian and the noise parameters' prior; ``-inf`` for an impossible point."""
         X, S, P = self.split(Z)
-        lp = np.zeros(X.shape[0])
-        for j, n in enumerate(self.problem.names):
-            lp += self.priors[n].logpdf(X[:, j])
-        # Log coordinates: p(z) = p(θ) |dθ/dz| = p(θ) θ.
-        lp += np.sum(Z[:, : self.k][:, self.log], axis=1)
-        if self.noise == "sampled":
-            # p(σ) ∝ 1/σ is uniform in log σ (within a wide physical range).
-            ls = np.log(S)
-            lp += np.where(np.all((ls > math.log(1e-8)) & (ls < math.log(10.0)), axis=1),
-                           0.0, -np.inf)
-        if self.ar1:
-            lp += np.where(np.all(np.abs(P) < 0.999, axis=1), 0.0, -np.inf)
-        # Validity constraints between parameters, before any simulation.
-        ok = np.isfinite(lp)
-        for i in np.flatnonzero(ok):
-            if self.problem.model.problems(self.problem.params_for(X[i], 0)):
-                lp[i] = -np.inf
-        return lp
+        lp = self.prior.density(X)
+        lp += self.transform.log_jacobian(Z[:, : self.k])
+        lp += self.likelihood.noise_log_prior(S, P)
+        return self.prior.constrained(X, lp)
 
     def row_chunk(self) -> int:
         """Rows (walkers, draws) simulated in one kernel batch: as many as keep their
@@ -352,66 +436,18 @@ class LogPosterior:
     def pointwise_of(self, R: np.ndarray, S: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Pointwise log-likelihood rows of the residual rows ``R`` (``nan`` where the
         simulation failed)."""
-        L = np.empty_like(R)
-        for (c, a, b) in self.segments:
-            j = self.channels.index(c)
-            w = self.problem.weights[c]
-            e = R[:, a:b] / w
-            s = S[:, j : j + 1]
-            if self.ar1:
-                phi = P[:, j : j + 1]
-                innov = e.copy()
-                innov[:, 1:] = e[:, 1:] - phi * e[:, :-1]
-                # The first sample from the stationary distribution.
-                innov[:, :1] = e[:, :1] * np.sqrt(1 - phi**2)
-                L[:, a:b] = -0.5 * LOG_2PI - np.log(s) - 0.5 * (innov / s) ** 2
-                L[:, a : a + 1] += 0.5 * np.log(1 - phi**2)
-            else:
-                L[:, a:b] = -0.5 * LOG_2PI - np.log(s) - 0.5 * (e / s) ** 2
-        return L
+        return self.likelihood.pointwise_of(R, S, P)
 
     def pointwise(self, X: np.ndarray, S: np.ndarray, P: np.ndarray):
         """Pointwise log-likelihood rows (n, n_residuals) and a failed mask (all rows at
         once: for few rows; :meth:`loglik` sums without keeping them)."""
-        R = self.problem.residuals_batch(X)
-        failed = ~np.all(np.isfinite(R), axis=1)
-        return self.pointwise_of(R, S, P), failed
-
-    def _loglik_of(self, R: np.ndarray, S: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """The log-likelihood of each residual row, from sums of squares per segment (no
-        pointwise array)."""
-        ll = np.zeros(R.shape[0])
-        for (c, a, b) in self.segments:
-            j = self.channels.index(c)
-            e = R[:, a:b] / self.problem.weights[c]
-            s = S[:, j]
-            n = b - a
-            if self.ar1:
-                phi = P[:, j]
-                d = e[:, 1:] - phi[:, None] * e[:, :-1]
-                q = 1.0 - phi**2
-                ssr = np.einsum("ij,ij->i", d, d) + e[:, 0] ** 2 * q
-                ll += 0.5 * np.log(q)
-            else:
-                ssr = np.einsum("ij,ij->i", e, e)
-            ll += n * (-0.5 * LOG_2PI - np.log(s)) - 0.5 * ssr / s**2
-        return ll
+        return self.likelihood.pointwise(X, S, P)
 
     def loglik(self, X: np.ndarray, S: np.ndarray, P: np.ndarray):
         """Log-likelihood per row and a failed mask; the rows are simulated a few at a time
         (:meth:`row_chunk`) and only their sums of squares are kept, so the memory does not
         grow with the number of walkers."""
-        n = X.shape[0]
-        ll = np.empty(n)
-        failed = np.zeros(n, bool)
-        step = self.row_chunk()
-        for a in range(0, n, step):
-            b = min(n, a + step)
-            R = self.problem.residuals_batch(X[a:b])
-            failed[a:b] = ~np.all(np.isfinite(R), axis=1)
-            ll[a:b] = self._loglik_of(R, S[a:b], P[a:b])
-            del R
-        return ll, failed
+        return self.likelihood.loglik(X, S, P, self.row_chunk())
 
     def __call__(self, Z: np.ndarray) -> np.ndarray:
         Z = np.atleast_2d(Z)
@@ -432,9 +468,9 @@ class LogPosterior:
         (σ of the likelihood), each with a finite log-posterior."""
         x_fit = np.asarray(x_fit, float)
         Hz = self._precision_iid(x_fit)
-        if self.adjust is not None:
+        if self.adjustment is not None:
             # The adjusted likelihood's curvature: Cᵀ H C.
-            Hz = self.adjust.T @ Hz @ self.adjust
+            Hz = self.adjustment.curvature(Hz)
         lam, V = np.linalg.eigh(0.5 * (Hz + Hz.T))
         # Directions the data do not determine (an exact symmetry) get a 1 % spread, so
         # the ensemble's stretch moves can travel along them.

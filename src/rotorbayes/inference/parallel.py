@@ -23,8 +23,9 @@ and the analysis file; :func:`open_executor` builds it (and tears it down);
 :func:`use_executor` makes it the default of every algorithm for the length of a command.
 Algorithms take ``executor=None`` (meaning: the current one) and never know where they run.
 
-Every worker runs one task at a time with one numba and one BLAS thread (no
-oversubscription), and warms the compiled kernel once before its first task.  Data shared by
+Every worker runs its tasks with one BLAS thread and one numba thread outside their kernel
+batches, a share of its cores inside them (no oversubscription), and warms the compiled
+kernel once before its first task.  Data shared by
 all tasks (the problem: experiments, model) are sent once per worker (``shared=``): Dask
 scatters them, the local pools pass them by reference (threads) or with each task
 (processes).
@@ -56,20 +57,64 @@ from ..util.exitcodes import EnvironmentFailure
 #: The back-ends :func:`choose` knows.
 BACKENDS = ("serial", "threads", "processes", "dask")
 
-def default_backend(cores: int | None = None) -> str:
-    """The back-end that pays on this machine (issue 34, ``benchmarks/bench_scale.py``): local
-    processes forked from a fork server where there are 4 cores or more (a 48-start brake
-    multistart on 16 cores: 7.9 s against 20.8 s in threads, whose fits hold the GIL in
-    scipy's optimiser), else threads (on 2 cores the pool's start-up is not won back)."""
+#: From this many cores on, local processes are the default for any work: a 48-start brake
+#: multistart on 16 cores took 7.9 s in processes against 20.8 s in threads, whose fits hold
+#: the GIL in scipy's optimiser (``benchmarks/bench_scale.py``, benchmarks/README.md).
+PROCESSES_FROM_CORES = 4
+
+#: Below :data:`PROCESSES_FROM_CORES` cores, local processes are the default for a batch of
+#: tasks that simulate at least this many residuals in all per evaluation (tasks x residuals
+#: of each task's problem), threads for less: the fork server's start (2 s on an idle
+#: machine, 6 s loaded) is won back only by long work.  Measured on 2 loaded cores with
+#: ``benchmarks/bench_scale.py`` (benchmarks/README.md), brake multistarts at 1 kHz:
+#: 16 starts of 10 s (16 x 20 002 = 320 000 residuals) threads 5.6 s against processes
+#: 7.3 s, and 6.7 s against 9.6 s in a second run; 16 starts of 30 s (960 000) once
+#: processes 19.1 s against threads 23.2 s, once threads 18.1 s against processes 25.2 s;
+#: 48 starts of 30 s (2 880 000) processes 73.2 s against threads 77.5 s.
+PROCESSES_FROM_RESIDUALS = 1_000_000
+
+
+def default_backend(cores: int | None = None, tasks: int | None = None,
+                    residuals: int | None = None) -> str:
+    """The local back-end that pays for ``tasks`` tasks of ``residuals`` residuals each on a
+    machine of ``cores`` cores (:func:`default_reason` says why): processes forked from a
+    fork server from :data:`PROCESSES_FROM_CORES` cores on, or on fewer for work of
+    :data:`PROCESSES_FROM_RESIDUALS` residuals or more; threads otherwise (and where the
+    size of the work is not known)."""
+    return _default_choice(cores, tasks, residuals)[0]
+
+
+def default_reason(cores: int | None = None, tasks: int | None = None,
+                   residuals: int | None = None) -> str:
+    """Why :func:`default_backend` picks what it picks, in words for the command's output."""
+    return _default_choice(cores, tasks, residuals)[1]
+
+
+def _default_choice(cores, tasks, residuals) -> tuple[str, str]:
     import multiprocessing as mp
 
     cores = (os.cpu_count() or 1) if cores is None else cores
-    if cores >= 4 and "forkserver" in mp.get_all_start_methods():
-        return "processes"
-    return "threads"
+    where = f"the default on {cores} core{'s' if cores != 1 else ''}"
+    bench = "measured with benchmarks/bench_scale.py"
+    if "forkserver" not in mp.get_all_start_methods():
+        return "threads", f"{where}: no fork server on this platform"
+    if cores >= PROCESSES_FROM_CORES:
+        return "processes", (f"{where}: processes are the fastest from "
+                             f"{PROCESSES_FROM_CORES} cores on, {bench}")
+    limit = f"{PROCESSES_FROM_RESIDUALS:,}".replace(",", " ")
+    if not tasks or not residuals:
+        return "threads", f"{where} where the work's size is not known"
+    work = f"{tasks} task{'s' if tasks != 1 else ''} x {residuals:,} residuals".replace(
+        ",", " ")
+    if tasks * residuals >= PROCESSES_FROM_RESIDUALS:
+        return "processes", (f"{where} for {work}: processes win back their start from "
+                             f"{limit} residuals in all, {bench}")
+    return "threads", (f"{where} for {work}: processes win back their start only from "
+                       f"{limit} residuals in all, {bench}")
 
 
-#: The default back-end of a command (no option, no variable, no analysis-file entry).
+#: The default back-end of a command (no option, no variable, no analysis-file entry) for
+#: work of unknown size; :class:`DefaultPool` picks per batch on a small machine.
 DEFAULT_BACKEND = default_backend()
 
 #: The environment variable Dask itself reads for the scheduler's address.
@@ -147,7 +192,20 @@ def prepare_worker() -> None:
         numba.set_num_threads(1)
     except ValueError:  # pragma: no cover - numba already limited below 1 cannot happen
         pass
+    one_blas_thread()
     warm_kernel()
+
+
+def one_blas_thread() -> None:
+    """Limit the BLAS libraries this process has loaded to one thread.  The variables of
+    :data:`WORKER_ENV` only act on a library loaded after them; a Dask worker (and a script
+    that imported NumPy before rotorbayes) has OpenBLAS loaded already, with a thread per
+    core, and an SVD on several BLAS threads rounds otherwise than on one: the end points
+    would then depend on where a fit ran."""
+    with contextlib.suppress(ImportError):
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1, user_api="blas")
 
 
 def warm_kernel() -> None:
@@ -346,6 +404,9 @@ class ExecutorSpec:
     workers: int | None = None
     scheduler: str | None = None
     source: str = "default"
+    #: Chosen by nobody (:func:`choose`'s last resort): :func:`open_executor` then picks
+    #: threads or processes by the work (:class:`DefaultPool`) on a small machine.
+    auto: bool = False
 
     def n_workers(self) -> int:
         if self.backend == "serial":
@@ -419,7 +480,8 @@ def choose(
     if file.get("backend"):
         return ExecutorSpec(file["backend"], workers or file.get("workers"), None,
                             "the analysis file")
-    return ExecutorSpec(DEFAULT_BACKEND, workers or file.get("workers"), None, "default")
+    return ExecutorSpec(DEFAULT_BACKEND, workers or file.get("workers"), None, "default",
+                        auto=True)
 
 
 class _WarmUp:
@@ -430,6 +492,7 @@ class _WarmUp:
 
     def setup(self, worker=None):
         prepare_worker()
+        _share_worker_cores(worker)
 
     def teardown(self, worker=None):
         pass
@@ -441,9 +504,99 @@ class _WarmUp:
         pass
 
 
+def _share_worker_cores(worker) -> None:
+    """A Dask worker's tasks share its cores as a local pool's do (:class:`_Share`): a worker
+    of T threads (``--nthreads T``; dask-jobqueue's ``cores / processes``) runs each task on
+    one numba thread outside its kernel batches and T // (tasks running) inside them.
+    Without this a task would run its batches on numba's default, a thread per core of the
+    machine, in every one of the worker's threads (numba's thread count is per thread, and a
+    worker's tasks run in threads the warm-up never sees)."""
+    global _POOL_SHARE
+    import numba
+
+    nthreads = getattr(getattr(worker, "state", None), "nthreads", None) or getattr(
+        worker, "nthreads", None) or 1
+    _POOL_SHARE = _Share(min(int(nthreads), int(numba.config.NUMBA_NUM_THREADS)))
+
+
+def _dask_executor(client) -> Executor:
+    """Dask's executor of ``client``, each task run inside :func:`_run_shared` (on the worker:
+    its share of the worker's cores), under the key Dask would give the task itself."""
+    import uuid
+
+    from dask.utils import funcname
+    from distributed.cfexecutor import ClientExecutor
+
+    class SharingClientExecutor(ClientExecutor):
+        def submit(self, fn, /, *args, **kwargs):
+            key = f"{funcname(fn)}-{uuid.uuid4().hex}"
+            return super().submit(_run_shared, None, fn, *args, key=key, **kwargs)
+
+    return SharingClientExecutor(client, pure=False)
+
+
+class DefaultPool(Executor):
+    """The default local executor of a machine with fewer than :data:`PROCESSES_FROM_CORES`
+    cores: each batch of tasks (:func:`run_tasks`) runs in threads or processes as
+    :func:`default_backend` picks for its size; each pool is opened at its first use, kept
+    for the command, and said once (``say``).  A task submitted by hand runs in threads."""
+
+    def __init__(self, workers: int | None = None, say: Callable[[str], None] | None = None,
+                 cores: int | None = None):
+        self._workers = workers
+        self._max_workers = max(1, int(workers or os.cpu_count() or 1))
+        self._cores = cores
+        self._say = say
+        self._pools: dict[str, Executor] = {}
+        self._stack = contextlib.ExitStack()
+
+    def pick(self, tasks: int | None = None, residuals: int | None = None) -> Executor:
+        """The pool for ``tasks`` tasks of ``residuals`` residuals each (opened, and said,
+        the first time)."""
+        backend = default_backend(self._cores, tasks, residuals)
+        if backend not in self._pools:
+            spec = ExecutorSpec(backend, self._workers, None, "default")
+            self._pools[backend] = self._stack.enter_context(open_executor(spec))
+            if self._say is not None:
+                self._say(f"parallel tasks run {spec.describe()} "
+                          f"({default_reason(self._cores, tasks, residuals)})")
+        return self._pools[backend]
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        return self.pick().submit(fn, *args, **kwargs)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._stack.close()
+
+
+def _residuals_of(shared: Any) -> int | None:
+    """Residuals per evaluation of the problem a batch's shared data hold (the problem, or
+    a tuple that starts with it), else None."""
+    for obj in (shared, *(shared[:1] if isinstance(shared, tuple) else ())):
+        n = getattr(obj, "n_residuals", None)
+        if isinstance(n, int) and not isinstance(n, bool):
+            return n
+    return None
+
+
 @contextlib.contextmanager
-def open_executor(spec: ExecutorSpec) -> Iterator[Executor]:
-    """The executor for ``spec``, shut down (and a cluster it started, stopped) on exit."""
+def open_executor(spec: ExecutorSpec, *, say: Callable[[str], None] | None = None
+                  ) -> Iterator[Executor]:
+    """The executor for ``spec``, shut down (and a cluster it started, stopped) on exit.
+    The default of a machine with fewer than :data:`PROCESSES_FROM_CORES` cores is a
+    :class:`DefaultPool` (threads or processes by the size of each batch); ``say`` gets the
+    line that names the default back-end and why."""
+    if spec.auto and spec.backend in ("threads", "processes"):
+        cores = os.cpu_count() or 1
+        if cores < PROCESSES_FROM_CORES:
+            pool = DefaultPool(spec.workers, say, cores)
+            try:
+                yield pool
+            finally:
+                pool.shutdown()
+            return
+        if say is not None:
+            say(f"parallel tasks run {spec.describe()} ({default_reason(cores)})")
     if spec.backend == "serial":
         yield SerialExecutor()
         return
@@ -468,7 +621,7 @@ def open_executor(spec: ExecutorSpec) -> Iterator[Executor]:
             pool.shutdown(wait=True, cancel_futures=True)
         return
     with _dask_client(spec) as client:
-        yield client.get_executor(pure=False)
+        yield _dask_executor(client)
 
 
 def connect_timeout() -> float:
@@ -821,9 +974,10 @@ def current_executor() -> Executor | None:
 
 
 @contextlib.contextmanager
-def use_executor(spec: ExecutorSpec | Executor) -> Iterator[Executor]:
+def use_executor(spec: ExecutorSpec | Executor, *, say: Callable[[str], None] | None = None
+                 ) -> Iterator[Executor]:
     """Open ``spec`` (or take an executor as it is) and make it every algorithm's default
-    until the block ends."""
+    until the block ends (``say``: see :func:`open_executor`)."""
     if isinstance(spec, Executor):
         token = _CURRENT.set(spec)
         try:
@@ -831,7 +985,7 @@ def use_executor(spec: ExecutorSpec | Executor) -> Iterator[Executor]:
         finally:
             _CURRENT.reset(token)
         return
-    with open_executor(spec) as ex:
+    with open_executor(spec, say=say) as ex:
         token = _CURRENT.set(ex)
         try:
             yield ex
@@ -845,7 +999,8 @@ _NOTHING = object()
 
 
 def _is_dask(executor: Executor) -> bool:
-    return hasattr(executor, "_client") and type(executor).__module__.startswith("distributed")
+    return hasattr(executor, "_client") and any(
+        c.__module__.startswith("distributed") for c in type(executor).__mro__)
 
 
 def run_tasks(
@@ -874,6 +1029,8 @@ def run_tasks(
             yield from run_tasks(fn, items, shared=shared, executor=own)
         return
     args: tuple = () if shared is _NOTHING else (shared,)
+    if isinstance(ex, DefaultPool):  # threads or processes by the size of this batch
+        ex = ex.pick(len(items), None if shared is _NOTHING else _residuals_of(shared))
     if isinstance(ex, SerialExecutor):  # one at a time, each result as soon as it is there
         for i, it in enumerate(items):
             yield i, fn(*args, it)

@@ -17,6 +17,10 @@ The residual is ``r = concat over experiments e and channels c of w_c (y_ec - yh
 torsion too: :meth:`Problem.validation_params` decides it (fitted on that run alone, given,
 or the model's fixed value), and every command that evaluates validation data goes through
 it or through the value it stored.
+
+The free parameters themselves -- their names, bounds and the map between the vector ``x``
+and parameter values -- are a :class:`~rotorbayes.inference.parameter_map.ParameterMap`
+the problem holds (:attr:`Problem.parameters`).
 """
 
 from __future__ import annotations
@@ -24,8 +28,9 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +41,7 @@ from ..model.configurations import Model
 from ..model.parameters import INFO, ParameterError, resolve, unknown_name_message
 from ..model.simulate import DEFAULT_STEP, Simulation, Simulator, check_step
 from .parallel import claim_kernel_threads
+from .parameter_map import FillTemplate, ParameterMap, local_name
 
 CHANNELS = ("theta_u", "theta_l")
 
@@ -69,34 +75,9 @@ MIN_WEIGHT, MAX_WEIGHT = 1e-4, 1e4
 _FAILED = 1e3
 
 
-def local_name(name: str) -> tuple[str, int | None]:
-    """Split ``'alpha0[2]'`` into ``('alpha0', 2)``."""
-    if name.endswith("]") and "[" in name:
-        base, idx = name[:-1].split("[", 1)
-        try:
-            return base, int(idx)
-        except ValueError:
-            raise ParameterError(f"{name!r}: the index in brackets must be a number") from None
-    return name, None
-
-
 #: Parameters of the motor and the upper disc's friction: fitted from theta_u.
 UPPER_PARAMETERS = ("k_m", "J_u", "Tc_u", "dTc_u", "b_u", "db_u", "u_offset", "u_deadzone",
                     "dTs_u", "ws_u", "delta_u", "tau_drive")
-
-
-def _filled(fill: tuple, x) -> tuple[np.ndarray, np.ndarray]:
-    """Kernel vectors from a template of :meth:`Problem._make_fill`: its base vectors,
-    copied, with the free values of ``x`` put in place."""
-    p0, q0, pa, pf, qa, qf, ts_follows = fill
-    x = np.asarray(x, dtype=float)
-    p = p0.copy()
-    p[pa] = x[pf]
-    q = q0.copy()
-    q[qa] = x[qf]
-    if ts_follows or math.isnan(p[_layout.TS_L]):
-        p[_layout.TS_L] = p[_layout.TC_L]
-    return p, q
 
 
 def checked_experiments(experiments) -> list[Experiment]:
@@ -135,6 +116,130 @@ def default_channels(config: str, prescribed_upper: bool, free: Sequence[str]) -
     if not prescribed_upper and any(local_name(n)[0] in UPPER_PARAMETERS for n in free):
         return ("theta_u", "theta_l")
     return ("theta_l",)
+
+
+def model_of(model: Model | str, effects: Iterable[str], prescribed_upper: bool,
+             n_experiments: int) -> Model:
+    """The :class:`~rotorbayes.Model` of a problem: ``model`` itself, or the configuration
+    named ``model`` with ``effects`` on (and ``initial_torsion`` too for several
+    experiments on the lower disc: each starts with its own string torsion, thesis
+    §5.3.2)."""
+    if isinstance(model, Model):
+        if tuple(effects):
+            raise ValueError("give the effects with the Model, not to the Problem")
+        return model
+    effects = list(effects)
+    if n_experiments > 1 and model != "upper" and "initial_torsion" not in effects:
+        effects.append("initial_torsion")
+    return Model(model, effects, prescribed_upper=prescribed_upper)
+
+
+def checked_weights(channels: Sequence[str], given) -> dict[str, float]:
+    """The weight of every fitted channel (default 1), each a number within
+    [:data:`MIN_WEIGHT`, :data:`MAX_WEIGHT`]; a weight for a channel that does not exist is
+    refused."""
+    if given is not None and not isinstance(given, Mapping):
+        raise ValueError(f"weights = {given!r}: give a mapping of channel to weight, "
+                         "e.g. {'theta_u': 0.1, 'theta_l': 1.0}")
+    given = dict(given or {})
+    for c in given:
+        if c not in CHANNELS:
+            raise ValueError(f"weights: unknown channel {c!r}; choose from "
+                             f"{', '.join(CHANNELS)}")
+    out = {}
+    for c in channels:
+        w = given.get(c, 1.0)
+        if isinstance(w, bool) or not isinstance(w, int | float | np.number):
+            raise ValueError(f"the weight of channel {c} is {w!r}, not a number; give a "
+                             f"number between {MIN_WEIGHT:g} and {MAX_WEIGHT:g}")
+        w = float(w)
+        if not (w > 0 and math.isfinite(w)):
+            raise ValueError(f"the weight of channel {c} is {w}; it must be > 0")
+        if not MIN_WEIGHT <= w <= MAX_WEIGHT:
+            raise ValueError(
+                f"the weight of channel {c} is {w:g}; give a weight between "
+                f"{MIN_WEIGHT:g} and {MAX_WEIGHT:g} (weights set how much one channel "
+                "counts against the other; beyond that range a channel is ignored in "
+                "effect or its squared residuals overflow; to leave a channel out, fit "
+                "without it)")
+        out[c] = w
+    return out
+
+
+def base_values(m: Model, base) -> dict[str, float]:
+    """Every parameter's value from ``base`` (a mapping, a named set, a TOML file or None:
+    the configuration's default set): values not given come from the default set, those
+    of effects that are off go to their null value."""
+    if isinstance(base, Mapping):
+        for k, v in base.items():
+            if isinstance(v, bool) or not isinstance(v, int | float | np.number):
+                raise ParameterError(f"base: {k} = {v!r} is not a number; give each "
+                                     "value as a number (in the parameter's unit)")
+        builtin = {k: v for k, v in base.items() if k in INFO}
+        user = {k: float(v) for k, v in base.items() if k not in INFO}
+        for k in user:
+            if k not in m.info:
+                raise ParameterError(unknown_name_message(k))
+        full = resolve(builtin, config=m.config) if set(builtin) != set(INFO) else dict(
+            builtin
+        )
+        full.update(user)
+        given = set(base)
+    else:
+        full = resolve(base, config=m.config)
+        given = set(INFO) if base is not None else set()
+    # Values the user did not give come from the configuration's default set; those of
+    # effects that are off here (e.g. --without upper_asymmetric_coulomb) go to null.
+    for n in m.off:
+        if n not in given:
+            full[n] = INFO[n].null
+    full = m.complete(full)
+    m.check_off(full, where="start/base values")
+    return full
+
+
+def free_names(m: Model, free: Sequence[str] | None, fixed: Sequence[str]) -> list[str]:
+    """The free parameters as given (``alpha0`` once), checked against the model ``m``;
+    ``free`` None: the configuration's fitted parameters and those of the effects it fits
+    and of every added one, less ``fixed``."""
+    if free is None:
+        cfg = m.configuration
+        out = [] if m.prescribed_upper and m.config == "upper" else list(cfg.fitted)
+        if m.prescribed_upper:
+            out = [n for n in out if n not in ("k_m", "Tc_u", "b_u", "J_u")]
+        fitted_effects = [
+            e for e in m.base_effects if e.name in cfg.fitted_effects
+        ] + list(m.added)  # fmt: skip
+        for eff in fitted_effects:
+            out += [p for p in eff.names if p not in out]
+        if m.prescribed_upper:
+            out = [n for n in out if n not in UPPER_PARAMETERS]
+        out = [n for n in out if n not in fixed]
+    else:
+        out = list(free)
+        for n in fixed:
+            if n in out:
+                raise ParameterError(
+                    f"{n} is both fixed and free; remove it from one of the two lists"
+                )
+    for n in out:
+        b, _ = local_name(n)
+        if b not in m.info:
+            raise ParameterError("free parameters: " + unknown_name_message(b))
+        if b not in m.active:
+            e = _effects.effect_of(b)
+            if e is not None:
+                raise ParameterError(
+                    f"{b} belongs to the effect {e.name!r}, which is off in this "
+                    f"{m.config} model, so freeing it would change nothing; switch "
+                    f"the effect on (--add {e.name}) or remove {b} from the free list"
+                )
+            raise ParameterError(
+                f"{b} does not enter the {m.config} configuration"
+                + (" with the measured theta_u as input" if m.prescribed_upper else "")
+                + "; remove it from the free list"
+            )
+    return out
 
 
 @dataclass
@@ -199,16 +304,19 @@ class ValidationTorsion:
                    d.get("file") if isinstance(d.get("file"), str) else file)
 
 
-@dataclass
+@dataclass(init=False)
 class Problem:
     """A least-squares / likelihood problem over one or more experiments.
+
+    ``Problem(model, experiments, ...)`` takes the settings as a user gives them and
+    normalises them once, here: every attribute then holds one type (the declared one).
 
     Parameters
     ----------
     model : Model or {'upper', 'coupled', 'brake'}
         The model, or a configuration name (then ``effects`` and ``prescribed_upper``
         build the model).
-    experiments : sequence of Experiment
+    experiments : Experiment or sequence of Experiment
         Measurements loaded with :func:`rotorbayes.load_experiment` (a path, or a list
         of paths, is refused with that advice).
     free : sequence of str, optional
@@ -227,6 +335,10 @@ class Problem:
         Weight per channel (default 1), between :data:`MIN_WEIGHT` and :data:`MAX_WEIGHT`.
     prescribed_upper : bool
         Drive the lower disc with the measured upper angle instead of the motor model.
+    shape : str
+        The Stribeck curve's shape (:class:`~rotorbayes.Simulator`).
+    step : float or None
+        The integrator's largest step [s]; ``None`` chooses it from the sample interval.
     fixed : sequence of str
         Parameters removed from the default free set.
     run_starts : mapping, optional
@@ -234,53 +346,51 @@ class Problem:
         earlier fit's estimates of the same experiments: :meth:`start_vector` takes
         ``alpha0[i]`` from here before it falls back to the shared ``alpha0``.  Names of
         experiments this problem does not have are dropped.
+
+    Attributes
+    ----------
+    parameters : ParameterMap
+        The free parameters: :attr:`names`, :attr:`lower`, :attr:`upper` and the maps
+        between the vector ``x`` and parameter values.
     """
 
-    model: Model | str
-    experiments: Sequence[Experiment]
-    free: Sequence[str] | None = None
-    base: object = None
-    effects: Iterable[str] = ()
-    channels: Sequence[str] | None = None
-    weights: Mapping[str, float] | None = None
-    prescribed_upper: bool = False
-    shape: str = "exp"
-    step: float | None = DEFAULT_STEP
-    fixed: Sequence[str] = ()
-    run_starts: Mapping[str, float] | None = None
-    names: list[str] = field(init=False)
+    model: Model
+    experiments: list[Experiment]
+    base: dict[str, float]
+    channels: tuple[str, ...]
+    weights: dict[str, float]
+    shape: str
+    step: float | None
+    fixed: tuple[str, ...]
+    run_starts: dict[str, float]
+    parameters: ParameterMap
 
-    def __post_init__(self):
-        self.experiments = checked_experiments(self.experiments)
-        for name in ("free", "fixed", "channels"):
-            v = getattr(self, name)
+    def __init__(
+        self,
+        model: Model | str,
+        experiments: Experiment | Iterable[Experiment],
+        free: Sequence[str] | None = None,
+        base: Mapping[str, float] | str | None = None,
+        effects: Iterable[str] = (),
+        channels: Sequence[str] | None = None,
+        weights: Mapping[str, float] | None = None,
+        prescribed_upper: bool = False,
+        shape: str = "exp",
+        step: float | None = DEFAULT_STEP,
+        fixed: Sequence[str] = (),
+        run_starts: Mapping[str, float] | None = None,
+    ) -> None:
+        experiments = checked_experiments(experiments)
+        for name, v in (("free", free), ("fixed", fixed), ("channels", channels)):
             if isinstance(v, str):
                 names = [n.strip() for n in v.split(",") if n.strip()]
                 raise ParameterError(f"{name} = {v!r}: give a list of names, e.g. "
                                      f"{name}={names!r}")
-        if not isinstance(self.model, Model):
-            effects = list(self.effects)
-            # Several experiments on the lower disc: each starts with its own string
-            # torsion (thesis §5.3.2).
-            if (
-                len(self.experiments) > 1
-                and self.model != "upper"
-                and "initial_torsion" not in effects
-            ):
-                effects.append("initial_torsion")
-            self.model = Model(self.model, effects, prescribed_upper=self.prescribed_upper)
-        elif tuple(self.effects):
-            raise ValueError("give the effects with the Model, not to the Problem")
-        m = self.model
-        self.config = m.config
-        self.prescribed_upper = m.prescribed_upper
-        self.effects = m.effect_names
-        if isinstance(self.experiments, Experiment):
-            self.experiments = [self.experiments]
-        self.experiments = list(self.experiments)
-        if not self.experiments:
+        self.model = model_of(model, effects, prescribed_upper, len(experiments))
+        if not experiments:
             raise ValueError("give at least one experiment")
-        self._set_base(self.base)
+        self.experiments = experiments
+        self.base = base_values(self.model, base)
         for i, ex in enumerate(self.experiments):
             where = ex.path or ex.name or f"experiment {i}"
             if self.config == "upper" and ex.has_lower:
@@ -293,11 +403,15 @@ class Problem:
                     f"{where}: has no theta_l column, so it is an upper-"
                     f"configuration file; use --model upper, not {self.config!r}"
                 )
-        self.names = self._free_names()
-        self.run_starts = self._checked_run_starts(self.run_starts)
-        if self.channels is None:
-            self.channels = default_channels(self.config, self.prescribed_upper, self.names)
-        self.channels = tuple(self.channels)
+        self.fixed = tuple(fixed)
+        info = self.model.info
+        self.parameters = ParameterMap.expand(
+            free_names(self.model, free, self.fixed), len(self.experiments),
+            lambda n: (info[n].lower, info[n].upper))
+        self.run_starts = self._checked_run_starts(run_starts)
+        if channels is None:
+            channels = default_channels(self.config, self.prescribed_upper, self.names)
+        self.channels = tuple(channels)
         for c in self.channels:
             if c not in CHANNELS:
                 raise ValueError(f"unknown channel {c!r}; choose from {', '.join(CHANNELS)}")
@@ -308,129 +422,51 @@ class Problem:
                 "with the measured theta_u as input, theta_u cannot also be fitted; "
                 "use channels=('theta_l',)"
             )
-        self.weights = self._checked_weights(self.weights)
+        self.weights = checked_weights(self.channels, weights)
+        self.shape = shape
+        self.step = step
         for i, ex in enumerate(self.experiments):
             check_step(self.step, ex.dt, ex.n, where=str(ex.path or ex.name or
                                                           f"experiment {i}"))
         self.sims = [self.simulator_for(ex) for ex in self.experiments]
-        self.lower = np.array([self.info(n).lower for n in self.names])
-        self.upper = np.array([self.info(n).upper for n in self.names])
         self._tighten_bounds()
         self.n_residuals = sum(ex.n for ex in self.experiments) * len(self.channels)
         self._fills: dict[int, tuple] = {}  # (base values, fill or None) per experiment
         self._columns: dict[int, tuple] = {}
 
+    # ------------------------------------------------------------- derived settings
+    @property
+    def config(self) -> str:
+        """The configuration: ``'upper'``, ``'coupled'`` or ``'brake'``."""
+        return self.model.config
+
+    @property
+    def prescribed_upper(self) -> bool:
+        """Whether the measured upper angle drives the lower disc."""
+        return self.model.prescribed_upper
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """The names of the model's effects that are on."""
+        return self.model.effect_names
+
+    @property
+    def names(self) -> list[str]:
+        """The free parameters in vector order (``alpha0[i]`` per experiment)."""
+        return self.parameters.names
+
+    @property
+    def lower(self) -> np.ndarray:
+        """Lower bounds of the free parameters (tightened by validity constraints with a
+        fixed partner)."""
+        return self.parameters.lower
+
+    @property
+    def upper(self) -> np.ndarray:
+        """Upper bounds of the free parameters."""
+        return self.parameters.upper
+
     # ---------------------------------------------------------------- construction
-    def _checked_weights(self, given) -> dict[str, float]:
-        """The weight of every fitted channel (default 1), each a number within
-        [:data:`MIN_WEIGHT`, :data:`MAX_WEIGHT`]; a weight for a channel that does not
-        exist is refused."""
-        if given is not None and not isinstance(given, Mapping):
-            raise ValueError(f"weights = {given!r}: give a mapping of channel to weight, "
-                             "e.g. {'theta_u': 0.1, 'theta_l': 1.0}")
-        given = dict(given or {})
-        for c in given:
-            if c not in CHANNELS:
-                raise ValueError(f"weights: unknown channel {c!r}; choose from "
-                                 f"{', '.join(CHANNELS)}")
-        out = {}
-        for c in self.channels:
-            w = given.get(c, 1.0)
-            if isinstance(w, bool) or not isinstance(w, int | float | np.number):
-                raise ValueError(f"the weight of channel {c} is {w!r}, not a number; give a "
-                                 f"number between {MIN_WEIGHT:g} and {MAX_WEIGHT:g}")
-            w = float(w)
-            if not (w > 0 and math.isfinite(w)):
-                raise ValueError(f"the weight of channel {c} is {w}; it must be > 0")
-            if not MIN_WEIGHT <= w <= MAX_WEIGHT:
-                raise ValueError(
-                    f"the weight of channel {c} is {w:g}; give a weight between "
-                    f"{MIN_WEIGHT:g} and {MAX_WEIGHT:g} (weights set how much one channel "
-                    "counts against the other; beyond that range a channel is ignored in "
-                    "effect or its squared residuals overflow; to leave a channel out, fit "
-                    "without it)")
-            out[c] = w
-        return out
-
-    def _set_base(self, base) -> None:
-        m = self.model
-        if isinstance(base, Mapping):
-            for k, v in base.items():
-                if isinstance(v, bool) or not isinstance(v, int | float | np.number):
-                    raise ParameterError(f"base: {k} = {v!r} is not a number; give each "
-                                         "value as a number (in the parameter's unit)")
-            builtin = {k: v for k, v in base.items() if k in INFO}
-            user = {k: float(v) for k, v in base.items() if k not in INFO}
-            for k in user:
-                if k not in m.info:
-                    raise ParameterError(unknown_name_message(k))
-            full = resolve(builtin, config=self.config) if set(builtin) != set(INFO) else dict(
-                builtin
-            )
-            full.update(user)
-            given = set(base)
-        else:
-            full = resolve(base, config=self.config)
-            given = set(INFO) if base is not None else set()
-        # Values the user did not give come from the configuration's default set; those of
-        # effects that are off here (e.g. --without upper_asymmetric_coulomb) go to null.
-        for n in m.off:
-            if n not in given:
-                full[n] = INFO[n].null
-        full = m.complete(full)
-        m.check_off(full, where="start/base values")
-        self.base = full
-
-    def _free_names(self) -> list[str]:
-        m = self.model
-        multi = len(self.experiments) > 1
-        if self.free is None:
-            cfg = m.configuration
-            free = [] if self.prescribed_upper and self.config == "upper" else list(cfg.fitted)
-            if self.prescribed_upper:
-                free = [n for n in free if n not in ("k_m", "Tc_u", "b_u", "J_u")]
-            fitted_effects = [
-                e for e in m.base_effects if e.name in cfg.fitted_effects
-            ] + list(m.added)  # fmt: skip
-            for e in fitted_effects:
-                free += [p for p in e.names if p not in free]
-            if self.prescribed_upper:
-                free = [n for n in free if n not in UPPER_PARAMETERS]
-            free = [n for n in free if n not in self.fixed]
-        else:
-            free = list(self.free)
-            for n in self.fixed:
-                if n in free:
-                    raise ParameterError(
-                        f"{n} is both fixed and free; remove it from one of the two lists"
-                    )
-        for n in free:
-            b, _ = local_name(n)
-            if b not in m.info:
-                raise ParameterError("free parameters: " + unknown_name_message(b))
-            if b not in m.active:
-                e = _effects.effect_of(b)
-                if e is not None:
-                    raise ParameterError(
-                        f"{b} belongs to the effect {e.name!r}, which is off in this "
-                        f"{self.config} model, so freeing it would change nothing; switch "
-                        f"the effect on (--add {e.name}) or remove {b} from the free list"
-                    )
-                raise ParameterError(
-                    f"{b} does not enter the {self.config} configuration"
-                    + (" with the measured theta_u as input" if self.prescribed_upper else "")
-                    + "; remove it from the free list"
-                )
-        names: list[str] = []
-        for n in free:
-            if n == "alpha0" and multi:
-                names += [f"alpha0[{i}]" for i in range(len(self.experiments))]
-            else:
-                names.append(n)
-        if len(set(names)) != len(names):
-            raise ParameterError(f"a free parameter is listed twice: {names}")
-        return names
-
     def _checked_run_starts(self, given) -> dict[str, float]:
         """``run_starts`` kept for this problem's experiments, every name checked."""
         out: dict[str, float] = {}
@@ -537,10 +573,11 @@ class Problem:
         (``like(free=[...], base=...)``). Every derived problem (an effect added, a
         parameter profiled, an experiment designed) is made here, so a new setting is
         carried over in one place, not at every call site."""
-        kw = {"model": self.model, "experiments": self.experiments,
-              "free": list(self.names_base()), "base": self.base, "channels": self.channels,
-              "weights": self.weights, "shape": self.shape, "step": self.step,
-              "run_starts": self.run_starts}  # fmt: skip
+        kw: dict[str, Any] = {
+            "model": self.model, "experiments": self.experiments,
+            "free": list(self.names_base()), "base": self.base, "channels": self.channels,
+            "weights": self.weights, "shape": self.shape, "step": self.step,
+            "run_starts": self.run_starts}  # fmt: skip
         unknown = sorted(set(changes) - set(kw))
         if unknown:
             raise TypeError(f"Problem.like: no setting {', '.join(unknown)}")
@@ -553,49 +590,21 @@ class Problem:
 
     def names_base(self) -> list[str]:
         """Free parameter names with per-experiment names folded (``alpha0``)."""
-        out: list[str] = []
-        for n in self.names:
-            b, _ = local_name(n)
-            if b not in out:
-                out.append(b)
-        return out
+        return self.parameters.names_base()
 
     # ------------------------------------------------------------------------ maps
     def x_from(self, params: Mapping[str, float]) -> np.ndarray:
         """Free-parameter vector from a mapping (``alpha0[i]`` falls back to ``alpha0``)."""
-        out = []
-        for n in self.names:
-            base, _ = local_name(n)
-            out.append(float(params[n] if n in params else params[base]))
-        return np.array(out)
+        return self.parameters.x_from(params)
 
     def point(self, x) -> np.ndarray:
         """``x`` as a free-parameter vector of this problem: a 1-D float array with one
         value per free parameter; :class:`ValueError` naming what is wrong otherwise."""
-        try:
-            out = np.asarray(x, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"x must hold one number per free parameter ({exc}); make it "
-                             "with problem.x_from(values) or problem.start_vector(values)"
-                             ) from None
-        k = len(self.names)
-        if out.shape != (k,):
-            what = (f"{out.size} value(s)" if out.ndim == 1 else f"shape {out.shape}")
-            raise ValueError(
-                f"x has {what}, but this problem has {k} free parameter(s) "
-                f"({', '.join(self.names) or 'none'}); make x with problem.x_from(values) or "
-                "problem.start_vector(values)")
-        return out
+        return self.parameters.point(x)
 
     def params_for(self, x: np.ndarray, i: int) -> dict[str, float]:
         """The full parameter set of experiment ``i`` at free vector ``x``."""
-        x = self.point(x)
-        p = dict(self.base)
-        for n, v in zip(self.names, x, strict=True):
-            base, idx = local_name(n)
-            if idx is None or idx == i:
-                p[base] = float(v)
-        return p
+        return self.parameters.params_for(x, i, self.base)
 
     def validation_params(self, x: np.ndarray, ex: Experiment,
                           given=None) -> tuple[dict[str, float], ValidationTorsion | None]:
@@ -708,16 +717,15 @@ class Problem:
 
     def values(self, x: np.ndarray) -> dict[str, float]:
         """``{name: value}`` of the free parameters."""
-        return {n: float(v) for n, v in zip(self.names, self.point(x), strict=True)}
+        return self.parameters.values(x)
 
     def check_start(self, x: np.ndarray) -> None:
         """Raise :class:`ParameterError` if a start value lies outside its bounds."""
-        for n, v, lo, hi in zip(self.names, x, self.lower, self.upper, strict=True):
-            if not (lo <= v <= hi):
-                raise ParameterError(
-                    f"start value {n} = {v:g} {self.info(n).unit} lies outside the bounds "
-                    f"[{lo:g}, {hi:g}]; choose a start inside them"
-                )
+        for n, v, lo, hi in self.parameters.outside(x)[:1]:
+            raise ParameterError(
+                f"start value {n} = {v:g} {self.info(n).unit} lies outside the bounds "
+                f"[{lo:g}, {hi:g}]; choose a start inside them"
+            )
 
     # -------------------------------------------------------------------- residuals
     def _channel_residual(self, ex: Experiment, thu, thl) -> np.ndarray:
@@ -765,37 +773,28 @@ class Problem:
             made = self._fills[i] = (dict(self.base), self._make_fill(x, i))
         if made[1] is None:
             return self.sims[i].kernel_vector(self.params_for(x, i))
-        return _filled(made[1], x)
+        return made[1].vectors(x)
 
-    def _make_fill(self, x: np.ndarray, i: int):
+    def _make_fill(self, x: np.ndarray, i: int) -> FillTemplate | None:
         """How :meth:`kernel_vectors` fills experiment ``i``'s vectors from ``x``, or
         ``None`` where only the long way is right (a free name the kernel vectors do not
         take as it is, or a disagreement at ``x`` or near it)."""
-        pa, pf, qa, qf = [], [], [], []
-        for j, n in enumerate(self.names):
-            base, idx = local_name(n)
-            if idx is not None and idx != i:
-                continue
-            slot = self.model.kernel_slot(base)
-            if slot is None:
-                return None
-            (qa if slot[0] else pa).append(slot[1])
-            (qf if slot[0] else pf).append(j)
         sim = self.sims[i]
         try:
             p0, q0 = sim.kernel_vector(self.base)
         except (ParameterError, KeyError, ValueError):
             return None
-        fill = (p0, q0, np.array(pa, dtype=np.intp), np.array(pf, dtype=np.intp),
-                np.array(qa, dtype=np.intp), np.array(qf, dtype=np.intp),
-                not self.model.stribeck)  # fmt: skip
+        fill = self.parameters.fill_template(i, self.model.kernel_slot, p0, q0,
+                                             not self.model.stribeck)
+        if fill is None:
+            return None
         x = np.asarray(x, dtype=float)
         for probe in (x, x * (1.0 + 1e-3) + 1e-6):
             try:
                 slow = sim.kernel_vector(self.params_for(probe, i))
             except (ParameterError, KeyError, ValueError):
                 return None
-            pairs = zip(_filled(fill, probe), slow, strict=True)
+            pairs = zip(fill.vectors(probe), slow, strict=True)
             if not all(np.array_equal(a, b, equal_nan=True) for a, b in pairs):
                 return None
         return fill

@@ -34,7 +34,7 @@ import numpy as np
 from .assess import floor_ratio
 from .least_squares import FitResult
 from .multistart import _fit_start
-from .parallel import SerialExecutor, current_executor, progress, run_tasks
+from .parallel import DefaultPool, SerialExecutor, current_executor, progress, run_tasks
 from .problem import Problem, local_name
 
 #: Stribeck velocities [rad/s] and shape exponents of the spread starts (a subset of the
@@ -263,7 +263,7 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
               "starts, every other parameter from the parent fit:", flush=True)
     if 8 * problem.n_residuals * len(problem.names) > LOCAL_PARALLEL_BYTES and isinstance(
             executor if executor is not None else current_executor(),
-            ThreadPoolExecutor | type(None)):
+            ThreadPoolExecutor | DefaultPool | type(None)):
         executor, workers = SerialExecutor(), 1  # long data: one fit's Jacobian at a time
     # Long data: every start screened with a few evaluations, the best one finished
     # (nine full fits of 4 x 600 s would take the better part of an hour).

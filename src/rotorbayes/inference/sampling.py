@@ -1058,9 +1058,15 @@ def _run_segment(logpost: LogPosterior, seg: _Segment) -> _Chunk:
     if os.getpid() != seg.origin:
         # A worker process runs one task per core: the walkers in one numba thread (the
         # count is per thread, and a Dask task's thread is not the one set up at start).
+        import copy
+
         import numba
 
         numba.set_num_threads(1)
+        # A Dask worker of several threads runs several segments at once on the one
+        # log-posterior it holds: each counts its own evaluations on a copy (the data
+        # are shared, not copied).
+        logpost = copy.copy(logpost)
     t0, c0 = time.perf_counter(), time.process_time()
     calls0, failed0 = logpost.n_calls, logpost.n_failed
     if seg.coords is None:
