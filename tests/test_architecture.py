@@ -7,6 +7,9 @@
   :data:`KNOWN_FUNCTION_LEVEL_CYCLES` (empty today).
 * No module imports a private name (``_x``) from a module of another package: an idea used
   by two rooms gets a public name in the room that owns it.
+* The compiled kernel is the lowest layer: no module of ``rotorbayes.kernel`` imports
+  anything of rotorbayes outside it (not the model, which builds on it), at module or
+  function level.
 * ``cli.py`` is a thin table of commands: fewer than :data:`CLI_MAX_LINES` lines; no
   numerical library imported; from rotorbayes only exit codes and exception classes (the
   commands are reached through the table); every command's options are exactly its
@@ -203,6 +206,45 @@ def test_no_private_name_imported_across_packages():
     assert not bad, "private names used across packages:\n" + "\n".join(bad)
 
 
+#: The lowest layer: its modules import nothing of rotorbayes outside it.
+LOWEST_LAYER = f"{PKG}.kernel"
+
+
+def imports_out_of_lowest_layer(imports) -> list[str]:
+    """``"importer:line imports target"`` for each import, among ``imports`` (as
+    :func:`_imports` lists them), by a module of :data:`LOWEST_LAYER` of a rotorbayes
+    module outside it."""
+    def inside(module):
+        return module == LOWEST_LAYER or module.startswith(LOWEST_LAYER + ".")
+
+    return list(dict.fromkeys(  # one line per import statement, in order
+        f"{importer}:{line} imports {target}" for importer, target, _, _, line in imports
+        if inside(importer) and not inside(target)))
+
+
+def test_the_kernel_imports_nothing_above_it():
+    bad = imports_out_of_lowest_layer(_imports())
+    assert not bad, ("the compiled kernel imports from the layers above it (move what it "
+                     "needs into rotorbayes.kernel):\n" + "\n".join(bad))
+
+
+def test_the_layer_check_sees_a_kernel_module_importing_the_model():
+    # What the check above would report if kernel/terms.py imported the model's friction
+    # laws again (at module level) or the model's parameters inside a function.
+    imports = [
+        ("rotorbayes.kernel.terms", "rotorbayes.model.friction", "slip_torque", "module", 31),
+        ("rotorbayes.kernel.solver", "rotorbayes.model", None, "function", 7),
+        ("rotorbayes.kernel.solver", "rotorbayes.kernel.terms", "rhs", "module", 5),
+        ("rotorbayes.model.friction", "rotorbayes.kernel.friction", "stribeck", "module", 3),
+    ]
+    assert imports_out_of_lowest_layer(imports) == [
+        "rotorbayes.kernel.terms:31 imports rotorbayes.model.friction",
+        "rotorbayes.kernel.solver:7 imports rotorbayes.model",
+    ]
+    found = {(a, b) for a, b, *_ in _imports()}
+    assert ("rotorbayes.model.friction", "rotorbayes.kernel.friction") in found
+
+
 # ----------------------------------------------------------------------- a thin cli.py
 CLI = SRC / PKG / "cli.py"
 
@@ -366,3 +408,47 @@ def test_no_command_reads_its_options_from_a_namespace_of_its_locals():
                     for k in node.keywords):
                 bad.append(f"{path.relative_to(SRC)}:{node.lineno}")
     assert not bad, "calls given **locals():\n" + "\n".join(bad)
+
+
+# ----------------------------------------------------------------------------- layers
+#: The layers, bottom first.  A module imports (at the top or inside a function) only from
+#: its own layer or the layers below: the kernel knows nothing of the model, the model
+#: nothing of inference, and so on up to the command line.  ``util`` holds small helpers
+#: any layer may use; ``io`` reads and writes files (measurements, rig files, TOML/JSON,
+#: output folders); ``commands`` holds each command and the study that runs them.
+LAYERS = ("kernel", "util", "io", "model", "inference", "figures", "diagnosis", "design",
+          "report", "commands", "cli", "rotorbayes")
+
+
+def layer_of(module: str) -> str:
+    """The layer of a module: the subpackage (or top-level module) it is in."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def layer_violations() -> list[str]:
+    rank = {name: i for i, name in enumerate(LAYERS)}
+    bad = []
+    for importer, target, name, level, line in _imports():
+        a, b = layer_of(importer), layer_of(target)
+        assert a in rank and b in rank, f"{importer} or {target}: a layer not in LAYERS"
+        if rank[b] > rank[a]:
+            what = f"{target}.{name}" if name else target
+            bad.append(f"{MODULES[importer].relative_to(SRC)}:{line} ({level} level) imports "
+                       f"{what}: layer {b!r} is above {a!r}")
+    return bad
+
+
+def test_every_module_is_in_a_layer():
+    assert {layer_of(m) for m in MODULES} <= set(LAYERS)
+
+
+def test_layers_only_point_down():
+    bad = layer_violations()
+    assert not bad, "imports that point up a layer:\n" + "\n".join(bad)
+
+
+def test_the_layer_check_can_fail():
+    rank = {name: i for i, name in enumerate(LAYERS)}
+    assert rank[layer_of("rotorbayes.kernel.solver")] < rank[layer_of("rotorbayes.model.friction")]
+    assert layer_of("rotorbayes.cli") == "cli" and layer_of("rotorbayes") == "rotorbayes"

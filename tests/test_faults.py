@@ -470,7 +470,7 @@ def test_without_preallocation_a_filling_disk_stops_sampling_between_steps(
 
     from rotorbayes.inference import sampling
 
-    monkeypatch.setattr(sampling, "preallocate", lambda path, nbytes: False)
+    monkeypatch.setattr(sampling.disk, "preallocate", lambda path, nbytes: False)
     with small_disk(tmp_path / "disk", 24_000) as disk:
         out = disk / "S"
 

@@ -56,9 +56,9 @@ def chains(path: Path) -> dict:
 def run(fit, folder, executor, monkeypatch, steps=20, **kw):
     # Re-centre the fit proposal early (main process) and cut the runs into segments of
     # 3 steps, then 1: the chains must not depend on either.
-    monkeypatch.setattr(sampling, "ADAPT_AT", 12)
-    monkeypatch.setattr(sampling, "SEGMENT_FIRST", 3)
-    monkeypatch.setattr(sampling, "SEGMENT_SECONDS", 1e-9)
+    monkeypatch.setattr(sampling.moves, "ADAPT_AT", 12)
+    monkeypatch.setattr(sampling.run, "SEGMENT_FIRST", 3)
+    monkeypatch.setattr(sampling.run, "SEGMENT_SECONDS", 1e-9)
     f = load_fit(fit)
     lp = LogPosterior(f.problem, f.x)
     sampling.sample(lp, f.x, folder, n_walkers=10, n_steps=steps, n_ensembles=2, seed=3,
@@ -224,13 +224,13 @@ def test_a_stop_request_ends_between_segments_and_says_where_each_ensemble_is(
     # Stop once both ensembles have saved steps (not after a count of asks: on a fast
     # machine one ensemble's segments came back six times before the other's first).
     saved = set()
-    save = sampling._save_chunk
+    save = sampling.run._save
 
-    def saving(path, name, chunk):
-        save(path, name, chunk)
+    def saving(store, name, chunk):
+        save(store, name, chunk)
         saved.add(name)
 
-    monkeypatch.setattr(sampling, "_save_chunk", saving)
+    monkeypatch.setattr(sampling.run, "_save", saving)
 
     def stop() -> bool:
         return len(saved) == 2
@@ -294,7 +294,7 @@ def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(fitted, 
             "--quiet"]
     assert main(["sample", str(fitted), *args, "--steps", "20", "--out", str(out)]) == 0
     before = chains(out / "chain.h5")
-    monkeypatch.setattr(sampling, "LOCK_WAIT", 0.5)
+    monkeypatch.setattr(sampling.locks, "LOCK_WAIT", 0.5)
     reader = hold_open(out / "chain.h5", 60)
     try:
         capsys.readouterr()

@@ -167,7 +167,7 @@ def profile(
         for i, v in enumerate(grid):
             keys[i] = fingerprint(name, float(v), max_nfev)
             hit, rec = store.get(_point_index(keys[i]), keys[i])
-            if hit:
+            if hit and rec is not None:
                 values[i] = float(rec["chi2"])
     todo = [i for i in range(len(grid)) if i not in values]
     tasks = run_tasks(_profile_point, [grid[i] for i in todo],

@@ -112,7 +112,7 @@ def check_prior_spec(spec: Mapping, where: str) -> None:
         if not isinstance(v, PRIOR_KEYS[k]) or isinstance(v, bool):
             want = "a string" if k == "dist" else "a number"
             raise ParameterError(f"{where}: {k} = {v!r} must be {want}")
-        if k != "dist" and not math.isfinite(v):
+        if not isinstance(v, str) and not math.isfinite(v):
             raise ParameterError(f"{where}: {k} = {v!r} must be a finite number")
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.stats import qmc
@@ -221,10 +222,13 @@ def _fit_start(shared: tuple, x0: np.ndarray) -> tuple[FitResult | None, str]:
     for every start); whoever keeps the fit computes it again (:func:`ensure_jacobian`)."""
     problem, fit_kw = shared
     r, why = fit_or_reason(problem, x0, **fit_kw)
+    # FitResult declares jac and problem as always set; a start's result travels without them
+    # (ensure_jacobian and the caller put them back).
     if r is not None and r.jac is not None and r.jac.nbytes > COMPRESS_BYTES:
-        r.jac = None
+        r.jac = None  # type: ignore[assignment]
     if r is not None:
-        r.problem = None  # the caller has it: not sent back from a process or Dask worker
+        # the caller has it: not sent back from a process or Dask worker
+        r.problem = None  # type: ignore[assignment]
     return r, why
 
 
@@ -354,7 +358,7 @@ def _fit_record(r: FitResult | None, why: str) -> dict:
 def _fit_from_record(rec: dict, problem: Problem) -> tuple[FitResult | None, str]:
     if not rec["ok"]:
         return None, str(rec["why"])
-    kw = {k: rec.get(k) for k in _RECORD_FIELDS}
+    kw: dict[str, Any] = {k: rec.get(k) for k in _RECORD_FIELDS}
     for k in ("success",):
         kw[k] = bool(kw[k])
     for k in ("n_residuals", "nfev", "njev"):

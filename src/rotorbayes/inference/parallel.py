@@ -589,11 +589,11 @@ def open_executor(spec: ExecutorSpec, *, say: Callable[[str], None] | None = Non
     if spec.auto and spec.backend in ("threads", "processes"):
         cores = os.cpu_count() or 1
         if cores < PROCESSES_FROM_CORES:
-            pool = DefaultPool(spec.workers, say, cores)
+            default = DefaultPool(spec.workers, say, cores)
             try:
-                yield pool
+                yield default
             finally:
-                pool.shutdown()
+                default.shutdown()
             return
         if say is not None:
             say(f"parallel tasks run {spec.describe()} ({default_reason(cores)})")

@@ -165,7 +165,7 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
         add("the diagnosis's one-step estimate", _put(problem, x_parent, diagnosed))
     add("the effect's typical start", x_parent)
     # The parent itself (the effect at its null): the refit never ends above the parent.
-    nulls = {}
+    nulls: dict[str, float | None] = {}
     pv = problem.params_for(x_parent, 0)
     for e in new:
         for p in e.parameters:
@@ -173,8 +173,9 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
                 continue
             v = pv.get("Tc_l") if p.name == "Ts_l" else p.null
             nulls.update({n: v for n in names if local_name(n)[0] == p.name})
-    if nulls and all(v is not None and math.isfinite(v) for v in nulls.values()):
-        add("the effect off (the parent fit itself)", _put(problem, x_parent, nulls))
+    known = {n: v for n, v in nulls.items() if v is not None and math.isfinite(v)}
+    if nulls and len(known) == len(nulls):
+        add("the effect off (the parent fit itself)", _put(problem, x_parent, known))
     # Spread over the nuisance shape parameters (no gradient at the null: the optimiser
     # keeps whatever it starts with unless the data pull hard).
     spread: list[dict[str, float]] = [{}]
@@ -182,6 +183,7 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
         for p in e.parameters:
             if not p.nuisance or p.name not in names:
                 continue
+            grid: tuple[float, ...]
             if p.name == "ws_l":
                 grid = WS_STARTS
             elif p.name == "delta_l":

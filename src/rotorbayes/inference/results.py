@@ -27,11 +27,15 @@ import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..io.measurements import DataFileError, load_experiment, measurement_sha256
 from ..model.configurations import CONFIGURATIONS, Model
+
+if TYPE_CHECKING:
+    from .problem import Problem, ValidationTorsion
 
 
 class ResultError(ValueError):
@@ -55,7 +59,7 @@ class LoadedFit:
 
     folder: Path
     doc: dict
-    problem: object
+    problem: Problem
     x: np.ndarray
     validation: list
     validation_alpha0: list = field(default_factory=list)
@@ -529,7 +533,7 @@ def _validation_alpha0(doc: dict, path: Path, val: list) -> list:
         raise ResultError(f"{path}: validation_alpha0 must hold one record per validation "
                           f"file ({len(val)}): damaged, or not written by `rotorbayes fit`; "
                           "fit again")
-    out = []
+    out: list[ValidationTorsion | None] = []
     for r, ex in zip(recs, val, strict=True):
         if r is None:
             out.append(None)

@@ -153,6 +153,7 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         a0 = base.get(f"alpha0[{i}]", base.get("alpha0", 0.0))
         thu, wu, au, n = derivatives(ex.theta_u, ex.dt)
         if has_lower:
+            assert ex.theta_l is not None  # Problem refuses a lower-disc model without it
             thl, wl, al, _ = derivatives(ex.theta_l, ex.dt)
             alpha = thl - thu + a0
         if use_upper and (upper_free or "k_alpha" in unknown):
@@ -331,7 +332,8 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
 
     out.values, out.source = finish(est, how)
     info_j, info_k = (problem.model.info.get(n) for n in ("J_l", "k_alpha"))
-    if ({"J_l", "k_alpha"} <= set(names) and not torsion_offsets and Au
+    if (info_j is not None and info_k is not None
+            and {"J_l", "k_alpha"} <= set(names) and not torsion_offsets and Au
             and (est["J_l"] <= info_j.lower + 1e-3 * (info_j.upper - info_j.lower)
                  or est["k_alpha"] <= info_k.lower + 1e-3 * (info_k.upper - info_k.lower))):
         # The lower disc's equation is homogeneous: when the string torque is too weak in
@@ -390,7 +392,7 @@ def _rescale_lower(problem: Problem, names: list, rows, est: dict, how: dict, fi
     lo, hi = info.lower, info.upper
     scales = np.geomspace(max(lo, 1e-9) * 1.01, hi * 0.99, 25)
     base_values, _ = finish(est, how)
-    best = (cost(base_values), None)
+    best: tuple[float, tuple[dict, dict, float] | None] = (cost(base_values), None)
     for s in scales:
         values, source = finish(candidate(float(s)), how)
         c = cost(values)
@@ -398,13 +400,13 @@ def _rescale_lower(problem: Problem, names: list, rows, est: dict, how: dict, fi
             best = (c, (values, source, float(s)))
     if best[1] is None:
         return None
-    values, source, s = best[1]
+    values, source, scale = best[1]
     for n in [names[j] for j in lower] + ["Ts_l"] * ("dS_l" in names):
         if n in source and not source[n].startswith("data: lower disc's ratios"):
             source[n] = ("data: lower disc's ratios from its equation, scale from a scan "
                          "of the simulated fit")
     note = (f"the string torque was too weak in the upper disc's equation to set the lower "
             f"disc's scale (the joint regression dropped it to nothing); the lower disc's "
-            f"parameters are its own equation's ratios at the scale J_l = {s:.3g} that fits "
+            f"parameters are its own equation's ratios at the scale J_l = {scale:.3g} that fits "
             "the data best of a scan of 25")
     return values, source, note

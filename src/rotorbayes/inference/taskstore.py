@@ -169,8 +169,9 @@ class TaskStore:
         values = {k: (None if isinstance(v, float) and math.isnan(v) else v)
                   for k, v in record.items() if k not in arrays}
         buf = io.BytesIO()
+        # numpy's stub types **kwds as if they could fill allow_pickle (a bool).
         np.savez(buf, __meta__=np.array(json.dumps({"task": task_key, "values": values})),
-                 **arrays)
+                 **arrays)  # type: ignore[arg-type]
         self._write(self._file(index), buf.getvalue())
 
     def remove(self) -> None:

@@ -48,7 +48,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..model.friction import SHAPE_EXP, stribeck_g_slope
+from .friction import SHAPE_EXP, stribeck_g_slope
 from .layout import (
     ALPHA0,
     B_L,
@@ -122,7 +122,7 @@ SUPPORTED = (K_M, J_U, TC_U, DTC_U, B_U, DB_U, J_L, K_ALPHA, TC_L, DTC_L, B_L, D
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stribeck_d(x, delta, shape, x_cut):
-    """``S(x)`` as :func:`rotorbayes.model.friction.stribeck` computes it (the same
+    """``S(x)`` as :func:`rotorbayes.kernel.friction.stribeck` computes it (the same
     operations), with ``dS/dx`` and ``dS/ddelta`` of that computation (the table's cubic
     differentiated for the exponential shape)."""
     if x <= 0.0:

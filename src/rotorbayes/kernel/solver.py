@@ -73,12 +73,13 @@ from .terms import (
     effect_state_ok,
     guards,
     has_kinks,
+    hook_array,
     input_source,
     interp,
     is_full_kernel,
+    kink_in_step,
     modes_at_rest,
     needs_full_kernel,
-    next_kink,
     prescribed_velocity,
     rhs,
     state_fma,
@@ -94,7 +95,13 @@ _MAX_EVENTS_PER_STEP = 50
 _VMAX = 1e6
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+# Compiled as a function of its own, called once per step (and per trial step of an event
+# location), with the right-hand side inlined by numba into its six stages: inlined into
+# the solver as well, the step made the solver's first compilation 27 s instead of 16 s
+# (2 cores), for the same numbers bit for bit and the same speed (a 30 s brake residual
+# 0.196-0.200 ms either way, measured side by side) once the model tuple carries no arrays
+# in the plain kernel (terms.hook_array; with them the calls cost 3-4 %).
+@njit(cache=True, error_model="numpy")
 def _rk5(t, h, y, mu, ml, k1, m, src):
     """One step of size ``h`` from ``t`` in fixed modes by Butcher's six-stage
     fifth-order Runge-Kutta method; returns the state and the drive at the end.
@@ -153,6 +160,16 @@ def _rk5(t, h, y, mu, ml, k1, m, src):
     ), d_1
 
 
+@njit(cache=True, error_model="numpy")
+def _rates(y, mu, ml, d, m):
+    """:func:`rotorbayes.kernel.terms.rhs` at state ``y``, compiled once as a function of
+    its own for the solver's calls at the start and after an event: numba-inlined at
+    each, they were two more copies of the right-hand side to type in the first
+    compilation.  (The one after every step stays inlined: as a call it cost a 30 s brake
+    residual 1-3 %.)"""
+    return rhs(y[0], y[1], y[2], y[3], y[4], mu, ml, d, m)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _cubic(h, ya, fa, yb, fb):
     """Coefficients (in powers of the fraction ``s``) of the cubic Hermite interpolant of
@@ -207,16 +224,6 @@ def _last_sample(k, lim, dt, inv_dt, n):
     while j > k and j * dt > lim:
         j -= 1
     return j
-
-
-@njit(cache=True, error_model="numpy")
-def _step_to(t, x, y, mu, ml, k1, m, src):
-    """Runge-Kutta step of size ``x`` from ``t``; returns the state and the end drive.
-
-    :func:`_rk5` compiled as a function of its own, for the event location: inlined there
-    as well it would copy the six-stage step into a rarely taken path and lengthen the
-    first compilation."""
-    return _rk5(t, x, y, mu, ml, k1, m, src)
 
 
 @njit(cache=True, error_model="numpy")
@@ -292,7 +299,7 @@ def _locate(t, h, g0, g1, disc, y, mu, ml, k1, y1, d1, k_end, m, src):
             x = b - fb * (b - a) / (fb - fa)
             if not (a < x < b):
                 x = 0.5 * (a + b)
-        yx, d = _step_to(t, x, y, mu, ml, k1, m, src)
+        yx, d = _rk5(t, x, y, mu, ml, k1, m, src)
         gu, gl = guards(yx[0], yx[1], yx[2], yx[3], yx[4], mu, ml, d, m)
         fx = gu if disc == 0 else gl
         if fx < 0.0:
@@ -383,20 +390,40 @@ def step_grid(u, max_stride, tol):
     return out[:j].copy()
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+# The fills below are loops, not slice assignments: a slice assignment brings numba's
+# general broadcasting setitem (and its error messages) into the first compilation.
+@njit(cache=True, error_model="numpy")
 def _fail_residuals(r, row, col_u, col_l, n):
     """A failed experiment: every residual of its channels is NaN."""
-    if col_u >= 0:
-        r[row, col_u : col_u + n] = np.nan
-    if col_l >= 0:
-        r[row, col_l : col_l + n] = np.nan
+    for k in range(n):
+        if col_u >= 0:
+            r[row, col_u + k] = np.nan
+        if col_l >= 0:
+            r[row, col_l + k] = np.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _fill_from(a, start, v):
+    """``a[start:] = v``."""
+    for k in range(start, a.shape[0]):
+        a[k] = v
+
+
+@njit(cache=True, error_model="numpy")
+def _fail_outputs(out_thu, out_wu, out_thl, out_wl, start):
+    """A failed simulation: angles and velocities NaN from sample ``start`` on."""
+    _fill_from(out_thu, start, np.nan)
+    _fill_from(out_wu, start, np.nan)
+    _fill_from(out_thl, start, np.nan)
+    _fill_from(out_wl, start, np.nan)
 
 
 # Not inlined by numba (nor are the rig's terms, see terms.py): numba-level inlining copied
 # the whole right-hand side into every entry point and made the first compilation take
 # 248 s on 2 cores; compiled as functions (LLVM still inlines what pays) it takes 38 s and
 # gives the same numbers bit for bit (residuals, batch and simulation checked).
-# The exceptions are terms.drive and terms.rhs (numba-inlined, see there).
+# The exceptions are terms.drive and terms.rhs (numba-inlined, see there; the rhs into
+# the Runge-Kutta step, _rk5, and after each step).
 @njit(cache=True, error_model="numpy")
 def _integrate(
     p, q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
@@ -416,23 +443,18 @@ def _integrate(
     if (bad.any() or grid.shape[0] < 2 or not grid[0] == 0.0 or not grid[-1] >= n - 1.0
             or not h0 > 0.0 or not dt > 0.0):
         if full:
-            out_thu[:] = np.nan
-            out_wu[:] = np.nan
-            out_thl[:] = np.nan
-            out_wl[:] = np.nan
+            _fail_outputs(out_thu, out_wu, out_thl, out_wl, 0)
         else:
             _fail_residuals(r, row, col_u, col_l, n)
         return BAD_PARAMETERS, 0
     c = derived(p, dt)
-    m = (c, cfg, shape, p, q, use_hooks, hook_torque, hook_shift, hook_rate)
+    m = (c, cfg, shape, hook_array(hook_torque, p), hook_array(hook_torque, q), use_hooks,
+         hook_torque, hook_shift, hook_rate)
     if needs_full_kernel(c) and not is_full_kernel(hook_torque):
         # The plain kernel has no code for the lag (terms.full_kernel_only): refuse, never
         # simulate without it.  rotorbayes.model.simulate picks the full kernel for it.
         if full:
-            out_thu[:] = np.nan
-            out_wu[:] = np.nan
-            out_thl[:] = np.nan
-            out_wl[:] = np.nan
+            _fail_outputs(out_thu, out_wu, out_thl, out_wl, 0)
         else:
             _fail_residuals(r, row, col_u, col_l, n)
         return BAD_PARAMETERS, 0
@@ -458,7 +480,7 @@ def _integrate(
     if cfg == CFG_PRESCRIBED:
         y = (d1[2], d1[3], 0.0, 0.0, 0.0)
     mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], y[4], d1, m)
-    f = rhs(y[0], y[1], y[2], y[3], y[4], mu, ml, d1, m)
+    f = _rates(y, mu, ml, d1, m)
     n_ev = 0
     status = OK
     if use_hooks and not effect_state_ok(y[0], y[1], y[2], y[3], y[4], d1, m):
@@ -488,7 +510,7 @@ def _integrate(
         t_end = s_end * dt
         n_step_ev = 0
         while True:
-            t_tgt = next_kink(t, t_end, c, src) if kinks else t_end
+            t_tgt = kink_in_step(hook_torque, t, t_end, c, src) if kinks else t_end
             t_sub = t + min(stribeck_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
                                           hook_torque),
                             approach_step(y[1], f[1], mu, y[3], f[3], ml, c, cfg,
@@ -522,7 +544,7 @@ def _integrate(
                 # (the state as the plain kernel knows it: a constant 0, see terms.state_fma)
                 y1 = (y_ev[0], y_ev[1], y_ev[2], y_ev[3], state_value(m[6], y_ev[4]))
                 de = d_ev
-            fe = rhs(y1[0], y1[1], y1[2], y1[3], y1[4], mu, ml, de, m)
+            fe = rhs(y1[0], y1[1], y1[2], y1[3], y1[4], mu, ml, de, m)  # every step: inlined
             t_seg = t + seg
             lim = t_seg + 1e-9 * dt
             if kout < n and kout * dt <= lim:
@@ -580,7 +602,7 @@ def _integrate(
                 new = ml
             if new == 0 and state_reset == disc:  # a stateful effect reset as the disc sticks
                 y = (y[0], y[1], y[2], y[3], 0.0)
-            f = rhs(y[0], y[1], y[2], y[3], y[4], mu, ml, de, m)
+            f = _rates(y, mu, ml, de, m)
             if n_ev < max_ev:
                 events[n_ev, 0] = t
                 events[n_ev, 1] = disc
@@ -604,16 +626,13 @@ def _integrate(
             _fail_residuals(r, row, col_u, col_l, n)
         return status, n_ev
     if status != OK:
-        out_thu[kout:] = np.nan
-        out_wu[kout:] = np.nan
-        out_thl[kout:] = np.nan
-        out_wl[kout:] = np.nan
+        _fail_outputs(out_thu, out_wu, out_thl, out_wl, kout)
     elif cfg == CFG_PRESCRIBED:
-        out_thu[:] = thp
         for k in range(n):
+            out_thu[k] = thp[k]
             out_wu[k] = prescribed_velocity(k * dt, c, thp)
     if cfg == CFG_UPPER:
-        out_thl[:] = 0.0 if status == OK else np.nan
+        _fill_from(out_thl, 0, 0.0 if status == OK else np.nan)
     return status, n_ev
 
 
@@ -650,7 +669,7 @@ def simulate_into(
     cfg : int
         :data:`CFG_UPPER`, :data:`CFG_COUPLED` or :data:`CFG_PRESCRIBED`.
     shape : int
-        Stribeck shape code (see :mod:`rotorbayes.model.friction`).
+        Stribeck shape code (see :mod:`rotorbayes.kernel.friction`).
     grid : float64[k]
         The Runge-Kutta step points in samples, from 0 to at least ``n - 1``, before the
         input delay's shift (:func:`step_grid`).

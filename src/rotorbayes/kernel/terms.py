@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit, types
 from numba.extending import overload
 
-from ..model.friction import negligible_x, slip_torque
+from .friction import negligible_x, slip_torque
 from .layout import (
     ALPHA0,
     B_L,
@@ -95,6 +95,21 @@ def _call_hook_impl(hook, t, thu, wu, thl, wl, v, z, p, q):
     if isinstance(hook, (types.NoneType, types.Integer)):  # plain or full without hooks
         return lambda hook, t, thu, wu, thl, wl, v, z, p, q: (0.0, 0.0)
     return lambda hook, t, thu, wu, thl, wl, v, z, p, q: hook(t, thu, wu, thl, wl, v, z, p, q)
+
+
+def hook_array(hook, a):
+    """``a`` (a parameter vector) in the kernel with hooks, ``None`` in the plain and the
+    full one, where only hooks read it (compiled code only; see the overload)."""
+    return a
+
+
+@overload(hook_array, inline="always")
+def _hook_array_impl(hook, a):
+    # The model tuple is passed to every term the solver calls; without arrays in it there
+    # is nothing to reference-count at those calls.
+    if isinstance(hook, (types.NoneType, types.Integer)):
+        return lambda hook, a: None
+    return lambda hook, a: a
 
 
 # ------------------------------------------------------------------------ validity
@@ -263,7 +278,8 @@ def input_source(c, cfg, u, thp):
         return u
     n = u.shape[0]
     out = np.empty(2 * n)
-    out[:n] = u
+    for i in range(n):
+        out[i] = u[i]
     tau = c[_TAU]
     e = math.exp(-c[_DT] * c[_ITAU])
     x = u[0]
@@ -397,6 +413,20 @@ def _next_kink_lagged(t, t1, c, src):
                 return tk
         a = b
     return best
+
+
+def kink_in_step(hook, t, t1, c, src):
+    """:func:`next_kink` as the kernel built for ``hook`` needs it (compiled code only; see
+    the overload): the plain kernel has no drive lag (it refuses one), so only the linear
+    search is compiled into it."""
+    return next_kink(t, t1, c, src)
+
+
+@overload(kink_in_step, inline="always")
+def _kink_in_step_impl(hook, t, t1, c, src):
+    if isinstance(hook, types.NoneType):
+        return lambda hook, t, t1, c, src: _next_kink_linear(t, t1, c, src)
+    return lambda hook, t, t1, c, src: next_kink(t, t1, c, src)
 
 
 @njit(cache=True, error_model="numpy")
@@ -688,7 +718,7 @@ def bands(su, sl, c, hook):
     )
 
 
-# Inlined by numba, like drive: with the Stribeck table (model/friction.py) LLVM stopped
+# Inlined by numba, like drive: with the Stribeck table (kernel/friction.py) LLVM stopped
 # inlining it into the solver, and the calls, passing the model tuple, made a brake
 # residual 0.46 ms instead of 0.32 (first compilation 42 s instead of 37).
 @njit(cache=True, error_model="numpy", inline="always")

@@ -6,12 +6,13 @@ batches; each plain, full or with user hooks) is compiled by numba when a comman
 uses it (:func:`kernel_entry`) and kept in numba's on-disk cache, so a command compiles
 only what it uses.  With a cold cache (a fresh install, a new Python, an edited kernel)
 :func:`kernel_entry` says what is happening before and how long it took after, on stderr;
-with a warm one it says nothing.  Measured with an empty cache (issue 33;
-``benchmarks/bench_coldstart.py``; CPU seconds of the compiling process, one idle core's
-time): the first ``rotorbayes simulate`` compiles for 26 s (the plain simulation), the
-first ``rotorbayes fit`` for 33 s (the plain residuals, their batch, the simulation; one
-compilation of the solver serves all three).  Before, every entry point was compiled at
-import: 121 s (69 s before the effect state).
+with a warm one it says nothing.  Measured with an empty cache
+(``benchmarks/bench_coldstart.py``; CPU seconds of the compiling process, one core's time,
+2 cores shared with other work): the first ``rotorbayes simulate`` compiles for 17 s (the
+plain simulation), the first ``rotorbayes fit`` for 20-21 s (the plain residuals, their
+batch, the simulation; one compilation of the solver serves all three); 25-28 s and
+31-33 s before the Runge-Kutta step was compiled as a function of its own.  Before, every
+entry point was compiled at import: 121 s (69 s before the effect state).
 """
 
 from __future__ import annotations
