@@ -14,6 +14,11 @@
   numerical library imported; from rotorbayes only exit codes and exception classes (the
   commands are reached through the table); every command's options are exactly its
   function's keyword arguments, with the same defaults.
+* Commands pass typed options (:mod:`rotorbayes.commands.config`), never a namespace of
+  their locals: the options of ``fit``, ``multistart``, ``sample`` and ``identify`` are
+  exactly the flattened fields of their options classes, with the same defaults; each
+  shared option group of the command line is exactly one options class; the function
+  hands every keyword to the field of that name.
 """
 
 from __future__ import annotations
@@ -303,6 +308,106 @@ def test_each_command_is_a_function_with_the_options_as_keywords(name):
             assert p.default == a.default, (
                 f"{name} {a.option_strings[0]}: default {a.default!r} on the command line, "
                 f"{p.default!r} in Python")
+
+
+# --------------------------------------------------------------- typed command options
+#: The commands whose work reads one options object, and its class's name.
+TYPED_COMMANDS = {"fit": "FitOptions", "multistart": "MultistartOptions",
+                  "sample": "SampleOptions", "identify": "IdentifyOptions"}
+
+
+def _dests(add_group, *args) -> dict[str, argparse.Action]:
+    """The options a shared option group adds to a bare parser, by destination."""
+    p = argparse.ArgumentParser()
+    add_group(p, *args)
+    return {a.dest: a for a in p._actions if a.dest != "help"}
+
+
+@pytest.mark.parametrize("name", sorted(TYPED_COMMANDS))
+def test_each_typed_command_option_is_a_field_of_its_options_class(name):
+    """Every command-line option of the command sets one field of its options class and
+    every field is set by one option, with the same default (required where required)."""
+    from rotorbayes import cli
+    from rotorbayes.commands import config
+
+    cls = getattr(config, TYPED_COMMANDS[name])
+    fields = config.keyword_fields(cls)
+    defaults = config.keyword_defaults(cls)
+    actions = [a for a in _subparsers(cli.build_parser())[1][name]._actions
+               if a.dest != "help"]
+    assert {a.dest for a in actions} == set(fields), (
+        f"{name}: options without a field {sorted({a.dest for a in actions} - set(fields))}, "
+        f"fields without an option {sorted(set(fields) - {a.dest for a in actions})}")
+    for a in actions:
+        required = a.required if a.option_strings else a.nargs in (None, "+")
+        if required:
+            assert a.dest not in defaults, f"{name} {a.dest} is required on the command line"
+        else:
+            assert a.dest in defaults, f"{name} {a.dest}: optional, but the field is required"
+            assert defaults[a.dest] == a.default, (
+                f"{name} {a.dest}: default {a.default!r} on the command line, "
+                f"{defaults[a.dest]!r} in {cls.__name__}")
+    # The Python function's keywords are the same fields (with the defaults tested above).
+    function = getattr(cli.command_module(name), name)
+    assert set(inspect.signature(function).parameters) == set(fields)
+
+
+def test_each_shared_option_group_is_one_options_class():
+    """The option groups several commands share map onto the shared options classes and
+    back: read options, the problem and solver of fit/multistart, the executor, the way a
+    fit folder is read again."""
+    from rotorbayes.commands import config, options
+
+    def names(cls):
+        return set(config.keyword_fields(cls))
+
+    assert set(_dests(options.add_read_options)) == names(config.ReadOptions)
+    assert set(_dests(options.add_parallel_options, "tasks")) == names(config.ExecutorOptions)
+    folder = {**_dests(options.add_trust_option), **_dests(options.add_changed_data_option)}
+    assert set(folder) == names(config.FitFolderOptions)
+    fit_group = _dests(options.add_fit_options)
+    assert set(fit_group) == (names(config.ProblemOptions) | names(config.SolverOptions)
+                              | {"out", "force"})
+    for cls in (config.ProblemOptions, config.SolverOptions, config.ReadOptions):
+        for k, v in config.keyword_defaults(cls).items():
+            assert fit_group[k].default == v, f"--{k}: {fit_group[k].default!r} vs {v!r}"
+
+
+@pytest.mark.parametrize("name", sorted(TYPED_COMMANDS))
+def test_each_typed_command_hands_every_keyword_to_its_field(name, monkeypatch):
+    """The function builds its options object with each keyword in the field of that name
+    (a value given to a command reaches its work unchanged)."""
+    from rotorbayes import cli
+    from rotorbayes.commands import config
+
+    module = cli.command_module(name)
+    cls = getattr(config, TYPED_COMMANDS[name])
+    # A distinct value per keyword; the read options must be valid ones (checked at once).
+    given = {k: f"value of {k}" for k in config.keyword_fields(cls)}
+    valid = {"columns": "t=Time,u=Volt", "time_unit": "ms", "angle_unit": "counts",
+             "counts_per_rev": "theta_u=1000,theta_l=2000",
+             "data": ("data1.csv", "data2.csv"), "validate": ("val1.csv", "val2.csv")}
+    given.update({k: v for k, v in valid.items() if k in given})
+    seen = []
+    monkeypatch.setattr(module, "execute", seen.append)
+    getattr(module, name)(**given)
+    assert len(seen) == 1 and isinstance(seen[0], cls)
+    assert config.keywords(seen[0]) == given
+    assert config.keywords(config.from_keywords(cls, **given)) == given
+
+
+def test_no_command_reads_its_options_from_a_namespace_of_its_locals():
+    """``SimpleNamespace(**locals())`` (or any call given ``**locals()``) hides which
+    options a step reads; commands pass their typed options instead."""
+    bad = []
+    for path in MODULES.values():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call) and any(
+                    k.arg is None and isinstance(k.value, ast.Call)
+                    and isinstance(k.value.func, ast.Name) and k.value.func.id == "locals"
+                    for k in node.keywords):
+                bad.append(f"{path.relative_to(SRC)}:{node.lineno}")
+    assert not bad, "calls given **locals():\n" + "\n".join(bad)
 
 
 # ----------------------------------------------------------------------------- layers

@@ -235,7 +235,7 @@ def test_a_study_tries_a_candidate_effect_and_keeps_it_only_if_it_helps(data, mo
 
         rule = D.is_material
         study_module = "rotorbayes.commands.study.analysis"
-    monkeypatch.setattr(D, "is_material", lambda before, after: False if sys._getframe(
+        monkeypatch.setattr(D, "is_material", lambda before, after: False if sys._getframe(
             1).f_globals["__name__"] == study_module else rule(before, after))
     f = data / "cand.toml"
     f.write_text(STUDY.split("[sample]")[0].replace('out = "out"', f'out = "cand{helps}"')

@@ -21,8 +21,11 @@ For example::
     outcome = fit(["example:upper_est"], model="upper", out="f0")
     diagnose("f0")
 
-Shared pieces: :mod:`.common` (loading data and parameter sets, the executor, strict JSON)
-and :mod:`.options` (the option types and option groups of several commands).
+Shared pieces: :mod:`.common` (loading data and parameter sets, the executor, strict JSON),
+:mod:`.options` (the option types and option groups of several commands' command lines)
+and :mod:`.config` (the same options as typed objects: the problem, the solver, the
+executor; ``fit``, ``multistart``, ``sample`` and ``identify`` build one from their
+keywords and ``execute`` it).
 :mod:`rotorbayes.cli` is only the table of these commands and the exit codes.
 
 The package imports none of its modules here: :mod:`rotorbayes.commands.study.analysis`

@@ -16,7 +16,8 @@ from pathlib import Path
 from ..design.core import DEFAULT_EVALS, NO_INPUT
 from ..design.inputs import FAMILIES, MAX_BAND_HZ
 from ..model.signals import MAX_VOLTAGE
-from .common import Outcome, csv_list, executor
+from .common import Outcome, csv_list
+from .config import ExecutorOptions
 from .options import add_changed_data_option, add_parallel_options, add_trust_option, ranged
 
 HELP = ("design the next experiment: the input that pins the fit's sloppiest direction (or "
@@ -84,7 +85,7 @@ def design(fit: str, *, out: str, separate: str | None = None, params: str | Non
         if v is not None and not (math.isfinite(v) and v > 0):
             raise ValueError(f"{name} {v}: give a positive number")
     with output_folder(out, force, inputs=[fit]) as tmp:
-        with executor(backend, workers, scheduler):
+        with ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler).open():
             res = design_input(
                 fit, params=csv_list(params, "--params"),
                 separate=csv_list(separate, "--separate"), duration=duration, rate=rate,

@@ -1,7 +1,8 @@
 """``rotorbayes fit``: least squares from a start, judged against the encoder floor.
 
-:func:`fit` writes fit.json and figures into a result folder; :func:`build_problem` (also
-used by ``multistart``) turns the fit options into an estimation problem.
+:func:`fit` writes fit.json and figures into a result folder (:func:`execute` does the
+same from a :class:`~rotorbayes.commands.config.FitOptions`); :func:`build_problem` (also
+used by ``multistart``) turns the problem options into an estimation problem.
 """
 
 from __future__ import annotations
@@ -10,7 +11,6 @@ import argparse
 import math
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -30,7 +30,8 @@ from .common import (
     run_values,
     strict_json,
 )
-from .options import MAX_RESTARTS, add_fit_options, ranged, read_spec
+from .config import FitOptions, ProblemOptions, ReadOptions, SolverOptions
+from .options import MAX_RESTARTS, add_fit_options, ranged
 
 HELP = "least squares from a start P0"
 
@@ -101,54 +102,69 @@ def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
     (``force`` replaces an earlier one).  ``Outcome.doc`` is the fit.json document;
     ``exit_code`` is 1 when the fit did not converge.
     """
-    a = SimpleNamespace(**locals())  # the steps below read the options by name
-    a.data = [data] if isinstance(data, str) else list(data)
-    a.read = read_spec(columns, time_unit, angle_unit, counts_per_rev)
+    problem = ProblemOptions(
+        model=model, data=data, free=free, fixed=fixed, base=base, add=add, without=without,
+        channels=channels, weights=weights, prescribed_upper=prescribed_upper, step=step,
+        keep_glitches=keep_glitches, trust_effects=trust_effects,
+        read=ReadOptions(columns, time_unit, angle_unit, counts_per_rev))
+    return execute(FitOptions(
+        problem=problem, out=out,
+        solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
+        validate=validate, validate_alpha0=validate_alpha0, p0=p0, restarts=restarts,
+        search=search, force=force))
+
+
+def execute(options: FitOptions) -> Outcome:
+    """:func:`fit` with its options as one :class:`~rotorbayes.commands.config.FitOptions`
+    (the form the study builds)."""
+    o, pr = options, options.problem
     guard = InterruptGuard()
     try:
-        with output_folder(a.out, a.force, inputs=[a.data, a.validate, a.p0, a.base,
-                                                   a.add]) as folder:
-            doc = _run(a, folder, guard)
+        with output_folder(o.out, o.force, inputs=[pr.data, o.validate, o.p0, pr.base,
+                                                   pr.add]) as folder:
+            doc = _run(o, folder, guard)
         from ..inference.taskstore import remove_store
 
-        remove_store(a.out)  # the fit folder is complete: no restart left to resume
+        remove_store(o.out)  # the fit folder is complete: no restart left to resume
     except KeyboardInterrupt as exc:
-        raise _fit_interrupted(exc, a.out) from None
+        raise _fit_interrupted(exc, o.out) from None
     except SimulationError as exc:
         from ..inference import StartError
 
-        if isinstance(exc, StartError) and a.p0 and a.p0 not in str(exc):
-            raise Refused(f"--p0 {a.p0}: {exc}") from None
+        if isinstance(exc, StartError) and o.p0 and o.p0 not in str(exc):
+            raise Refused(f"--p0 {o.p0}: {exc}") from None
         raise
     finally:
         guard.stop()
     if guard.hit:
         raise Interrupted(f"interrupted (Ctrl-C) after the fit had finished; its results were "
-                          f"kept, complete, in {a.out}/ (fit.json and the figures)")
-    return Outcome(EXIT.DONE if doc["success"] else EXIT.NOT_CONVERGED, Path(a.out), doc)
+                          f"kept, complete, in {o.out}/ (fit.json and the figures)")
+    return Outcome(EXIT.DONE if doc["success"] else EXIT.NOT_CONVERGED, Path(o.out), doc)
 
 
-def build_model(a, n_experiments: int):
-    """The model: configuration, base effects minus --without, effects inherited from a
-    --p0 fit.json (multistart: the --around fit.json), plus --add."""
+def build_model(problem: ProblemOptions, n_experiments: int, carrier: str | None = None):
+    """The model: configuration, base effects minus --without, effects inherited from the
+    fit.json ``carrier`` names (fit: --p0; multistart: --around), plus --add."""
     from ..model import Model
 
-    added = list(a.add or [])
-    carrier = getattr(a, "p0", None) or getattr(a, "around", None)
-    specs = fit_effects(carrier, a.model, getattr(a, "trust_effects", False))
+    pr = problem
+    added = list(pr.add or [])
+    specs = fit_effects(carrier, pr.model, pr.trust_effects)
     inherited = [e for e in specs if e not in added]
-    if (n_experiments > 1 and a.model != "upper" and "initial_torsion" not in added
+    if (n_experiments > 1 and pr.model != "upper" and "initial_torsion" not in added
             and "initial_torsion" not in inherited):
         added.append("initial_torsion")
-    model = Model(a.model, [*inherited, *added], without=a.without or (),
-                  prescribed_upper=a.prescribed_upper)
+    model = Model(pr.model, [*inherited, *added], without=pr.without or (),
+                  prescribed_upper=pr.prescribed_upper)
     if inherited:
         print(f"effects carried over from {carrier}: {', '.join(inherited)}")
     return model, added
 
 
-def build_problem(a, exps, start_spec=None, also=()):
-    """The estimation problem of the fit/multistart arguments.
+def build_problem(problem: ProblemOptions, exps, *, p0: str | None = None,
+                  carrier: str | None = None, start_spec=None, also=()):
+    """The estimation problem of the fit/multistart options ``problem`` and the start
+    ``p0`` (fit's --p0; effects are carried over from ``carrier``, by default ``p0``).
 
     ``--add`` frees the effect's parameters, also when ``--free`` is given.  ``--step`` is
     checked against every data file, the validation files ``also`` included; a problem
@@ -158,21 +174,22 @@ def build_problem(a, exps, start_spec=None, also=()):
     from ..inference.least_squares import check_fittable
     from ..model.simulate import check_step
 
+    pr = problem
     for ex in [*exps, *also]:
         try:
-            check_step(getattr(a, "step", None), ex.dt, ex.n, what="--step",
+            check_step(pr.step, ex.dt, ex.n, what="--step",
                        where=str(ex.path or ex.name))
         except _params.ParameterError as exc:
             raise Refused(str(exc)) from None
 
-    model, added = build_model(a, len(exps))
-    free = csv_list(a.free, "--free")
-    fixed = csv_list(a.fixed, "--fixed") or []
+    model, added = build_model(pr, len(exps), carrier or p0)
+    free = csv_list(pr.free, "--free")
+    fixed = csv_list(pr.fixed, "--fixed") or []
     # Chaining the thesis's steps: a start from an upper-configuration fit fixes the motor
     # and upper-disc parameters it estimated (unless --free says otherwise).
     from_upper: dict[str, float] = {}
-    doc = fit_json(getattr(a, "p0", None))
-    if doc is not None and doc.get("config") == "upper" and a.model != "upper" and free is None:
+    doc = fit_json(p0)
+    if doc is not None and doc.get("config") == "upper" and pr.model != "upper" and free is None:
         est = doc.get("estimates", {})
         from_upper = {n: v["value"] for n, v in est.items() if n in model.active}
         fixed += [n for n in from_upper if n not in fixed]
@@ -185,16 +202,15 @@ def build_problem(a, exps, start_spec=None, also=()):
     for n in fixed:
         if n.split("[")[0] not in model.info:
             raise Refused("--fixed: " + _params.unknown_name_message(n))
-    base_spec = a.base or start_spec
+    base_spec = pr.base or start_spec
     base = resolve_values(base_spec, model) if base_spec else None
-    channels = tuple(csv_list(a.channels, "--channels")) if a.channels else None
-    weights = _parse_weights(a.weights, a.model, channels, a.prescribed_upper) \
-        if a.weights is not None else None
+    channels = tuple(csv_list(pr.channels, "--channels")) if pr.channels else None
+    weights = _parse_weights(pr.weights, pr.model, channels, pr.prescribed_upper) \
+        if pr.weights is not None else None
     prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
-                   fixed=fixed, step=getattr(a, "step", None),
-                   run_starts=run_values(getattr(a, "p0", None)))
+                   fixed=fixed, step=pr.step, run_starts=run_values(p0))
     if not prob.names:
-        given = a.fixed if isinstance(a.fixed, str) else ",".join(a.fixed or ())
+        given = pr.fixed if isinstance(pr.fixed, str) else ",".join(pr.fixed or ())
         why, how = ((f"--fixed {given}: that is every free parameter of this fit",
                      "leave it out of --fixed") if given else
                     ("this fit has no free parameter", "name it with --free"))
@@ -318,23 +334,25 @@ def _quality_table(rows, label: str) -> str:
     return "\n\n".join(out)
 
 
-def _sources(a, prob, fixed_from_upper: dict) -> dict[str, str]:
+def _sources(options: FitOptions, prob, fixed_from_upper: dict) -> dict[str, str]:
     """Where the value of every parameter that is not estimated came from."""
-    default = _params.DEFAULT_SET[a.model]
+    pr = options.problem
+    default = _params.DEFAULT_SET[pr.model]
     src = {}
     for n in prob.model.active:
         if n == "J_u":
-            src[n] = "eq. 5.4 (disc geometry)" if not (a.base or a.p0) else None
+            src[n] = "eq. 5.4 (disc geometry)" if not (pr.base or options.p0) else None
         src[n] = src.get(n) or (
-            f"upper-disc fit {a.p0}" if n in fixed_from_upper
-            else f"--base {a.base}" if a.base
-            else f"--p0 {a.p0}" if a.p0
+            f"upper-disc fit {options.p0}" if n in fixed_from_upper
+            else f"--base {pr.base}" if pr.base
+            else f"--p0 {options.p0}" if options.p0
             else f"default set {default}"
         )
     return src
 
 
-def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
+def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
+         guard=None) -> dict:
     """Fit, print and write fit.json + figures; returns the JSON document.
 
     ``guard`` (an :class:`~rotorbayes.io.outputs.InterruptGuard`) is started once the fit has
@@ -345,34 +363,37 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     from ..inference.results import data_record
     from .common import glitch_record, say_glitches
 
+    pr = options.problem
     # Glitches (encoder spikes) are named and left out unless --keep-glitches.
-    exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches, read=a.read)
-    val = load_experiments(a.validate, a.model, keep_glitches=a.keep_glitches,
-                           read=a.read) if a.validate else []
+    exps = load_experiments(pr.data, pr.model, keep_glitches=pr.keep_glitches,
+                            read=pr.read.spec)
+    val = load_experiments(options.validate, pr.model, keep_glitches=pr.keep_glitches,
+                           read=pr.read.spec) if options.validate else []
     say_glitches(exps, val)
     # The start set also fixes the values of the parameters that are not estimated.
-    prob, fixed_from_upper = build_problem(a, exps, start_spec=a.p0, also=val)
-    val_alpha0 = _check_validation_torsion(a, prob, val)
-    sources = _sources(a, prob, fixed_from_upper)
-    print(f"model: {a.model} configuration with "
+    prob, fixed_from_upper = build_problem(pr, exps, p0=options.p0, start_spec=options.p0,
+                                           also=val)
+    val_alpha0 = _check_validation_torsion(options, prob, val)
+    sources = _sources(options, prob, fixed_from_upper)
+    print(f"model: {pr.model} configuration with "
           f"{', '.join(prob.model.effect_names) or 'no effects'}")
-    print(f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {a.model} "
+    print(f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {pr.model} "
           f"configuration to {len(exps)} experiment(s), channels {', '.join(prob.channels)}")
     if fixed_from_upper:
-        print(f"fixed from the upper-disc fit {a.p0}: {', '.join(fixed_from_upper)}")
-    fit_kw = dict(max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol, gtol=a.gtol)
+        print(f"fixed from the upper-disc fit {options.p0}: {', '.join(fixed_from_upper)}")
+    fit_kw = options.solver.keywords()
     start_source: dict[str, str] = {}
     refit = None  # the search over an added effect's starts (--p0 with --add)
-    if a.p0 and not fixed_from_upper:
+    if options.p0 and not fixed_from_upper:
         start = dict(prob.base)
-        if a.base:
-            start.update(resolve_values(a.p0, prob.model))
+        if pr.base:
+            start.update(resolve_values(options.p0, prob.model))
         x0 = prob.start_vector(start)
         # A parameter the --p0 fit did not have (its effect was off there, or it is a user
         # effect's) starts at its effect's default, not at a value of that fit.
-        p0_params = (fit_json(a.p0) or {}).get("parameters") or {}
+        p0_params = (fit_json(options.p0) or {}).get("parameters") or {}
         # (alpha0[1] of a --p0 fit of one run: that fit's alpha0, not a default.)
-        start_source = {n: f"--p0 {a.p0}" if not p0_params or (
+        start_source = {n: f"--p0 {options.p0}" if not p0_params or (
             (p0_params.get(n) or p0_params.get(inference.local_name(n)[0])
              or {"status": "off"}).get("status") != "off")
             else "the effect's default" for n in prob.names}
@@ -380,15 +401,15 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
 
         # The effects new to this fit: those --add names, and any whose parameters the
         # --p0 fit did not have (their start is the effect's default).
-        add_names = {s.rpartition(":")[2] for s in (a.add or [])}
+        add_names = {s.rpartition(":")[2] for s in (pr.add or [])}
         new_effects = [e for e in prob.model.added if e.name in add_names or any(
             start_source.get(n) == "the effect's default" for n in e.names)]
         diagnosed = {n: v for n, v in diagnosis_starts(
-            a.p0, [e.name for e in new_effects]).items() if n in prob.names}
-        print(f"start: --p0 {a.p0}")
+            options.p0, [e.name for e in new_effects]).items() if n in prob.names}
+        print(f"start: --p0 {options.p0}")
         from ..inference.refit import added_names as _searched
 
-        if a.search and _searched(prob, new_effects):
+        if options.search and _searched(prob, new_effects):
             from ..inference.refit import refit_added
 
             refit = refit_added(prob, x0, diagnosed, new_effects, verbose=True, **fit_kw)
@@ -398,7 +419,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
                 print("note: " + note)
             for n in refit.searched:
                 start_source[n] = f"refit search: {refit.chose}"
-            chose = f"--p0 {a.p0}, added parameters from {refit.chose}"
+            chose = f"--p0 {options.p0}, added parameters from {refit.chose}"
         else:
             refit = None
             for n, v in diagnosed.items():
@@ -411,7 +432,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
                     f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
                     for e in prob.model.added for n in e.names if n in prob.names))
             res = inference.fit(prob, x0, verbose=True, **fit_kw)
-            chose = f"--p0 {a.p0}"
+            chose = f"--p0 {options.p0}"
     else:
         print("start: computed from the data (the equations of motion as a regression on "
               "smoothed derivatives of the measured angles; give --p0 to choose one)")
@@ -419,8 +440,8 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
 
         # The fit from the data start and each finished restart are kept beside --out:
         # a re-run after a kill or Ctrl-C skips them.
-        ff = inference.fit_from_data(prob, restarts=a.restarts, verbose=True,
-                             resume=store_path(a.out), **fit_kw)
+        ff = inference.fit_from_data(prob, restarts=options.restarts, verbose=True,
+                             resume=store_path(options.out), **fit_kw)
         res, chose = ff.result, ff.chose
         start_source = {n: ff.start.source.get(n, ff.start.source.get(
             inference.local_name(n)[0], "")) for n in prob.names}
@@ -454,7 +475,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
     print(f"verdict: {assessment.verdict}")
     print(assessment.integration_line())
     if refit is not None:
-        _refit_words(refit, assessment, a)
+        _refit_words(refit, assessment, options)
     w, V = res.sloppy_directions()
     sloppy = {n: float(c) for n, c in zip(res.names, V[:, 0], strict=True)}
     ratio = float(w[-1] / max(w[0], 1e-300))
@@ -489,7 +510,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
             "near_bound": n in assessment.near_bound,
         }
     doc = {
-        "config": a.model, "effects": list(prob.effects),
+        "config": pr.model, "effects": list(prob.effects),
         "added_effects": [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
                           for e in prob.model.added],
         "channels": list(prob.channels),
@@ -499,8 +520,8 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         "glitches": glitch_record(exps, val),
         "validation": [str(Path(e.path).absolute()) for e in val],
         # The SHA-256 of the bytes fitted, and how they were read (names, units).
-        "data_files": data_record(exps, Path(a.out), a.read),
-        "validation_files": data_record(val, Path(a.out), a.read),
+        "data_files": data_record(exps, Path(options.out), pr.read.spec),
+        "validation_files": data_record(val, Path(options.out), pr.read.spec),
         "effect_files": {e.source: _effects.file_sha256(e.source) for e in prob.model.added
                          if e.source != "catalogue"},
         "success": res.success, "message": res.message, "nfev": res.nfev,
@@ -510,7 +531,7 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
         "prescribed_upper": bool(prob.prescribed_upper),
         "step": prob.step,  # the largest Runge-Kutta step [s]; None: the default
         "weights": dict(prob.weights),
-        "parent": _parent_of(a.p0),
+        "parent": _parent_of(options.p0),
         "refit": refit.as_dict() if refit is not None else None,
         "assessment": assessment.as_dict(),
         "parameters": parameters,
@@ -546,26 +567,26 @@ def _run(a, out: Path, guard=None) -> dict:  # noqa: C901 - one linear report
                 txt[c] = (f"R² {st['r2']:.4f}, fit {st['nrmse_fit']:.2f} %, "
                           f"max |e| {st['max_abs_error']:.3g} rad")
             fig, _ = plot_fit(ex.t, meas, simd, mode=s.mode_l, metrics=txt,
-                              title=f"{a.model}: {label} data {Path(str(ex.path)).name}")
+                              title=f"{pr.model}: {label} data {Path(str(ex.path)).name}")
             save_figure_atomic(fig, out / f"fit_{label}_{i}.png")
-    shape_discs = ("u",) if a.model == "upper" else ("u", "l")
+    shape_discs = ("u",) if pr.model == "upper" else ("u", "l")
     fig, _ = plot_friction(res.params, discs=shape_discs, shape=prob.shape,
-                           title=f"fitted friction, {a.model} configuration")
+                           title=f"fitted friction, {pr.model} configuration")
     save_figure_atomic(fig, out / "friction.png")
-    print(f"\nwrote {Path(a.out) / 'fit.json'} and figures in {a.out}/")
+    print(f"\nwrote {Path(options.out) / 'fit.json'} and figures in {options.out}/")
     for wtxt in assessment.warnings:
         print(f"warning: {wtxt}", file=sys.stderr)
     return doc
 
 
-def _refit_words(refit, assessment, a) -> None:
+def _refit_words(refit, assessment, options: FitOptions) -> None:
     """Where the refit ended against what the diagnosis beside the --p0 fit predicted for
     the added effect; a warning (printed and kept in fit.json) when it ended above it."""
     import json
 
     from ..inference.refit import diagnosis_prediction, prediction_note
 
-    folder = Path(a.p0) if Path(a.p0).is_dir() else Path(a.p0).parent
+    folder = Path(options.p0) if Path(options.p0).is_dir() else Path(options.p0).parent
     try:
         diag = json.loads((folder / "diagnosis.json").read_text())
     except (OSError, ValueError):
@@ -576,22 +597,24 @@ def _refit_words(refit, assessment, a) -> None:
     ratio = assessment.worst_ratio
     if pred is not None:
         where = "below" if ratio < pred else "at" if ratio <= pred * 1.1 else "above"
-        print(f"the diagnosis of {a.p0} predicted {pred:.3g}x the floor for adding "
+        print(f"the diagnosis of {options.p0} predicted {pred:.3g}x the floor for adding "
               f"{' and '.join(effects)}; the refit ended at {ratio:.3g}x ({where} it)")
     adds = "".join(f" --add {e.name if e.source == 'catalogue' else f'{e.source}:{e.name}'}"
                    for e in refit.result.problem.model.added)
     note = prediction_note(ratio, pred, effects,
-                           f"rotorbayes multistart --model {a.model} {' '.join(a.data)}"
-                           f"{adds} --around {a.out}/ --out {a.out.rstrip('/')}_ms/")
+                           f"rotorbayes multistart --model {options.problem.model} "
+                           f"{' '.join(options.problem.data)}"
+                           f"{adds} --around {options.out}/ "
+                           f"--out {options.out.rstrip('/')}_ms/")
     if note:
         assessment.warnings.append(note)
 
 
-def _check_validation_torsion(a, prob, val) -> list | None:
+def _check_validation_torsion(options: FitOptions, prob, val) -> list | None:
     """``--validate-alpha0``, checked before any work: one value per validation file, each
     one the model can take (:meth:`~rotorbayes.inference.Problem.validation_params`).
     Returns the values (None: fitted on that run alone) or None when none were given."""
-    given = a.validate_alpha0
+    given = options.validate_alpha0
     if given is None:
         return None
     given = [given] if isinstance(given, int | float | str) else list(given)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from ..io.outputs import output_folder, save_figure_atomic, write_text_atomic
 from ..util.exitcodes import Refused
-from .common import Outcome, csv_list, executor, strict_json
+from .common import Outcome, csv_list, strict_json
+from .config import ExecutorOptions, FitFolderOptions, IdentifyOptions
 from .options import add_changed_data_option, add_parallel_options, add_trust_option, ranged
 
 HELP = "which parameter combinations the data fix: Fisher directions in words, profile likelihoods"
@@ -41,30 +41,38 @@ def identify(fit: str, *, out: str, profiles=None, points: int = 11,
     each, run where ``backend``/``workers``/``scheduler`` say), and with ``posterior`` (a
     sample folder) a corner plot, ``multistart``'s end points on it; written into ``out``.
     ``Outcome.doc`` is identify.json's document."""
-    from ..inference.results import load_fit
+    return execute(IdentifyOptions(
+        fit=fit, out=out, profiles=profiles, points=points, posterior=posterior,
+        multistart=multistart, force=force,
+        fit_folder=FitFolderOptions(trust_effects=trust_effects,
+                                    accept_changed_data=accept_changed_data),
+        executor=ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler)))
 
-    a = SimpleNamespace(**locals())  # the steps below read the options by name
-    result = load_fit(fit, trust_effects=trust_effects,
-                      accept_changed_data=accept_changed_data)
+
+def execute(options: IdentifyOptions) -> Outcome:
+    """:func:`identify` with its options as one
+    :class:`~rotorbayes.commands.config.IdentifyOptions` (the form the study builds)."""
+    o = options
+    result = o.fit_folder.load(o.fit)
     prob = result.problem
-    names = csv_list(profiles, "--profiles") or []
+    names = csv_list(o.profiles, "--profiles") or []
     for n in names:
         if n not in prob.names:
             raise Refused(f"--profiles: {n} is not a free parameter of {result.folder}/; the "
                           f"free ones are {', '.join(prob.names)}")
-    if points < 3:
-        raise Refused(f"--points {points}: give at least 3 grid points")
-    a.idata = _posterior(posterior, prob, result.folder) if posterior else None
-    if multistart and not (Path(multistart) / "multistart.json").exists():
-        raise Refused(f"--multistart {multistart}: no multistart.json there; give a folder "
+    if o.points < 3:
+        raise Refused(f"--points {o.points}: give at least 3 grid points")
+    idata = _posterior(o.posterior, prob, result.folder) if o.posterior else None
+    if o.multistart and not (Path(o.multistart) / "multistart.json").exists():
+        raise Refused(f"--multistart {o.multistart}: no multistart.json there; give a folder "
                       "written by `rotorbayes multistart`")
-    with output_folder(out, force, inputs=[fit, posterior, multistart]) as folder:
-        written, doc = _identify_into(a, result, prob, names, folder)
+    with output_folder(o.out, o.force, inputs=[o.fit, o.posterior, o.multistart]) as folder:
+        written, doc = _identify_into(o, result, prob, names, folder, idata)
     from ..inference.taskstore import remove_store
 
-    remove_store(out)  # complete: no profile point left to resume
-    print(f"\nwrote {', '.join(written)} in {out}/")
-    return Outcome(folder=Path(out), doc=doc)
+    remove_store(o.out)  # complete: no profile point left to resume
+    print(f"\nwrote {', '.join(written)} in {o.out}/")
+    return Outcome(folder=Path(o.out), doc=doc)
 
 
 def _posterior(folder: str, prob, fit_folder: Path):
@@ -92,7 +100,7 @@ def _posterior(folder: str, prob, fit_folder: Path):
     return idata
 
 
-def _profiles_into(a, prob, fit, profiles, se, ex, doc) -> None:
+def _profiles_into(a: IdentifyOptions, prob, fit, profiles, se, ex, doc) -> None:
     """Each profile's grid points on the executor ``ex``; printed and added to ``doc``."""
     from ..inference import identify as inference_identify
     from ..inference.taskstore import store_path
@@ -115,7 +123,8 @@ def _profiles_into(a, prob, fit, profiles, se, ex, doc) -> None:
                  f" ({iv['note']})" if iv["note"] else ""))
 
 
-def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:
+def _identify_into(a: IdentifyOptions, fit, prob, profiles, out: Path,
+                   idata=None) -> tuple[list[str], dict]:
     from ..inference import identify as inference_identify
 
     F = inference_identify.fisher(prob, fit.x)
@@ -134,13 +143,12 @@ def _identify_into(a, fit, prob, profiles, out: Path) -> tuple[list[str], dict]:
         se = dict(zip(prob.names, fit.doc and [fit.doc["estimates"][n]["stderr"] or 0.0
                                                for n in prob.names], strict=True))
         # One executor (one cluster, if any) for every profile.
-        with executor(a.backend, a.workers, a.scheduler) as ex:
+        with a.executor.open() as ex:
             _profiles_into(a, prob, fit, profiles, se, ex, doc)
         save_figure_atomic(posterior_figures.plot_profiles(doc["profiles"])[0],
                            out / "profiles.png")
         written.append("profiles.png")
     if a.posterior:
-        idata = a.idata
         overlay = None
         if a.multistart:
             ms = json.loads((Path(a.multistart) / "multistart.json").read_text())

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -13,15 +12,21 @@ from ..util import exitcodes as EXIT
 from ..util.exitcodes import Interrupted
 from .common import (
     Outcome,
-    executor,
     glitch_record,
     json_default,
     load_experiments,
     resolve_values,
     say_glitches,
 )
+from .config import (
+    ExecutorOptions,
+    MultistartOptions,
+    ProblemOptions,
+    ReadOptions,
+    SolverOptions,
+)
 from .fit import build_problem
-from .options import MAX_STARTS, add_fit_options, add_parallel_options, ranged, read_spec
+from .options import MAX_STARTS, add_fit_options, add_parallel_options, ranged
 
 HELP = "many fits from spread starts; waterfall and spread"
 
@@ -59,37 +64,51 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     ``workers`` and ``scheduler`` choose where the fits run.  ``Outcome.doc`` is
     multistart.json's document.
     """
-    a = SimpleNamespace(**locals())  # the steps below read the options by name
-    a.data = [data] if isinstance(data, str) else list(data)
-    a.read = read_spec(columns, time_unit, angle_unit, counts_per_rev)
+    problem = ProblemOptions(
+        model=model, data=data, free=free, fixed=fixed, base=base, add=add, without=without,
+        channels=channels, weights=weights, prescribed_upper=prescribed_upper, step=step,
+        keep_glitches=keep_glitches, trust_effects=trust_effects,
+        read=ReadOptions(columns, time_unit, angle_unit, counts_per_rev))
+    return execute(MultistartOptions(
+        problem=problem, out=out,
+        solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
+        executor=ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler),
+        starts=starts, around=around, spread=spread, seed=seed, force=force))
+
+
+def execute(options: MultistartOptions) -> Outcome:
+    """:func:`multistart` with its options as one
+    :class:`~rotorbayes.commands.config.MultistartOptions` (the form the study builds)."""
     from .. import inference
     from ..figures.plots import plot_parameter_spread, plot_waterfall, quantisation_floor_ssr
     from ..inference.taskstore import remove_store, store_path
 
+    o, pr = options, options.problem
     guard = InterruptGuard()
-    with guard, output_folder(a.out, a.force,
-                              inputs=[a.data, a.around, a.base, a.add]) as out:
-        exps = load_experiments(a.data, a.model, keep_glitches=a.keep_glitches, read=a.read)
+    with guard, output_folder(o.out, o.force,
+                              inputs=[pr.data, o.around, pr.base, pr.add]) as out:
+        exps = load_experiments(pr.data, pr.model, keep_glitches=pr.keep_glitches,
+                                read=pr.read.spec)
         say_glitches(exps)
-        prob, _ = build_problem(a, exps)
+        prob, _ = build_problem(pr, exps, carrier=o.around)
         around = None
-        if a.around:
+        if o.around:
             # A fit folder's values, user effects' too (their effects are on: build_model
             # carries them over from --around as fit does from --p0).
-            around = resolve_values(a.around, prob.model)
-        how = (f"log-normal spread {a.spread:.2f} around {a.around}" if around
+            around = resolve_values(o.around, prob.model)
+        how = (f"log-normal spread {o.spread:.2f} around {o.around}" if around
                else "Latin hypercube over the bounds")
-        print(f"multistart: {a.starts} fits of {', '.join(prob.names)} ({how})")
-        with executor(a.backend, a.workers, a.scheduler) as ex:
+        print(f"multistart: {o.starts} fits of {', '.join(prob.names)} ({how})")
+        with o.executor.open() as ex:
             # Each finished start is kept beside --out: a re-run after a kill skips it.
-            ms = inference.multistart(prob, a.starts, seed=a.seed, around=around, spread=a.spread,
-                              executor=ex, max_nfev=a.max_nfev, ftol=a.ftol, xtol=a.xtol,
-                              gtol=a.gtol, resume=store_path(a.out))
+            ms = inference.multistart(prob, o.starts, seed=o.seed, around=around, spread=o.spread,
+                              executor=ex, resume=store_path(o.out),
+                              **o.solver.keywords())
         guard.start()  # the starts are done: from here on Ctrl-C must not throw them away
         n_done = int(ms.ssr.size) + len(ms.failed)
         if ms.interrupted and n_done == 0:
             raise Interrupted(f"interrupted (Ctrl-C) before any start had finished; nothing "
-                              f"was written to {a.out}/")
+                              f"was written to {o.out}/")
         order = np.argsort(ms.ssr)
         print("\nbest end points:")
         print(" rank  cluster        SSR   " + " ".join(f"{n:>10}" for n in ms.names))
@@ -98,12 +117,12 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
                   + " ".join(f"{v:10.4g}" for v in ms.ends[i]))
         summary = ms.summary()
         print("\n" + summary)
-        doc = {"config": a.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
+        doc = {"config": pr.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
                "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters,
                "summary": summary, "data": [str(e.path) for e in exps],
-               "read": a.read.as_dict(),
+               "read": pr.read.spec.as_dict(),
                "glitches": glitch_record(exps),
-               "n_requested": a.starts, "n_finished": n_done, "interrupted": ms.interrupted,
+               "n_requested": o.starts, "n_finished": n_done, "interrupted": ms.interrupted,
                "start_index": ms.start_index, "failed": {str(k): v for k, v in
                                                          ms.failed.items()}}
         (out / "multistart.json").write_text(json.dumps(doc, indent=2, default=json_default))
@@ -112,27 +131,27 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
             floor = quantisation_floor_ssr(prob)
             fig, _ = plot_waterfall(ms.ssr, labels=ms.clusters, n_failed=len(ms.failed),
                                     noise_floor_ssr=floor,
-                                    title=f"multistart, {a.model}: sorted final SSR")
+                                    title=f"multistart, {pr.model}: sorted final SSR")
             save_figure_atomic(fig, out / "waterfall.png")
             fig, _ = plot_parameter_spread(
                 ms.names, ms.ends, ms.ssr, clusters=ms.clusters, noise_floor_ssr=floor,
                 units={n: prob.info(n).unit for n in ms.names},
-                title=f"multistart, {a.model}: end points")
+                title=f"multistart, {pr.model}: end points")
             save_figure_atomic(fig, out / "parameter_spread.png")
             written += ["waterfall.png", "parameter_spread.png"]
         (out / "summary.txt").write_text(summary + "\n")
         written.append("summary.txt")
-    print(f"\nwrote {a.out}/: {', '.join(written)}")
+    print(f"\nwrote {o.out}/: {', '.join(written)}")
     if not ms.interrupted:
-        remove_store(a.out)  # the result is complete: nothing left to resume
+        remove_store(o.out)  # the result is complete: nothing left to resume
     if ms.interrupted:
-        rest = a.starts - n_done
+        rest = o.starts - n_done
         raise Interrupted(
-            f"interrupted (Ctrl-C) after {n_done} of {a.starts} starts; the finished ones are in "
-            f"{a.out}/ (multistart.json, summary.txt). For the other {rest}, run again with "
-            f"--starts {rest} --seed {a.seed + 1} and another --out (a new seed gives new "
+            f"interrupted (Ctrl-C) after {n_done} of {o.starts} starts; the finished ones are in "
+            f"{o.out}/ (multistart.json, summary.txt). For the other {rest}, run again with "
+            f"--starts {rest} --seed {o.seed + 1} and another --out (a new seed gives new "
             "starts), or repeat the whole command with --force")
     if guard.hit:
         raise Interrupted(f"interrupted (Ctrl-C) after all {n_done} starts had finished; the "
-                          f"results were kept, complete, in {a.out}/")
-    return Outcome(EXIT.DONE, Path(a.out), doc)
+                          f"results were kept, complete, in {o.out}/")
+    return Outcome(EXIT.DONE, Path(o.out), doc)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from .common import Outcome, executor
+from .common import Outcome
+from .config import ExecutorOptions
 from .options import add_parallel_options
 
 HELP = ("a whole study from an analysis file (TOML; see docs/analysis_file.md), or several "
@@ -42,7 +43,8 @@ def run(analysis: str | list[str], *, force: bool = False, quiet: bool = False,
     from .study.analysis import run as run_study
 
     t0 = time.perf_counter()
-    with executor(backend, workers, scheduler, file=load_analysis(files[0]).table("parallel")):
+    where = ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler)
+    with where.open(file=load_analysis(files[0]).table("parallel")):
         rec = run_study(files[0], quiet=quiet, force=force)
     kept = [s["name"] for s in rec.get("stages", []) if s.get("skipped")]
     n = len(rec.get("stages", []))

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -15,6 +15,7 @@ from ..io.outputs import InterruptGuard
 from ..util import exitcodes as EXIT
 from ..util.exitcodes import Interrupted, Refused
 from .common import Outcome
+from .config import ExecutorOptions, FitFolderOptions, SampleOptions
 from .options import (
     MAX_STEPS,
     MAX_WALKERS,
@@ -133,9 +134,21 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
     (:mod:`rotorbayes.inference.parallel`), in segments of steps, with the same chains bit
     for bit; without them they run one after the other in this process, as before.
     """
-    a = SimpleNamespace(**locals())  # the steps below read the options by name
+    return execute(SampleOptions(
+        source=source, out=out, resume=resume, walkers=walkers, steps=steps,
+        ensembles=ensembles, seed=seed, noise=noise, ar1=ar1, moves=moves, priors=priors,
+        max_draws=max_draws, quiet=quiet, force=force,
+        fit_folder=FitFolderOptions(trust_effects=trust_effects,
+                                    accept_changed_data=accept_changed_data),
+        executor=ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler)))
+
+
+def execute(options: SampleOptions) -> Outcome:
+    """:func:`sample` with its options as one
+    :class:`~rotorbayes.commands.config.SampleOptions` (the form the study builds)."""
     from ..io.outputs import clean_stale, folder_lock, follow_link
 
+    a = options
     src = Path(a.source)
     if a.resume:
         if a.out and Path(a.out).absolute() != src.absolute():
@@ -143,7 +156,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
         out = src
     else:
         if a.steps is None:
-            a.steps = DEFAULT_STEPS
+            a = dataclasses.replace(a, steps=DEFAULT_STEPS)
         if not a.out:
             raise Refused("give --out FOLDER for the posterior (or --resume FOLDER)")
         out = follow_link(Path(a.out), "--out")  # a link is followed, never replaced
@@ -160,7 +173,7 @@ def sample(source: str, *, out: str | None = None, resume: bool = False, walkers
     return Outcome(code, out)
 
 
-def _check_sample_target(a, out: Path) -> None:
+def _check_sample_target(a: SampleOptions, out: Path) -> None:
     if a.resume:
         return
     from ..io.outputs import check_replaceable
@@ -174,12 +187,11 @@ def _check_sample_target(a, out: Path) -> None:
                       "--out or pass --force")
 
 
-def _sample_locked(a, src: Path, out: Path) -> int:
+def _sample_locked(a: SampleOptions, src: Path, out: Path) -> int:
     import shutil
 
     from ..inference import sampling
     from ..inference.likelihood import LogPosterior, load_priors
-    from ..inference.results import load_fit
     from ..io.outputs import check_free_space
 
     if a.resume:
@@ -191,8 +203,7 @@ def _sample_locked(a, src: Path, out: Path) -> int:
                     "steps": a.steps, "ensembles": a.ensembles, "seed": a.seed,
                     "noise": a.noise, "ar1": a.ar1, "moves": a.moves or sampling.DEFAULT_MOVES,
                     "priors": str(Path(a.priors).resolve()) if a.priors else None}
-    fit = load_fit(settings["fit"], trust_effects=a.trust_effects,
-                   accept_changed_data=a.accept_changed_data)
+    fit = a.fit_folder.load(settings["fit"])
     priors = load_priors(settings["priors"], fit.problem) if settings.get("priors") else None
     lp = LogPosterior(fit.problem, fit.x, priors=priors, noise=settings["noise"],
                       ar1=settings["ar1"])
@@ -258,7 +269,7 @@ def _sample_locked(a, src: Path, out: Path) -> int:
     try:
         reserve = sampling.SummaryReserve(out, sizes)
         try:
-            with _ensemble_executor(a) as ex:
+            with _ensemble_executor(a.executor) as ex:
                 runs = sampling.sample(lp, fit.x, out, n_walkers=settings["walkers"],
                                 n_steps=settings["steps"], n_ensembles=settings["ensembles"],
                                 seed=settings["seed"],
@@ -316,22 +327,19 @@ def summary_sizes(lp, walkers: int, steps: int, ensembles: int, max_draws: int
 
 
 @contextlib.contextmanager
-def _ensemble_executor(a):
+def _ensemble_executor(options: ExecutorOptions):
     """The executor the ensembles run on, or None (one after the other in this process, as
     before the executor layer): an executor when ``--backend``, ``--workers`` or
     ``--scheduler`` is given, ``DASK_SCHEDULER_ADDRESS`` is set, or a study runs on a Dask
     cluster. On one machine the serial loop already keeps every core busy (the walkers of
     an ensemble are one parallel kernel batch), so it stays the default there."""
     from ..inference import parallel
-    from .common import executor
 
-    opts = (getattr(a, "backend", None), getattr(a, "workers", None),
-            getattr(a, "scheduler", None))
-    if (opts == (None, None, None) and not os.environ.get(parallel.SCHEDULER_ENV)
+    if (not options.given and not os.environ.get(parallel.SCHEDULER_ENV)
             and not parallel.is_dask(parallel.current_executor())):
         yield None
         return
-    with executor(*opts) as ex:
+    with options.open() as ex:
         yield ex
 
 
@@ -349,7 +357,7 @@ def _die_disk_full(out: Path, exc: BaseException) -> None:
     os._exit(EXIT.ENVIRONMENT)
 
 
-def _write_sample_outputs(a, out: Path, lp, fit, runs, guard, reserve=None) -> int:
+def _write_sample_outputs(a: SampleOptions, out: Path, lp, fit, runs, guard, reserve=None) -> int:
     """The summary, InferenceData and figures from finished chains, each made in memory
     and then written into the room reserved for it (``reserve``, a
     :class:`~rotorbayes.inference.sampling.SummaryReserve`); Ctrl-C between two files

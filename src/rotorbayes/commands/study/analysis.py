@@ -26,6 +26,7 @@ import math
 import shlex
 import sys
 import time
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -460,10 +461,33 @@ def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool) -> di
     }
     log = (out / "log.txt").open("a", encoding="utf-8")
     try:
-        return _stages(a, path, out, record, record_path, old, log, quiet, data, val,
-                       data_hashes, seed, an)
+        return _stages(StudyRun(analysis=a, path=path, out=out, record=record,
+                                record_path=record_path, old=old, log=log, quiet=quiet,
+                                data=data, validate=val, data_hashes=data_hashes, seed=seed))
     finally:
         log.close()
+
+
+@dataclass(frozen=True)
+class StudyRun:
+    """One run of a study, as its stages see it: the analysis and its file's ``path``, the
+    output folder ``out``, the run record being written (``record``, kept in
+    ``record_path``) and the stages of the run before (``old``, by name), the log stream,
+    whether the console stays ``quiet``, the data and validation files (resolved), their
+    hashes and the analysis's seed."""
+
+    analysis: Analysis
+    path: str | Path
+    out: Path
+    record: dict
+    record_path: Path
+    old: dict
+    log: typing.TextIO
+    quiet: bool
+    data: list[str]
+    validate: list[str]
+    data_hashes: list[dict]
+    seed: int
 
 
 #: Options of the stage commands given without their flag (positional arguments).
@@ -494,21 +518,37 @@ def _command_line(command: str, options: dict) -> str:
     return " ".join(shlex.quote(w) for w in words)
 
 
-def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # noqa: C901
-            data_hashes, seed, an) -> dict:
-    from ...util.exitcodes import Interrupted
+def _stage_functions() -> dict:
+    """Each stage command's function of its keywords: the commands with typed options are
+    run from their options object (:mod:`rotorbayes.commands.config`), built from the
+    same keywords the stage's command line shows."""
+    from .. import config
+    from .. import fit as fit_command
+    from .. import identify as identify_command
+    from .. import sample as sample_command
     from ..compare import compare as compare_command
     from ..design import design as design_command
     from ..diagnose import diagnose as diagnose_command
-    from ..fit import fit as fit_command
-    from ..identify import identify as identify_command
-    from ..sample import sample as sample_command
 
-    functions = {"fit": fit_command, "diagnose": diagnose_command, "compare": compare_command,
-                 "sample": sample_command, "identify": identify_command,
-                 "design": design_command}
+    def typed(module, cls):
+        return lambda **options: module.execute(config.from_keywords(cls, **options))
 
-    tee = _Tee(log, None if quiet else sys.stdout)
+    return {"fit": typed(fit_command, config.FitOptions),
+            "sample": typed(sample_command, config.SampleOptions),
+            "identify": typed(identify_command, config.IdentifyOptions),
+            "diagnose": diagnose_command, "compare": compare_command,
+            "design": design_command}
+
+
+def _stages(run: StudyRun) -> dict:  # noqa: C901
+    from ...util.exitcodes import Interrupted
+
+    a, path, out, record, old, log = (run.analysis, run.path, run.out, run.record, run.old,
+                                      run.log)
+    data, val, seed, an = run.data, run.validate, run.seed, run.analysis.table("analysis")
+    functions = _stage_functions()
+
+    tee = _Tee(log, None if run.quiet else sys.stdout)
     print(f"\n==== rotorbayes run {path} ({record['started']})", file=tee)
 
     def stage(name: str, folder: Path, inputs: str, command: str, options: dict,
@@ -536,7 +576,7 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
         sec = time.perf_counter() - t0
         record["stages"].append({"name": name, "folder": str(folder), "seconds": sec,
                                  "input_hash": h, "skipped": False, "exit_code": code})
-        _write_record(record_path, record)
+        _write_record(run.record_path, record)
         if code not in (0, 1):
             raise AnalysisError(f"stage {name} failed (exit code {code}); see {out}/log.txt")
         return code == 0
@@ -545,7 +585,7 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
         return "".join(_sha((folder / n).read_bytes()) for n in names if (folder / n).exists())
 
     base = "\n".join(json.dumps(a.table(t), sort_keys=True) for t in ("analysis", "fit"))
-    base += json.dumps(data_hashes)
+    base += json.dumps(run.data_hashes)
     # A user effect file is part of the model: a changed file reruns the fits.
     effect_files = sorted({a.resolve(e).rpartition(":")[0] for e in
                            a.table("fit").get("effects", []) if ".py:" in e})
@@ -654,7 +694,7 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
                 f"{n} = {{ {', '.join(f'{k} = {json.dumps(v)}' for k, v in spec.items())} }}\n"
                 for n, spec in a.table("priors").items()))
             opts["priors"] = str(pri)
-        if quiet:
+        if run.quiet:
             opts["quiet"] = True
         stage("sample", out / "posterior", digest(fit, "fit.json") + json.dumps(s)
               + json.dumps(a.table("priors"), sort_keys=True), "sample", opts, "posterior.nc")
@@ -689,7 +729,7 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
     record["rejected_effects"] = rejected
     record["final_fit"] = str(fit)
     record["finished"] = datetime.datetime.now().isoformat(timespec="seconds")
-    _write_record(record_path, record)
+    _write_record(run.record_path, record)
     if a.table("report").get("html", True):
         try:
             from ...report.html import build_report
@@ -700,7 +740,7 @@ def _stages(a, path, out, record, record_path, old, log, quiet, data, val,  # no
             with contextlib.redirect_stdout(tee):
                 rp = build_report(out)
             record["report"] = str(rp)
-            _write_record(record_path, record)
+            _write_record(run.record_path, record)
             print(f"\nreport: {rp}", file=tee)
     return record
 
