@@ -176,7 +176,7 @@ def tsqr(*parts: np.ndarray) -> np.ndarray:
         for c in cols:
             blk[T.shape[0]:, j : j + c.shape[1]] = c[a:b]
             j += c.shape[1]
-        T = np.linalg.qr(blk, mode="r")
+        T = np.asarray(np.linalg.qr(blk, mode="r"))  # mode "r": the triangle alone
     if T.shape[0] < k:
         T = np.vstack([T, np.zeros((k - T.shape[0], k))])
     return T
@@ -374,7 +374,7 @@ def fit(
         if "x" not in best_x:
             raise
         raise FitInterrupted(list(problem.names), best_x["x"], counter["best"],
-                             counter["n"]) from None
+                             int(counter["n"])) from None
     seconds = time.perf_counter() - t0
     x = res.x * scale
     J = full_jac(res.x)
@@ -492,7 +492,7 @@ def quality(
         sim = problem.sims[i] if own else problem.simulator_for(ex)
         s = sim.simulate(p, raise_on_failure=False)
         chans = {"theta_u": (ex.theta_u, s.theta_u)}
-        if ex.has_lower:
+        if ex.theta_l is not None and s.theta_l is not None:  # the lower disc is measured
             chans["theta_l"] = (ex.theta_l, s.theta_l)
             a0 = p["alpha0"]
             chans["alpha"] = (ex.theta_l - ex.theta_u + a0, s.theta_l - s.theta_u + a0)

@@ -523,9 +523,10 @@ class Problem:
             if noise_std is not None:
                 floors[c] = math.hypot(q, noise_std)
                 continue
-            broad = [j for ex in self.experiments if (j := jitter_evidence(
-                ex.theta_u if c == "theta_u" else ex.theta_l, ex.dt, c)) is not None
-                and j.broadband]
+            angles = [(ex.theta_u if c == "theta_u" else ex.theta_l, ex.dt)
+                      for ex in self.experiments]
+            broad = [j for y, dt in angles if y is not None
+                     and (j := jitter_evidence(y, dt, c)) is not None and j.broadband]
             if broad:
                 j = max(broad, key=lambda e: e.rms)
                 floors[c] = j.rms

@@ -253,6 +253,17 @@ class Simulator:
         number of samples (or a whole fraction of one), see :func:`stride_of`.
     """
 
+    #: What the kernel reads (:meth:`args`): the sample interval, the configuration code,
+    #: the friction shape's code, the step grid (in samples) and the first step.
+    u: np.ndarray
+    theta_u: np.ndarray
+    n: int
+    dt: float
+    cfg: int
+    shape: int
+    grid: np.ndarray
+    h0: float
+
     def __init__(
         self,
         model,
