@@ -78,22 +78,38 @@ def main(argv=None) -> dict:
     for step in range(1, a.max_steps + 1):
         run(["diagnose", str(fit)], log)
         diag = json.loads((fit / "diagnosis.json").read_text())
-        chain[-1]["diagnosis"] = {"adequate": diag["adequate"],
-                                  "claimed": diag["claimed_effect"],
-                                  "rms_over_floor": diag["rms_over_floor"]}
+        chain[-1]["diagnosis"] = {
+            "adequate": diag["adequate"],
+            "claimed": diag["claimed_effect"],
+            "rms_over_floor": diag["rms_over_floor"],
+        }
         if diag["adequate"] or not diag["claimed_effect"]:
             break
         effect = diag["claimed_effect"]
         added.append(effect)
         nxt = out / f"fit{step}"
-        run(["fit", "--model", "coupled", EST, "--validate", VAL, "--p0", str(fit),
-             "--add", effect, "--out", str(nxt)], log)
+        run(
+            [
+                "fit",
+                "--model",
+                "coupled",
+                EST,
+                "--validate",
+                VAL,
+                "--p0",
+                str(fit),
+                "--add",
+                effect,
+                "--out",
+                str(nxt),
+            ],
+            log,
+        )
         fit = nxt
         chain.append({"fit": fit.name, "effects": list(added)})
     run(["compare", str(fit), "--out", str(out / "compare_chain")], log)
     seconds = time.perf_counter() - t0
-    print(f"\nwalk-through done in {seconds:.1f} s; effects added: {', '.join(added)}",
-          file=log)
+    print(f"\nwalk-through done in {seconds:.1f} s; effects added: {', '.join(added)}", file=log)
     (out / "report.txt").write_text(report.getvalue())
     return {"chain": chain, "added": added, "seconds": seconds, "out": str(out)}
 

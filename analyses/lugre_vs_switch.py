@@ -40,9 +40,23 @@ CLI = "import sys; from rotorbayes.cli import main; sys.exit(main(sys.argv[1:]))
 
 def fit(folder: Path, out: str, extra: list[str]) -> tuple[dict, float]:
     t0 = time.perf_counter()
-    cmd = [sys.executable, "-c", CLI, "fit", "--model", "brake", "est.csv", "--add",
-           "lower_asymmetric_coulomb", "--validate", "val.csv", "--out", out, "--force",
-           *extra]
+    cmd = [
+        sys.executable,
+        "-c",
+        CLI,
+        "fit",
+        "--model",
+        "brake",
+        "est.csv",
+        "--add",
+        "lower_asymmetric_coulomb",
+        "--validate",
+        "val.csv",
+        "--out",
+        out,
+        "--force",
+        *extra,
+    ]
     proc = subprocess.run(cmd, cwd=folder, capture_output=True, text=True)
     (folder / f"{out}.log").write_text(proc.stdout + proc.stderr)
     if proc.returncode not in (0, 1):
@@ -65,25 +79,29 @@ def main(argv=None) -> dict:
     case = refdata.CASES["lugre"]
     truth = case["params"]
     for label, seed in (("est", 4), ("val", 5)):
-        ex = refdata.make_experiment(case["config"], truth, duration=a.duration,
-                                     signal="steps", seed=seed)
+        ex = refdata.make_experiment(
+            case["config"], truth, duration=a.duration, signal="steps", seed=seed
+        )
         save_experiment(ex, out / f"{label}.csv", overwrite=True)
     rows = []
     sw, t_sw = fit(out, "switch", [])
     lg, t_lg = fit(out, "lugre", ["--add", "lugre", "--p0", "switch/fit.json"])
     for name, doc, secs in (("switch model", sw, t_sw), ("LuGre", lg, t_lg)):
         asm = doc["assessment"]
-        rows.append(f"{name:<13} estimation {asm['worst_ratio_to_floor']:8.3g}x  "
-                    f"validation {asm['worst_ratio_to_floor_validation']:8.3g}x  "
-                    f"({secs:.0f} s)")
+        rows.append(
+            f"{name:<13} estimation {asm['worst_ratio_to_floor']:8.3g}x  "
+            f"validation {asm['worst_ratio_to_floor_validation']:8.3g}x  "
+            f"({secs:.0f} s)"
+        )
     est = lg.get("estimates") or {}
     for n in ("sigma0_l", "sigma1_l", "Tc_l", "Ts_l", "J_l", "k_alpha"):
         e = est.get(n)
         if e is not None:
-            rows.append(f"  {n:<9} {e['value']:10.4g} +- {e.get('stderr', float('nan')):8.2g}"
-                        f"   truth {truth[n]:10.4g}")
-    text = (f"reference case 'lugre', brake, {a.duration:g} s at 1 kHz\n" + "\n".join(rows)
-            + "\n")
+            rows.append(
+                f"  {n:<9} {e['value']:10.4g} +- {e.get('stderr', float('nan')):8.2g}"
+                f"   truth {truth[n]:10.4g}"
+            )
+    text = f"reference case 'lugre', brake, {a.duration:g} s at 1 kHz\n" + "\n".join(rows) + "\n"
     print(text, end="")
     (out / "report.txt").write_text(text)
     return {"switch": sw["assessment"], "lugre": lg["assessment"]}

@@ -58,39 +58,57 @@ def run_case(name: str, folder: Path, duration: float) -> dict:
     params = dict(base, **extra)
     folder.mkdir(parents=True, exist_ok=True)
     for label, seed in (("est", 3), ("val", 4)):
-        ex = refdata.make_experiment("coupled", params, duration=duration, signal="steps",
-                                     hold="continuous", seed=seed,
-                                     alpha0=alpha0 if label == "est" else None)
+        ex = refdata.make_experiment(
+            "coupled",
+            params,
+            duration=duration,
+            signal="steps",
+            hold="continuous",
+            seed=seed,
+            alpha0=alpha0 if label == "est" else None,
+        )
         save_experiment(ex, folder / f"{label}.csv", overwrite=True)
     (folder / "analysis.toml").write_text(
         f'[analysis]\nname = "{name}"\nout = "out"\nconfig = "coupled"\n'
         'data = ["est.csv"]\nvalidate = ["val.csv"]\n[diagnose]\nmax_steps = 4\n'
-        "[report]\nhtml = false\n")
+        "[report]\nhtml = false\n"
+    )
     t0 = time.perf_counter()
     cli = "import sys; from rotorbayes.cli import main; sys.exit(main(sys.argv[1:]))"
-    proc = subprocess.run([sys.executable, "-c", cli, "run", "analysis.toml", "--force",
-                           "--quiet"], cwd=folder, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", cli, "run", "analysis.toml", "--force", "--quiet"],
+        cwd=folder,
+        capture_output=True,
+        text=True,
+    )
     seconds = time.perf_counter() - t0
     rec = json.loads((folder / "out" / "run.json").read_text())
     first = json.loads((folder / "out" / "fit0" / "fit.json").read_text())["assessment"]
     last = json.loads((Path(rec["final_fit"]) / "fit.json").read_text())["assessment"]
     spread = last.get("validation_spread") or {}
-    return {"case": name, "hidden": extra or {"alpha0": alpha0}, "exit": proc.returncode,
-            "seconds": seconds, "added": rec["added_effects"],
-            "rejected": [r["effect"] for r in rec["rejected_effects"]],
-            "first": first["worst_ratio_to_floor"],
-            "first_validation": first["worst_ratio_to_floor_validation"],
-            "last": last["worst_ratio_to_floor"],
-            "last_validation": last["worst_ratio_to_floor_validation"],
-            "spread": [spread.get("q10"), spread.get("q90")]}
+    return {
+        "case": name,
+        "hidden": extra or {"alpha0": alpha0},
+        "exit": proc.returncode,
+        "seconds": seconds,
+        "added": rec["added_effects"],
+        "rejected": [r["effect"] for r in rec["rejected_effects"]],
+        "first": first["worst_ratio_to_floor"],
+        "first_validation": first["worst_ratio_to_floor_validation"],
+        "last": last["worst_ratio_to_floor"],
+        "last_validation": last["worst_ratio_to_floor_validation"],
+        "spread": [spread.get("q10"), spread.get("q90")],
+    }
 
 
 def line(r: dict) -> str:
     sp = r["spread"]
     spread = f"{sp[0]:.3g}-{sp[1]:.3g}x" if sp[0] is not None else "-"
-    return (f"{r['case']:<20} {r['first']:>9.4g}x {', '.join(r['added']) or '-':<26} "
-            f"{r['last']:>7.3g}x {r['last_validation']:>8.3g}x  {spread:<14} "
-            f"{r['seconds']:5.0f} s")
+    return (
+        f"{r['case']:<20} {r['first']:>9.4g}x {', '.join(r['added']) or '-':<26} "
+        f"{r['last']:>7.3g}x {r['last_validation']:>8.3g}x  {spread:<14} "
+        f"{r['seconds']:5.0f} s"
+    )
 
 
 def main(argv=None) -> dict:
@@ -109,8 +127,10 @@ def main(argv=None) -> dict:
             ap.error(f"{out} exists; pass --force to replace it")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
-    head = (f"{'case':<20} {'first fit':>10} {'added':<26} {'last':>8} {'val.':>9}  "
-            f"{'val. spread':<14} {'time':>7}")
+    head = (
+        f"{'case':<20} {'first fit':>10} {'added':<26} {'last':>8} {'val.':>9}  "
+        f"{'val. spread':<14} {'time':>7}"
+    )
     print(head, flush=True)
     rows = []
     for name in a.cases or list(CASES):

@@ -46,20 +46,43 @@ from rotorbayes.inference.likelihood import LogPosterior, Prior
 from rotorbayes.model.parameters import resolve
 
 CASES = {
-    "upper": dict(config="upper", centre=dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7,
-                                              db_u=0.05),
-                  free=("k_m", "b_u"), duration=2.0, rate=200.0, hold=None),
-    "brake": dict(config="brake", centre=dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7,
-                                              db_u=0.05, J_l=0.062, k_alpha=0.118,
-                                              Tc_l=0.071, b_l=0.0150, db_l=0.0012,
-                                              Ts_l=0.36, ws_l=0.95, delta_l=1.5),
-                  free=("Tc_l", "b_l", "Ts_l"), duration=6.0, rate=1000.0, hold=(1.0, 4.0)),
+    "upper": dict(
+        config="upper",
+        centre=dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
+        free=("k_m", "b_u"),
+        duration=2.0,
+        rate=200.0,
+        hold=None,
+    ),
+    "brake": dict(
+        config="brake",
+        centre=dict(
+            k_m=3.1,
+            Tc_u=0.62,
+            dTc_u=0.03,
+            b_u=1.7,
+            db_u=0.05,
+            J_l=0.062,
+            k_alpha=0.118,
+            Tc_l=0.071,
+            b_l=0.0150,
+            db_l=0.0012,
+            Ts_l=0.36,
+            ws_l=0.95,
+            delta_l=1.5,
+        ),
+        free=("Tc_l", "b_l", "Ts_l"),
+        duration=6.0,
+        rate=1000.0,
+        hold=(1.0, 4.0),
+    ),
 }
 REL_SD = 0.05
 
 
-def one(seed: int, case: dict, u, dt, folder: Path | None, *, walkers: int, steps: int,
-        noise: str) -> dict:
+def one(
+    seed: int, case: dict, u, dt, folder: Path | None, *, walkers: int, steps: int, noise: str
+) -> dict:
     rng = np.random.default_rng(seed)
     centre, free, config = case["centre"], case["free"], case["config"]
     truth = dict(centre)
@@ -69,13 +92,27 @@ def one(seed: int, case: dict, u, dt, folder: Path | None, *, walkers: int, step
     sim = rb.simulate(p, u, dt=dt, config=config, quantize_angles=True)
     prob = inference.Problem(config, [sim.to_experiment(f"sbc{seed}")], free=list(free), base=p)
     res = inference.fit(prob, {n: centre[n] for n in free})
-    priors = {n: Prior("normal", prob.lower[j], prob.upper[j], centre[n], REL_SD * centre[n])
-              for j, n in enumerate(free)}
-    lp = LogPosterior(prob, res.x, priors=priors, noise=noise,
-                      uncertainty=res.uncertainty if noise == "robust" else None)
-    runs = sampling.sample(lp, res.x, folder / f"sbc{seed}" if folder else None,
-                    n_walkers=walkers, n_steps=steps,
-                    n_ensembles=1, seed=seed, progress=False)
+    priors = {
+        n: Prior("normal", prob.lower[j], prob.upper[j], centre[n], REL_SD * centre[n])
+        for j, n in enumerate(free)
+    }
+    lp = LogPosterior(
+        prob,
+        res.x,
+        priors=priors,
+        noise=noise,
+        uncertainty=res.uncertainty if noise == "robust" else None,
+    )
+    runs = sampling.sample(
+        lp,
+        res.x,
+        folder / f"sbc{seed}" if folder else None,
+        n_walkers=walkers,
+        n_steps=steps,
+        n_ensembles=1,
+        seed=seed,
+        progress=False,
+    )
     burn, thin = sampling.burn_thin(runs)
     Z = runs[0].chain[burn::thin].reshape(-1, lp.ndim)
     X, _, _ = lp.split(Z)
@@ -108,8 +145,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--noise", choices=["robust", "floor"], default="robust")
     ap.add_argument("--out", help="keep the chains here (default: in memory)")
-    ap.add_argument("--backend", choices=parallel.BACKENDS, help="where the data sets run "
-                    f"(default {parallel.DEFAULT_BACKEND})")
+    ap.add_argument(
+        "--backend",
+        choices=parallel.BACKENDS,
+        help=f"where the data sets run (default {parallel.DEFAULT_BACKEND})",
+    )
     ap.add_argument("--workers", type=int, help="parallel data sets (default: the cores)")
     ap.add_argument("--scheduler", help="a Dask scheduler's address")
     a = ap.parse_args(argv)
@@ -117,19 +157,19 @@ def main(argv=None) -> dict:
     if case["hold"] is None:
         t, u = rb.signals.make_signal("est", case["duration"], rate=case["rate"], seed=8)
     else:
-        t, u = rb.signals.estimation_signal(case["duration"], rate=case["rate"], seed=8,
-                                            hold=case["hold"])
+        t, u = rb.signals.estimation_signal(
+            case["duration"], rate=case["rate"], seed=8, hold=case["hold"]
+        )
     t0 = time.perf_counter()
     folder = Path(a.out) if a.out else None
-    shared = (case, u, t[1] - t[0], folder, dict(walkers=a.walkers, steps=a.steps,
-                                                   noise=a.noise))
+    shared = (case, u, t[1] - t[0], folder, dict(walkers=a.walkers, steps=a.steps, noise=a.noise))
     with parallel.open_executor(parallel.choose(a.backend, a.workers, a.scheduler)) as ex:
-        done = dict(parallel.run_tasks(_one_task, list(range(a.datasets)), shared=shared,
-                                executor=ex))
+        done = dict(
+            parallel.run_tasks(_one_task, list(range(a.datasets)), shared=shared, executor=ex)
+        )
     rows = [done[s] for s in range(a.datasets)]
     n = len(rows)
-    result = {"datasets": n, "seconds": time.perf_counter() - t0, "case": a.case,
-              "noise": a.noise}
+    result = {"datasets": n, "seconds": time.perf_counter() - t0, "case": a.case, "noise": a.noise}
     for name in case["free"]:
         c50 = float(np.mean([r[name]["in50"] for r in rows]))
         c90 = float(np.mean([r[name]["in90"] for r in rows]))
@@ -138,13 +178,20 @@ def main(argv=None) -> dict:
         from scipy import stats
 
         ks = stats.kstest(ranks, "uniform")
-        result[name] = {"cover50": c50, "cover90": c90,
-                        "sd50": math.sqrt(0.25 / n), "sd90": math.sqrt(0.09 / n),
-                        "ks_p": float(ks.pvalue), "ranks": ranks.tolist()}
-        print(f"{name}: 50 % intervals cover the truth in {100 * c50:.0f} % of {n} data sets "
-              f"(sampling sd {100 * math.sqrt(0.25 / n):.1f} %), 90 % intervals in "
-              f"{100 * c90:.0f} % (sd {100 * math.sqrt(0.09 / n):.1f} %); ranks uniform: "
-              f"KS p {ks.pvalue:.2f}")
+        result[name] = {
+            "cover50": c50,
+            "cover90": c90,
+            "sd50": math.sqrt(0.25 / n),
+            "sd90": math.sqrt(0.09 / n),
+            "ks_p": float(ks.pvalue),
+            "ranks": ranks.tolist(),
+        }
+        print(
+            f"{name}: 50 % intervals cover the truth in {100 * c50:.0f} % of {n} data sets "
+            f"(sampling sd {100 * math.sqrt(0.25 / n):.1f} %), 90 % intervals in "
+            f"{100 * c90:.0f} % (sd {100 * math.sqrt(0.09 / n):.1f} %); ranks uniform: "
+            f"KS p {ks.pvalue:.2f}"
+        )
     print(f"SBC ({a.case}, noise {a.noise}) done in {result['seconds']:.0f} s")
     return result
 

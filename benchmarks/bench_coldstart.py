@@ -63,24 +63,37 @@ def run_cold(name: str) -> dict:
     with tempfile.TemporaryDirectory(prefix="rb_cold_") as tmp:
         report = Path(tmp) / "compile.json"
         env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"), OMP_NUM_THREADS="1")
-        cmd = [sys.executable, "-c", CHILD, str(report),
-               *(a.replace("{tmp}", tmp) for a in COMMANDS[name])]
+        cmd = [
+            sys.executable,
+            "-c",
+            CHILD,
+            str(report),
+            *(a.replace("{tmp}", tmp) for a in COMMANDS[name]),
+        ]
         t0 = time.perf_counter()
         res = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=tmp)
         wall = time.perf_counter() - t0
         compiled, cpu = json.loads(report.read_text()) if report.exists() else ({}, {})
         notices = [line for line in res.stderr.splitlines() if "compiling the integrator" in line]
-    return {"wall": wall, "compiled": compiled, "compile": sum(compiled.values()),
-            "cpu": cpu, "compile_cpu": sum(cpu.values()),
-            "rc": res.returncode, "notices": notices, "load": os.getloadavg()[0],
-            "stderr_tail": res.stderr[-2000:] if res.returncode else ""}
+    return {
+        "wall": wall,
+        "compiled": compiled,
+        "compile": sum(compiled.values()),
+        "cpu": cpu,
+        "compile_cpu": sum(cpu.values()),
+        "rc": res.returncode,
+        "notices": notices,
+        "load": os.getloadavg()[0],
+        "stderr_tail": res.stderr[-2000:] if res.returncode else "",
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--only", default="simulate,fit", help="commands, comma-separated: "
-                    + ", ".join(COMMANDS))
+    ap.add_argument(
+        "--only", default="simulate,fit", help="commands, comma-separated: " + ", ".join(COMMANDS)
+    )
     ap.add_argument("--json", help="write every run's figures here")
     a = ap.parse_args()
     names = a.only.split(",")
@@ -90,24 +103,33 @@ def main() -> None:
             out = run_cold(n)
             runs[n].append(out)
             parts = ", ".join(f"{k} {v:.1f} s" for k, v in out["compiled"].items()) or "nothing"
-            print(f"round {r + 1} {n}: wall {out['wall']:.1f} s, compiled {out['compile']:.1f} s "
-                  f"(CPU {out['compile_cpu']:.1f} s) "
-                  f"({parts}), exit {out['rc']}, 1-min load {out['load']:.1f}", flush=True)
+            print(
+                f"round {r + 1} {n}: wall {out['wall']:.1f} s, compiled {out['compile']:.1f} s "
+                f"(CPU {out['compile_cpu']:.1f} s) "
+                f"({parts}), exit {out['rc']}, 1-min load {out['load']:.1f}",
+                flush=True,
+            )
             if out["rc"]:
                 print(out["stderr_tail"], file=sys.stderr)
-    print(f"\nfresh NUMBA_CACHE_DIR per run, {os.cpu_count()} cores, {a.rounds} alternating "
-          "rounds; min / median [s]")
-    print("| command | compiling (wall) | compiling (CPU) | whole command (wall) | entry "
-          "points compiled |")
+    print(
+        f"\nfresh NUMBA_CACHE_DIR per run, {os.cpu_count()} cores, {a.rounds} alternating "
+        "rounds; min / median [s]"
+    )
+    print(
+        "| command | compiling (wall) | compiling (CPU) | whole command (wall) | entry "
+        "points compiled |"
+    )
     print("|---|---|---|---|---|")
     for n in names:
         c = [x["compile"] for x in runs[n]]
         u = [x["compile_cpu"] for x in runs[n]]
         w = [x["wall"] for x in runs[n]]
         entries = ", ".join(sorted({k for x in runs[n] for k in x["compiled"]})) or "none"
-        print(f"| {n} | {min(c):.1f} / {statistics.median(c):.1f} | {min(u):.1f} / "
-              f"{statistics.median(u):.1f} | {min(w):.1f} / {statistics.median(w):.1f} | "
-              f"{entries} |")
+        print(
+            f"| {n} | {min(c):.1f} / {statistics.median(c):.1f} | {min(u):.1f} / "
+            f"{statistics.median(u):.1f} | {min(w):.1f} / {statistics.median(w):.1f} | "
+            f"{entries} |"
+        )
     if a.json:
         Path(a.json).write_text(json.dumps(runs, indent=1))
 

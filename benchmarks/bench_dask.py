@@ -26,8 +26,9 @@ from rotorbayes.inference import parallel
 def small_problem() -> inference.Problem:
     ex = rb.load_example("upper_est")
     n = int(round(5.0 / ex.dt)) + 1
-    short = rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None,
-                          name="upper 5 s", path=ex.path)
+    short = rb.Experiment(
+        t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None, name="upper 5 s", path=ex.path
+    )
     return inference.Problem("upper", [short])
 
 
@@ -36,14 +37,20 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=64)
     a = ap.parse_args()
     prob = small_problem()
-    print(f"{a.starts}-start multistart, upper, 5 s at 200 Hz ({prob.names}); "
-          f"{os.cpu_count()} cores, load average before: "
-          + " ".join(f"{v:.1f}" for v in os.getloadavg()))
-    specs = [("serial (reference)", parallel.ExecutorSpec("serial")),
-             (f"default ({parallel.DEFAULT_BACKEND}, 2)",
-              parallel.ExecutorSpec(parallel.DEFAULT_BACKEND, 2)),
-             ("dask LocalCluster, 1 worker", parallel.ExecutorSpec("dask", 1)),
-             ("dask LocalCluster, 2 workers", parallel.ExecutorSpec("dask", 2))]
+    print(
+        f"{a.starts}-start multistart, upper, 5 s at 200 Hz ({prob.names}); "
+        f"{os.cpu_count()} cores, load average before: "
+        + " ".join(f"{v:.1f}" for v in os.getloadavg())
+    )
+    specs = [
+        ("serial (reference)", parallel.ExecutorSpec("serial")),
+        (
+            f"default ({parallel.DEFAULT_BACKEND}, 2)",
+            parallel.ExecutorSpec(parallel.DEFAULT_BACKEND, 2),
+        ),
+        ("dask LocalCluster, 1 worker", parallel.ExecutorSpec("dask", 1)),
+        ("dask LocalCluster, 2 workers", parallel.ExecutorSpec("dask", 2)),
+    ]
     rows, ref = [], None
     for label, spec in specs:
         t0 = time.perf_counter()
@@ -54,15 +61,15 @@ def main() -> None:
         t3 = time.perf_counter()
         if ref is None:
             ref = ms
-        same = (ms.ends.tobytes() == ref.ends.tobytes() and ms.ssr.tobytes() ==
-                ref.ssr.tobytes())
+        same = ms.ends.tobytes() == ref.ends.tobytes() and ms.ssr.tobytes() == ref.ssr.tobytes()
         rows.append((label, t1 - t0, t2 - t1, t3 - t2, same))
     base = rows[1][2]
-    print(f"\n{'back-end':32s} {'start s':>8s} {'run s':>8s} {'stop s':>7s} "
-          f"{'run/default':>11s} {'bit-identical':>14s}")
+    print(
+        f"\n{'back-end':32s} {'start s':>8s} {'run s':>8s} {'stop s':>7s} "
+        f"{'run/default':>11s} {'bit-identical':>14s}"
+    )
     for label, up, run, down, same in rows:
-        print(f"{label:32s} {up:8.2f} {run:8.2f} {down:7.2f} {run / base:11.2f} "
-              f"{str(same):>14s}")
+        print(f"{label:32s} {up:8.2f} {run:8.2f} {down:7.2f} {run / base:11.2f} {str(same):>14s}")
     print("load average after: " + " ".join(f"{v:.1f}" for v in os.getloadavg()))
     assert all(r[4] for r in rows), "a back-end gave other results than the serial one"
     assert np.isfinite(ref.ssr).all()

@@ -35,8 +35,18 @@ from rotorbayes import inference  # noqa: E402
 from rotorbayes.diagnosis import candidates, diagnose  # noqa: E402
 from rotorbayes.model.parameters import resolve  # noqa: E402
 
-PARAMS = dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05, J_l=0.062, k_alpha=0.118,
-              Tc_l=0.031, b_l=0.0065, dTc_l=0.008)
+PARAMS = dict(
+    k_m=3.1,
+    Tc_u=0.62,
+    dTc_u=0.03,
+    b_u=1.7,
+    db_u=0.05,
+    J_l=0.062,
+    k_alpha=0.118,
+    Tc_l=0.031,
+    b_l=0.0065,
+    dTc_l=0.008,
+)
 
 
 def main() -> None:
@@ -46,8 +56,14 @@ def main() -> None:
     a = ap.parse_args()
     p = resolve(PARAMS, config="coupled")
     t, u = rb.signals.make_signal("est", 30.0, rate=a.rate, seed=5)
-    sim = rb.simulate(p, u, dt=1 / a.rate, config="coupled",
-                      effects=["lower_asymmetric_coulomb"], quantize_angles=True)
+    sim = rb.simulate(
+        p,
+        u,
+        dt=1 / a.rate,
+        config="coupled",
+        effects=["lower_asymmetric_coulomb"],
+        quantize_angles=True,
+    )
     ex = sim.to_experiment("hidden")
     prob = inference.Problem("coupled", [ex])
     t0 = time.perf_counter()
@@ -73,21 +89,36 @@ def main() -> None:
             print(f"  refit with {e.name} failed: {exc}")
     t_refit = sum(v[0] for v in refit.values())
     pred = {s.effect: s.predicted_ssr for s in d.ranking}
-    print(f"coupled, 30 s at {a.rate:.0f} Hz ({ex.n} samples, 2 channels), {os.cpu_count()} "
-          f"cores; first fit {t_fit:.1f} s, SSR {res.ssr:.4g} rad²")
-    print(f"diagnose, {len(d.ranking)} effects + torque map: median {t_diag:.2f} s "
-          f"(runs {', '.join(f'{x:.2f}' for x in times)})")
+    print(
+        f"coupled, 30 s at {a.rate:.0f} Hz ({ex.n} samples, 2 channels), {os.cpu_count()} "
+        f"cores; first fit {t_fit:.1f} s, SSR {res.ssr:.4g} rad²"
+    )
+    print(
+        f"diagnose, {len(d.ranking)} effects + torque map: median {t_diag:.2f} s "
+        f"(runs {', '.join(f'{x:.2f}' for x in times)})"
+    )
     print(f"refit every effect: {t_refit:.1f} s in all ({t_refit / t_diag:.0f}x diagnose)")
     print(f"  {'effect':<26} {'refit s':>8} {'SSR refit':>11} {'SSR predicted':>14}")
     for n, (tt, s) in refit.items():
         print(f"  {n:<26} {tt:8.2f} {s:11.4g} {pred.get(n, np.nan):14.4g}")
-    print(f"ranked first: {d.ranking[0].effect}; target diagnose <= 10 s: "
-          f"{'PASS' if t_diag <= 10 else 'FAIL'} (goal 3 s: "
-          f"{'met' if t_diag <= 3 else 'not met'})")
+    print(
+        f"ranked first: {d.ranking[0].effect}; target diagnose <= 10 s: "
+        f"{'PASS' if t_diag <= 10 else 'FAIL'} (goal 3 s: "
+        f"{'met' if t_diag <= 3 else 'not met'})"
+    )
     if a.json:
         with open(a.json, "w") as fh:
-            json.dump({"diagnose_s": t_diag, "refit_all_s": t_refit, "runs": times,
-                       "refit": refit, "predicted_ssr": pred}, fh, indent=2)
+            json.dump(
+                {
+                    "diagnose_s": t_diag,
+                    "refit_all_s": t_refit,
+                    "runs": times,
+                    "refit": refit,
+                    "predicted_ssr": pred,
+                },
+                fh,
+                indent=2,
+            )
 
 
 if __name__ == "__main__":

@@ -73,8 +73,10 @@ def _fit_agreement(a: Path, b: Path) -> str:
         if d > worst:
             worst, name = d, n
     ssr = [json.loads((f / "fit.json").read_text())["ssr"] for f in (a, b)]
-    return (f"{'agree' if worst <= 1.0 else 'DIFFER'} within stderr (largest "
-            f"|diff|/stderr {worst:.2g}, {name}); SSR {ssr[0]:.6g} vs {ssr[1]:.6g}")
+    return (
+        f"{'agree' if worst <= 1.0 else 'DIFFER'} within stderr (largest "
+        f"|diff|/stderr {worst:.2g}, {name}); SSR {ssr[0]:.6g} vs {ssr[1]:.6g}"
+    )
 
 
 def _multistart_agreement(a: Path, b: Path) -> str:
@@ -92,13 +94,16 @@ def _diagnose_agreement(a: Path, b: Path) -> str:
     db = json.loads((b / "diagnosis.json").read_text())
     keys = ("verdict", "missing", "best")
     same = {k: da.get(k) == db.get(k) for k in keys if k in da or k in db}
-    return "diagnosis.json: " + (", ".join(f"{k} {'same' if v else 'DIFFERS'}"
-                                           for k, v in same.items()) or "written")
+    return "diagnosis.json: " + (
+        ", ".join(f"{k} {'same' if v else 'DIFFERS'}" for k, v in same.items()) or "written"
+    )
 
 
 def _design_agreement(a: Path, b: Path) -> str:
-    va, vb = (min(st["value"] for st in json.loads((f / "design.json").read_text())["starts"])
-              for f in (a, b))
+    va, vb = (
+        min(st["value"] for st in json.loads((f / "design.json").read_text())["starts"])
+        for f in (a, b)
+    )
     return f"design.json: best objective {va:.6g} vs {vb:.6g}"
 
 
@@ -107,8 +112,11 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=4)
     ap.add_argument("--long", type=float, default=600.0, help="length of each long run [s]")
     ap.add_argument("--nfev", type=int, default=3, help="--max-nfev of the long fit")
-    ap.add_argument("--separate", default="string_damping,voltage_offset,input_delay",
-                    help="the three candidate effects of the design case")
+    ap.add_argument(
+        "--separate",
+        default="string_damping,voltage_offset,input_delay",
+        help="the three candidate effects of the design case",
+    )
     ap.add_argument("--cases", default="fit,multistart,diagnose,design,long")
     ap.add_argument("--warm", action="store_true", help="run every case once untimed first")
     ap.add_argument("--keep", help="work in this folder (kept) instead of a temporary one")
@@ -121,8 +129,11 @@ def main() -> None:
     from rotorbayes import inference
 
     cases = a.cases.split(",")
-    print(f"{os.cpu_count()} cores; load average before: "
-          + " ".join(f"{v:.1f}" for v in os.getloadavg()), flush=True)
+    print(
+        f"{os.cpu_count()} cores; load average before: "
+        + " ".join(f"{v:.1f}" for v in os.getloadavg()),
+        flush=True,
+    )
     ctx = tempfile.TemporaryDirectory() if a.keep is None else None
     work = Path(ctx.name if ctx else a.keep)
     work.mkdir(parents=True, exist_ok=True)
@@ -130,8 +141,24 @@ def main() -> None:
     try:
         brake = work / "brake30.csv"
         if not brake.exists():
-            _cli(["simulate", "--model", "brake", "--input", "est", "--duration", "30",
-                  "--seed", "1", "--quantize", "--out", str(brake), "--force"], log)
+            _cli(
+                [
+                    "simulate",
+                    "--model",
+                    "brake",
+                    "--input",
+                    "est",
+                    "--duration",
+                    "30",
+                    "--seed",
+                    "1",
+                    "--quantize",
+                    "--out",
+                    str(brake),
+                    "--force",
+                ],
+                log,
+            )
         # The kernels' first compilations, outside every figure.
         p = rb.parameters.thesis_set("4.3", "P_ref")
         t, u = rb.signals.estimation_signal(3.0, seed=1)
@@ -143,9 +170,26 @@ def main() -> None:
         if "long" in cases:
             for k, f in enumerate(longs, start=1):
                 if not f.exists():
-                    _cli(["simulate", "--model", "coupled", "--input", "est", "--duration",
-                          str(a.long), "--seed", str(k), "--alpha0", f"{0.05 * (k - 2):.2f}",
-                          "--quantize", "--out", str(f), "--force"], log)
+                    _cli(
+                        [
+                            "simulate",
+                            "--model",
+                            "coupled",
+                            "--input",
+                            "est",
+                            "--duration",
+                            str(a.long),
+                            "--seed",
+                            str(k),
+                            "--alpha0",
+                            f"{0.05 * (k - 2):.2f}",
+                            "--quantize",
+                            "--out",
+                            str(f),
+                            "--force",
+                        ],
+                        log,
+                    )
 
         def fit_args(out):
             return ["fit", str(brake), "--model", "brake", "--out", str(out), "--force"]
@@ -154,25 +198,67 @@ def main() -> None:
             "fit": ("fit 30 s brake from the data", fit_args, _fit_agreement),
             "multistart": (
                 f"multistart 30 s brake, {a.starts} starts, serial",
-                lambda out: ["multistart", str(brake), "--model", "brake", "--starts",
-                             str(a.starts), "--around", str(work / "fit-sensitivity"),
-                             "--spread", "0.2", "--backend", "serial", "--out", str(out),
-                             "--force"],
-                _multistart_agreement),
+                lambda out: [
+                    "multistart",
+                    str(brake),
+                    "--model",
+                    "brake",
+                    "--starts",
+                    str(a.starts),
+                    "--around",
+                    str(work / "fit-sensitivity"),
+                    "--spread",
+                    "0.2",
+                    "--backend",
+                    "serial",
+                    "--out",
+                    str(out),
+                    "--force",
+                ],
+                _multistart_agreement,
+            ),
             "diagnose": (
                 "diagnose the 30 s brake fit (no trials)",
-                lambda out: ["diagnose", str(out), "--no-trials"], _diagnose_agreement),
+                lambda out: ["diagnose", str(out), "--no-trials"],
+                _diagnose_agreement,
+            ),
             "design": (
                 "design --separate (3 candidates, 1 start)",
-                lambda out: ["design", str(work / "fit-sensitivity"), "--separate",
-                             a.separate, "--starts", "1",
-                             "--max-evals", "20", "--no-check", "--backend", "serial",
-                             "--out", str(out), "--force"], _design_agreement),
+                lambda out: [
+                    "design",
+                    str(work / "fit-sensitivity"),
+                    "--separate",
+                    a.separate,
+                    "--starts",
+                    "1",
+                    "--max-evals",
+                    "20",
+                    "--no-check",
+                    "--backend",
+                    "serial",
+                    "--out",
+                    str(out),
+                    "--force",
+                ],
+                _design_agreement,
+            ),
             "long": (
                 f"fit 4 x {a.long:g} s coupled (--max-nfev {a.nfev})",
-                lambda out: ["fit", *map(str, longs), "--model", "coupled", "--p0",
-                             "thesis:4.2:P0", "--max-nfev", str(a.nfev), "--out", str(out),
-                             "--force"], _fit_agreement),
+                lambda out: [
+                    "fit",
+                    *map(str, longs),
+                    "--model",
+                    "coupled",
+                    "--p0",
+                    "thesis:4.2:P0",
+                    "--max-nfev",
+                    str(a.nfev),
+                    "--out",
+                    str(out),
+                    "--force",
+                ],
+                _fit_agreement,
+            ),
         }
         print(f"{'case':48s} {'sensitivity':>17s} {'differences':>17s}   ratio (wall, CPU)")
         for j, case in enumerate(c for c in cases if c in plan):
@@ -201,8 +287,11 @@ def main() -> None:
                 verdict = agree(outs["sensitivity"], outs["differences"])
             except Exception as e:  # a result file the comparison does not know
                 verdict = f"(results not compared: {type(e).__name__}: {e})"
-            print(f"{label:48s} {ws:6.1f} s {cs:6.1f} cpu {wd:6.1f} s {cd:6.1f} cpu   "
-                  f"{wd / ws:4.2f}x {cd / cs:4.2f}x  exit {rs}/{rd}", flush=True)
+            print(
+                f"{label:48s} {ws:6.1f} s {cs:6.1f} cpu {wd:6.1f} s {cd:6.1f} cpu   "
+                f"{wd / ws:4.2f}x {cd / cs:4.2f}x  exit {rs}/{rd}",
+                flush=True,
+            )
             print(f"{'':48s} {verdict}", flush=True)
     finally:
         log.close()

@@ -33,8 +33,9 @@ import numpy as np  # noqa: E402
 
 from rotorbayes.model.simulate import simulate  # noqa: E402
 
-BASE = dict(J_l=0.03, k_alpha=0.11, Tc_l=0.035, Ts_l=0.12, ws_l=0.8, delta_l=1.7,
-            b_l=0.006, dTc_l=0.004)
+BASE = dict(
+    J_l=0.03, k_alpha=0.11, Tc_l=0.035, Ts_l=0.12, ws_l=0.8, delta_l=1.7, b_l=0.006, dTc_l=0.004
+)
 EFFECTS = ["lower_stribeck", "lower_asymmetric_coulomb"]
 
 

@@ -133,9 +133,11 @@ def main() -> None:
         for name, src in versions.items():
             res[name].append(run_child(src, a.repeats))
     loads = [r["load"] for rs in res.values() for r in rs]
-    print(f"30 s brake residual at 1 kHz, {os.cpu_count()} cores, {a.rounds} alternating rounds"
-          f" x {a.repeats} calls, 1-min load average {min(loads):.1f}-{max(loads):.1f}; "
-          f"min / median [ms], best round")
+    print(
+        f"30 s brake residual at 1 kHz, {os.cpu_count()} cores, {a.rounds} alternating rounds"
+        f" x {a.repeats} calls, 1-min load average {min(loads):.1f}-{max(loads):.1f}; "
+        f"min / median [ms], best round"
+    )
     print("| variant | " + " | ".join(versions) + " | now / before (min) |")
     print("|---|" + "---|" * (len(versions) + 1))
     for v in VARIANTS:

@@ -95,8 +95,18 @@ def run(lp, x, alt: Alt, seed: int, walkers: int, steps: int) -> sampling.Ensemb
     name = f"ensemble{seed // 1000}"
     if alt.moves in sampling.MOVES and not alt.whiten:
         # The product's own code path (rotorbayes sample), in memory.
-        return sampling.run_ensemble(lp, None, name, n_walkers=walkers, n_steps=steps, x_fit=x,
-                              seed=seed, progress=False, moves=alt.moves, start=alt.start)
+        return sampling.run_ensemble(
+            lp,
+            None,
+            name,
+            n_walkers=walkers,
+            n_steps=steps,
+            x_fit=x,
+            seed=seed,
+            progress=False,
+            moves=alt.moves,
+            start=alt.start,
+        )
     rng = np.random.default_rng(seed)
     p0 = sampling.start_walkers(lp, x, walkers, rng, start=alt.start)
     z0, cov = sampling.fit_proposal(lp, x)
@@ -121,8 +131,16 @@ def run(lp, x, alt: Alt, seed: int, walkers: int, steps: int) -> sampling.Ensemb
         tau = emcee.autocorr.integrated_time(chain, tol=0)
     except Exception:  # noqa: BLE001
         tau = np.full(lp.ndim, np.nan)
-    return sampling.EnsembleRun(name, chain, sampler.get_log_prob(), sampler.acceptance_fraction,
-                         np.asarray(tau, float), moves=alt.name, seconds=wall, cpu_seconds=cpu)
+    return sampling.EnsembleRun(
+        name,
+        chain,
+        sampler.get_log_prob(),
+        sampler.acceptance_fraction,
+        np.asarray(tau, float),
+        moves=alt.name,
+        seconds=wall,
+        cpu_seconds=cpu,
+    )
 
 
 def per_walker_ess(lp, runs) -> np.ndarray:
@@ -148,16 +166,25 @@ def figures(lp, alt: Alt, runs, loads) -> dict:
     evals = sum(st * walkers for st in steps)
     pw = per_walker_ess(lp, runs)
     return {
-        "name": alt.name, "slowest": lp.coord_names[j], "ess": float(cons[j]),
-        "ess_bulk_all": float(ess_bulk[j]), "ess_tau": float(ess_tau[j]),
+        "name": alt.name,
+        "slowest": lp.coord_names[j],
+        "ess": float(cons[j]),
+        "ess_bulk_all": float(ess_bulk[j]),
+        "ess_tau": float(ess_tau[j]),
         "ess_per_walker_chains_min": float(pw.min()),
         "tau_max": float(max(np.nanmax(r.tau) for r in runs)),
         "rhat_max": float(np.nanmax(rhat)),
         "acceptance": float(np.mean([np.mean(r.acceptance) for r in runs])),
-        "wall_s": wall, "cpu_s": cpu, "cores_busy": cpu / wall, "evaluations": evals,
-        "ess_per_s": cons[j] / wall, "ess_per_min": 60 * cons[j] / wall,
-        "ess_per_1000_evals": 1000 * cons[j] / evals, "ess_per_cpu_s": cons[j] / cpu,
-        "load_before": loads[0], "load_after": loads[1],
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "cores_busy": cpu / wall,
+        "evaluations": evals,
+        "ess_per_s": cons[j] / wall,
+        "ess_per_min": 60 * cons[j] / wall,
+        "ess_per_1000_evals": 1000 * cons[j] / evals,
+        "ess_per_cpu_s": cons[j] / cpu,
+        "load_before": loads[0],
+        "load_after": loads[1],
     }
 
 
@@ -168,16 +195,24 @@ def main() -> None:
     ap.add_argument("--ensembles", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise", choices=["sampled", "robust"], default="sampled")
-    ap.add_argument("--case", choices=["brake", "coupled"], default="brake",
-                    help="brake: the 30 s brake posterior above; coupled: a second posterior "
-                    "the moves were not chosen on -- the coupled rig (thesis table 4.2 P_ref), "
-                    "--seconds of held-out input at 1 kHz, quantised, its default free set "
-                    "(J_l, k_alpha and Tc_l nearly exchangeable: a sloppy posterior)")
+    ap.add_argument(
+        "--case",
+        choices=["brake", "coupled"],
+        default="brake",
+        help="brake: the 30 s brake posterior above; coupled: a second posterior "
+        "the moves were not chosen on -- the coupled rig (thesis table 4.2 P_ref), "
+        "--seconds of held-out input at 1 kHz, quantised, its default free set "
+        "(J_l, k_alpha and Tc_l nearly exchangeable: a sloppy posterior)",
+    )
     ap.add_argument("--seconds", type=float, default=30.0)
-    ap.add_argument("--only", help="alternative names separated by '|' (prefix match; the "
-                    "names hold commas), e.g. 'stretch, ball|fit-de'")
-    ap.add_argument("--first", type=int, default=len(ALTS), help="run only the first N "
-                    "alternatives")
+    ap.add_argument(
+        "--only",
+        help="alternative names separated by '|' (prefix match; the "
+        "names hold commas), e.g. 'stretch, ball|fit-de'",
+    )
+    ap.add_argument(
+        "--first", type=int, default=len(ALTS), help="run only the first N alternatives"
+    )
     ap.add_argument("--json")
     a = ap.parse_args()
     alts = ALTS[: a.first]
@@ -187,19 +222,22 @@ def main() -> None:
     table = "4.3" if a.case == "brake" else "4.2"
     p = rb.parameters.thesis_set(table, "P_ref")
     t, u = rb.signals.estimation_signal(a.seconds, seed=1)
-    sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config=a.case, alpha0=0.0,
-                      quantize_angles=True)
+    sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config=a.case, alpha0=0.0, quantize_angles=True)
     prob = inference.Problem(a.case, [sim.to_experiment(f"{a.case}_1khz_heldout")], base=p)
     t0 = time.perf_counter()
     res = inference.fit(prob, prob.x_from(p))
     lp = LogPosterior(prob, res.x, noise=a.noise)
-    print(f"{a.case}, {a.seconds:g} s at 1 kHz (held-out smooth-steps input, quantised), "
-          f"{prob.n_residuals} residuals; noise {a.noise}: {lp.ndim} coordinates "
-          f"({', '.join(lp.coord_names)}); fit + posterior set-up "
-          f"{time.perf_counter() - t0:.1f} s")
-    print(f"{len(alts)} alternatives x {a.ensembles} ensembles x {a.walkers} walkers x "
-          f"{a.steps} steps = {a.ensembles * a.walkers * a.steps} log-posterior evaluations "
-          f"each; {os.cpu_count()} cores, {numba.get_num_threads()} numba threads")
+    print(
+        f"{a.case}, {a.seconds:g} s at 1 kHz (held-out smooth-steps input, quantised), "
+        f"{prob.n_residuals} residuals; noise {a.noise}: {lp.ndim} coordinates "
+        f"({', '.join(lp.coord_names)}); fit + posterior set-up "
+        f"{time.perf_counter() - t0:.1f} s"
+    )
+    print(
+        f"{len(alts)} alternatives x {a.ensembles} ensembles x {a.walkers} walkers x "
+        f"{a.steps} steps = {a.ensembles * a.walkers * a.steps} log-posterior evaluations "
+        f"each; {os.cpu_count()} cores, {numba.get_num_threads()} numba threads"
+    )
     sampling.start_walkers(lp, res.x, 4, np.random.default_rng(12345))  # warm-up
     runs: dict[str, list] = {x.name: [] for x in alts}
     loads: dict[str, list] = {x.name: [] for x in alts}
@@ -210,38 +248,47 @@ def main() -> None:
             l1 = os.getloadavg()[0]
             runs[alt.name].append(r)
             loads[alt.name] += [l0, l1]
-            print(f"  ensemble {e} {alt.name}: {r.seconds:.1f} s, "
-                  f"{r.cpu_seconds / r.seconds:.2f} cores busy, load {l0:.1f} -> {l1:.1f}, "
-                  f"max τ {np.nanmax(r.tau):.1f}",
-                  flush=True)
+            print(
+                f"  ensemble {e} {alt.name}: {r.seconds:.1f} s, "
+                f"{r.cpu_seconds / r.seconds:.2f} cores busy, load {l0:.1f} -> {l1:.1f}, "
+                f"max τ {np.nanmax(r.tau):.1f}",
+                flush=True,
+            )
     out = []
     for alt in alts:
         ld = loads[alt.name]
         out.append(figures(lp, alt, runs[alt.name], (min(ld), max(ld))))
     base = out[0]
     print()
-    print("| alternative | slowest | ESS | ESS/s | ESS/min | ESS/1000 evals | ESS/CPU-s | "
-          "max τ | max R-hat | accept. | ESS walkers-as-chains | wall s | cores busy | "
-          "load avg | ESS/s ratio | ESS/eval ratio |")
+    print(
+        "| alternative | slowest | ESS | ESS/s | ESS/min | ESS/1000 evals | ESS/CPU-s | "
+        "max τ | max R-hat | accept. | ESS walkers-as-chains | wall s | cores busy | "
+        "load avg | ESS/s ratio | ESS/eval ratio |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for f in out:
-        print(f"| {f['name']} | {f['slowest']} | {f['ess']:.0f} | {f['ess_per_s']:.2f} | "
-              f"{f['ess_per_min']:.0f} | {f['ess_per_1000_evals']:.2f} | "
-              f"{f['ess_per_cpu_s']:.2f} | {f['tau_max']:.1f} | {f['rhat_max']:.3f} | "
-              f"{f['acceptance']:.2f} | {f['ess_per_walker_chains_min']:.0f} | "
-              f"{f['wall_s']:.0f} | {f['cores_busy']:.2f} | "
-              f"{f['load_before']:.1f}-{f['load_after']:.1f} | "
-              f"{f['ess_per_s'] / base['ess_per_s']:.2f} | "
-              f"{f['ess_per_1000_evals'] / base['ess_per_1000_evals']:.2f} |")
+        print(
+            f"| {f['name']} | {f['slowest']} | {f['ess']:.0f} | {f['ess_per_s']:.2f} | "
+            f"{f['ess_per_min']:.0f} | {f['ess_per_1000_evals']:.2f} | "
+            f"{f['ess_per_cpu_s']:.2f} | {f['tau_max']:.1f} | {f['rhat_max']:.3f} | "
+            f"{f['acceptance']:.2f} | {f['ess_per_walker_chains_min']:.0f} | "
+            f"{f['wall_s']:.0f} | {f['cores_busy']:.2f} | "
+            f"{f['load_before']:.1f}-{f['load_after']:.1f} | "
+            f"{f['ess_per_s'] / base['ess_per_s']:.2f} | "
+            f"{f['ess_per_1000_evals'] / base['ess_per_1000_evals']:.2f} |"
+        )
     best = max(out, key=lambda f: f["ess_per_s"])
-    print(f"\nfastest by ESS/s: {best['name']}, {best['ess_per_min']:.0f} ESS/min for its "
-          f"slowest coordinate {best['slowest']} (target >= 1000/min: "
-          f"{'PASS' if best['ess_per_min'] >= 1000 else 'FAIL'}) with "
-          f"{best['cores_busy']:.2f} cores busy at load {best['load_before']:.1f}-"
-          f"{best['load_after']:.1f}")
+    print(
+        f"\nfastest by ESS/s: {best['name']}, {best['ess_per_min']:.0f} ESS/min for its "
+        f"slowest coordinate {best['slowest']} (target >= 1000/min: "
+        f"{'PASS' if best['ess_per_min'] >= 1000 else 'FAIL'}) with "
+        f"{best['cores_busy']:.2f} cores busy at load {best['load_before']:.1f}-"
+        f"{best['load_after']:.1f}"
+    )
     if a.json:
-        Path(a.json).write_text(json.dumps({"alternatives": out, "args": vars(a)}, indent=2,
-                                           default=float))
+        Path(a.json).write_text(
+            json.dumps({"alternatives": out, "args": vars(a)}, indent=2, default=float)
+        )
 
 
 if __name__ == "__main__":

@@ -61,8 +61,9 @@ def _load(path: Path, name: str):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--ess", action="store_true", help="also sample a brake posterior to "
-                    "ESS >= 1000 (minutes)")
+    ap.add_argument(
+        "--ess", action="store_true", help="also sample a brake posterior to ESS >= 1000 (minutes)"
+    )
     ap.add_argument("--json")
     a = ap.parse_args()
     out: dict = {"cores": os.cpu_count()}
@@ -130,10 +131,14 @@ def main() -> None:
     r = ref.reference_simulate(dict(p, alpha0=0.0), t, u, config="brake")
     now = prob.sims[0].simulate(p)
     old = sim5.simulate(p)
-    err = max(float(np.max(np.abs(now.theta_l - r["theta_l"]))),
-              float(np.max(np.abs(now.theta_u - r["theta_u"]))))
-    err_old = max(float(np.max(np.abs(old.theta_l - r["theta_l"]))),
-                  float(np.max(np.abs(old.theta_u - r["theta_u"]))))
+    err = max(
+        float(np.max(np.abs(now.theta_l - r["theta_l"]))),
+        float(np.max(np.abs(now.theta_u - r["theta_u"]))),
+    )
+    err_old = max(
+        float(np.max(np.abs(old.theta_l - r["theta_l"]))),
+        float(np.max(np.abs(old.theta_u - r["theta_u"]))),
+    )
     bench = _load(ROOT / "benchmarks" / "bench_integrator.py", "rb_bench_integrator")
     py = []
     for _ in range(3):
@@ -147,25 +152,37 @@ def main() -> None:
                residual_max_error_rad=err, residual_before_max_error_rad=err_old,
                python_s=t_py, ratio=t_py / t_res, ratio_before=t_py / t_old,
                ratio_in_a_row=t_py / t_res_row, step_s=prob.sims[0].step)  # fmt: skip
-    print(f"brake, 30 s at 1 kHz, {prob.n_residuals} residuals, {len(prob.names)} free "
-          f"parameters, {os.cpu_count()} cores, 1-min load average {os.getloadavg()[0]:.1f}")
-    print(f"log-posterior, 32 walkers in one call: {rates[1]:.0f} evaluations/s on 1 thread, "
-          f"{rates[2]:.0f}/s on 2 threads (x{rates[2] / rates[1]:.2f})")
-    print(f"one residual, before (5 ms step, full simulation, then subtraction): median "
-          f"{1e3 * t_old:.2f} ms, min {1e3 * min(t_before):.2f} ms; max |angle - reference| "
-          f"{err_old:.2g} rad")
-    print(f"one residual, now (Problem.residuals, {1e3 * prob.sims[0].step:g} ms step, "
-          f"residual-only kernel): median {1e3 * t_res:.2f} ms, min {1e3 * min(t_now):.2f} ms "
-          f"(x{t_old / t_res:.2f} faster; target <= 0.5 ms: "
-          f"{'PASS' if t_res <= 5e-4 else 'FAIL'}); max |angle - reference| {err:.2g} rad "
-          f"(target 1.5e-5: {'PASS' if err <= 1.5e-5 else 'FAIL'})")
-    print(f"one residual in a row (blocks of 10 calls, first of each cold): now median "
-          f"{1e3 * t_res_row:.3f} ms, before {1e3 * t_old_row:.2f} ms")
-    print(f"plain-Python solve_ivp switch model: best of 3 {t_py:.3f} s; / residual median: "
-          f"alternating calls now {t_py / t_res:.0f}x (before {t_py / t_old:.0f}x), in a row "
-          f"now {t_py / t_res_row:.0f}x (before {t_py / t_old_row:.0f}x); target >= 400x: "
-          f"alternating {'PASS' if t_py / t_res >= 400 else 'FAIL'}, in a row "
-          f"{'PASS' if t_py / t_res_row >= 400 else 'FAIL'}")
+    print(
+        f"brake, 30 s at 1 kHz, {prob.n_residuals} residuals, {len(prob.names)} free "
+        f"parameters, {os.cpu_count()} cores, 1-min load average {os.getloadavg()[0]:.1f}"
+    )
+    print(
+        f"log-posterior, 32 walkers in one call: {rates[1]:.0f} evaluations/s on 1 thread, "
+        f"{rates[2]:.0f}/s on 2 threads (x{rates[2] / rates[1]:.2f})"
+    )
+    print(
+        f"one residual, before (5 ms step, full simulation, then subtraction): median "
+        f"{1e3 * t_old:.2f} ms, min {1e3 * min(t_before):.2f} ms; max |angle - reference| "
+        f"{err_old:.2g} rad"
+    )
+    print(
+        f"one residual, now (Problem.residuals, {1e3 * prob.sims[0].step:g} ms step, "
+        f"residual-only kernel): median {1e3 * t_res:.2f} ms, min {1e3 * min(t_now):.2f} ms "
+        f"(x{t_old / t_res:.2f} faster; target <= 0.5 ms: "
+        f"{'PASS' if t_res <= 5e-4 else 'FAIL'}); max |angle - reference| {err:.2g} rad "
+        f"(target 1.5e-5: {'PASS' if err <= 1.5e-5 else 'FAIL'})"
+    )
+    print(
+        f"one residual in a row (blocks of 10 calls, first of each cold): now median "
+        f"{1e3 * t_res_row:.3f} ms, before {1e3 * t_old_row:.2f} ms"
+    )
+    print(
+        f"plain-Python solve_ivp switch model: best of 3 {t_py:.3f} s; / residual median: "
+        f"alternating calls now {t_py / t_res:.0f}x (before {t_py / t_old:.0f}x), in a row "
+        f"now {t_py / t_res_row:.0f}x (before {t_py / t_old_row:.0f}x); target >= 400x: "
+        f"alternating {'PASS' if t_py / t_res >= 400 else 'FAIL'}, in a row "
+        f"{'PASS' if t_py / t_res_row >= 400 else 'FAIL'}"
+    )
     if a.ess:
         exb = rb.load_example("brake_est")
         pb = inference.Problem("brake", [exb])
@@ -177,21 +194,37 @@ def main() -> None:
 
         with tempfile.TemporaryDirectory() as tmp:
             while True:
-                runs = sampling.sample(lpb, res.x, Path(tmp), n_walkers=32, n_steps=steps,
-                                n_ensembles=2, progress=False)
+                runs = sampling.sample(
+                    lpb,
+                    res.x,
+                    Path(tmp),
+                    n_walkers=32,
+                    n_steps=steps,
+                    n_ensembles=2,
+                    progress=False,
+                )
                 ess = np.zeros(lpb.ndim)
                 for r_ in runs:
-                    ess += r_.chain.shape[0] * r_.chain.shape[1] / np.where(
-                        np.isfinite(r_.tau), r_.tau, np.inf)
+                    ess += (
+                        r_.chain.shape[0]
+                        * r_.chain.shape[1]
+                        / np.where(np.isfinite(r_.tau), r_.tau, np.inf)
+                    )
                 if np.all(ess >= 1000) or steps >= 20000:
                     break
                 steps = int(steps * 1.6)
         wall = time.perf_counter() - t0
-        out.update(ess_min=float(ess.min()), ess_wall_s=wall, ess_steps=steps,
-                   ess_per_minute=float(ess.min() / (wall / 60)))
-        print(f"brake posterior (200 Hz bundled data, {lpb.ndim} coordinates, 2 x 32 "
-              f"walkers): {steps} steps, min ESS {ess.min():.0f} in {wall:.0f} s "
-              f"({ess.min() / (wall / 60):.0f} ESS per minute for the slowest parameter)")
+        out.update(
+            ess_min=float(ess.min()),
+            ess_wall_s=wall,
+            ess_steps=steps,
+            ess_per_minute=float(ess.min() / (wall / 60)),
+        )
+        print(
+            f"brake posterior (200 Hz bundled data, {lpb.ndim} coordinates, 2 x 32 "
+            f"walkers): {steps} steps, min ESS {ess.min():.0f} in {wall:.0f} s "
+            f"({ess.min() / (wall / 60):.0f} ESS per minute for the slowest parameter)"
+        )
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=2, default=float))
 

@@ -57,8 +57,7 @@ from rotorbayes.inference.multistart import latin_hypercube, multistart
 def brake_problem(seconds: float) -> inference.Problem:
     p = rb.parameters.thesis_set("4.3", "P_ref")
     t, u = rb.signals.estimation_signal(seconds, seed=1)
-    sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config="brake", alpha0=0.0,
-                      quantize_angles=True)
+    sim = rb.simulate(p, u, dt=float(t[1] - t[0]), config="brake", alpha0=0.0, quantize_angles=True)
     return inference.Problem("brake", [sim.to_experiment("brake_1khz")], base=p)
 
 
@@ -104,8 +103,15 @@ def one_fit(prob, x0, threads: int, repeat: int, blas: int = 1) -> dict:
             r = inference.fit(prob, x0, uncertainty=False)
             w = time.perf_counter() - s
         if best is None or w < best["wall"]:
-            best = {"wall": w, "kernel": clock.t, "rest": w - clock.t, "nfev": r.nfev,
-                    "njev": r.njev, "ssr": r.ssr, "x": r.x.tolist()}
+            best = {
+                "wall": w,
+                "kernel": clock.t,
+                "rest": w - clock.t,
+                "nfev": r.nfev,
+                "njev": r.njev,
+                "ssr": r.ssr,
+                "x": r.x.tolist(),
+            }
     return best
 
 
@@ -124,8 +130,9 @@ def old_process_pool(n: int):
     """The process pool before issue 34: spawned workers, one numba thread each."""
     import multiprocessing as mp
 
-    return ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"),
-                               initializer=parallel._process_initializer)
+    return ProcessPoolExecutor(
+        max_workers=n, mp_context=mp.get_context("spawn"), initializer=parallel._process_initializer
+    )
 
 
 def run_multistart(prob, starts: int, executor) -> tuple[float, object]:
@@ -135,8 +142,11 @@ def run_multistart(prob, starts: int, executor) -> tuple[float, object]:
 
 
 def same(a, b) -> bool:
-    return (np.array_equal(a.ends, b.ends) and np.array_equal(a.ssr, b.ssr)
-            and sorted(a.failed) == sorted(b.failed))
+    return (
+        np.array_equal(a.ends, b.ends)
+        and np.array_equal(a.ssr, b.ssr)
+        and sorted(a.failed) == sorted(b.failed)
+    )
 
 
 def chains(path) -> bytes:
@@ -144,16 +154,28 @@ def chains(path) -> bytes:
     import h5py
 
     with h5py.File(path, "r") as f:
-        return b"".join(np.asarray(f[k][d][: int(f[k].attrs["iteration"])]).tobytes()
-                        for k in sorted(f) for d in ("chain", "log_prob"))
+        return b"".join(
+            np.asarray(f[k][d][: int(f[k].attrs["iteration"])]).tobytes()
+            for k in sorted(f)
+            for d in ("chain", "log_prob")
+        )
 
 
 def run_sample(lp, x, folder, a, executor) -> tuple[float, bytes]:
     from rotorbayes.inference import sampling
 
     s = time.perf_counter()
-    sampling.sample(lp, x, folder, n_walkers=a.walkers, n_steps=a.steps,
-                    n_ensembles=a.ensembles, seed=0, progress=False, executor=executor)
+    sampling.sample(
+        lp,
+        x,
+        folder,
+        n_walkers=a.walkers,
+        n_steps=a.steps,
+        n_ensembles=a.ensembles,
+        seed=0,
+        progress=False,
+        executor=executor,
+    )
     return time.perf_counter() - s, chains(folder / "chain.h5")
 
 
@@ -174,20 +196,25 @@ def _main() -> None:
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dask", action="store_true", help="also a local Dask cluster")
-    ap.add_argument("--skip", default="",
-                    help="back-ends to leave out (parts of their labels), separated by ;")
+    ap.add_argument(
+        "--skip", default="", help="back-ends to leave out (parts of their labels), separated by ;"
+    )
     ap.add_argument("--ensembles", type=int)
     ap.add_argument("--walkers", type=int)
     ap.add_argument("--steps", type=int)
-    ap.add_argument("--quick", action="store_true",
-                    help="10 s of data, 16 starts, 2 ensembles of 20 steps")
+    ap.add_argument(
+        "--quick", action="store_true", help="10 s of data, 16 starts, 2 ensembles of 20 steps"
+    )
     ap.add_argument("--json")
     a = ap.parse_args()
     n = a.workers
     skip = set(filter(None, a.skip.split(";")))
     # The sizes not given: issue 34's, or --quick's (any of them can still be given).
-    size = (dict(seconds=10.0, starts=16, ensembles=2, walkers=16, steps=20) if a.quick else
-            dict(seconds=30.0, starts=48, ensembles=4, walkers=32, steps=40))
+    size = (
+        dict(seconds=10.0, starts=16, ensembles=2, walkers=16, steps=20)
+        if a.quick
+        else dict(seconds=30.0, starts=48, ensembles=4, walkers=32, steps=40)
+    )
     for k, v in size.items():
         if getattr(a, k) is None:
             setattr(a, k, v)
@@ -195,44 +222,74 @@ def _main() -> None:
         a.repeat = 1
         skip |= {"startup", "before", "serial, "}
     maxth = int(numba.config.NUMBA_NUM_THREADS)
-    out: dict = {"cores": os.cpu_count(), "workers": n, "numba_threads": maxth,
-                 "cpu": platform.processor() or platform.machine(),
-                 "python": sys.version.split()[0], "numba": numba.__version__}
-    print(f"{os.cpu_count()} cores, {maxth} numba threads, N = {n}, Python "
-          f"{out['python']}, numba {numba.__version__}; load average "
-          f"{os.getloadavg()[0]:.1f}", flush=True)
+    out: dict = {
+        "cores": os.cpu_count(),
+        "workers": n,
+        "numba_threads": maxth,
+        "cpu": platform.processor() or platform.machine(),
+        "python": sys.version.split()[0],
+        "numba": numba.__version__,
+    }
+    print(
+        f"{os.cpu_count()} cores, {maxth} numba threads, N = {n}, Python "
+        f"{out['python']}, numba {numba.__version__}; load average "
+        f"{os.getloadavg()[0]:.1f}",
+        flush=True,
+    )
     prob = brake_problem(a.seconds)
     x0 = latin_hypercube(prob, 4, np.random.default_rng(0))[1]
     inference.fit(prob, x0, uncertainty=False, max_nfev=2)  # the threading layer launched
-    print(f"threading layer {numba.threading_layer()}; {prob.n_residuals} residuals, "
-          f"{len(prob.names)} free", flush=True)
+    print(
+        f"threading layer {numba.threading_layer()}; {prob.n_residuals} residuals, "
+        f"{len(prob.names)} free",
+        flush=True,
+    )
 
     # 1. one fit
     fits = {}
-    kinds = [("1 thread", 1, 1), (f"{min(n, maxth)} threads", min(n, maxth), 1),
-             (f"{min(n, maxth)} threads + {n} BLAS", min(n, maxth), n)]
+    kinds = [
+        ("1 thread", 1, 1),
+        (f"{min(n, maxth)} threads", min(n, maxth), 1),
+        (f"{min(n, maxth)} threads + {n} BLAS", min(n, maxth), n),
+    ]
     for label, th, blas in kinds[:2] if a.quick else kinds:
         fits[label] = f = one_fit(prob, x0, th, a.repeat, blas)
-        print(f"one fit, {label:>22}: {f['wall']:.3f} s (kernel {f['kernel']:.3f} s, "
-              f"optimiser and the rest {f['rest']:.3f} s; nfev {f['nfev']}, njev "
-              f"{f['njev']}) x{fits['1 thread']['wall'] / f['wall']:.2f}; same end point "
-              f"as on 1 thread: {f['x'] == fits['1 thread']['x']}", flush=True)
+        print(
+            f"one fit, {label:>22}: {f['wall']:.3f} s (kernel {f['kernel']:.3f} s, "
+            f"optimiser and the rest {f['rest']:.3f} s; nfev {f['nfev']}, njev "
+            f"{f['njev']}) x{fits['1 thread']['wall'] / f['wall']:.2f}; same end point "
+            f"as on 1 thread: {f['x'] == fits['1 thread']['x']}",
+            flush=True,
+        )
     out["one_fit"] = fits
     numba.set_num_threads(maxth)
 
     # 2. pool start-up
     if "startup" not in skip:
         s_old = startup(lambda: old_process_pool(n), n)
-        s_new = startup(lambda: parallel._SharingProcessPool(
-            max_workers=n, mp_context=parallel.process_context(),
-            initializer=parallel._process_initializer), n)
-        s_again = startup(lambda: parallel._SharingProcessPool(
-            max_workers=n, mp_context=parallel.process_context(),
-            initializer=parallel._process_initializer), n)
+        s_new = startup(
+            lambda: parallel._SharingProcessPool(
+                max_workers=n,
+                mp_context=parallel.process_context(),
+                initializer=parallel._process_initializer,
+            ),
+            n,
+        )
+        s_again = startup(
+            lambda: parallel._SharingProcessPool(
+                max_workers=n,
+                mp_context=parallel.process_context(),
+                initializer=parallel._process_initializer,
+            ),
+            n,
+        )
         out["startup"] = {"spawn": s_old, "forkserver_first": s_new, "forkserver": s_again}
-        print(f"{n} workers ready: spawned {s_old:.2f} s; forked from the fork server "
-              f"{s_new:.2f} s the first time (the server loads the kernel), {s_again:.2f} s "
-              "after", flush=True)
+        print(
+            f"{n} workers ready: spawned {s_old:.2f} s; forked from the fork server "
+            f"{s_new:.2f} s the first time (the server loads the kernel), {s_again:.2f} s "
+            "after",
+            flush=True,
+        )
 
     # 3. multistart per back-end
     rows = []
@@ -242,10 +299,13 @@ def _main() -> None:
     secs = np.array([f.seconds for f in ref.fits])
     bound = max(secs.sum() / n, secs.max()) if secs.size else float("nan")
     out["starts_seconds"] = secs.tolist()
-    print(f"reference: {len(ref.fits)} fitted, {len(ref.failed)} failed; per start "
-          f"median {np.median(secs):.2f} s, slowest {secs.max():.2f} s, sum {secs.sum():.1f} s;"
-          f" no back-end on {n} cores beats max(sum / N, slowest) = {bound:.2f} s "
-          f"(x{wall / bound:.1f})", flush=True)
+    print(
+        f"reference: {len(ref.fits)} fitted, {len(ref.failed)} failed; per start "
+        f"median {np.median(secs):.2f} s, slowest {secs.max():.2f} s, sum {secs.sum():.1f} s;"
+        f" no back-end on {n} cores beats max(sum / N, slowest) = {bound:.2f} s "
+        f"(x{wall / bound:.1f})",
+        flush=True,
+    )
     rows.append(("serial, 1 numba thread", 1, wall, True))
 
     def backend(label, cores, make):
@@ -260,16 +320,28 @@ def _main() -> None:
         rows.append((label, cores, w, same(r, ref)))
         print(f"{label}: {w:.2f} s", flush=True)
 
-    backend(f"serial, {maxth} numba threads", maxth, lambda: parallel.open_executor(
-        parallel.ExecutorSpec("serial")))
-    backend(f"threads, {n} (shared cores)", n, lambda: parallel.open_executor(
-        parallel.ExecutorSpec("threads", n)))
+    backend(
+        f"serial, {maxth} numba threads",
+        maxth,
+        lambda: parallel.open_executor(parallel.ExecutorSpec("serial")),
+    )
+    backend(
+        f"threads, {n} (shared cores)",
+        n,
+        lambda: parallel.open_executor(parallel.ExecutorSpec("threads", n)),
+    )
     backend(f"processes, {n}, spawned (before)", n, lambda: old_process_pool(n))
-    backend(f"processes, {n}, fork server + shared cores", n, lambda: parallel.open_executor(
-        parallel.ExecutorSpec("processes", n)))
+    backend(
+        f"processes, {n}, fork server + shared cores",
+        n,
+        lambda: parallel.open_executor(parallel.ExecutorSpec("processes", n)),
+    )
     if a.dask:
-        backend(f"dask LocalCluster, {n} workers", n, lambda: parallel.open_executor(
-            parallel.ExecutorSpec("dask", n)))
+        backend(
+            f"dask LocalCluster, {n} workers",
+            n,
+            lambda: parallel.open_executor(parallel.ExecutorSpec("dask", n)),
+        )
 
     # 4. sample's ensembles per back-end
     import tempfile
@@ -300,47 +372,83 @@ def _main() -> None:
             srows.append((label, cores, w, c == sref))
             print(f"sample, {label}: {w:.2f} s", flush=True)
 
-        sample_backend(f"serial loop, {maxth} numba threads (the default)", maxth,
-                       contextlib.nullcontext)
-        sample_backend(f"threads, {n} (shared cores)", n, lambda: parallel.open_executor(
-            parallel.ExecutorSpec("threads", n)))
-        sample_backend(f"processes, {n}, fork server + shared cores", n,
-                       lambda: parallel.open_executor(parallel.ExecutorSpec("processes", n)))
+        sample_backend(
+            f"serial loop, {maxth} numba threads (the default)", maxth, contextlib.nullcontext
+        )
+        sample_backend(
+            f"threads, {n} (shared cores)",
+            n,
+            lambda: parallel.open_executor(parallel.ExecutorSpec("threads", n)),
+        )
+        sample_backend(
+            f"processes, {n}, fork server + shared cores",
+            n,
+            lambda: parallel.open_executor(parallel.ExecutorSpec("processes", n)),
+        )
         if a.dask:
-            sample_backend(f"dask LocalCluster, {n} workers", n, lambda: parallel.open_executor(
-                parallel.ExecutorSpec("dask", n)))
+            sample_backend(
+                f"dask LocalCluster, {n} workers",
+                n,
+                lambda: parallel.open_executor(parallel.ExecutorSpec("dask", n)),
+            )
 
     per = prob.n_residuals
-    print(f"\nthe default here for this multistart: {parallel.default_backend(None, a.starts, per)}"
-          f" ({parallel.default_reason(None, a.starts, per)})")
-    print(f"\n{a.starts}-start multistart, brake {a.seconds:g} s at 1 kHz, "
-          f"{os.cpu_count()} cores:\n")
+    print(
+        f"\nthe default here for this multistart: {parallel.default_backend(None, a.starts, per)}"
+        f" ({parallel.default_reason(None, a.starts, per)})"
+    )
+    print(
+        f"\n{a.starts}-start multistart, brake {a.seconds:g} s at 1 kHz, {os.cpu_count()} cores:\n"
+    )
     print("| back-end | wall s | starts/s | vs 1 core | core efficiency | bit-identical |")
     print("|---|---|---|---|---|---|")
     base = rows[0][2]
     out["multistart"] = []
     for label, cores, w, ok in rows:
         sp = base / w
-        print(f"| {label} | {w:.2f} | {a.starts / w:.2f} | {sp:.2f}x | "
-              f"{100 * sp / cores:.0f} % | {'yes' if ok else 'NO'} |")
-        out["multistart"].append({"backend": label, "cores": cores, "wall": w,
-                                  "starts_per_s": a.starts / w, "speedup": sp,
-                                  "identical": ok})
+        print(
+            f"| {label} | {w:.2f} | {a.starts / w:.2f} | {sp:.2f}x | "
+            f"{100 * sp / cores:.0f} % | {'yes' if ok else 'NO'} |"
+        )
+        out["multistart"].append(
+            {
+                "backend": label,
+                "cores": cores,
+                "wall": w,
+                "starts_per_s": a.starts / w,
+                "speedup": sp,
+                "identical": ok,
+            }
+        )
     evals = a.ensembles * a.walkers * a.steps
-    print(f"\nsample, {a.ensembles} ensembles of {a.walkers} walkers x {a.steps} steps "
-          f"(brake {a.seconds:g} s), {os.cpu_count()} cores:\n")
-    print("| back-end | wall s | ensembles/s | walker evaluations/s | vs 1 core | "
-          "core efficiency | bit-identical |")
+    print(
+        f"\nsample, {a.ensembles} ensembles of {a.walkers} walkers x {a.steps} steps "
+        f"(brake {a.seconds:g} s), {os.cpu_count()} cores:\n"
+    )
+    print(
+        "| back-end | wall s | ensembles/s | walker evaluations/s | vs 1 core | "
+        "core efficiency | bit-identical |"
+    )
     print("|---|---|---|---|---|---|---|")
     sbase = srows[0][2]
     out["sample"] = []
     for label, cores, w, ok in srows:
         sp = sbase / w
-        print(f"| {label} | {w:.2f} | {a.ensembles / w:.3f} | {evals / w:.0f} | {sp:.2f}x | "
-              f"{100 * sp / cores:.0f} % | {'yes' if ok else 'NO'} |")
-        out["sample"].append({"backend": label, "cores": cores, "wall": w,
-                              "ensembles_per_s": a.ensembles / w, "evals_per_s": evals / w,
-                              "speedup": sp, "identical": ok})
+        print(
+            f"| {label} | {w:.2f} | {a.ensembles / w:.3f} | {evals / w:.0f} | {sp:.2f}x | "
+            f"{100 * sp / cores:.0f} % | {'yes' if ok else 'NO'} |"
+        )
+        out["sample"].append(
+            {
+                "backend": label,
+                "cores": cores,
+                "wall": w,
+                "ensembles_per_s": a.ensembles / w,
+                "evals_per_s": evals / w,
+                "speedup": sp,
+                "identical": ok,
+            }
+        )
     print(f"\nload average after: {os.getloadavg()[0]:.1f}")
     if a.json:
         with open(a.json, "w") as fh:

@@ -79,17 +79,23 @@ def main() -> None:
                 times[k].append(time.perf_counter() - t0)
     base = min(times["residuals"])
     base_med = statistics.median(times["residuals"])
-    print(f"30 s brake at 1 kHz, {len(prob.names)} free parameters, {prob.n_residuals} "
-          f"residuals; {a.rounds} x {a.repeats} calls each, alternating")
+    print(
+        f"30 s brake at 1 kHz, {len(prob.names)} free parameters, {prob.n_residuals} "
+        f"residuals; {a.rounds} x {a.repeats} calls each, alternating"
+    )
     for k, v in times.items():
         med = statistics.median(v)
-        print(f"  {k:<26} min {1e3 * min(v):8.3f} ms  median {1e3 * med:8.3f} ms  = "
-              f"{min(v) / base:5.2f} x residuals (median {med / base_med:5.2f})")
+        print(
+            f"  {k:<26} min {1e3 * min(v):8.3f} ms  median {1e3 * med:8.3f} ms  = "
+            f"{min(v) / base:5.2f} x residuals (median {med / base_med:5.2f})"
+        )
     Js, _ = prob.jacobian(x, method="sensitivity")
     Jd, _ = prob.jacobian(x, method="differences")
     rel = np.abs(Js - Jd).max(axis=0) / np.abs(Jd).max(axis=0)
-    print("  sensitivity vs forward differences (rel_step 1e-6), largest column difference "
-          "/ column's largest entry:")
+    print(
+        "  sensitivity vs forward differences (rel_step 1e-6), largest column difference "
+        "/ column's largest entry:"
+    )
     print("   " + ", ".join(f"{n} {e:.1e}" for n, e in zip(prob.names, rel, strict=True)))
 
 

@@ -36,13 +36,32 @@ def cases():
     out = []
     t3, u3 = rb.signals.estimation_signal(30.0, seed=3)
     for label, config, params, alpha0, effects in acc._cases():
-        out.append((label, params, config, effects, t3, u3,
-                    acc._ref_params(params, config, alpha0), {"alpha0": alpha0}))
+        out.append(
+            (
+                label,
+                params,
+                config,
+                effects,
+                t3,
+                u3,
+                acc._ref_params(params, config, alpha0),
+                {"alpha0": alpha0},
+            )
+        )
     f = acc._fast_steps(10.0, seed=1)
     tf = np.arange(10001) * 1e-3
-    out.append(("fast transitions", acc.FAST_RIG, "brake",
-                ("upper_asymmetric_coulomb", "upper_asymmetric_viscous", "lower_stribeck"),
-                tf, np.asarray(f(tf), float), dict(acc.FAST_RIG), {}))
+    out.append(
+        (
+            "fast transitions",
+            acc.FAST_RIG,
+            "brake",
+            ("upper_asymmetric_coulomb", "upper_asymmetric_viscous", "lower_stribeck"),
+            tf,
+            np.asarray(f(tf), float),
+            dict(acc.FAST_RIG),
+            {},
+        )
+    )
     for effect, config, params, rate in ef._accuracy_cases():
         t, u = rb.signals.estimation_signal(30.0, seed=3, rate=rate)
         effects = [] if effect in Model(config).effect_names else [effect]
@@ -52,16 +71,18 @@ def cases():
         out.append((f"{effect}, {config}, {rate} Hz", params, config, effects, t, u, q, {}))
     t, u = dl._sine_input(5.0)
     p = dict(thesis_set("4.2", "P_ref"), t_delay=dl.DELAY)
-    out.append(("18 ms delay, coupled", p, "coupled", ["input_delay"], t, u,
-                dict(p, Ts_l=p["Tc_l"]), {}))
+    out.append(
+        ("18 ms delay, coupled", p, "coupled", ["input_delay"], t, u, dict(p, Ts_l=p["Tc_l"]), {})
+    )
     for effect in dl._catalogue_cases():
         t, u = dl._swinging_input(10.0)
         config = dl._config_for(effect)
         base = thesis_set({"upper": "4.1", "coupled": "4.2", "brake": "4.3"}[config], "P_ref")
         p = dict(base, t_delay=dl.DELAY)
         p.update(dl._effect_value(effect))
-        effects = list(dict.fromkeys(
-            e for e in (effect, "input_delay") if e not in Model(config).effect_names))
+        effects = list(
+            dict.fromkeys(e for e in (effect, "input_delay") if e not in Model(config).effect_names)
+        )
         q = dict(p)
         if config == "coupled" and "lower_stribeck" not in effects:
             q["Ts_l"] = q["Tc_l"]
@@ -81,12 +102,10 @@ def main(argv: list[str]) -> None:
         row = []
         for i, st in enumerate(steps):
             extra = dict(kw) if st is None else dict(kw, step=st)
-            sim = rb.simulate(params, u, dt=t[1] - t[0], config=config, effects=effects,
-                              **extra)
+            sim = rb.simulate(params, u, dt=t[1] - t[0], config=config, effects=effects, **extra)
             e = float(np.max(np.abs(sim.theta_u - np.asarray(ref["theta_u"], float))))
             if config != "upper":
-                e = max(e, float(np.max(np.abs(sim.theta_l - np.asarray(ref["theta_l"],
-                                                                          float)))))
+                e = max(e, float(np.max(np.abs(sim.theta_l - np.asarray(ref["theta_l"], float)))))
             row.append(e)
             worst[i] = max(worst[i], e)
         print(f"{label:<44}" + "".join(f"{e:10.2e}" for e in row), flush=True)

@@ -65,13 +65,18 @@ def main() -> None:
     X = np.clip(X, prob.lower, prob.upper)
     max_threads = numba.config.NUMBA_NUM_THREADS
     load = os.getloadavg()[0]
-    print(f"rotorbayes {rb.__version__} thread benchmark, os.cpu_count() = {os.cpu_count()}, "
-          f"numba threads available = {max_threads}, threading layer = ", end="")
+    print(
+        f"rotorbayes {rb.__version__} thread benchmark, os.cpu_count() = {os.cpu_count()}, "
+        f"numba threads available = {max_threads}, threading layer = ",
+        end="",
+    )
     prob.residuals_batch(X)  # compile / load the cache, start the pool
     print(numba.threading_layer())
     print(f"1-min load average before the run: {load:.2f}")
-    print(f"brake, 30 s at 1 kHz, {prob.n_residuals} residuals, {len(prob.names)} free "
-          f"parameters, {a.walkers} walkers per call, {a.rounds} rounds")
+    print(
+        f"brake, 30 s at 1 kHz, {prob.n_residuals} residuals, {len(prob.names)} free "
+        f"parameters, {a.walkers} walkers per call, {a.rounds} rounds"
+    )
 
     # 1. Scaling.
     times: dict[int, list[float]] = {1: [], 2: []}
@@ -88,27 +93,41 @@ def main() -> None:
             if th == 2:
                 cpu2.append((time.process_time() - c0) / w)
     numba.set_num_threads(max_threads)
-    out: dict = {"cores": os.cpu_count(), "load_before": load,
-                 "threading_layer": numba.threading_layer()}
+    out: dict = {
+        "cores": os.cpu_count(),
+        "load_before": load,
+        "threading_layer": numba.threading_layer(),
+    }
     print("\n1. residuals_batch of the walkers")
     for th, v in times.items():
         if v:
             med = statistics.median(v)
-            print(f"  {th} thread(s): min {1e3 * min(v):7.2f} ms  median {1e3 * med:7.2f} ms  "
-                  f"({1e3 * med / a.walkers:.3f} ms per walker)")
-            out[f"batch_{th}_threads_ms"] = {"min": 1e3 * min(v),
-                                             "median": 1e3 * statistics.median(v)}
+            print(
+                f"  {th} thread(s): min {1e3 * min(v):7.2f} ms  median {1e3 * med:7.2f} ms  "
+                f"({1e3 * med / a.walkers:.3f} ms per walker)"
+            )
+            out[f"batch_{th}_threads_ms"] = {
+                "min": 1e3 * min(v),
+                "median": 1e3 * statistics.median(v),
+            }
     if times[2]:
         sp_med = statistics.median(times[1]) / statistics.median(times[2])
         sp_min = min(times[1]) / min(times[2])
         pairs = [a_ / b_ for a_, b_ in zip(times[1], times[2], strict=True)]
-        print(f"  speed-up from 2 threads: {sp_med:.2f}x (medians), {sp_min:.2f}x (minima), "
-              f"pairwise median {statistics.median(pairs):.2f}x   target >= 1.8x")
-        print(f"  cores kept busy by the 2-thread calls (CPU / wall): "
-              f"{statistics.median(cpu2):.2f} of 2")
-        out.update(speedup_median=sp_med, speedup_min=sp_min,
-                   speedup_pairwise=statistics.median(pairs),
-                   busy_cores_2_threads=statistics.median(cpu2))
+        print(
+            f"  speed-up from 2 threads: {sp_med:.2f}x (medians), {sp_min:.2f}x (minima), "
+            f"pairwise median {statistics.median(pairs):.2f}x   target >= 1.8x"
+        )
+        print(
+            f"  cores kept busy by the 2-thread calls (CPU / wall): "
+            f"{statistics.median(cpu2):.2f} of 2"
+        )
+        out.update(
+            speedup_median=sp_med,
+            speedup_min=sp_min,
+            speedup_pairwise=statistics.median(pairs),
+            busy_cores_2_threads=statistics.median(cpu2),
+        )
 
     # 2. What a call leaves behind.
     print("\n2. after a call")
@@ -129,18 +148,26 @@ def main() -> None:
         w0 = time.perf_counter()
         python_loop()
         loop_after.append(time.perf_counter() - w0)
-    print(f"  CPU used while sleeping 0.2 s, no call before: median "
-          f"{1e3 * statistics.median(idle_before):.1f} ms")
-    print(f"  CPU used while sleeping 0.2 s right after a call: median "
-          f"{1e3 * statistics.median(idle_after):.1f} ms  (threads that spin while they wait "
-          f"show here)")
-    print(f"  plain-Python loop, quiet: median {1e3 * statistics.median(loop_quiet):.1f} ms; "
-          f"right after a call: median {1e3 * statistics.median(loop_after):.1f} ms "
-          f"(ratio {statistics.median(loop_after) / statistics.median(loop_quiet):.2f})")
-    out.update(idle_cpu_ms_before=1e3 * statistics.median(idle_before),
-               idle_cpu_ms_after=1e3 * statistics.median(idle_after),
-               loop_ms_quiet=1e3 * statistics.median(loop_quiet),
-               loop_ms_after=1e3 * statistics.median(loop_after))
+    print(
+        f"  CPU used while sleeping 0.2 s, no call before: median "
+        f"{1e3 * statistics.median(idle_before):.1f} ms"
+    )
+    print(
+        f"  CPU used while sleeping 0.2 s right after a call: median "
+        f"{1e3 * statistics.median(idle_after):.1f} ms  (threads that spin while they wait "
+        f"show here)"
+    )
+    print(
+        f"  plain-Python loop, quiet: median {1e3 * statistics.median(loop_quiet):.1f} ms; "
+        f"right after a call: median {1e3 * statistics.median(loop_after):.1f} ms "
+        f"(ratio {statistics.median(loop_after) / statistics.median(loop_quiet):.2f})"
+    )
+    out.update(
+        idle_cpu_ms_before=1e3 * statistics.median(idle_before),
+        idle_cpu_ms_after=1e3 * statistics.median(idle_after),
+        loop_ms_quiet=1e3 * statistics.median(loop_quiet),
+        loop_ms_after=1e3 * statistics.median(loop_after),
+    )
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=2)

@@ -20,8 +20,21 @@ import rotorbayes as rb
 from rotorbayes import inference
 from rotorbayes.model.parameters import resolve
 
-BRAKE = dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05, J_l=0.062, k_alpha=0.118,
-             Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36, ws_l=0.95, delta_l=1.5)
+BRAKE = dict(
+    k_m=3.1,
+    Tc_u=0.62,
+    dTc_u=0.03,
+    b_u=1.7,
+    db_u=0.05,
+    J_l=0.062,
+    k_alpha=0.118,
+    Tc_l=0.071,
+    b_l=0.0150,
+    db_l=0.0012,
+    Ts_l=0.36,
+    ws_l=0.95,
+    delta_l=1.5,
+)
 
 
 def main(argv=None) -> dict:

@@ -268,7 +268,8 @@ def make_input(signal: str, duration: float, seed: int, *, amplitude: float = 5.
                 lv = 0.0
             else:
                 lv = rng.choice((-1.0, 1.0)) * math.exp(
-                    rng.uniform(math.log(0.15), math.log(amplitude)))
+                    rng.uniform(math.log(0.15), math.log(amplitude))
+                )
             levels.append(lv)
             t += dur + rng.uniform(0.5, 3.0)
         return StepsInput(starts, ends, levels)
@@ -339,18 +340,35 @@ def simulate_reference(
     if hold not in ("continuous", "linear"):
         raise ValueError(f"hold must be 'continuous' or 'linear', not {hold!r}")
     params = {k: float(v) for k, v in sorted(params.items())}
-    key = json.dumps(dict(config=config, params=params, duration=float(duration),
-                          rate=float(rate), signal=signal, hold=hold, seed=int(seed),
-                          rtol=rtol, atol=atol, src=_source_hash()), sort_keys=True)
+    key = json.dumps(
+        dict(
+            config=config,
+            params=params,
+            duration=float(duration),
+            rate=float(rate),
+            signal=signal,
+            hold=hold,
+            seed=int(seed),
+            rtol=rtol,
+            atol=atol,
+            src=_source_hash(),
+        ),
+        sort_keys=True,
+    )
     digest = hashlib.sha256(key.encode()).hexdigest()[:24]
     path = _cache_dir() / f"{config}-{signal}-{hold}-{digest}.npz"
     if cache and path.is_file():
         try:
             z = np.load(path)
-            return ReferenceRun(z["t"], z["u"], z["theta_u"],
-                                z["theta_l"] if z["theta_l"].size else None,
-                                int(z["n_events"]), float(z["stick_fraction_l"]),
-                                float(z["seconds"]))
+            return ReferenceRun(
+                z["t"],
+                z["u"],
+                z["theta_u"],
+                z["theta_l"] if z["theta_l"].size else None,
+                int(z["n_events"]),
+                float(z["stick_fraction_l"]),
+                float(z["seconds"]),
+            )
         except Exception:  # noqa: BLE001 - a damaged cache file is simply remade
             pass
     sys.path.insert(0, str(_HERE))
@@ -404,8 +422,10 @@ def simulate_reference(
 
         state = {"state_rate": rate_warm}
     elif drift_u or drift_l or drag_l:
+
         def shift(t_, theta_u, omega_u, theta_l, omega_l, v):
             return drift_u * t_, drift_l * t_ + drag_l * omega_l * omega_l
+
     if "sigma0_l" in params:
         # the LuGre lower disc (sigma0_l, sigma1_l): the reference's lower_law="lugre"
         if state:
@@ -413,11 +433,22 @@ def simulate_reference(
         state = {"lower_law": "lugre"}
     t0 = time.perf_counter()
     if hold == "continuous":
-        res = reference_simulate(params, t, None, config, u_func=drive, u_breaks=f.breaks,
-                                 rtol=rtol, atol=atol, friction_shift=shift, **state)
+        res = reference_simulate(
+            params,
+            t,
+            None,
+            config,
+            u_func=drive,
+            u_breaks=f.breaks,
+            rtol=rtol,
+            atol=atol,
+            friction_shift=shift,
+            **state,
+        )
     else:
-        res = reference_simulate(params, t, u, config, rtol=rtol, atol=atol,
-                                 friction_shift=shift, **state)
+        res = reference_simulate(
+            params, t, u, config, rtol=rtol, atol=atol, friction_shift=shift, **state
+        )
     secs = time.perf_counter() - t0
     thl = res["theta_l"]
     stick = float(np.mean(res["mode_l"] == 0)) if thl is not None else math.nan
@@ -426,9 +457,16 @@ def simulate_reference(
         d = _cache_dir()
         d.mkdir(parents=True, exist_ok=True)
         tmp = d / f".{path.name}.{os.getpid()}.tmp.npz"
-        np.savez(tmp, t=t, u=u, theta_u=run.theta_u,
-                 theta_l=thl if thl is not None else np.zeros(0), n_events=run.n_events,
-                 stick_fraction_l=stick, seconds=secs)
+        np.savez(
+            tmp,
+            t=t,
+            u=u,
+            theta_u=run.theta_u,
+            theta_l=thl if thl is not None else np.zeros(0),
+            n_events=run.n_events,
+            stick_fraction_l=stick,
+            seconds=secs,
+        )
         os.replace(tmp, path)
     return run
 
@@ -497,8 +535,18 @@ def make_experiment(
         p["alpha0"] = alpha0
     if config == "upper":
         p.pop("alpha0", None)
-    run = simulate_reference(config, p, duration=duration, rate=rate, signal=signal,
-                             hold=hold, seed=seed, rtol=rtol, atol=atol, cache=cache)
+    run = simulate_reference(
+        config,
+        p,
+        duration=duration,
+        rate=rate,
+        signal=signal,
+        hold=hold,
+        seed=seed,
+        rtol=rtol,
+        atol=atol,
+        cache=cache,
+    )
     thu, thl = run.theta_u.copy(), None if run.theta_l is None else run.theta_l.copy()
     if noise_std > 0:
         rng = np.random.default_rng(noise_seed)
@@ -509,7 +557,13 @@ def make_experiment(
         thu = quantize(thu, UPPER_COUNTS)
         thl = None if thl is None else quantize(thl, LOWER_COUNTS)
     label = name or f"ref-{config}-{signal}{seed}-{hold}"
-    meta = {"source": "tests/reference.py", "configuration": config, "signal": signal,
-            "hold": hold, "seed": str(seed), "quantized": str(quantize_angles),
-            "truth": json.dumps(p, sort_keys=True)}
+    meta = {
+        "source": "tests/reference.py",
+        "configuration": config,
+        "signal": signal,
+        "hold": hold,
+        "seed": str(seed),
+        "quantized": str(quantize_angles),
+        "truth": json.dumps(p, sort_keys=True),
+    }
     return Experiment(run.t, run.u, thu, thl, name=label, meta=meta)

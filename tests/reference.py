@@ -268,16 +268,20 @@ def _breakpoints_func(
         grid = np.union1d(t, np.concatenate(extra)) if extra else t
         grid = grid[(grid >= t0) & (grid <= t1)]
         frac = np.linspace(0.0, 1.0, n_probe + 1)
-        tp = np.union1d((grid[:-1, None] + frac[None, :] * np.diff(grid)[:, None]).ravel(),
-                        grid)
+        tp = np.union1d((grid[:-1, None] + frac[None, :] * np.diff(grid)[:, None]).ravel(), grid)
         vp = uf(tp - d) + off
         roots = []
         for level in (dz, -dz):
             g = vp - level
             for k in np.flatnonzero(g[:-1] * g[1:] < 0.0):
                 roots.append(
-                    brentq(lambda s, lv=level: uf(s - d) + off - lv, tp[k], tp[k + 1],
-                           xtol=1e-15, rtol=4 * np.finfo(float).eps)
+                    brentq(
+                        lambda s, lv=level: uf(s - d) + off - lv,
+                        tp[k],
+                        tp[k + 1],
+                        xtol=1e-15,
+                        rtol=4 * np.finfo(float).eps,
+                    )
                 )
         extra.append(np.asarray(roots, dtype=float))
     e = np.concatenate(extra) if extra else np.zeros(0)
@@ -511,8 +515,10 @@ def reference_simulate(
         if config == "upper":
             raise ValueError("lower_law='lugre' needs a lower disc (config 'upper' has none)")
         if has_z:
-            raise ValueError("lower_law='lugre' cannot be combined with state_rate "
-                             "(the bristle deflection is the reference's only extra state)")
+            raise ValueError(
+                "lower_law='lugre' cannot be combined with state_rate "
+                "(the bristle deflection is the reference's only extra state)"
+            )
         s0 = _get(params, "sigma0_l", required=True)
         s1 = _get(params, "sigma1_l", required=True)
         if not (s0 > 0.0 and s1 >= 0.0):

@@ -36,8 +36,19 @@ PKG = "rotorbayes"
 #: cli.py has at most this many lines (a table, a parser, a log and the exit codes).
 CLI_MAX_LINES = 500
 #: Libraries that do numerical work: cli.py imports none of them.
-NUMERICAL = ("numpy", "scipy", "numba", "matplotlib", "emcee", "arviz", "corner", "h5py",
-             "dask", "distributed", "xarray")
+NUMERICAL = (
+    "numpy",
+    "scipy",
+    "numba",
+    "matplotlib",
+    "emcee",
+    "arviz",
+    "corner",
+    "h5py",
+    "dask",
+    "distributed",
+    "xarray",
+)
 #: Circles through function-level imports accepted for now (pairs of module names).
 KNOWN_FUNCTION_LEVEL_CYCLES: set[frozenset[str]] = set()
 
@@ -64,8 +75,11 @@ def _targets(module: str, node) -> list[tuple[str, str, str | None]]:
     """(local name, imported rotorbayes module, imported name or None) for each name one
     import statement brings in from rotorbayes."""
     if isinstance(node, ast.Import):
-        return [(a.asname or a.name.split(".")[0], a.name, None) for a in node.names
-                if a.name.split(".")[0] == PKG]
+        return [
+            (a.asname or a.name.split(".")[0], a.name, None)
+            for a in node.names
+            if a.name.split(".")[0] == PKG
+        ]
     if node.level:
         base = _package(module)
         for _ in range(node.level - 1):
@@ -75,9 +89,12 @@ def _targets(module: str, node) -> list[tuple[str, str, str | None]]:
         target = node.module or ""
     if target.split(".")[0] != PKG:
         return []
-    return [(a.asname or a.name, f"{target}.{a.name}", None)
-            if f"{target}.{a.name}" in MODULES else (a.asname or a.name, target, a.name)
-            for a in node.names]
+    return [
+        (a.asname or a.name, f"{target}.{a.name}", None)
+        if f"{target}.{a.name}" in MODULES
+        else (a.asname or a.name, target, a.name)
+        for a in node.names
+    ]
 
 
 def _is_type_checking(node) -> bool:
@@ -168,25 +185,29 @@ def test_the_scan_sees_the_package():
 def test_no_import_cycle_at_module_level():
     cycles = module_level_cycles()
     assert not cycles, "import cycles at module level: " + "; ".join(
-        " <-> ".join(c) for c in cycles)
+        " <-> ".join(c) for c in cycles
+    )
 
 
 def test_no_new_import_circle_through_function_level_imports():
-    cycles = [c for c in function_level_cycles()
-              if frozenset(c) not in KNOWN_FUNCTION_LEVEL_CYCLES]
+    cycles = [c for c in function_level_cycles() if frozenset(c) not in KNOWN_FUNCTION_LEVEL_CYCLES]
     assert not cycles, (
         "modules that import each other (at least one import inside a function): "
         + "; ".join(" <-> ".join(c) for c in cycles)
-        + ". Move the shared idea into the module that owns it.")
+        + ". Move the shared idea into the module that owns it."
+    )
 
 
 def test_no_private_name_imported_across_packages():
     bad = []
     for module, target, name, _, line in _imports():
-        if name and name.startswith("_") and not name.startswith("__") \
-                and _package(module) != _package(target):
-            bad.append(f"{MODULES[module].relative_to(SRC)}:{line} imports {name} from "
-                       f"{target}")
+        if (
+            name
+            and name.startswith("_")
+            and not name.startswith("__")
+            and _package(module) != _package(target)
+        ):
+            bad.append(f"{MODULES[module].relative_to(SRC)}:{line} imports {name} from {target}")
     # Private attributes of an imported module (``import x as m; m._y``).
     for module, path in MODULES.items():
         tree = ast.parse(path.read_text(encoding="utf-8"))
@@ -197,12 +218,18 @@ def test_no_private_name_imported_across_packages():
                     if name is None and target in MODULES:
                         aliases[local] = target
         for node in ast.walk(tree):
-            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
-                    and node.value.id in aliases and node.attr.startswith("_")
-                    and not node.attr.startswith("__")
-                    and _package(aliases[node.value.id]) != _package(module)):
-                bad.append(f"{path.relative_to(SRC)}:{node.lineno} uses "
-                           f"{aliases[node.value.id]}.{node.attr}")
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in aliases
+                and node.attr.startswith("_")
+                and not node.attr.startswith("__")
+                and _package(aliases[node.value.id]) != _package(module)
+            ):
+                bad.append(
+                    f"{path.relative_to(SRC)}:{node.lineno} uses "
+                    f"{aliases[node.value.id]}.{node.attr}"
+                )
     assert not bad, "private names used across packages:\n" + "\n".join(bad)
 
 
@@ -214,18 +241,25 @@ def imports_out_of_lowest_layer(imports) -> list[str]:
     """``"importer:line imports target"`` for each import, among ``imports`` (as
     :func:`_imports` lists them), by a module of :data:`LOWEST_LAYER` of a rotorbayes
     module outside it."""
+
     def inside(module):
         return module == LOWEST_LAYER or module.startswith(LOWEST_LAYER + ".")
 
-    return list(dict.fromkeys(  # one line per import statement, in order
-        f"{importer}:{line} imports {target}" for importer, target, _, _, line in imports
-        if inside(importer) and not inside(target)))
+    return list(
+        dict.fromkeys(  # one line per import statement, in order
+            f"{importer}:{line} imports {target}"
+            for importer, target, _, _, line in imports
+            if inside(importer) and not inside(target)
+        )
+    )
 
 
 def test_the_kernel_imports_nothing_above_it():
     bad = imports_out_of_lowest_layer(_imports())
-    assert not bad, ("the compiled kernel imports from the layers above it (move what it "
-                     "needs into rotorbayes.kernel):\n" + "\n".join(bad))
+    assert not bad, (
+        "the compiled kernel imports from the layers above it (move what it "
+        "needs into rotorbayes.kernel):\n" + "\n".join(bad)
+    )
 
 
 def test_the_layer_check_sees_a_kernel_module_importing_the_model():
@@ -258,8 +292,11 @@ def test_cli_is_short_and_does_no_numerical_work():
 
     for node in ast.walk(tree):
         if isinstance(node, ast.Import | ast.ImportFrom):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [
-                node.module or ""]
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+            )
             for name in names:
                 assert name.split(".")[0] not in NUMERICAL, f"cli.py imports {name}"
         if isinstance(node, ast.ImportFrom) and node.level and node.module:
@@ -269,11 +306,14 @@ def test_cli_is_short_and_does_no_numerical_work():
             for a in node.names:
                 obj = getattr(source, a.name)
                 if a.name == "__version__" or getattr(obj, "__name__", "") in (
-                        f"{PKG}.util.exitcodes", f"{PKG}.util.coldstart"):
+                    f"{PKG}.util.exitcodes",
+                    f"{PKG}.util.coldstart",
+                ):
                     continue
                 assert isinstance(obj, type) and issubclass(obj, BaseException), (
                     f"cli.py imports {a.name} from rotorbayes.{node.module}: only exception "
-                    "classes belong here; the work is in rotorbayes.commands")
+                    "classes belong here; the work is in rotorbayes.commands"
+                )
     assert set(cli.COMMANDS) == {a.dest for a in _subparsers(cli.build_parser())[0]}
 
 
@@ -295,10 +335,10 @@ def test_each_command_is_a_function_with_the_options_as_keywords(name):
     assert function.__doc__, f"rotorbayes.commands.{name}.{name} needs a docstring"
     assert inspect.signature(function).return_annotation in (Outcome, "Outcome")
     params = inspect.signature(function).parameters
-    actions = [a for a in _subparsers(cli.build_parser())[1][name]._actions
-               if a.dest != "help"]
+    actions = [a for a in _subparsers(cli.build_parser())[1][name]._actions if a.dest != "help"]
     assert {a.dest for a in actions} == set(params), (
-        f"{name}: options {sorted(a.dest for a in actions)} vs keywords {sorted(params)}")
+        f"{name}: options {sorted(a.dest for a in actions)} vs keywords {sorted(params)}"
+    )
     for a in actions:
         p = params[a.dest]
         required = a.required if a.option_strings else a.nargs in (None, "+")
@@ -307,13 +347,18 @@ def test_each_command_is_a_function_with_the_options_as_keywords(name):
         elif a.option_strings:
             assert p.default == a.default, (
                 f"{name} {a.option_strings[0]}: default {a.default!r} on the command line, "
-                f"{p.default!r} in Python")
+                f"{p.default!r} in Python"
+            )
 
 
 # --------------------------------------------------------------- typed command options
 #: The commands whose work reads one options object, and its class's name.
-TYPED_COMMANDS = {"fit": "FitOptions", "multistart": "MultistartOptions",
-                  "sample": "SampleOptions", "identify": "IdentifyOptions"}
+TYPED_COMMANDS = {
+    "fit": "FitOptions",
+    "multistart": "MultistartOptions",
+    "sample": "SampleOptions",
+    "identify": "IdentifyOptions",
+}
 
 
 def _dests(add_group, *args) -> dict[str, argparse.Action]:
@@ -333,11 +378,11 @@ def test_each_typed_command_option_is_a_field_of_its_options_class(name):
     cls = getattr(config, TYPED_COMMANDS[name])
     fields = config.keyword_fields(cls)
     defaults = config.keyword_defaults(cls)
-    actions = [a for a in _subparsers(cli.build_parser())[1][name]._actions
-               if a.dest != "help"]
+    actions = [a for a in _subparsers(cli.build_parser())[1][name]._actions if a.dest != "help"]
     assert {a.dest for a in actions} == set(fields), (
         f"{name}: options without a field {sorted({a.dest for a in actions} - set(fields))}, "
-        f"fields without an option {sorted(set(fields) - {a.dest for a in actions})}")
+        f"fields without an option {sorted(set(fields) - {a.dest for a in actions})}"
+    )
     for a in actions:
         required = a.required if a.option_strings else a.nargs in (None, "+")
         if required:
@@ -346,7 +391,8 @@ def test_each_typed_command_option_is_a_field_of_its_options_class(name):
             assert a.dest in defaults, f"{name} {a.dest}: optional, but the field is required"
             assert defaults[a.dest] == a.default, (
                 f"{name} {a.dest}: default {a.default!r} on the command line, "
-                f"{defaults[a.dest]!r} in {cls.__name__}")
+                f"{defaults[a.dest]!r} in {cls.__name__}"
+            )
     # The Python function's keywords are the same fields (with the defaults tested above).
     function = getattr(cli.command_module(name), name)
     assert set(inspect.signature(function).parameters) == set(fields)
@@ -366,8 +412,9 @@ def test_each_shared_option_group_is_one_options_class():
     folder = {**_dests(options.add_trust_option), **_dests(options.add_changed_data_option)}
     assert set(folder) == names(config.FitFolderOptions)
     fit_group = _dests(options.add_fit_options)
-    assert set(fit_group) == (names(config.ProblemOptions) | names(config.SolverOptions)
-                              | {"out", "force"})
+    assert set(fit_group) == (
+        names(config.ProblemOptions) | names(config.SolverOptions) | {"out", "force"}
+    )
     for cls in (config.ProblemOptions, config.SolverOptions, config.ReadOptions):
         for k, v in config.keyword_defaults(cls).items():
             assert fit_group[k].default == v, f"--{k}: {fit_group[k].default!r} vs {v!r}"
@@ -384,9 +431,14 @@ def test_each_typed_command_hands_every_keyword_to_its_field(name, monkeypatch):
     cls = getattr(config, TYPED_COMMANDS[name])
     # A distinct value per keyword; the read options must be valid ones (checked at once).
     given = {k: f"value of {k}" for k in config.keyword_fields(cls)}
-    valid = {"columns": "t=Time,u=Volt", "time_unit": "ms", "angle_unit": "counts",
-             "counts_per_rev": "theta_u=1000,theta_l=2000",
-             "data": ("data1.csv", "data2.csv"), "validate": ("val1.csv", "val2.csv")}
+    valid = {
+        "columns": "t=Time,u=Volt",
+        "time_unit": "ms",
+        "angle_unit": "counts",
+        "counts_per_rev": "theta_u=1000,theta_l=2000",
+        "data": ("data1.csv", "data2.csv"),
+        "validate": ("val1.csv", "val2.csv"),
+    }
     given.update({k: v for k, v in valid.items() if k in given})
     seen = []
     monkeypatch.setattr(module, "execute", seen.append)
@@ -403,9 +455,12 @@ def test_no_command_reads_its_options_from_a_namespace_of_its_locals():
     for path in MODULES.values():
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Call) and any(
-                    k.arg is None and isinstance(k.value, ast.Call)
-                    and isinstance(k.value.func, ast.Name) and k.value.func.id == "locals"
-                    for k in node.keywords):
+                k.arg is None
+                and isinstance(k.value, ast.Call)
+                and isinstance(k.value.func, ast.Name)
+                and k.value.func.id == "locals"
+                for k in node.keywords
+            ):
                 bad.append(f"{path.relative_to(SRC)}:{node.lineno}")
     assert not bad, "calls given **locals():\n" + "\n".join(bad)
 
@@ -416,8 +471,20 @@ def test_no_command_reads_its_options_from_a_namespace_of_its_locals():
 #: nothing of inference, and so on up to the command line.  ``util`` holds small helpers
 #: any layer may use; ``io`` reads and writes files (measurements, rig files, TOML/JSON,
 #: output folders); ``commands`` holds each command and the study that runs them.
-LAYERS = ("kernel", "util", "io", "model", "inference", "figures", "diagnosis", "design",
-          "report", "commands", "cli", "rotorbayes")
+LAYERS = (
+    "kernel",
+    "util",
+    "io",
+    "model",
+    "inference",
+    "figures",
+    "diagnosis",
+    "design",
+    "report",
+    "commands",
+    "cli",
+    "rotorbayes",
+)
 
 
 def layer_of(module: str) -> str:
@@ -434,8 +501,10 @@ def layer_violations() -> list[str]:
         assert a in rank and b in rank, f"{importer} or {target}: a layer not in LAYERS"
         if rank[b] > rank[a]:
             what = f"{target}.{name}" if name else target
-            bad.append(f"{MODULES[importer].relative_to(SRC)}:{line} ({level} level) imports "
-                       f"{what}: layer {b!r} is above {a!r}")
+            bad.append(
+                f"{MODULES[importer].relative_to(SRC)}:{line} ({level} level) imports "
+                f"{what}: layer {b!r} is above {a!r}"
+            )
     return bad
 
 

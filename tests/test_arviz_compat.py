@@ -27,18 +27,21 @@ def _groups(rng, C=4, D=500):
     }
 
 
-DIMS = {"log_likelihood": {"y_exp0": ["time_exp0"]},
-        "observed_data": {"y_exp0": ["time_exp0"]},
-        "constant_data": {"u_exp0": ["time_exp0"]},
-        "posterior_predictive": {"y_exp0": ["time_pred_exp0"]}}
+DIMS = {
+    "log_likelihood": {"y_exp0": ["time_exp0"]},
+    "observed_data": {"y_exp0": ["time_exp0"]},
+    "constant_data": {"u_exp0": ["time_exp0"]},
+    "posterior_predictive": {"y_exp0": ["time_pred_exp0"]},
+}
 COORDS = {"time_exp0": np.arange(7) * 0.1, "time_pred_exp0": np.array([0.0, 0.3, 0.6])}
 
 
 def test_round_trip_and_file_layout(tmp_path):
     rng = np.random.default_rng(3)
     g = _groups(rng)
-    idata = arviz_compat.from_groups(g, dims=DIMS, coords=COORDS,
-                           attrs={"posterior": {"burn_in_steps": 40}})
+    idata = arviz_compat.from_groups(
+        g, dims=DIMS, coords=COORDS, attrs={"posterior": {"burn_in_steps": 40}}
+    )
     path = tmp_path / "posterior.nc"
     arviz_compat.save(idata, path)
     back = arviz_compat.load(path)
@@ -57,8 +60,14 @@ def test_round_trip_and_file_layout(tmp_path):
     # The file itself, read without arviz: one netCDF (HDF5) group per arviz group, so a
     # posterior.nc from one arviz line opens on the other.
     with h5py.File(path, "r") as f:
-        assert {"posterior", "sample_stats", "log_likelihood", "posterior_predictive",
-                "observed_data", "constant_data"} <= set(f.keys())
+        assert {
+            "posterior",
+            "sample_stats",
+            "log_likelihood",
+            "posterior_predictive",
+            "observed_data",
+            "constant_data",
+        } <= set(f.keys())
         assert f["posterior"]["a"].shape == (4, 500)
 
 

@@ -142,8 +142,11 @@ BAD_FILES = {
     "trailing comma": (["t,u,theta_u,theta_l,", *GOOD], 1, r"empty name: trailing comma"),
     "repeated column": (["t,u,theta_u,theta_u", *GOOD], 1, r"repeated column\(s\) theta_u"),
     # Semicolons are a separator (issue 36), but not mixed with commas.
-    "semicolons": (["t;u;theta_u;theta_l", *GOOD], 2,
-                   r"header is separated by semicolons but this row by commas"),
+    "semicolons": (
+        ["t;u;theta_u;theta_l", *GOOD],
+        2,
+        r"header is separated by semicolons but this row by commas",
+    ),
     "short row": (
         ["# a: b", HEADER, *GOOD[:4], "0.04,0.1,0.2", *GOOD[5:]],
         7,
@@ -452,8 +455,11 @@ def test_degrees_detected(tmp_path):
     for i in range(20):
         t = i * 0.01
         lines.append(f"{t!r},1.0,{math.degrees(2.0 * t)!r},0.0")
-    with pytest.raises(DataFileError, match=r"theta_u .*looks like degrees; declare them with "
-                       r"--angle-unit deg .*multiply by π/180"):
+    with pytest.raises(
+        DataFileError,
+        match=r"theta_u .*looks like degrees; declare them with "
+        r"--angle-unit deg .*multiply by π/180",
+    ):
         load_experiment(write(tmp_path, lines))
     # The same motion in radians (2 rad/s) is accepted.
     radians = [HEADER] + [f"{i * 0.01!r},1.0,{2.0 * i * 0.01!r},0.0" for i in range(20)]

@@ -48,14 +48,17 @@ def test_a_small_machine_weighs_each_batch_and_says_the_choice_once(monkeypatch)
         small = parallel.map_ordered(_pid, range(3), shared=(_Sized(1_001), {}))
         assert set(small) == {os.getpid()}  # threads: this process
         parallel.map_ordered(_pid, range(3), shared=(_Sized(1_001), {}))
-        assert said == ["parallel tasks run in 2 local threads (" + parallel.default_reason(
-            2, 3, 1_001) + ")"]
+        assert said == [
+            "parallel tasks run in 2 local threads (" + parallel.default_reason(2, 3, 1_001) + ")"
+        ]
         if FORKSERVER:
             large = parallel.map_ordered(
-                _pid, range(2), shared=_Sized(parallel.PROCESSES_FROM_RESIDUALS))
+                _pid, range(2), shared=_Sized(parallel.PROCESSES_FROM_RESIDUALS)
+            )
             assert os.getpid() not in large  # processes
             assert len(said) == 2 and said[1].startswith(
-                "parallel tasks run in 2 local processes (the default on 2 cores for 2 tasks")
+                "parallel tasks run in 2 local processes (the default on 2 cores for 2 tasks"
+            )
     # An explicit choice is taken as it is.
     with parallel.open_executor(parallel.ExecutorSpec("threads", 2)) as ex:
         assert not isinstance(ex, parallel.DefaultPool)
@@ -63,17 +66,28 @@ def test_a_small_machine_weighs_each_batch_and_says_the_choice_once(monkeypatch)
 
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: one BLAS thread anyway")
 def test_one_blas_thread_when_numpy_was_imported_first():
-    code = ("import numpy, threadpoolctl, rotorbayes; print(sorted({i['num_threads'] for i in "
-            "threadpoolctl.threadpool_info() if i['user_api'] == 'blas'}))")
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                         text=True, timeout=300)
+    code = (
+        "import numpy, threadpoolctl, rotorbayes; print(sorted({i['num_threads'] for i in "
+        "threadpoolctl.threadpool_info() if i['user_api'] == 'blas'}))"
+    )
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[1]"
     # A choice of the user's own is kept.
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env={**env, "OPENBLAS_NUM_THREADS": "2"}, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env={**env, "OPENBLAS_NUM_THREADS": "2"},
+        timeout=300,
+    )
     assert out.stdout.strip().splitlines()[-1] == "[2]", out.stderr
 
 
@@ -81,10 +95,23 @@ def test_a_command_says_the_default_it_took_and_why(tmp_path, capsys):
     from rotorbayes.cli import main
 
     out = tmp_path / "ms"
-    assert main(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
-                 "--max-nfev", "3", "--out", str(out)]) in (0, 1)
-    said = [ln for ln in capsys.readouterr().out.splitlines()
-            if ln.startswith("parallel tasks run")]
+    assert main(
+        [
+            "multistart",
+            "--model",
+            "upper",
+            "example:upper_est",
+            "--starts",
+            "2",
+            "--max-nfev",
+            "3",
+            "--out",
+            str(out),
+        ]
+    ) in (0, 1)
+    said = [
+        ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("parallel tasks run")
+    ]
     assert len(said) == 1, said
     cores = os.cpu_count() or 1
     assert f"(the default on {cores} core" in said[0] and "bench_scale.py" in said[0]

@@ -23,8 +23,13 @@ from rotorbayes.model.simulate import default_step
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 #: Tables of the analysis file and the command each one's keys are options of.
-TABLE_COMMAND = {"analysis": "fit", "fit": "fit", "sample": "sample", "identify": "identify",
-                 "design": "design"}
+TABLE_COMMAND = {
+    "analysis": "fit",
+    "fit": "fit",
+    "sample": "sample",
+    "identify": "identify",
+    "design": "design",
+}
 
 
 def _subparsers():
@@ -83,8 +88,10 @@ def test_analysis_file_defaults_are_the_commands():
         if value is None or not re.fullmatch(r'`?"?[\w.\-]+"?`?', doc):
             continue  # not an option, or a default in words ("the data's")
         checked += 1
-        assert _same(doc, value), (f"docs/analysis_file.md [{table}] {key}: default {doc}, "
-                                   f"but `rotorbayes {TABLE_COMMAND[table]}` has {value!r}")
+        assert _same(doc, value), (
+            f"docs/analysis_file.md [{table}] {key}: default {doc}, "
+            f"but `rotorbayes {TABLE_COMMAND[table]}` has {value!r}"
+        )
     assert checked >= 14
 
 

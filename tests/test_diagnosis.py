@@ -21,10 +21,18 @@ from rotorbayes.diagnosis import diagnose
 from rotorbayes.model import Model
 from rotorbayes.model.parameters import resolve
 
-COUPLED = dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05,
-               J_l=0.062, k_alpha=0.118, Tc_l=0.031, b_l=0.0065)
-BRAKE = dict(COUPLED, Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36, ws_l=0.95,
-             delta_l=1.5)
+COUPLED = dict(
+    k_m=3.1,
+    Tc_u=0.62,
+    dTc_u=0.03,
+    b_u=1.7,
+    db_u=0.05,
+    J_l=0.062,
+    k_alpha=0.118,
+    Tc_l=0.031,
+    b_l=0.0065,
+)
+BRAKE = dict(COUPLED, Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36, ws_l=0.95, delta_l=1.5)
 HIDDEN = {
     "lower_asymmetric_coulomb": dict(dTc_l=0.008),
     "lower_asymmetric_viscous": dict(db_l=0.0015),
@@ -41,8 +49,15 @@ ANGLE = "examples/angle_friction.py:angle_friction"
 
 def _data(params, kind, seed, *, config="coupled", effects=()):
     t, u = rb.signals.make_signal(kind, 30.0, rate=200.0, seed=seed)
-    sim = rb.simulate(params, u, dt=1 / 200, config=config, effects=effects,
-                      quantize_angles=True, alpha0=params.get("alpha0", 0.0))
+    sim = rb.simulate(
+        params,
+        u,
+        dt=1 / 200,
+        config=config,
+        effects=effects,
+        quantize_angles=True,
+        alpha0=params.get("alpha0", 0.0),
+    )
     return sim.to_experiment(f"{kind}{seed}")
 
 
@@ -81,8 +96,11 @@ def test_hidden_catalogue_effect_is_ranked_first_and_adding_it_reaches_the_floor
     # Add it, start from the one-step estimate and the best grid point, refit.
     model2 = Model("coupled") if without else model.with_effects([effect])
     prob2 = inference.Problem(model2, [est], base=prob.params_for(res.x, 0))
-    start = dict(prob.params_for(res.x, 0), **true.nuisance,
-                 **{k: v for k, v in true.step.items() if np.isfinite(v)})
+    start = dict(
+        prob.params_for(res.x, 0),
+        **true.nuisance,
+        **{k: v for k, v in true.step.items() if np.isfinite(v)},
+    )
     res2 = inference.fit(prob2, prob2.start_vector(start))
     assert res2.ssr < true.predicted_ssr * 1.01 + 1e-3 * d.ssr
     assert _floor_ratio(prob2, res2, val) < 1.5
@@ -145,16 +163,31 @@ def test_cli_fit_diagnose_add_chain(tmp_path, capsys, monkeypatch):
         rb.save_experiment(ex, tmp_path / name)
     monkeypatch.chdir(tmp_path)
     f1, f2 = tmp_path / "f1", tmp_path / "f1_lower_asymmetric_viscous"
-    assert main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--validate",
-                 str(tmp_path / "val.csv"), "--out", str(f1)]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "coupled",
+                str(tmp_path / "est.csv"),
+                "--validate",
+                str(tmp_path / "val.csv"),
+                "--out",
+                str(f1),
+            ]
+        )
+        == 0
+    )
     assert main(["diagnose", str(f1)]) == 0
     text = capsys.readouterr().out
     assert "INADEQUATE" in text and "Most likely missing: lower_asymmetric_viscous" in text
     # The advice's refit command is a real one (trial 10 met "--p0 FIT/fit.json"): the
     # fit's model and files as typed from here, the fit folder as --p0, a new folder.
     cmd = text.split("Add it and refit: ", 1)[1].split(";", 1)[0]
-    assert cmd == ("rotorbayes fit --model coupled est.csv --validate val.csv --p0 f1/ "
-                   "--add lower_asymmetric_viscous --out f1_lower_asymmetric_viscous/")
+    assert cmd == (
+        "rotorbayes fit --model coupled est.csv --validate val.csv --p0 f1/ "
+        "--add lower_asymmetric_viscous --out f1_lower_asymmetric_viscous/"
+    )
     doc = json.loads((f1 / "diagnosis.json").read_text())
     assert doc["adequate"] is False
     assert list(doc["ranking"][0])[0] == "effect"
@@ -180,8 +213,16 @@ def test_data_noisier_than_the_encoder_set_their_own_floor():
     for extra, eff in (({}, ()), ({"c_alpha": 0.003}, ("string_damping",))):
         p = dict(resolve(COUPLED, config="coupled"), **extra)
         t, u = rb.signals.make_signal("est", 30.0, rate=1000.0, seed=5)
-        sim = rb.simulate(p, u, dt=1e-3, config="coupled", effects=eff,
-                          quantize_angles=True, noise_std=2e-4, seed=3)
+        sim = rb.simulate(
+            p,
+            u,
+            dt=1e-3,
+            config="coupled",
+            effects=eff,
+            quantize_angles=True,
+            noise_std=2e-4,
+            seed=3,
+        )
         prob = inference.Problem("coupled", [sim.to_experiment("noisy")])
         floors, notes = prob.noise_floors()
         assert all(abs(f / 2e-4 - 1) < 0.1 for f in floors.values()), floors
@@ -225,8 +266,11 @@ def _stribeck_missing_with_every_p(monkeypatch, p_adjusted: float):
     prob = inference.Problem("coupled", [est])
     res = inference.fit_from_data(prob).result
     real = D.score_tests
-    monkeypatch.setattr(D, "score_tests", lambda *a, **k: [
-        dataclasses.replace(s, p_adjusted=p_adjusted) for s in real(*a, **k)])
+    monkeypatch.setattr(
+        D,
+        "score_tests",
+        lambda *a, **k: [dataclasses.replace(s, p_adjusted=p_adjusted) for s in real(*a, **k)],
+    )
     return D.diagnose(prob, res.x)
 
 
@@ -272,8 +316,9 @@ def test_torque_map_bars_a_dependence_by_what_noise_alone_explains_and_tells_apa
         R = noise() / np.sqrt(2)
         ranking = torque._rank(M, feats)
         null, shared = torque._null_and_shared(M, R, feats, ranking)
-        m = torque.TorqueMap("l", np.zeros(n), M, feats, ranking, float(np.sqrt(np.mean(M**2))),
-                        1.5e-4, null, shared)
+        m = torque.TorqueMap(
+            "l", np.zeros(n), M, feats, ranking, float(np.sqrt(np.mean(M**2))), 1.5e-4, null, shared
+        )
         assert ranking[0][0] == "angle_1" and null["angle_1"] < 0.1 * 1.5e-4
         if not collinear:
             assert shared["velocity"] < 0.2 and m.supports_words, m.words()
@@ -333,11 +378,16 @@ def test_the_angle_dependence_is_split_into_friction_and_load_with_its_form():
     n = 20000
     th = np.mod(np.cumsum(rng.uniform(0.0, 0.01, n)), 2 * np.pi)
     s = np.where(rng.uniform(size=n) < 0.5, -1.0, 1.0)
-    m = (-s * 0.003 * np.cos(th - 1.0) + 0.001 * np.cos(th + 0.5) + 0.002 * s
-         + 1e-4 * rng.standard_normal(n))
+    m = (
+        -s * 0.003 * np.cos(th - 1.0)
+        + 0.001 * np.cos(th + 0.5)
+        + 0.002 * s
+        + 1e-4 * rng.standard_normal(n)
+    )
     feats = {"angle_1": th, "angle_2": th, "direction": s}
-    tm = TorqueMap("l", np.arange(n) * 1e-3, m, feats, [("angle_1", 0.9)],
-                   float(np.sqrt(np.mean(m**2))), 1e-4)
+    tm = TorqueMap(
+        "l", np.arange(n) * 1e-3, m, feats, [("angle_1", 0.9)], float(np.sqrt(np.mean(m**2))), 1e-4
+    )
     terms = tm.angle_terms("angle_1")
     assert terms["friction"]["amplitude"] == pytest.approx(0.003, rel=0.02)
     assert terms["friction"]["phase"] == pytest.approx(1.0, abs=0.02)

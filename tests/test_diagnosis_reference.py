@@ -65,12 +65,14 @@ def control(config: str, hold: str, *, multi: bool = False, signal: str = "steps
     """Fit and diagnose a control; returns (problem, fit result, diagnosis)."""
     p = _base(config)
     if multi:
-        exps = [make_experiment(config, p, duration=CONTROL_S, hold=hold, seed=i,
-                                alpha0=a0, signal=signal)
-                for i, a0 in zip((10, 1), (0.8, -0.5), strict=True)]
+        exps = [
+            make_experiment(
+                config, p, duration=CONTROL_S, hold=hold, seed=i, alpha0=a0, signal=signal
+            )
+            for i, a0 in zip((10, 1), (0.8, -0.5), strict=True)
+        ]
     else:
-        exps = [make_experiment(config, p, duration=CONTROL_S, hold=hold, seed=1,
-                                signal=signal)]
+        exps = [make_experiment(config, p, duration=CONTROL_S, hold=hold, seed=1, signal=signal)]
     prob = inference.Problem(config, exps)
     res = inference.fit_from_data(prob).result
     return prob, res, diagnose(prob, res.x)
@@ -92,9 +94,11 @@ def hidden(effect: str):
 
 def _summary(d) -> str:
     top = d.ranking[0] if d.ranking else None
-    return (f"adequate={d.adequate} worst={max(d.rms_over_floor.values()):.3g} "
-            f"claimed={d.claimed} top={top.effect if top else None} "
-            f"p={top.p_adjusted if top else math.nan:.2g}")
+    return (
+        f"adequate={d.adequate} worst={max(d.rms_over_floor.values()):.3g} "
+        f"claimed={d.claimed} top={top.effect if top else None} "
+        f"p={top.p_adjusted if top else math.nan:.2g}"
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -118,10 +122,14 @@ def test_every_catalogue_effect_states_what_the_data_can_resolve():
 
 
 def _step(before, after, ssr_pct, p, val=True):
-    est = {"ssr_ratio": 1 + ssr_pct / 100, "ssr_change_percent": ssr_pct,
-           "worst_rms_over_floor": [before, after], "delta_aicc": -40.0, "delta_bic": -30.0,
-           "lr_test": {"df": 1, "statistic": 42.0, "p_value": p, "n_effective": 1e5,
-                       "rho": 0.1}}
+    est = {
+        "ssr_ratio": 1 + ssr_pct / 100,
+        "ssr_change_percent": ssr_pct,
+        "worst_rms_over_floor": [before, after],
+        "delta_aicc": -40.0,
+        "delta_bic": -30.0,
+        "lr_test": {"df": 1, "statistic": 42.0, "p_value": p, "n_effective": 1e5, "rho": 0.1},
+    }
     step = {"from": "fit0", "to": "fit1", "estimation": est}
     if val:
         step["validation"] = dict(est, lr_test=None)
@@ -154,8 +162,7 @@ def test_the_phantom_is_reported_as_immaterial_never_as_inadequate(monkeypatch):
     20 ms with the same p and a material fall is claimed."""
     D = importlib.import_module("rotorbayes.diagnosis.diagnose")
 
-    ex = make_experiment("upper", _base("upper"), duration=CONTROL_S, hold="continuous",
-                         seed=1)
+    ex = make_experiment("upper", _base("upper"), duration=CONTROL_S, hold="continuous", seed=1)
     prob = inference.Problem("upper", [ex])
     res = inference.fit_from_data(prob).result
     real = D.score_tests(prob, res.x)
@@ -171,6 +178,7 @@ def test_the_phantom_is_reported_as_immaterial_never_as_inadequate(monkeypatch):
             s.step, s.size = {"t_delay": t_delay}, {"t_delay": t_delay}
             s.predicted_rms_ratio = {c: v * pred_worst / worst for c, v in ratios.items()}
             return out
+
         return fake
 
     real_scores = D.score_tests
@@ -218,8 +226,9 @@ def test_controls_are_adequate_with_nothing_claimed(config, hold, multi):
     assert doc["adequate"] is True and "INADEQUATE" not in d.text()
     # whatever is detectable is reported as immaterial, with its numbers
     for item in doc["immaterial"]:
-        assert {"effect", "p_adjusted", "predicted_rms_over_floor", "size",
-                "resolution"} <= set(item)
+        assert {"effect", "p_adjusted", "predicted_rms_over_floor", "size", "resolution"} <= set(
+            item
+        )
     assert "Most likely missing" not in d.advice
 
 
@@ -240,8 +249,11 @@ def test_hidden_effect_is_ranked_first_claimed_and_fixed(effect):
     # add it, start from the one-step estimate and the best grid point, refit
     model2 = Model("coupled") if effect in BASE else model.with_effects([effect])
     prob2 = inference.Problem(model2, [ex], base=prob.params_for(res.x, 0))
-    start = dict(prob.params_for(res.x, 0), **true.nuisance,
-                 **{k: v for k, v in true.step.items() if np.isfinite(v)})
+    start = dict(
+        prob.params_for(res.x, 0),
+        **true.nuisance,
+        **{k: v for k, v in true.step.items() if np.isfinite(v)},
+    )
     res2 = inference.fit(prob2, prob2.start_vector(start))
     ratios = prob2.rms_over_floor(prob2.residuals(res2.x))
     assert max(ratios.values()) < 1.5, ratios
@@ -264,8 +276,7 @@ def test_compare_tests_only_nested_steps_and_warns_far_from_the_floor():
     assert "absorb" not in s["words"]
 
 
-def test_compare_runs_no_likelihood_ratio_test_between_fits_that_are_not_nested(tmp_path,
-                                                                                   capsys):
+def test_compare_runs_no_likelihood_ratio_test_between_fits_that_are_not_nested(tmp_path, capsys):
     from rotorbayes.cli import main
 
     base = ["fit", "--model", "upper", "example:upper_est"]

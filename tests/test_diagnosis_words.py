@@ -42,8 +42,16 @@ def _map(ranking, rms, noise, disc="l", features=(), null=None):
 
 
 def _score(effect, p_adj, *, equivalent=False):
-    return EffectScore(effect=effect, physics="", parameters=[], units=[], statistic=0.0,
-                       p_value=p_adj, p_adjusted=p_adj, equivalent_to_free=equivalent)
+    return EffectScore(
+        effect=effect,
+        physics="",
+        parameters=[],
+        units=[],
+        statistic=0.0,
+        p_value=p_adj,
+        p_adjusted=p_adj,
+        equivalent_to_free=equivalent,
+    )
 
 
 def _judged(worst, rows):
@@ -53,17 +61,31 @@ def _judged(worst, rows):
     for effect, p, pred, claimable in rows:
         ranking.append(_score(effect, p))
         judgements[effect] = {
-            "significant": p < LEVEL, "material": worst - pred >= 0.05 * worst,
-            "claimable": claimable, "resolvable": True, "p_adjusted": p,
-            "rms_over_floor": worst, "predicted_worst_rms_over_floor": pred}
+            "significant": p < LEVEL,
+            "material": worst - pred >= 0.05 * worst,
+            "claimable": claimable,
+            "resolvable": True,
+            "p_adjusted": p,
+            "rms_over_floor": worst,
+            "predicted_worst_rms_over_floor": pred,
+        }
     return ranking, judgements
 
 
 # --------------------------------------------------------------------------------------
 # 1. the map's noise
 # --------------------------------------------------------------------------------------
-FEATURES = ("velocity", "direction", "angle_1", "angle_2", "torsion", "torsion_rate",
-            "input", "input_rate", "time")
+FEATURES = (
+    "velocity",
+    "direction",
+    "angle_1",
+    "angle_2",
+    "torsion",
+    "torsion_rate",
+    "input",
+    "input_rate",
+    "time",
+)
 
 
 def test_a_map_above_its_noise_is_a_missing_torque_with_its_ratio():
@@ -74,9 +96,11 @@ def test_a_map_above_its_noise_is_a_missing_torque_with_its_ratio():
     assert "lacks a torque 2.4x the map's noise" in w, w
     assert "RMS 0.0012 N m" in w and "0.00049 N m" in w
     # no variable explains it: say which were looked at
-    assert ("none of its speed, the direction of rotation, its angle within a revolution, "
-            "the string's torsion, the twist rate, the input voltage, the input's rate or "
-            "time explains") in w, w
+    assert (
+        "none of its speed, the direction of rotation, its angle within a revolution, "
+        "the string's torsion, the twist rate, the input voltage, the input's rate or "
+        "time explains"
+    ) in w, w
     assert m.exceeds_noise and not m.above_noise and not m.supports_words
     d = m.as_dict()
     assert d["exceeds_noise"] and d["rms_over_noise"] == pytest.approx(0.0012 / 0.00049)
@@ -96,8 +120,12 @@ def test_no_missing_torque_only_within_the_noise():
 def test_a_dependence_under_three_times_the_noise_is_a_hint_beside_a_missing_torque():
     """The README's fit1 (lower_asymmetric_coulomb added, 539x the floor): the lower map,
     2.2x its noise, had read "no missing torque"; its speed explains 57 % of it."""
-    m = _map([("velocity", 0.57), ("input", 0.1)], 0.0022, 0.00099,
-             null={"velocity": 1e-5, "input": 1e-5})
+    m = _map(
+        [("velocity", 0.57), ("input", 0.1)],
+        0.0022,
+        0.00099,
+        null={"velocity": 1e-5, "input": 1e-5},
+    )
     w = m.words()
     assert "lacks a torque 2.2x the map's noise" in w and "a hint" in w, w
     assert "its speed (adjusted R² 0.57)" in w and "no missing torque" not in w
@@ -132,8 +160,13 @@ def test_the_map_to_catalogue_table_is_consistent():
 
 def _input_rate_map(disc="l"):
     # "follows changes of the input (explains 42 %)", well above its noise
-    return _map([("input_rate", 0.42), ("torsion_rate", 0.1)], 0.01, 0.0005, disc=disc,
-                null={"input_rate": 1e-4, "torsion_rate": 1e-4})
+    return _map(
+        [("input_rate", 0.42), ("torsion_rate", 0.1)],
+        0.01,
+        0.0005,
+        disc=disc,
+        null={"input_rate": 1e-4, "torsion_rate": 1e-4},
+    )
 
 
 def test_a_map_cause_the_score_test_finds_nothing_of_is_said_to_be_unsupported():
@@ -141,8 +174,9 @@ def test_a_map_cause_the_score_test_finds_nothing_of_is_said_to_be_unsupported()
     gives p = 1, and the tests claim string_damping."""
     m = _input_rate_map()
     assert m.supports_words and "follows changes of the input" in m.words()
-    ranking, judgements = _judged(17.09, [("string_damping", 1e-5, 2.0, True),
-                                          ("input_delay", 1.0, 17.09, False)])
+    ranking, judgements = _judged(
+        17.09, [("string_damping", 1e-5, 2.0, True), ("input_delay", 1.0, 17.09, False)]
+    )
     note = map_agreement(m, ranking, judgements, named="string_damping")
     assert "does not support it (input_delay p 1 after correction)" in note, note
     assert "the tests point at string_damping instead (p 1e-05" in note, note
@@ -150,8 +184,9 @@ def test_a_map_cause_the_score_test_finds_nothing_of_is_said_to_be_unsupported()
     assert "not with the input's rate" in note and "side effect" in note
     assert "other than a pure delay" in note  # what else it could be
     # nothing else supported: what else it could be, without pointing anywhere
-    ranking, judgements = _judged(17.09, [("string_damping", 0.5, 17.0, False),
-                                          ("input_delay", 1.0, 17.09, False)])
+    ranking, judgements = _judged(
+        17.09, [("string_damping", 0.5, 17.0, False), ("input_delay", 1.0, 17.09, False)]
+    )
     note = map_agreement(m, ranking, judgements)
     assert "does not support it (input_delay p 1 after correction)" in note, note
     assert "other than a pure delay" in note and "point at" not in note
@@ -161,9 +196,14 @@ def test_a_map_cause_the_score_test_finds_nothing_of_is_said_to_be_unsupported()
     # the catalogue's version cannot be tested at all: said so, not "does not support"
     mi = _map([("input", 0.6)], 0.01, 0.0005, disc="u", null={"input": 1e-4})
     ranking = [_score("voltage_offset", 0.3, equivalent=True)]
-    judgements = {"voltage_offset": {"significant": False, "claimable": False,
-                                     "rms_over_floor": 17.09,
-                                     "predicted_worst_rms_over_floor": 17.09}}
+    judgements = {
+        "voltage_offset": {
+            "significant": False,
+            "claimable": False,
+            "rms_over_floor": 17.09,
+            "predicted_worst_rms_over_floor": 17.09,
+        }
+    }
     note = map_agreement(mi, ranking, judgements)
     assert "cannot be tested" in note and "does not support" not in note, note
 
@@ -189,17 +229,20 @@ def test_a_claim_the_map_contradicts_is_said_to_be_contradicted():
 # --------------------------------------------------------------------------------------
 def test_a_predicted_rise_is_never_the_best():
     """The issue's numbers: the best detectable "predicted to reach 17.2x" from 17.09x."""
-    ranking, judgements = _judged(17.09, [("lower_stribeck", 1e-4, 17.2, False),
-                                          ("motor_deadzone", 0.5, 17.3, False)])
+    ranking, judgements = _judged(
+        17.09, [("lower_stribeck", 1e-4, 17.2, False), ("motor_deadzone", 0.5, 17.3, False)]
+    )
     w = nothing_material_words(17.09, ranking, judgements)
     assert "best" not in w, w
     assert "no catalogue effect is predicted to lower it" in w and "17.1x" in w, w
     # a detectable effect predicted below the current figure is the best, with both numbers
-    ranking, judgements = _judged(17.09, [("lower_stribeck", 1e-4, 17.2, False),
-                                          ("motor_deadzone", 1e-3, 17.0, False)])
+    ranking, judgements = _judged(
+        17.09, [("lower_stribeck", 1e-4, 17.2, False), ("motor_deadzone", 1e-3, 17.0, False)]
+    )
     w = nothing_material_words(17.09, ranking, judgements)
-    assert "the best detectable, motor_deadzone, is predicted to lower it only from 17.1x " \
-        "to 17x" in w, w
+    assert (
+        "the best detectable, motor_deadzone, is predicted to lower it only from 17.1x to 17x" in w
+    ), w
     # a predicted fall that only shows in the fourth digit is written in four
     ranking, judgements = _judged(17.09, [("lower_stribeck", 1e-4, 17.088, False)])
     w = nothing_material_words(17.09, ranking, judgements)
@@ -242,28 +285,33 @@ def assert_words_agree(d):
         if m.supports_words:
             var = m.strongest[0]
             assert torque.WORDS[var][0] in w
-            family = [s for s in d.ranking
-                      if s.effect in torque.TESTED_BY.get(var, ({}, ""))[0].get(m.disc, ())]
+            family = [
+                s
+                for s in d.ranking
+                if s.effect in torque.TESTED_BY.get(var, ({}, ""))[0].get(m.disc, ())
+            ]
             named = d.claimed or d.candidate
-            if family and not any(j[s.effect]["claimable"] or s.effect == named
-                                  for s in family):
+            if family and not any(j[s.effect]["claimable"] or s.effect == named for s in family):
                 # the map's cause is one the catalogue tests, and the tests do not back it
                 assert "does not support" in w or "cannot be tested" in w, w
                 for s in family:
                     assert s.effect in w, w
                     if not s.equivalent_to_free:
                         assert f"{s.effect} p {s.p_adjusted:.2g}" in w, w
-            if named in CATALOGUE and m.disc in effect_discs(named) and \
-                    var not in EXPLAINS[named] and named not in [s.effect for s in family]:
+            if (
+                named in CATALOGUE
+                and m.disc in effect_discs(named)
+                and var not in EXPLAINS[named]
+                and named not in [s.effect for s in family]
+            ):
                 assert named in w, w
     material = [s.effect for s in d.ranking if j[s.effect]["material"]]
-    if "would change the fit materially" in d.verdict or \
-            "would lower it materially" in d.verdict:
+    if "would change the fit materially" in d.verdict or "would lower it materially" in d.verdict:
         assert not material, (material, d.verdict)
     for a, b in _FROM_TO.findall(d.verdict):
         assert float(b) < float(a), d.verdict  # a "lowering" is a fall
     if "best detectable" in d.verdict:
-        (a, b), = _FROM_TO.findall(d.verdict)
+        ((a, b),) = _FROM_TO.findall(d.verdict)
         assert float(b) < worst
     m = re.search(r"predicted to lower it to (\d[\d.e+-]*)x", d.verdict)
     if m:
@@ -279,8 +327,9 @@ def _string_damping_hidden(k: int, duration: float, seed: int):
     from rotorbayes.diagnosis import diagnose
 
     p = dict(SETS["coupled"][k], c_alpha=0.003)
-    ex = make_experiment("coupled", p, duration=duration, signal="steps",
-                         hold="continuous", seed=seed)
+    ex = make_experiment(
+        "coupled", p, duration=duration, signal="steps", hold="continuous", seed=seed
+    )
     prob = inference.Problem("coupled", [ex])
     res = inference.fit_from_data(prob, restarts=2).result
     return diagnose(prob, res.x)

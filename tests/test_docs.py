@@ -27,26 +27,60 @@ def site(tmp_path_factory) -> Path:
         import myst_parser  # noqa: F401
         import sphinx  # noqa: F401
     except ImportError as exc:
-        pytest.fail(f"{exc.name} is not installed: `pip install \".[test]\"` brings Sphinx and "
-                    "MyST for the documentation build")
+        pytest.fail(
+            f'{exc.name} is not installed: `pip install ".[test]"` brings Sphinx and '
+            "MyST for the documentation build"
+        )
     out = tmp_path_factory.mktemp("docs") / "html"
     env = {**os.environ, "PYTHONWARNINGS": "ignore", "MPLBACKEND": "Agg"}
     proc = subprocess.run(
-        [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-E", "-q", "-b", "html",
-         "-d", str(out.parent / "doctrees"), str(DOCS), str(out)],
-        capture_output=True, text=True, cwd=ROOT, env=env, timeout=900,
+        [
+            sys.executable,
+            "-m",
+            "sphinx",
+            "-W",
+            "--keep-going",
+            "-E",
+            "-q",
+            "-b",
+            "html",
+            "-d",
+            str(out.parent / "doctrees"),
+            str(DOCS),
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=env,
+        timeout=900,
     )
-    warnings = [ln for ln in (proc.stdout + proc.stderr).splitlines()
-                if "WARNING" in ln or "ERROR" in ln or "CRITICAL" in ln]
+    warnings = [
+        ln
+        for ln in (proc.stdout + proc.stderr).splitlines()
+        if "WARNING" in ln or "ERROR" in ln or "CRITICAL" in ln
+    ]
     assert proc.returncode == 0 and not warnings, (
         f"the docs build failed (exit {proc.returncode}) with {len(warnings)} warning(s):\n"
-        + "\n".join(warnings or (proc.stdout + proc.stderr).splitlines()[-40:]))
+        + "\n".join(warnings or (proc.stdout + proc.stderr).splitlines()[-40:])
+    )
     return out
 
 
 def test_docs_build_without_warnings(site):
-    for page in ("index", "getting_started", "model", "diagnosis", "effects", "example_data",
-                 "identifiability", "sampling", "cli", "analysis_file", "api/index"):
+    for page in (
+        "index",
+        "getting_started",
+        "model",
+        "diagnosis",
+        "effects",
+        "example_data",
+        "identifiability",
+        "sampling",
+        "cli",
+        "analysis_file",
+        "api/index",
+    ):
         assert (site / f"{page}.html").exists(), f"{page}.html was not built"
 
 
@@ -66,9 +100,15 @@ def test_cli_reference_has_every_subcommand(site):
 
 def test_api_reference_documents_the_public_modules(site):
     api = "".join(p.read_text(encoding="utf-8") for p in (site / "api").glob("*.html"))
-    for obj in ("rotorbayes.inference.problem.Problem", "rotorbayes.inference.identify.fisher",
-                "rotorbayes.inference.likelihood.load_priors",
-                "rotorbayes.inference.sampling.sample", "rotorbayes.diagnosis.diagnose.diagnose",
-                "rotorbayes.model.effects.Effect", "rotorbayes.io.measurements.load_experiment",
-                "rotorbayes.inference.results.load_fit", "rotorbayes.io.rigfiles.ReadSpec"):
+    for obj in (
+        "rotorbayes.inference.problem.Problem",
+        "rotorbayes.inference.identify.fisher",
+        "rotorbayes.inference.likelihood.load_priors",
+        "rotorbayes.inference.sampling.sample",
+        "rotorbayes.diagnosis.diagnose.diagnose",
+        "rotorbayes.model.effects.Effect",
+        "rotorbayes.io.measurements.load_experiment",
+        "rotorbayes.inference.results.load_fit",
+        "rotorbayes.io.rigfiles.ReadSpec",
+    ):
         assert f'id="{obj}"' in api, f"{obj} is not in the API reference"

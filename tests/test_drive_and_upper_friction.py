@@ -40,12 +40,10 @@ def test_a_vanishing_lag_is_the_plain_input():
     t, u = rb.signals.estimation_signal(5.0, seed=2)
     p = thesis_set("4.3", "P_ref")
     plain = rb.simulate(p, u, dt=1e-3, config="brake")
-    tiny = rb.simulate(dict(p, tau_drive=1e-12), u, dt=1e-3, config="brake",
-                       effects=["drive_lag"])
+    tiny = rb.simulate(dict(p, tau_drive=1e-12), u, dt=1e-3, config="brake", effects=["drive_lag"])
     assert np.max(np.abs(tiny.theta_u - plain.theta_u)) < 1e-9
     assert np.max(np.abs(tiny.theta_l - plain.theta_l)) < 1e-9
-    off = rb.simulate(dict(p, dTs_u=0.0), u, dt=1e-3, config="brake",
-                      effects=["upper_stribeck"])
+    off = rb.simulate(dict(p, dTs_u=0.0), u, dt=1e-3, config="brake", effects=["upper_stribeck"])
     assert np.array_equal(off.theta_u, plain.theta_u)
 
 
@@ -66,8 +64,9 @@ def _stribeck_cases():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("config,params,signal", _stribeck_cases(),
-                         ids=[c[0] + "-" + c[2] for c in _stribeck_cases()])
+@pytest.mark.parametrize(
+    "config,params,signal", _stribeck_cases(), ids=[c[0] + "-" + c[2] for c in _stribeck_cases()]
+)
 def test_upper_stribeck_matches_the_reference(config, params, signal):
     if signal == "sticking":
         t = np.arange(30001) * 1e-3
@@ -75,9 +74,12 @@ def test_upper_stribeck_matches_the_reference(config, params, signal):
     else:
         t, u = rb.signals.estimation_signal(30.0, seed=3)
     sim = rb.simulate(params, u, dt=1e-3, config=config, effects=["upper_stribeck"])
-    plain = rb.simulate({k: v for k, v in params.items()
-                         if k not in ("dTs_u", "ws_u", "delta_u")},
-                        u, dt=1e-3, config=config)
+    plain = rb.simulate(
+        {k: v for k, v in params.items() if k not in ("dTs_u", "ws_u", "delta_u")},
+        u,
+        dt=1e-3,
+        config=config,
+    )
     q = dict(params)
     if config == "coupled":
         q["Ts_l"] = q["Tc_l"]
@@ -99,13 +101,18 @@ def _lag_cases():
     ]
 
 
-_EFFECT_OF = {"tau_drive": "drive_lag", "t_delay": "input_delay",
-              "u_deadzone": "motor_deadzone", "u_offset": "voltage_offset"}
+_EFFECT_OF = {
+    "tau_drive": "drive_lag",
+    "t_delay": "input_delay",
+    "u_deadzone": "motor_deadzone",
+    "u_offset": "voltage_offset",
+}
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("config,params", _lag_cases(),
-                         ids=[f"{c[0]}-{len(c[1])}" for c in _lag_cases()])
+@pytest.mark.parametrize(
+    "config,params", _lag_cases(), ids=[f"{c[0]}-{len(c[1])}" for c in _lag_cases()]
+)
 def test_drive_lag_matches_the_reference(config, params):
     t, u = rb.signals.estimation_signal(30.0, seed=3)
     effects = [e for k, e in _EFFECT_OF.items() if k in params]
@@ -118,17 +125,18 @@ def test_drive_lag_matches_the_reference(config, params):
     def linear(tq):
         return np.interp(tq, t, u)
 
-    ref = reference_simulate(q, t, None, config, u_func=LaggedInput(linear, tau, 31.0),
-                             u_breaks=t)
+    ref = reference_simulate(q, t, None, config, u_func=LaggedInput(linear, tau, 31.0), u_breaks=t)
     assert np.max(np.abs(sim.theta_u - ref["theta_u"])) < TOL
     assert np.max(np.abs(sim.theta_l - ref["theta_l"])) < TOL
-    without = rb.simulate(q, u, dt=1e-3, config=config,
-                          effects=[e for e in effects if e != "drive_lag"])
+    without = rb.simulate(
+        q, u, dt=1e-3, config=config, effects=[e for e in effects if e != "drive_lag"]
+    )
     assert np.max(np.abs(sim.theta_u - without.theta_u)) > 1e-2
 
 
-@pytest.mark.parametrize("effect,name,value", [("drive_lag", "tau_drive", 0.008),
-                                               ("upper_stribeck", "dTs_u", 0.1)])
+@pytest.mark.parametrize(
+    "effect,name,value", [("drive_lag", "tau_drive", 0.008), ("upper_stribeck", "dTs_u", 0.1)]
+)
 def test_smooth_in_the_new_parameters(effect, name, value):
     """The squared error is smooth in the parameter, and central differences at two
     steps agree (no jitter from the solver's decisions)."""
@@ -147,8 +155,7 @@ def test_smooth_in_the_new_parameters(effect, name, value):
     f = np.array([np.sum((thu(v) - meas) ** 2) for v in grid])
     d1, d2 = np.diff(f), np.diff(f, 2)
     assert np.max(np.abs(d2)) < 0.05 * np.max(np.abs(d1)) + 1e-12
-    ders = [(thu(value * (1 + r)) - thu(value * (1 - r))) / (2 * r * value)
-            for r in (1e-4, 1e-6)]
+    ders = [(thu(value * (1 + r)) - thu(value * (1 - r))) / (2 * r * value) for r in (1e-4, 1e-6)]
     scale = np.max(np.abs(ders[0]))
     assert scale > 0 and math.isfinite(scale)
     assert np.max(np.abs(ders[0] - ders[1])) < 1e-3 * scale

@@ -28,8 +28,14 @@ sys.stdout.buffer.write(pickle.dumps(prob.residuals(x)))
 def _problem(path: Path) -> inference.Problem:
     ex = rb.load_example("coupled_est")
     n = 401
-    short = rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n],
-                          theta_l=ex.theta_l[:n], name="coupled 2 s", path=ex.path)
+    short = rb.Experiment(
+        t=ex.t[:n],
+        u=ex.u[:n],
+        theta_u=ex.theta_u[:n],
+        theta_l=ex.theta_l[:n],
+        name="coupled 2 s",
+        path=ex.path,
+    )
     return inference.Problem(rb.Model("coupled", [f"{path}:angle_friction"]), [short])
 
 
@@ -41,8 +47,7 @@ def test_a_worker_without_the_file_runs_the_shipped_code(tmp_path):
     here = prob.residuals(x)
     blob = pickle.dumps((prob, x))
     eff_file.unlink()  # the worker's disk has no such file
-    p = subprocess.run([sys.executable, "-c", CHILD], input=blob, capture_output=True,
-                       timeout=600)
+    p = subprocess.run([sys.executable, "-c", CHILD], input=blob, capture_output=True, timeout=600)
     assert p.returncode == 0, p.stderr.decode()[-2000:]
     there = pickle.loads(p.stdout)
     assert there.tobytes() == here.tobytes()

@@ -40,8 +40,9 @@ def _slide_shift(t, thu, wu, thl, wl, v, z, p, q):
 SLIDE = Effect(
     name="slide_memory",
     physics="the lower friction level falls with the distance slid since the last stop.",
-    parameters=(Parameter("a_slide", "N m", 0.0, 0.05, 0.0, "fall of the friction level",
-                          start=0.005),),
+    parameters=(
+        Parameter("a_slide", "N m", 0.0, 0.05, 0.0, "fall of the friction level", start=0.005),
+    ),
     signature="-",
     configs=("coupled", "brake"),
     friction_shift=_slide_shift,
@@ -53,13 +54,26 @@ SLIDE = Effect(
 
 def test_a_state_needs_its_rate_and_one_per_model():
     with pytest.raises(ValueError, match="state_rate"):
-        Effect("x", "-", (Parameter("a", "-", 0, 1, 0, "-"),), "-", state="s",
-               torque=_slide_shift)
+        Effect("x", "-", (Parameter("a", "-", 0, 1, 0, "-"),), "-", state="s", torque=_slide_shift)
     with pytest.raises(ValueError, match="state_reset"):
-        Effect("x", "-", (Parameter("a", "-", 0, 1, 0, "-"),), "-", state="s",
-               state_rate=_slide_rate, state_reset="x")
-    other = Effect("other", "-", (Parameter("b_other", "-", 0, 1, 0, "-"),), "-",
-                   configs=("brake",), state="s2", state_rate=_slide_rate)
+        Effect(
+            "x",
+            "-",
+            (Parameter("a", "-", 0, 1, 0, "-"),),
+            "-",
+            state="s",
+            state_rate=_slide_rate,
+            state_reset="x",
+        )
+    other = Effect(
+        "other",
+        "-",
+        (Parameter("b_other", "-", 0, 1, 0, "-"),),
+        "-",
+        configs=("brake",),
+        state="s2",
+        state_rate=_slide_rate,
+    )
     with pytest.raises(EffectError, match="at most one stateful effect"):
         Model("brake").with_effects([SLIDE, other])
     assert Model("brake").with_effects([WARM]).stateful.name == "friction_warming"
@@ -72,8 +86,7 @@ def test_a_state_that_does_nothing_changes_nothing():
     t, u = rb.signals.estimation_signal(10.0, seed=3)
     p = thesis_set("4.3", "P_ref")
     plain = rb.simulate(p, u, dt=1e-3, config="brake")
-    off = rb.simulate(dict(p, k_warm=0.0, tau_warm=2.0), u, dt=1e-3, config="brake",
-                      effects=[WARM])
+    off = rb.simulate(dict(p, k_warm=0.0, tau_warm=2.0), u, dt=1e-3, config="brake", effects=[WARM])
     assert np.array_equal(off.theta_u, plain.theta_u)
     assert np.array_equal(off.theta_l, plain.theta_l)
 
@@ -105,8 +118,7 @@ def _warm_ref(k, tau):
 def test_the_example_matches_the_reference(config, k, tau):
     t, u = rb.signals.estimation_signal(30.0, seed=3)
     base = thesis_set("4.3" if config == "brake" else "4.2", "P_ref")
-    sim = rb.simulate(dict(base, k_warm=k, tau_warm=tau), u, dt=1e-3, config=config,
-                      effects=[WARM])
+    sim = rb.simulate(dict(base, k_warm=k, tau_warm=tau), u, dt=1e-3, config=config, effects=[WARM])
     plain = rb.simulate(base, u, dt=1e-3, config=config)
     q = dict(base)
     if config == "coupled":
@@ -133,8 +145,9 @@ def test_a_state_reset_at_stick_matches_the_reference():
     def rate(t, thu, wu, thl, wl, v, z):
         return abs(wl)
 
-    ref = reference_simulate(base, t, u, "brake", state_rate=rate, friction_shift=shift,
-                             state_reset="l")
+    ref = reference_simulate(
+        base, t, u, "brake", state_rate=rate, friction_shift=shift, state_reset="l"
+    )
     assert np.max(np.abs(sim.theta_l - ref["theta_l"])) < TOL
     assert np.max(np.abs(sim.theta_u - ref["theta_u"])) < TOL
     never = reference_simulate(base, t, u, "brake", state_rate=rate, friction_shift=shift)
@@ -148,8 +161,9 @@ def test_a_stateful_effect_is_fitted(tmp_path):
 
     t, u = rb.signals.estimation_signal(20.0, seed=4)
     truth = dict(thesis_set("4.3", "P_ref"), k_warm=0.0012, tau_warm=1.5)
-    ex = rb.simulate(truth, u, dt=1e-3, config="brake", effects=[WARM],
-                     quantize_angles=True).to_experiment("warm")
+    ex = rb.simulate(
+        truth, u, dt=1e-3, config="brake", effects=[WARM], quantize_angles=True
+    ).to_experiment("warm")
     prob = inference.Problem(Model("brake").with_effects([WARM]), [ex], base=truth)
     start = dict(truth, k_warm=0.0008, tau_warm=3.0)
     res = inference.fit(prob, prob.start_vector(start))

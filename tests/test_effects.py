@@ -265,8 +265,12 @@ def _angle_friction_data(tmp_path, a_fric, start):
                       quantize_angles=True)  # fmt: skip
     rb.save_experiment(sim.to_experiment(), tmp_path / "est.csv")
     path = tmp_path / "p0.toml"
-    path.write_text('base = "thesis:4.2:P_ref"\n' + "".join(
-        f"{k} = {v!r}\n" for k, v in zip(("J_l", "k_alpha", "Tc_l", "b_l"), start, strict=True)))
+    path.write_text(
+        'base = "thesis:4.2:P_ref"\n'
+        + "".join(
+            f"{k} = {v!r}\n" for k, v in zip(("J_l", "k_alpha", "Tc_l", "b_l"), start, strict=True)
+        )
+    )
     return truth, sim, path
 
 
@@ -299,8 +303,21 @@ def test_diagnose_tests_a_user_effect_beside_the_catalogue(tmp_path, capsys):
 
     _, _, start = _angle_friction_data(tmp_path, 0.08, (0.05, 0.06, 0.03, 0.012))
     f0 = tmp_path / "f0"
-    assert main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--p0", str(start),
-                 "--out", str(f0)]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "coupled",
+                str(tmp_path / "est.csv"),
+                "--p0",
+                str(start),
+                "--out",
+                str(f0),
+            ]
+        )
+        == 0
+    )
     assert main(["diagnose", str(f0)]) == 0
     capsys.readouterr()
     d = json.loads((f0 / "diagnosis.json").read_text())
@@ -314,21 +331,41 @@ def test_diagnose_tests_a_user_effect_beside_the_catalogue(tmp_path, capsys):
     # it predicts the largest fall of the error of all candidates.
     est = own["parameters"]["a_fric"]["one_step_estimate"]
     assert 0.05 < abs(est) < 0.11, est
-    worst = {k: max(v["predicted_rms_over_floor"].values()) for k, v in rows.items()
-             if v.get("predicted_rms_over_floor")}
+    worst = {
+        k: max(v["predicted_rms_over_floor"].values())
+        for k, v in rows.items()
+        if v.get("predicted_rms_over_floor")
+    }
     assert min(worst, key=worst.get) == "angle_friction", worst
     # (Not claimed: its p is 0.047 before correction.  Measured with a_fric = 0.04 on
     # these data: all 30 time blocks' scores share its sign, but their sizes differ so
     # much that the block t-statistic stays at 2.3.)
-    assert main(["fit", "--model", "coupled", str(tmp_path / "est.csv"), "--p0", str(f0),
-                 "--add", USER, "--out", str(tmp_path / "f1")]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "coupled",
+                str(tmp_path / "est.csv"),
+                "--p0",
+                str(f0),
+                "--add",
+                USER,
+                "--out",
+                str(tmp_path / "f1"),
+            ]
+        )
+        == 0
+    )
     # The refit searches the user effect's parameters; one start is the diagnosis's
     # one-step estimate.
     assert "the diagnosis's one-step estimate" in capsys.readouterr().out
     doc = json.loads((tmp_path / "f1" / "fit.json").read_text())
     assert max(doc["assessment"]["worst_ratio_to_floor"], 0) < 1.5
-    for bad, needle in (("lower_stribeck", "FILE.py:NAME"),
-                        (str(tmp_path / "none.py") + ":x", "none.py")):
+    for bad, needle in (
+        ("lower_stribeck", "FILE.py:NAME"),
+        (str(tmp_path / "none.py") + ":x", "none.py"),
+    ):
         assert main(["diagnose", str(f0), "--add", bad]) == 2
         assert needle in capsys.readouterr().err
 

@@ -16,9 +16,14 @@ from rotorbayes.model.parameters import ParameterError, thesis_set
 
 def _short(ex: rb.Experiment, seconds: float) -> rb.Experiment:
     n = int(round(seconds / ex.dt)) + 1
-    return rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n],
-                         theta_l=None if ex.theta_l is None else ex.theta_l[:n], name=ex.name,
-                         path=ex.path)
+    return rb.Experiment(
+        t=ex.t[:n],
+        u=ex.u[:n],
+        theta_u=ex.theta_u[:n],
+        theta_l=None if ex.theta_l is None else ex.theta_l[:n],
+        name=ex.name,
+        path=ex.path,
+    )
 
 
 LOWER4 = ["J_l", "k_alpha", "Tc_l", "b_l"]
@@ -31,8 +36,18 @@ def test_default_free_set_is_what_the_data_determine(coupled_est):
     assert set(prob.names) == {"k_m", "Tc_u", "dTc_u", "b_u", "db_u", *LOWER4}
     assert prob.channels == ("theta_u", "theta_l")
     brake = inference.Problem("brake", [rb.load_example("brake_est")])
-    assert set(brake.names) == {"k_m", "Tc_u", "dTc_u", "b_u", "db_u", *LOWER4, "db_l",
-                                "Ts_l", "ws_l", "delta_l"}
+    assert set(brake.names) == {
+        "k_m",
+        "Tc_u",
+        "dTc_u",
+        "b_u",
+        "db_u",
+        *LOWER4,
+        "db_l",
+        "Ts_l",
+        "ws_l",
+        "delta_l",
+    }
     # With the measured theta_u as input only the lower disc is left, fitted on theta_l.
     pres = inference.Problem("coupled", [coupled_est], prescribed_upper=True)
     assert pres.names == LOWER4 and pres.channels == ("theta_l",)
@@ -90,16 +105,18 @@ def test_several_experiments_with_alpha0_each():
     np.testing.assert_allclose(got, [0.0, 0.9, -1.4, 2.1], atol=2e-3)
     assert abs(res.values["Ts_l"] / truth["Ts_l"] - 1) < 1e-3
     # One shared alpha0 (the thesis's averaged experiment) fits much worse.
-    shared = inference.fit(inference.Problem("brake", reps, free=["Ts_l"], base=dict(truth,
-                                                                                     alpha0=0.0)),
-                   {"Ts_l": 0.26})
+    shared = inference.fit(
+        inference.Problem("brake", reps, free=["Ts_l"], base=dict(truth, alpha0=0.0)),
+        {"Ts_l": 0.26},
+    )
     assert shared.ssr > 100 * res.ssr
 
 
 def test_lower_disc_with_measured_upper_angle_as_input(coupled_est):
     truth = thesis_set("5.2", "P")
-    prob = inference.Problem("coupled", [_short(coupled_est, 15.0)], base=truth,
-                     prescribed_upper=True)
+    prob = inference.Problem(
+        "coupled", [_short(coupled_est, 15.0)], base=truth, prescribed_upper=True
+    )
     res = inference.fit(prob, thesis_set("5.2", "P0"))
     v = res.values
     # With theta_u prescribed the lower equation is exactly invariant under scaling
@@ -113,15 +130,20 @@ def test_lower_disc_with_measured_upper_angle_as_input(coupled_est):
 
 
 def test_channel_weights_and_both_channels(coupled_est):
-    prob = inference.Problem("coupled", [coupled_est], channels=("theta_l", "theta_u"),
-                     weights={"theta_u": 0.5}, base=thesis_set("5.2", "P"))
+    prob = inference.Problem(
+        "coupled",
+        [coupled_est],
+        channels=("theta_l", "theta_u"),
+        weights={"theta_u": 0.5},
+        base=thesis_set("5.2", "P"),
+    )
     assert prob.n_residuals == 2 * coupled_est.n
     r = prob.residuals(prob.x_from(prob.base))
     # theta_u residual carries the weight 0.5: its quantisation error (half a count) and
     # the integrator's difference from the kernel that made the example (at most the
     # accuracy target, 1.5e-5 rad; 3e-8 here) are halved.  Unweighted it is 5.7e-5.
     count = 2 * np.pi / 54934.256
-    assert np.max(np.abs(r[coupled_est.n:])) <= 0.5 * (0.5 * count + 1.5e-5)
+    assert np.max(np.abs(r[coupled_est.n :])) <= 0.5 * (0.5 * count + 1.5e-5)
 
 
 def test_clear_errors(coupled_est):
@@ -153,8 +175,12 @@ def test_non_convergence_is_reported_and_results_kept(coupled_est):
 def test_multistart_finds_local_minima_in_the_brake_step():
     """Thesis §4.3: far from P_ref the brake fit stops elsewhere; multistart shows it."""
     ex = _short(rb.load_example("brake_est"), 20.0)
-    prob = inference.Problem("brake", [ex], base=thesis_set("5.4", "P"),
-                     free=["Tc_l", "b_l", "db_l", "Ts_l", "ws_l", "delta_l"])
+    prob = inference.Problem(
+        "brake",
+        [ex],
+        base=thesis_set("5.4", "P"),
+        free=["Tc_l", "b_l", "db_l", "Ts_l", "ws_l", "delta_l"],
+    )
     ms = inference.multistart(prob, 8, seed=2, progress=False, max_nfev=40)
     assert len(ms.ssr) + len(ms.failed) == 8 and len(ms.ssr) >= 5
     best = ms.best
@@ -170,8 +196,9 @@ def test_multistart_finds_local_minima_in_the_brake_step():
 def test_describe_spread_names_a_scaling_ridge():
     rng = np.random.default_rng(0)
     lam = np.exp(rng.normal(0, 0.15, 20))
-    ends = np.c_[0.04 * lam, 0.08 * lam * (1 + 1e-4 * rng.normal(size=20)), 0.017 * lam,
-                 np.full(20, 4.3)]
+    ends = np.c_[
+        0.04 * lam, 0.08 * lam * (1 + 1e-4 * rng.normal(size=20)), 0.017 * lam, np.full(20, 4.3)
+    ]
     text = inference.describe_spread(["J_l", "k_alpha", "Tc_l", "k_m"], ends, np.full(20, 1.0))
     assert "scaling J_l and k_alpha and Tc_l by a common factor" in text
     assert "Well determined: k_m" in text

@@ -25,18 +25,39 @@ from rotorbayes.model.parameters import INFO, ParameterError, load_toml  # noqa:
 
 # CI explores the same examples on every run (a red CI is a change's fault, not a new
 # draw); a developer's run explores new ones each time and hypothesis keeps what failed.
-SETTINGS = settings(max_examples=120, deadline=None, derandomize=os.environ.get("CI") == "true",
-                    suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                           HealthCheck.too_slow])
+SETTINGS = settings(
+    max_examples=120,
+    deadline=None,
+    derandomize=os.environ.get("CI") == "true",
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 
 # ----------------------------------------------------------------------------- CSV loader
 def _number_text():
     return st.one_of(
         st.floats(allow_nan=True, allow_infinity=True).map(repr),
-        st.integers(-10**30, 10**30).map(str),
-        st.sampled_from(["", " ", "nan", "inf", "-inf", "1e308", "-1e308", "1e-320", "0x10",
-                         "1,5", "1.2.3", "e5", "--1", "١٢٣", "\x00", "3 4"]),
+        st.integers(-(10**30), 10**30).map(str),
+        st.sampled_from(
+            [
+                "",
+                " ",
+                "nan",
+                "inf",
+                "-inf",
+                "1e308",
+                "-1e308",
+                "1e-320",
+                "0x10",
+                "1,5",
+                "1.2.3",
+                "e5",
+                "--1",
+                "١٢٣",
+                "\x00",
+                "3 4",
+            ]
+        ),
     )
 
 
@@ -46,9 +67,13 @@ def csv_texts(draw):
     n = draw(st.integers(0, 40))
     lower = draw(st.booleans())
     header = ["t", "u", "theta_u"] + (["theta_l"] if lower else [])
-    header = draw(st.one_of(st.just(header), st.permutations(header),
-                            st.lists(st.sampled_from(["t", "u", "theta_u", "theta_l", "x", "",
-                                                      "T"]), max_size=5)))
+    header = draw(
+        st.one_of(
+            st.just(header),
+            st.permutations(header),
+            st.lists(st.sampled_from(["t", "u", "theta_u", "theta_l", "x", "", "T"]), max_size=5),
+        )
+    )
     step = draw(st.sampled_from([0.001, 0.005, 0.5, 1.0, 1e-9]))
     rows = []
     for k in range(n):
@@ -60,8 +85,9 @@ def csv_texts(draw):
         if draw(st.integers(0, 19)) == 0:  # a row of the wrong length
             vals = vals[:-1]
         rows.append(",".join(vals))
-    comments = draw(st.lists(st.text(max_size=20).map(lambda s: "# " + s.replace("\n", " ")),
-                             max_size=2))
+    comments = draw(
+        st.lists(st.text(max_size=20).map(lambda s: "# " + s.replace("\n", " ")), max_size=2)
+    )
     lines = comments + [",".join(header)] + rows
     sep = draw(st.sampled_from(["\n", "\r\n"]))
     text = sep.join(lines) + draw(st.sampled_from([sep, "", sep + sep]))
@@ -107,20 +133,57 @@ def test_the_csv_loader_on_arbitrary_bytes(tmp_path, raw):
 
 
 # ---------------------------------------------------------------------------- TOML readers
-KEYS = st.sampled_from([*list(INFO)[:6], "base", "parameters", "priors", "analysis", "fit",
-                        "sample", "diagnose", "out", "data", "config", "steps", "walkers",
-                        "max_steps", "channels", "lowr", "dist", "lower", "upper", "mean", "sd",
-                        "k m", "é"])
+KEYS = st.sampled_from(
+    [
+        *list(INFO)[:6],
+        "base",
+        "parameters",
+        "priors",
+        "analysis",
+        "fit",
+        "sample",
+        "diagnose",
+        "out",
+        "data",
+        "config",
+        "steps",
+        "walkers",
+        "max_steps",
+        "channels",
+        "lowr",
+        "dist",
+        "lower",
+        "upper",
+        "mean",
+        "sd",
+        "k m",
+        "é",
+    ]
+)
 SCALARS = st.one_of(
-    st.integers(-2**63, 2**63 - 1),
+    st.integers(-(2**63), 2**63 - 1),
     st.floats(allow_nan=True, allow_infinity=True),
     st.booleans(),
     st.text(max_size=12),
-    st.sampled_from(["thesis:4.2:P0", "self.toml", "other.toml", "example:upper_est",
-                     "upper", "normal", "loguniform", "", "x.py:e"]),
+    st.sampled_from(
+        [
+            "thesis:4.2:P0",
+            "self.toml",
+            "other.toml",
+            "example:upper_est",
+            "upper",
+            "normal",
+            "loguniform",
+            "",
+            "x.py:e",
+        ]
+    ),
 )
-VALUES = st.recursive(SCALARS, lambda inner: st.one_of(
-    st.lists(inner, max_size=3), st.dictionaries(KEYS, inner, max_size=3)), max_leaves=8)
+VALUES = st.recursive(
+    SCALARS,
+    lambda inner: st.one_of(st.lists(inner, max_size=3), st.dictionaries(KEYS, inner, max_size=3)),
+    max_leaves=8,
+)
 DOCS = st.dictionaries(KEYS, VALUES, max_size=6)
 
 
@@ -130,13 +193,24 @@ def _toml_value(v) -> str:
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) \
-            else repr(v)
+        return (
+            "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+        )
     if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") \
-            .encode("unicode_escape").decode().replace("\\\\", "\\") + '"' if v.isprintable() \
-            else '"' + "".join(c if c.isprintable() and c not in '"\\' else f"\\u{ord(c):04x}"
-                               for c in v) + '"'
+        return (
+            '"'
+            + v.replace("\\", "\\\\")
+            .replace('"', '\\"')
+            .replace("\n", "\\n")
+            .encode("unicode_escape")
+            .decode()
+            .replace("\\\\", "\\")
+            + '"'
+            if v.isprintable()
+            else '"'
+            + "".join(c if c.isprintable() and c not in '"\\' else f"\\u{ord(c):04x}" for c in v)
+            + '"'
+        )
     if isinstance(v, list):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     return "{ " + ", ".join(f'"{k}" = {_toml_value(x)}' for k, x in v.items()) + " }"
@@ -201,9 +275,15 @@ def test_the_priors_reader(tmp_path, upper_problem, doc, bom, wrap):
 @given(doc=DOCS, bom=st.booleans(), base=st.booleans())
 def test_the_analysis_file_reader(tmp_path, doc, bom, base):
     if base:  # mostly valid files with random changes reach the deeper checks
-        doc = {"analysis": {"out": "o", "config": "upper", "data": ["example:upper_est"],
-                            **{k: v for k, v in doc.items() if not isinstance(v, dict)}},
-               **{k: v for k, v in doc.items() if isinstance(v, dict)}}
+        doc = {
+            "analysis": {
+                "out": "o",
+                "config": "upper",
+                "data": ["example:upper_est"],
+                **{k: v for k, v in doc.items() if not isinstance(v, dict)},
+            },
+            **{k: v for k, v in doc.items() if isinstance(v, dict)},
+        }
     p = _write(tmp_path, "a.toml", doc, bom)
     try:
         a = load_analysis(p)

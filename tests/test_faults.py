@@ -36,8 +36,9 @@ ENV = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
 
 
 def _short_upper(folder: Path, name="upper.csv", seconds=4.0) -> Path:
-    p = rb.parameters.resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
-                              config="upper")
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
     t, u = rb.signals.make_signal("est", seconds, rate=200.0, seed=4)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     path = folder / name
@@ -64,14 +65,39 @@ def proj(tmp_path_factory):
 def post(proj, tmp_path_factory):
     """A small finished sample folder of the project's fit."""
     out = tmp_path_factory.mktemp("post") / "S"
-    assert main(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "20",
-                 "--ensembles", "1", "--max-draws", "5", "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "sample",
+                str(proj / "fit"),
+                "--walkers",
+                "10",
+                "--steps",
+                "20",
+                "--ensembles",
+                "1",
+                "--max-draws",
+                "5",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
 def cli(args, cwd, **kw):
-    return subprocess.Popen([sys.executable, "-m", "rotorbayes.cli", *args], cwd=cwd, env=ENV,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "rotorbayes.cli", *args],
+        cwd=cwd,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
 
 
 def steps_in(chain: Path) -> dict[str, int]:
@@ -93,21 +119,30 @@ def test_the_exit_code_table_is_written_down_once_and_documented():
     readme = (ROOT / "README.md").read_text()
     codes = [c for c, _ in EXIT.TABLE]
     assert len(set(codes)) == len(codes)
-    for c in (EXIT.DONE, EXIT.NOT_CONVERGED, EXIT.REFUSED, EXIT.ENVIRONMENT, EXIT.BUSY,
-              EXIT.INTERRUPTED):
+    for c in (
+        EXIT.DONE,
+        EXIT.NOT_CONVERGED,
+        EXIT.REFUSED,
+        EXIT.ENVIRONMENT,
+        EXIT.BUSY,
+        EXIT.INTERRUPTED,
+    ):
         assert f"| {c} |" in docs and f"| {c} |" in readme
 
 
 # ------------------------------------------------------------------- 1. run never clobbers
 def _analysis(folder: Path, name: str, out: str, data: str) -> Path:
     p = folder / name
-    p.write_text(f'[analysis]\nout = "{out}"\nconfig = "upper"\ndata = ["{data}"]\n'
-                 "[fit]\nmax_nfev = 30\n[report]\nhtml = false\n")
+    p.write_text(
+        f'[analysis]\nout = "{out}"\nconfig = "upper"\ndata = ["{data}"]\n'
+        "[fit]\nmax_nfev = 30\n[report]\nhtml = false\n"
+    )
     return p
 
 
-def test_run_refuses_a_foreign_folder_and_another_analysis_but_reruns_its_own(proj, tmp_path,
-                                                                              capsys):
+def test_run_refuses_a_foreign_folder_and_another_analysis_but_reruns_its_own(
+    proj, tmp_path, capsys
+):
     victim = tmp_path / "victim"
     (victim / "fit0").mkdir(parents=True)
     (victim / "fit0" / "important.txt").write_text("keep me")
@@ -174,14 +209,17 @@ def _sigint_on_call(monkeypatch, module, name, call=1):
     monkeypatch.setattr(module, name, wrapped)
 
 
-def test_ctrl_c_while_a_finished_fit_writes_its_figures_keeps_the_fit(proj, tmp_path,
-                                                                       monkeypatch, capsys):
+def test_ctrl_c_while_a_finished_fit_writes_its_figures_keeps_the_fit(
+    proj, tmp_path, monkeypatch, capsys
+):
     from rotorbayes.commands import fit as commands_fit
 
     _sigint_on_call(monkeypatch, commands_fit, "save_figure_atomic")
     out = tmp_path / "f"
-    assert main(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out",
-                 str(out)]) == EXIT.INTERRUPTED
+    assert (
+        main(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out", str(out)])
+        == EXIT.INTERRUPTED
+    )
     err = capsys.readouterr().err
     assert "after the fit had finished" in err and "kept, complete" in err
     assert "nothing was written" not in err and "Traceback" not in err
@@ -191,7 +229,8 @@ def test_ctrl_c_while_a_finished_fit_writes_its_figures_keeps_the_fit(proj, tmp_
 
 @pytest.mark.parametrize("ctrl_c", [True, False])
 def test_a_ctrl_c_that_compiled_code_turns_into_another_error_is_reported_as_the_stop(
-        proj, tmp_path, monkeypatch, capsys, ctrl_c):
+    proj, tmp_path, monkeypatch, capsys, ctrl_c
+):
     """numba's unboxing of a function argument turned a KeyboardInterrupt into
     ``TypeError: _get_jit_address() missing ...`` (a traceback in 1 of 6 stops in CI).  After
     a Ctrl-C any exception is the stop; without one the same exception is a bug and shows."""
@@ -210,8 +249,14 @@ def test_a_ctrl_c_that_compiled_code_turns_into_another_error_is_reported_as_the
     monkeypatch.setattr(uncertainty, "hold_shift", mangled)
     old = signal.signal(signal.SIGINT, coldstart._interrupt)  # the command's own handler
     try:
-        args = ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out",
-                str(tmp_path / "f")]
+        args = [
+            "fit",
+            "--model",
+            "upper",
+            str(proj / "data" / "upper.csv"),
+            "--out",
+            str(tmp_path / "f"),
+        ]
         if ctrl_c:
             assert main(args) == EXIT.INTERRUPTED
             err = capsys.readouterr().err
@@ -227,16 +272,35 @@ def test_a_ctrl_c_that_compiled_code_turns_into_another_error_is_reported_as_the
 
 @pytest.mark.slow
 @pytest.mark.every_python
-def test_ctrl_c_in_sample_stops_between_steps_and_resume_finishes(proj, tmp_path,
-                                                                  monkeypatch, capfd):
+def test_ctrl_c_in_sample_stops_between_steps_and_resume_finishes(
+    proj, tmp_path, monkeypatch, capfd
+):
     """SIGINT arrives inside a log-posterior evaluation (where emcee would print its
     traceback and the walkers' parameters): the step finishes, is saved, and the run stops."""
     from rotorbayes.inference import likelihood
 
     out = tmp_path / "S"
     _sigint_on_call(monkeypatch, likelihood.LogPosterior, "__call__", call=30)
-    assert main(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "40",
-                 "--ensembles", "1", "--max-draws", "5", "--quiet", "--out", str(out)]) == 130
+    assert (
+        main(
+            [
+                "sample",
+                str(proj / "fit"),
+                "--walkers",
+                "10",
+                "--steps",
+                "40",
+                "--ensembles",
+                "1",
+                "--max-draws",
+                "5",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 130
+    )
     cap = capfd.readouterr()
     assert "emcee: Exception" not in cap.out + cap.err and "Traceback" not in cap.err
     held = steps_in(out / "chain.h5")["ensemble0"]
@@ -307,12 +371,30 @@ def test_ctrl_c_while_the_command_loads_ends_it_at_once_whatever_the_moment(proj
 def test_ctrl_c_after_the_command_has_finished_changes_nothing(tmp_path):
     """The process is exiting (here: held in an exit hook); a Ctrl-C then must not turn a
     finished, reported run into a death by SIGINT or a traceback."""
-    code = ("import atexit, sys, time; sys.argv = ['rotorbayes', *sys.argv[1:]]; "
-            "atexit.register(time.sleep, 3); from rotorbayes.cli import main; "
-            "sys.exit(main(sys.argv[1:]))")
-    p = subprocess.Popen([sys.executable, "-c", code, "simulate", "--model", "upper",
-                          "--duration", "2", "--out", "s.csv"], cwd=tmp_path, env=ENV,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    code = (
+        "import atexit, sys, time; sys.argv = ['rotorbayes', *sys.argv[1:]]; "
+        "atexit.register(time.sleep, 3); from rotorbayes.cli import main; "
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    p = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            code,
+            "simulate",
+            "--model",
+            "upper",
+            "--duration",
+            "2",
+            "--out",
+            "s.csv",
+        ],
+        cwd=tmp_path,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 120
     while not (tmp_path / "s.csv").exists() and time.time() < deadline:
         time.sleep(0.05)
@@ -330,9 +412,24 @@ def test_sample_killed_at_random_moments_resumes_to_exactly_the_steps_asked(proj
     rng = random.Random(4)
     for k, sig in enumerate((signal.SIGKILL, signal.SIGINT)):
         out = tmp_path / f"S{k}"
-        p = cli(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "120",
-                 "--ensembles", "2", "--max-draws", "5", "--quiet", "--out", str(out)],
-                tmp_path)
+        p = cli(
+            [
+                "sample",
+                str(proj / "fit"),
+                "--walkers",
+                "10",
+                "--steps",
+                "120",
+                "--ensembles",
+                "2",
+                "--max-draws",
+                "5",
+                "--quiet",
+                "--out",
+                str(out),
+            ],
+            tmp_path,
+        )
         while not (out / "chain.h5").exists() and p.poll() is None:
             time.sleep(0.05)
         time.sleep(rng.uniform(0.1, 1.0))
@@ -348,11 +445,18 @@ def test_sample_killed_at_random_moments_resumes_to_exactly_the_steps_asked(proj
 @contextlib.contextmanager
 def folder_lock(folder: Path):
     """Another process holds the lock of ``folder`` while the block runs."""
-    code = ("import sys; from rotorbayes.io.outputs import folder_lock\n"
-            f"with folder_lock({str(folder)!r}):\n"
-            "    print('held', flush=True); sys.stdin.read()\n")
-    p = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE,
-                         stdout=subprocess.PIPE, text=True, env=ENV)
+    code = (
+        "import sys; from rotorbayes.io.outputs import folder_lock\n"
+        f"with folder_lock({str(folder)!r}):\n"
+        "    print('held', flush=True); sys.stdin.read()\n"
+    )
+    p = subprocess.Popen(
+        [sys.executable, "-c", code],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
     assert p.stdout.readline().strip() == "held"
     try:
         yield
@@ -361,8 +465,7 @@ def folder_lock(folder: Path):
         p.wait(timeout=30)
 
 
-def test_a_second_process_on_one_result_folder_is_refused_as_busy(proj, post, tmp_path,
-                                                                  capsys):
+def test_a_second_process_on_one_result_folder_is_refused_as_busy(proj, post, tmp_path, capsys):
     with folder_lock(post):
         before = sha(post / "chain.h5")
         assert main(["sample", str(post), "--resume", "--steps", "30"]) == EXIT.BUSY
@@ -372,8 +475,10 @@ def test_a_second_process_on_one_result_folder_is_refused_as_busy(proj, post, tm
     new = tmp_path / "S"
     with folder_lock(new):
         assert main(["sample", str(proj / "fit"), "--out", str(new)]) == EXIT.BUSY
-        assert main(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out",
-                     str(new)]) == EXIT.BUSY
+        assert (
+            main(["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out", str(new)])
+            == EXIT.BUSY
+        )
     assert not new.exists()
     a = _analysis(tmp_path, "a.toml", "study", str(proj / "data" / "upper.csv"))
     with folder_lock(tmp_path / "study"):
@@ -384,8 +489,21 @@ def test_a_second_process_on_one_result_folder_is_refused_as_busy(proj, post, tm
 @pytest.mark.slow
 @pytest.mark.every_python
 def test_two_samplers_started_together_on_one_folder(proj, tmp_path):
-    args = ["sample", str(proj / "fit"), "--walkers", "10", "--steps", "20", "--ensembles",
-            "1", "--max-draws", "5", "--quiet", "--out", "S"]
+    args = [
+        "sample",
+        str(proj / "fit"),
+        "--walkers",
+        "10",
+        "--steps",
+        "20",
+        "--ensembles",
+        "1",
+        "--max-draws",
+        "5",
+        "--quiet",
+        "--out",
+        "S",
+    ]
     ps = [cli(args, tmp_path) for _ in range(2)]
     res = [(p.wait(timeout=180), p.stderr.read()) for p in ps]
     codes = sorted(c for c, _ in res)
@@ -400,8 +518,9 @@ def small_disk(path: Path, kib: int):
     """A real tmpfs of ``kib`` KiB at ``path`` (root and a kernel that allows it); the test
     is skipped where mounting is impossible (no ENOSPC is faked)."""
     path.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={kib}k", "tmpfs", str(path)],
-                       capture_output=True)
+    r = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={kib}k", "tmpfs", str(path)], capture_output=True
+    )
     if r.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here ({r.stderr.decode().strip()})")
     try:
@@ -446,9 +565,24 @@ def test_a_disk_that_another_program_fills_during_sampling_loses_nothing(proj, t
     room is reserved, so the run ends complete."""
     with small_disk(tmp_path / "disk", 24_000) as disk:
         out = disk / "S"
-        p = cli(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "150",
-                 "--ensembles", "2", "--max-draws", "5", "--quiet", "--out", str(out)],
-                tmp_path)
+        p = cli(
+            [
+                "sample",
+                str(proj / "fit"),
+                "--walkers",
+                "10",
+                "--steps",
+                "150",
+                "--ensembles",
+                "2",
+                "--max-draws",
+                "5",
+                "--quiet",
+                "--out",
+                str(out),
+            ],
+            tmp_path,
+        )
         while not (out / "chain.h5").exists() and p.poll() is None:
             time.sleep(0.05)
         time.sleep(0.3)
@@ -463,7 +597,8 @@ def test_a_disk_that_another_program_fills_during_sampling_loses_nothing(proj, t
 
 
 def test_without_preallocation_a_filling_disk_stops_sampling_between_steps(
-        proj, tmp_path, monkeypatch, capsys):
+    proj, tmp_path, monkeypatch, capsys
+):
     """A real tmpfs; fallocate switched off (as on a file system without it): the sampler
     watches the free space and stops cleanly, every finished step kept, exit code 3."""
     import threading
@@ -485,8 +620,23 @@ def test_without_preallocation_a_filling_disk_stops_sampling_between_steps(
 
         th = threading.Thread(target=filler)
         th.start()
-        code = main(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "1500",
-                     "--ensembles", "1", "--max-draws", "5", "--quiet", "--out", str(out)])
+        code = main(
+            [
+                "sample",
+                str(proj / "fit"),
+                "--walkers",
+                "10",
+                "--steps",
+                "1500",
+                "--ensembles",
+                "1",
+                "--max-draws",
+                "5",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
         th.join()
         err = capsys.readouterr().err
         assert code == EXIT.ENVIRONMENT, err
@@ -494,8 +644,21 @@ def test_without_preallocation_a_filling_disk_stops_sampling_between_steps(
         held = steps_in(out / "chain.h5")["ensemble0"]
         assert 0 < held < 1500 and f"after step {held} of 1500" in err
         (disk / "filler").unlink()
-        assert main(["sample", str(out), "--resume", "--steps", str(held + 10),
-                     "--max-draws", "5", "--quiet"]) == 0
+        assert (
+            main(
+                [
+                    "sample",
+                    str(out),
+                    "--resume",
+                    "--steps",
+                    str(held + 10),
+                    "--max-draws",
+                    "5",
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
         assert steps_in(out / "chain.h5") == {"ensemble0": held + 10}
 
 
@@ -536,21 +699,25 @@ def test_parameter_files_that_name_each_other_or_hold_wrong_types(tmp_path, caps
     for name, needle in (("self.toml", "loop"), ("a.toml", "loop"), ("p5.toml", "table")):
         with pytest.raises(ParameterError, match=needle):
             load_toml(tmp_path / name)
-        assert main(["simulate", "--params", str(tmp_path / name), "--out",
-                     str(tmp_path / "s.csv")]) == EXIT.REFUSED
+        assert (
+            main(["simulate", "--params", str(tmp_path / name), "--out", str(tmp_path / "s.csv")])
+            == EXIT.REFUSED
+        )
         assert "Traceback" not in capsys.readouterr().err
     assert load_toml(tmp_path / "bom.toml") == {"k_m": 3.0}
 
 
 def test_priors_files_with_typos_wrong_types_or_excluding_the_fit(proj, tmp_path, capsys):
     fit = str(proj / "fit")
-    for body, needle in (("priors = 3\n", "must be a table"),
-                         ("[priors]\nk_m = { dist = \"uniform\", lowr = 0.01 }\n",
-                          "unknown key 'lowr'"),
-                         ("[priors]\nk_m = { dist = \"normal\", mean = \"3\", sd = 1 }\n",
-                          "must be a number"),
-                         ("\ufeff[priors]\nk_m = { lower = 10.0, upper = 15.0 }\n",
-                          "zero probability to the fit's point")):
+    for body, needle in (
+        ("priors = 3\n", "must be a table"),
+        ('[priors]\nk_m = { dist = "uniform", lowr = 0.01 }\n', "unknown key 'lowr'"),
+        ('[priors]\nk_m = { dist = "normal", mean = "3", sd = 1 }\n', "must be a number"),
+        (
+            "\ufeff[priors]\nk_m = { lower = 10.0, upper = 15.0 }\n",
+            "zero probability to the fit's point",
+        ),
+    ):
         f = tmp_path / "pr.toml"
         f.write_bytes(body.encode())
         out = tmp_path / "S"
@@ -569,7 +736,7 @@ def test_analysis_files_with_bad_values_are_refused_before_any_work(proj, tmp_pa
         (good + "[fit]\nchannels = []\n", "channels is empty"),
         (good + "[sample]\nsteps = 9223372036854775807\n", "must lie between"),
         (good + "[fit]\nfree = [1, 2]\n", "list of strings"),
-        (good + '[priors]\nJ_l = { lowr = 0.01 }\n', "unknown key 'lowr'"),
+        (good + "[priors]\nJ_l = { lowr = 0.01 }\n", "unknown key 'lowr'"),
         (good.replace('config = "upper"', "config = 5"), "must be a str"),
         ("analysis = 3\n", "must be a table"),
         (good + '[fit]\neffects = ["nothere.py:x"]\n', "not found"),
@@ -581,8 +748,10 @@ def test_analysis_files_with_bad_values_are_refused_before_any_work(proj, tmp_pa
         err = capsys.readouterr().err
         assert needle in err and "Traceback" not in err, (body, err)
     assert listing(tmp_path) == ["a.toml"]
-    assert main(["sample", str(proj / "fit"), "--max-draws", "0", "--out",
-                 str(tmp_path / "S")]) == EXIT.REFUSED
+    assert (
+        main(["sample", str(proj / "fit"), "--max-draws", "0", "--out", str(tmp_path / "S")])
+        == EXIT.REFUSED
+    )
     f.write_bytes(("\ufeff" + good + "[report]\nhtml = false\n").encode())
     from rotorbayes.commands.study.analysis import load_analysis
 
@@ -590,8 +759,7 @@ def test_analysis_files_with_bad_values_are_refused_before_any_work(proj, tmp_pa
 
 
 # ------------------------------------------------- 8. fit folders from another folder
-def test_a_fit_folder_works_from_another_working_folder_and_when_moved(proj, tmp_path,
-                                                                     monkeypatch):
+def test_a_fit_folder_works_from_another_working_folder_and_when_moved(proj, tmp_path, monkeypatch):
     sub = proj / "sub"
     sub.mkdir(exist_ok=True)
     monkeypatch.chdir(sub)
@@ -609,7 +777,7 @@ def test_a_fit_folder_works_from_another_working_folder_and_when_moved(proj, tmp
 
 
 # ------------------------------------------------------------ 9. effect files are code
-EFFECT = '''
+EFFECT = """
 import pathlib
 from rotorbayes import Effect, Parameter
 pathlib.Path(__file__).with_suffix(".ran").write_text("imported")
@@ -620,7 +788,7 @@ def shift(t, theta_u, omega_u, theta_l, omega_l, v, p, q):
 my_var = Effect(name="{name}", physics="a constant upper torque", parameters=(
     Parameter("c_test", "N m", -1.0, 1.0, 0.0, "test torque", start=0.0),),
     signature="none", configs=("upper",), friction_shift=shift)
-'''
+"""
 
 
 def _fit_naming_effect(proj, folder: Path, eff: Path) -> Path:
@@ -642,11 +810,22 @@ def test_a_changed_or_missing_effect_file_is_not_run_without_trust(proj, tmp_pat
     doc = json.loads((fit / "fit.json").read_text())
     assert check_effect_files(doc, fit / "fit.json") == [f"{eff.resolve()}:my_effect"]
     eff.write_text(EFFECT.format(name="my_effect") + "\n# changed\n")
-    for argv in (["compare", str(fit)], ["diagnose", str(fit)],
-                 ["identify", str(fit), "--out", str(tmp_path / "i")],
-                 ["sample", str(fit), "--out", str(tmp_path / "s")],
-                 ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--p0",
-                  str(fit), "--out", str(tmp_path / "f")]):
+    for argv in (
+        ["compare", str(fit)],
+        ["diagnose", str(fit)],
+        ["identify", str(fit), "--out", str(tmp_path / "i")],
+        ["sample", str(fit), "--out", str(tmp_path / "s")],
+        [
+            "fit",
+            "--model",
+            "upper",
+            str(proj / "data" / "upper.csv"),
+            "--p0",
+            str(fit),
+            "--out",
+            str(tmp_path / "f"),
+        ],
+    ):
         assert main(argv) == EXIT.REFUSED, argv
         err = capsys.readouterr().err
         assert "changed since the fit" in err and "--trust-effects" in err, err
@@ -681,8 +860,10 @@ def test_an_analysis_file_is_validated_without_running_its_effect_files(proj, tm
     eff = tmp_path / "eff.py"
     eff.write_text(EFFECT.format(name="my_effect"))
     a = tmp_path / "a.toml"
-    a.write_text(f'[analysis]\nout = "o"\nconfig = "upper"\n'
-                 f'data = ["{proj / "data" / "upper.csv"}"]\n[fit]\neffects = ["eff.py:my_var"]\n')
+    a.write_text(
+        f'[analysis]\nout = "o"\nconfig = "upper"\n'
+        f'data = ["{proj / "data" / "upper.csv"}"]\n[fit]\neffects = ["eff.py:my_var"]\n'
+    )
     load_analysis(a)
     assert not eff.with_suffix(".ran").exists()
 
@@ -733,8 +914,10 @@ def test_absurd_numbers_in_a_csv_are_named_as_such(tmp_path):
     from rotorbayes.io.measurements import DataFileError, load_experiment
 
     base = "t,u,theta_u\n" + "".join(f"{k / 200},0.1,0\n" for k in range(20))
-    for col, val, needle in (("theta_u", "1e308", "no experiment reaches it"),
-                             ("u", "1e300", "no amplifier")):
+    for col, val, needle in (
+        ("theta_u", "1e308", "no experiment reaches it"),
+        ("u", "1e300", "no amplifier"),
+    ):
         lines = base.splitlines(keepends=True)
         fields = lines[5].strip().split(",")
         fields[["t", "u", "theta_u"].index(col)] = val
@@ -746,10 +929,19 @@ def test_absurd_numbers_in_a_csv_are_named_as_such(tmp_path):
         assert "degrees" not in str(exc.value) and "line 6" in str(exc.value)
 
 
-@pytest.mark.parametrize("change", ['d["data"] = 5', 'd["free"] = [1]', 'd["estimates"] = {}',
-                                    'd["params"] = {"k_m": "x"}', 'd["config"] = [1]',
-                                    'd["channels"] = 7', 'd["data"] = ["/dev/zero"]',
-                                    'd["estimates"]["k_m"]["value"] = "y"'])
+@pytest.mark.parametrize(
+    "change",
+    [
+        'd["data"] = 5',
+        'd["free"] = [1]',
+        'd["estimates"] = {}',
+        'd["params"] = {"k_m": "x"}',
+        'd["config"] = [1]',
+        'd["channels"] = 7',
+        'd["data"] = ["/dev/zero"]',
+        'd["estimates"]["k_m"]["value"] = "y"',
+    ],
+)
 def test_a_damaged_fit_json_is_refused_with_its_name(proj, tmp_path, change, capsys):
     fit = tmp_path / "H"
     shutil.copytree(proj / "fit", fit)

@@ -80,8 +80,10 @@ class FakeServer:
         with contextlib.suppress(OSError):
             if self.kind == "http":
                 conn.recv(4096)
-                conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Type: text/plain\r\n"
-                             b"Content-Length: 11\r\n\r\nBad Request")
+                conn.sendall(
+                    b"HTTP/1.1 400 Bad Request\r\nContent-Type: text/plain\r\n"
+                    b"Content-Length: 11\r\n\r\nBad Request"
+                )
             elif self.kind == "closer":
                 conn.close()
                 return
@@ -112,23 +114,35 @@ def closed_port() -> str:
 
 
 def cli(args, cwd, env=None):
-    return subprocess.Popen([sys.executable, "-m", "rotorbayes.cli", *args], cwd=cwd,
-                            env={**ENV, **(env or {})}, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "rotorbayes.cli", *args],
+        cwd=cwd,
+        env={**ENV, **(env or {})},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def assert_clean_cluster_refusal(code: int, err: str, address: str) -> None:
     assert code == EXIT.ENVIRONMENT, err
     assert address in err, err
-    for bad in ("Traceback", "EiB", "Unable to allocate", "Client.__del__",
-                "Exception ignored", "MemoryError"):
+    for bad in (
+        "Traceback",
+        "EiB",
+        "Unable to allocate",
+        "Client.__del__",
+        "Exception ignored",
+        "MemoryError",
+    ):
         assert bad not in err, (bad, err)
 
 
 # --------------------------------------------------------------------------- projects
 def _short_upper(folder: Path, seconds=4.0) -> Path:
-    p = rb.parameters.resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
-                              config="upper")
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
     t, u = rb.signals.make_signal("est", seconds, rate=200.0, seed=4)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     path = folder / "upper.csv"
@@ -149,8 +163,26 @@ def proj(tmp_path_factory):
 @pytest.fixture(scope="module")
 def post(proj, tmp_path_factory):
     out = tmp_path_factory.mktemp("post") / "S"
-    assert main(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "20",
-                 "--ensembles", "1", "--max-draws", "5", "--quiet", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "sample",
+                str(proj / "fit"),
+                "--walkers",
+                "10",
+                "--steps",
+                "20",
+                "--ensembles",
+                "1",
+                "--max-draws",
+                "5",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -168,9 +200,11 @@ def test_the_probe_refuses_what_does_not_speak_dask_within_the_wait(server):
     msg = str(e.value)
     assert server.address in msg and "(from --scheduler)" in msg
     assert took < 2.0 + 5.0, took
-    said = {"http": ["not as a Dask scheduler", "HTTP/1.1 400 Bad Request", "dashboard"],
-            "silent": ["did not answer as a Dask scheduler within 2 s"],
-            "closer": ["closed it without answering"]}[server.kind]
+    said = {
+        "http": ["not as a Dask scheduler", "HTTP/1.1 400 Bad Request", "dashboard"],
+        "silent": ["did not answer as a Dask scheduler within 2 s"],
+        "closer": ["closed it without answering"],
+    }[server.kind]
     assert all(s in msg for s in said), msg
 
 
@@ -196,8 +230,21 @@ def test_multistart_on_a_scheduler_that_is_not_one_ends_with_exit_3(kind, tmp_pa
     address = closed_port() if s is None else s.address
     try:
         t0 = time.perf_counter()
-        p = cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
-                 "--scheduler", address, "--out", "ms"], tmp_path)
+        p = cli(
+            [
+                "multistart",
+                "--model",
+                "upper",
+                "example:upper_est",
+                "--starts",
+                "2",
+                "--scheduler",
+                address,
+                "--out",
+                "ms",
+            ],
+            tmp_path,
+        )
         _, err = p.communicate(timeout=BOUND + 60)
         took = time.perf_counter() - t0
     finally:
@@ -211,8 +258,23 @@ def test_multistart_on_a_scheduler_that_is_not_one_ends_with_exit_3(kind, tmp_pa
 @pytest.mark.parametrize("server", ["http", "silent"], indirect=True)
 def test_sample_on_a_scheduler_from_the_environment_ends_with_exit_3(server, proj, tmp_path):
     t0 = time.perf_counter()
-    p = cli(["sample", str(proj / "fit"), "--walkers", "10", "--steps", "20", "--ensembles",
-             "2", "--quiet", "--out", "S"], tmp_path, env={parallel.SCHEDULER_ENV: server.address})
+    p = cli(
+        [
+            "sample",
+            str(proj / "fit"),
+            "--walkers",
+            "10",
+            "--steps",
+            "20",
+            "--ensembles",
+            "2",
+            "--quiet",
+            "--out",
+            "S",
+        ],
+        tmp_path,
+        env={parallel.SCHEDULER_ENV: server.address},
+    )
     _, err = p.communicate(timeout=BOUND + 60)
     took = time.perf_counter() - t0
     assert_clean_cluster_refusal(p.returncode, err, server.address)
@@ -221,18 +283,19 @@ def test_sample_on_a_scheduler_from_the_environment_ends_with_exit_3(server, pro
 
 
 @pytest.mark.parametrize("server", ["http"], indirect=True)
-def test_every_command_with_a_scheduler_option_refuses_a_web_server(server, proj, tmp_path,
-                                                                     capsys):
+def test_every_command_with_a_scheduler_option_refuses_a_web_server(server, proj, tmp_path, capsys):
     """identify --profiles, design and run (multistart and sample above): exit 3 at once,
     nothing written."""
     fit = str(proj / "fit")
     a = tmp_path / "a.toml"
-    a.write_text(f'[analysis]\nout = "A"\nconfig = "upper"\n'
-                 f'data = ["{proj / "data" / "upper.csv"}"]\n')
-    for argv in (["identify", fit, "--profiles", "k_m", "--points", "3", "--out",
-                  str(tmp_path / "i")],
-                 ["design", fit, "--out", str(tmp_path / "d"), "--no-check"],
-                 ["run", str(a)]):
+    a.write_text(
+        f'[analysis]\nout = "A"\nconfig = "upper"\ndata = ["{proj / "data" / "upper.csv"}"]\n'
+    )
+    for argv in (
+        ["identify", fit, "--profiles", "k_m", "--points", "3", "--out", str(tmp_path / "i")],
+        ["design", fit, "--out", str(tmp_path / "d"), "--no-check"],
+        ["run", str(a)],
+    ):
         t0 = time.perf_counter()
         code = main([*argv, "--scheduler", server.address])
         err = capsys.readouterr().err
@@ -245,7 +308,8 @@ def test_a_dask_peer_that_never_takes_the_client_is_exit_3_not_a_hang(tmp_path):
     """Past the handshake (a Dask process, but not a scheduler that answers): the client is
     given up after the wait and a grace, and the process ends without Dask's noise."""
     script = tmp_path / "drive.py"
-    script.write_text(textwrap.dedent(f"""
+    script.write_text(
+        textwrap.dedent(f"""
         import sys
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from test_faults_cluster import FakeServer
@@ -258,10 +322,16 @@ def test_a_dask_peer_that_never_takes_the_client_is_exit_3_not_a_hang(tmp_path):
         except parallel.ClusterError as exc:
             print(exc, file=sys.stderr)
             sys.exit(3)
-    """))
+    """)
+    )
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, str(script)], env={**ENV, parallel.TIMEOUT_ENV: "2"},
-                       capture_output=True, text=True, timeout=BOUND + 60)
+    p = subprocess.run(
+        [sys.executable, str(script)],
+        env={**ENV, parallel.TIMEOUT_ENV: "2"},
+        capture_output=True,
+        text=True,
+        timeout=BOUND + 60,
+    )
     assert p.returncode == 3, p.stderr
     assert "speaks Dask's protocol but did not take this client" in p.stderr
     assert "Traceback" not in p.stderr and "Exception ignored" not in p.stderr, p.stderr
@@ -274,8 +344,9 @@ def small_disk(path: Path, kib: int):
     """A real tmpfs of ``kib`` KiB (root and a kernel that allow it), else the test is
     skipped."""
     path.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={kib}k", "tmpfs", str(path)],
-                       capture_output=True)
+    r = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={kib}k", "tmpfs", str(path)], capture_output=True
+    )
     if r.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here ({r.stderr.decode().strip()})")
     try:
@@ -291,12 +362,12 @@ def fill(disk: Path, leave_kib: int = 0) -> None:
         fh.flush()
 
 
-SAMPLE = ["--walkers", "10", "--steps", "20", "--ensembles", "1", "--max-draws", "5",
-          "--quiet"]
+SAMPLE = ["--walkers", "10", "--steps", "20", "--ensembles", "1", "--max-draws", "5", "--quiet"]
 
 
 def test_the_reserve_holds_the_summary_when_the_disk_fills_at_that_moment(
-        proj, tmp_path, monkeypatch, capsys):
+    proj, tmp_path, monkeypatch, capsys
+):
     """The red-team case: the disk fills to the last byte after the last step, as the
     summary begins: every file is still written (exit code 0), from the reserve."""
     from rotorbayes.inference import posterior
@@ -314,16 +385,29 @@ def test_the_reserve_holds_the_summary_when_the_disk_fills_at_that_moment(
         code = main(["sample", str(proj / "fit"), *SAMPLE, "--out", str(out)])
         err = capsys.readouterr().err
         assert code == 0, err
-        assert listing(out) == sorted(["chain.h5", "settings.json", "log.txt", "posterior.nc",
-                                       "summary.md", "summary.csv", "corner.png", "trace.png",
-                                       "predictive.png", "correlation.png", "warnings.txt"])
+        assert listing(out) == sorted(
+            [
+                "chain.h5",
+                "settings.json",
+                "log.txt",
+                "posterior.nc",
+                "summary.md",
+                "summary.csv",
+                "corner.png",
+                "trace.png",
+                "predictive.png",
+                "correlation.png",
+                "warnings.txt",
+            ]
+        )
         from rotorbayes.inference import arviz_compat
 
         arviz_compat.load(out / "posterior.nc")
 
 
 def test_a_write_that_fails_with_enospc_says_what_was_kept_and_resume_writes_the_rest(
-        proj, tmp_path, monkeypatch, capsys):
+    proj, tmp_path, monkeypatch, capsys
+):
     from rotorbayes.inference import sampling
 
     real = sampling.SummaryReserve.write
@@ -357,7 +441,8 @@ def test_a_real_enospc_beyond_the_reserve_is_exit_3_never_a_crash(proj, tmp_path
     with small_disk(tmp_path / "disk", 16_000) as disk:
         out = disk / "S"
         script = tmp_path / "drive.py"
-        script.write_text(textwrap.dedent(f"""
+        script.write_text(
+            textwrap.dedent(f"""
             import os, sys
             from rotorbayes.cli import main
             from rotorbayes.commands import sample
@@ -375,9 +460,11 @@ def test_a_real_enospc_beyond_the_reserve_is_exit_3_never_a_crash(proj, tmp_path
                 return made(*a, **k)
             posterior.inference_data = filling
             sys.exit(main(["sample", {str(proj / "fit")!r}, *{SAMPLE!r}, "--out", {str(out)!r}]))
-        """))
-        p = subprocess.run([sys.executable, str(script)], env=ENV, capture_output=True,
-                           text=True, timeout=300)
+        """)
+        )
+        p = subprocess.run(
+            [sys.executable, str(script)], env=ENV, capture_output=True, text=True, timeout=300
+        )
         assert p.returncode == EXIT.ENVIRONMENT, (p.returncode, p.stderr)
         assert "the disk is full" in p.stderr and "the chains are complete" in p.stderr
         assert "Traceback" not in p.stderr and "HDF5-DIAG" not in p.stderr, p.stderr
@@ -385,10 +472,10 @@ def test_a_real_enospc_beyond_the_reserve_is_exit_3_never_a_crash(proj, tmp_path
 
 
 # -------------------------------------------------------- 3. a damaged posterior.nc
-@pytest.mark.parametrize("damage", ["truncated", "empty", "overwritten", "not netCDF",
-                                    "a folder", "another fit's"])
-def test_identify_refuses_a_damaged_posterior_with_its_name(proj, post, tmp_path, damage,
-                                                             capsys):
+@pytest.mark.parametrize(
+    "damage", ["truncated", "empty", "overwritten", "not netCDF", "a folder", "another fit's"]
+)
+def test_identify_refuses_a_damaged_posterior_with_its_name(proj, post, tmp_path, damage, capsys):
     s = tmp_path / "S"
     shutil.copytree(post, s)
     nc = s / "posterior.nc"
@@ -413,8 +500,9 @@ def test_identify_refuses_a_damaged_posterior_with_its_name(proj, post, tmp_path
         renamed = arviz_compat.group(idata, "posterior").rename({"k_m": "k_x"})
         groups = {"posterior": {v: renamed[v].values for v in renamed}}
         arviz_compat.save(arviz_compat.from_groups(groups), nc)
-    code = main(["identify", str(proj / "fit"), "--posterior", str(s), "--out",
-                 str(tmp_path / "i")])
+    code = main(
+        ["identify", str(proj / "fit"), "--posterior", str(s), "--out", str(tmp_path / "i")]
+    )
     err = capsys.readouterr().err
     assert code == EXIT.REFUSED, err
     assert str(nc) in err and "Traceback" not in err and "Exception ignored" not in err, err
@@ -430,13 +518,14 @@ def test_a_posterior_written_in_memory_reads_back_on_this_line(post):
     from rotorbayes.inference import arviz_compat
 
     idata = arviz_compat.load(post / "posterior.nc")
-    assert {"posterior", "sample_stats", "log_likelihood", "observed_data",
-            "constant_data"} <= set(arviz_compat.group_names(idata))
+    assert {"posterior", "sample_stats", "log_likelihood", "observed_data", "constant_data"} <= set(
+        arviz_compat.group_names(idata)
+    )
     assert bytes(arviz_compat.to_bytes(idata))[:8] == b"\x89HDF\r\n\x1a\n"
 
 
 # ------------------------------------------------------ 4. effect files of others' folders
-EFFECT = '''
+EFFECT = """
 import pathlib
 from rotorbayes import Effect, Parameter
 pathlib.Path(__file__).with_suffix(".ran").write_text("imported")
@@ -447,7 +536,7 @@ def shift(t, theta_u, omega_u, theta_l, omega_l, v, p, q):
 my_effect = Effect(name="my_effect", physics="a constant upper torque", parameters=(
     Parameter("c_test", "N m", -1.0, 1.0, 0.0, "test torque", start=0.0),),
     signature="none", configs=("upper",), friction_shift=shift)
-'''
+"""
 
 
 def forged(proj, folder: Path) -> tuple[Path, Path]:
@@ -463,8 +552,9 @@ def forged(proj, folder: Path) -> tuple[Path, Path]:
     return folder, eff
 
 
-def test_a_fit_json_of_another_user_does_not_run_its_effect_file(proj, tmp_path, monkeypatch,
-                                                                  capsys):
+def test_a_fit_json_of_another_user_does_not_run_its_effect_file(
+    proj, tmp_path, monkeypatch, capsys
+):
     from rotorbayes.inference.results import ResultError, check_effect_files
 
     fit, eff = forged(proj, tmp_path / "theirs")
@@ -472,11 +562,22 @@ def test_a_fit_json_of_another_user_does_not_run_its_effect_file(proj, tmp_path,
     assert check_effect_files(doc, fit / "fit.json")  # this user's own: as before
     other = os.geteuid() + 4242
     monkeypatch.setattr(os, "geteuid", lambda: other)  # the same files seen by another user
-    for argv in (["compare", str(fit)], ["diagnose", str(fit)],
-                 ["sample", str(fit), "--out", str(tmp_path / "s")],
-                 ["identify", str(fit), "--out", str(tmp_path / "i")],
-                 ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--p0",
-                  str(fit), "--out", str(tmp_path / "f")]):
+    for argv in (
+        ["compare", str(fit)],
+        ["diagnose", str(fit)],
+        ["sample", str(fit), "--out", str(tmp_path / "s")],
+        ["identify", str(fit), "--out", str(tmp_path / "i")],
+        [
+            "fit",
+            "--model",
+            "upper",
+            str(proj / "data" / "upper.csv"),
+            "--p0",
+            str(fit),
+            "--out",
+            str(tmp_path / "f"),
+        ],
+    ):
         assert main(argv) == EXIT.REFUSED, argv
         err = capsys.readouterr().err
         assert "belongs to another user" in err and "--trust-effects" in err, err
@@ -489,8 +590,7 @@ def test_a_fit_json_of_another_user_does_not_run_its_effect_file(proj, tmp_path,
         check_effect_files(doc, fit / "fit.json")
 
 
-def test_a_folder_unpacked_from_an_archive_does_not_run_its_effect_file(proj, tmp_path,
-                                                                         capsys):
+def test_a_folder_unpacked_from_an_archive_does_not_run_its_effect_file(proj, tmp_path, capsys):
     from rotorbayes.inference.results import check_effect_files
 
     fit, eff = forged(proj, tmp_path / "made")

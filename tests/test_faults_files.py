@@ -70,8 +70,15 @@ def in_process_of_its_own(args, cwd, *, shell: str | None = None, env=None):
 
     cmd = ["bash", "-c", shell] if shell else [sys.executable, "-m", "rotorbayes.cli", *args]
     try:
-        return subprocess.run(cmd, cwd=cwd, env={**ENV, **(env or {})}, capture_output=True,
-                              text=True, timeout=TIMEOUT, preexec_fn=limit)
+        return subprocess.run(
+            cmd,
+            cwd=cwd,
+            env={**ENV, **(env or {})},
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT,
+            preexec_fn=limit,
+        )
     except subprocess.TimeoutExpired:
         pytest.fail(f"{cmd} still ran after {TIMEOUT} s: it hangs")
 
@@ -82,8 +89,9 @@ def listing(folder: Path) -> list[str]:
 
 def tree(folder: Path) -> dict[str, bytes]:
     """Every file under ``folder`` with its bytes (to show nothing changed)."""
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
-            if p.is_file()}
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
 
 
 def sha(path: Path) -> str:
@@ -91,8 +99,9 @@ def sha(path: Path) -> str:
 
 
 def _upper_data(path: Path, seconds: float = 2.0) -> Path:
-    p = rb.parameters.resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
-                              config="upper")
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
     t, u = rb.signals.make_signal("est", seconds, rate=200.0, seed=4)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     rb.save_experiment(sim.to_experiment("upper"), path)
@@ -141,18 +150,29 @@ def test_force_refuses_a_folder_of_the_users_own_files(here, proj, capsys):
     before = tree(docs)
     data = str(proj / "d.csv")
     for force in ([], ["--force"]):
-        refused(capsys, ["fit", "--model", "upper", data, "--out", "mydocs", *FAST, *force],
-                "--out mydocs", "rotorbayes did not write", "thesis.tex", "chapters/")
+        refused(
+            capsys,
+            ["fit", "--model", "upper", data, "--out", "mydocs", *FAST, *force],
+            "--out mydocs",
+            "rotorbayes did not write",
+            "thesis.tex",
+            "chapters/",
+        )
     # sample emptied a folder it was given with --force, whatever it held
-    refused(capsys, ["sample", str(proj / "fit"), "--out", "mydocs", "--force"],
-            "rotorbayes did not write", "thesis.tex")
+    refused(
+        capsys,
+        ["sample", str(proj / "fit"), "--out", "mydocs", "--force"],
+        "rotorbayes did not write",
+        "thesis.tex",
+    )
     assert tree(docs) == before
     assert listing(here) == ["mydocs"]  # no partial folder, no lock file
 
 
 @pytest.mark.parametrize("out", ["{cwd}", "../{name}", ".", ".."])
-def test_force_never_replaces_the_working_folder_or_one_above_it(tmp_path, proj, capsys,
-                                                                   monkeypatch, out):
+def test_force_never_replaces_the_working_folder_or_one_above_it(
+    tmp_path, proj, capsys, monkeypatch, out
+):
     # The working folder is even a result folder (the user went into it), with the data.
     cwd = tmp_path / "work"
     shutil.copytree(proj / "fit", cwd)
@@ -160,8 +180,12 @@ def test_force_never_replaces_the_working_folder_or_one_above_it(tmp_path, proj,
     monkeypatch.chdir(cwd)
     before = tree(tmp_path)
     out = out.format(cwd=cwd, name=cwd.name)
-    refused(capsys, ["fit", "--model", "upper", "d.csv", "--out", out, "--force", *FAST],
-            f"--out {out}", "working folder")
+    refused(
+        capsys,
+        ["fit", "--model", "upper", "d.csv", "--out", out, "--force", *FAST],
+        f"--out {out}",
+        "working folder",
+    )
     assert tree(tmp_path) == before and listing(tmp_path) == ["work"]
 
 
@@ -170,21 +194,30 @@ def test_force_never_replaces_a_folder_holding_an_input(here, proj, capsys):
     shutil.copytree(proj / "fit", res)  # a result folder...
     shutil.copy(proj / "d.csv", res / "d.csv")  # ... with the data put into it
     before = tree(here)
-    refused(capsys, ["fit", "--model", "upper", "res/d.csv", "--out", "res", "--force", *FAST],
-            "--out res", "holds res/d.csv, an input")
-    for argv in (["fit", "--model", "upper", str(proj / "d.csv"), "--p0", "res", "--out",
-                  "res"],
-                 ["compare", "res", "--out", "res"],
-                 ["identify", "res", "--out", "res"],
-                 ["design", "res", "--out", "res"],
-                 ["sample", "res", "--out", "res"]):
+    refused(
+        capsys,
+        ["fit", "--model", "upper", "res/d.csv", "--out", "res", "--force", *FAST],
+        "--out res",
+        "holds res/d.csv, an input",
+    )
+    for argv in (
+        ["fit", "--model", "upper", str(proj / "d.csv"), "--p0", "res", "--out", "res"],
+        ["compare", "res", "--out", "res"],
+        ["identify", "res", "--out", "res"],
+        ["design", "res", "--out", "res"],
+        ["sample", "res", "--out", "res"],
+    ):
         refused(capsys, [*argv, "--force"], "--out res", "is res, an input")
     assert tree(here) == before and listing(here) == ["res"]
 
 
 def test_force_replaces_results_of_this_and_earlier_versions(tmp_path):
-    for name, content in (("fit.json", "{}"), ("multistart.json", "{}"),
-                          ("run.json", "{}"), (MARKER, "")):
+    for name, content in (
+        ("fit.json", "{}"),
+        ("multistart.json", "{}"),
+        ("run.json", "{}"),
+        (MARKER, ""),
+    ):
         old = tmp_path / f"old_{name}"
         old.mkdir()
         (old / name).write_text(content)
@@ -200,8 +233,10 @@ def test_force_replaces_results_of_this_and_earlier_versions(tmp_path):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("mine")
-    with pytest.raises(OutputError, match="did not write .notes.txt."), output_folder(
-            mine, force=True):
+    with (
+        pytest.raises(OutputError, match="did not write .notes.txt."),
+        output_folder(mine, force=True),
+    ):
         pass
     assert listing(mine) == ["notes.txt"]
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
@@ -210,8 +245,10 @@ def test_force_replaces_results_of_this_and_earlier_versions(tmp_path):
 def test_files_put_into_an_empty_out_while_the_run_worked_are_kept(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    with pytest.raises(OutputError, match="put there while this run worked"), output_folder(
-            out, force=True) as tmp:
+    with (
+        pytest.raises(OutputError, match="put there while this run worked"),
+        output_folder(out, force=True) as tmp,
+    ):
         (tmp / "a.txt").write_text("a")
         (out / "thesis.tex").write_text("mine")
     assert listing(out) == ["thesis.tex"] and listing(tmp_path) == ["out"]
@@ -233,8 +270,10 @@ def test_a_symlink_as_out_is_followed_never_replaced(here, proj, capsys):
         (tmp / "a.txt").write_text("a")
     assert (here / "later").is_symlink() and listing(here / "made") == [MARKER, "a.txt"]
     (here / "nowhere").symlink_to("no/such/folder")
-    with pytest.raises(OutputError, match="is a link to .* whose folder"), output_folder(
-            here / "nowhere"):
+    with (
+        pytest.raises(OutputError, match="is a link to .* whose folder"),
+        output_folder(here / "nowhere"),
+    ):
         pass
 
 
@@ -257,8 +296,9 @@ def test_a_fifo_as_the_data_file_is_refused_at_once(tmp_path):
     assert "pipe.csv: is a pipe" in r.stderr and "save it first" in r.stderr
     assert listing(tmp_path) == ["pipe.csv"]
     # In an analysis file, the same (and no study folder is left).
-    (tmp_path / "a.toml").write_text('[analysis]\nout = "study"\nconfig = "upper"\n'
-                                     'data = ["pipe.csv"]\n')
+    (tmp_path / "a.toml").write_text(
+        '[analysis]\nout = "study"\nconfig = "upper"\ndata = ["pipe.csv"]\n'
+    )
     r = in_process_of_its_own(["run", "a.toml"], tmp_path)
     assert r.returncode == EXIT.REFUSED and "is a pipe" in r.stderr, r.stderr[-2000:]
     assert listing(tmp_path) == ["a.toml", "pipe.csv"]
@@ -267,8 +307,9 @@ def test_a_fifo_as_the_data_file_is_refused_at_once(tmp_path):
 def test_an_input_file_that_is_a_device_or_a_fifo_is_refused(tmp_path):
     os.mkfifo(tmp_path / "u.csv")
     for source in ("/dev/zero", "u.csv"):
-        r = in_process_of_its_own(["simulate", "--model", "upper", "--input-file", source,
-                                   "--out", "s.csv"], tmp_path)
+        r = in_process_of_its_own(
+            ["simulate", "--model", "upper", "--input-file", source, "--out", "s.csv"], tmp_path
+        )
         assert r.returncode == EXIT.REFUSED, r.stderr[-2000:]
         assert f"--input-file {source}: is a " in r.stderr and "regular file" in r.stderr
     assert listing(tmp_path) == ["u.csv"]
@@ -276,8 +317,10 @@ def test_an_input_file_that_is_a_device_or_a_fifo_is_refused(tmp_path):
 
 def test_a_process_substitution_stream_is_refused(tmp_path, proj):
     # `<(cat d.csv)` was fitted, then recorded as /dev/fd/63 with the SHA-256 of nothing.
-    line = (f"'{sys.executable}' -m rotorbayes.cli fit --model upper <(cat '{proj}/d.csv') "
-            "--out o --max-nfev 3")
+    line = (
+        f"'{sys.executable}' -m rotorbayes.cli fit --model upper <(cat '{proj}/d.csv') "
+        "--out o --max-nfev 3"
+    )
     r = in_process_of_its_own(None, tmp_path, shell=line)
     assert r.returncode == EXIT.REFUSED, r.stderr[-2000:]
     assert "/dev/fd/" in r.stderr and "is a pipe" in r.stderr and "save it first" in r.stderr
@@ -293,8 +336,11 @@ def test_a_sparse_file_of_a_gigabyte_is_refused_before_reading(tmp_path):
     assert "big.csv: is 1,074 MB, more than the 1,000 MB" in r.stderr, r.stderr
     assert "ROTORBAYES_MAX_DATA_MB=1074" in r.stderr and "nothing was read" in r.stderr
     # With the limit raised, it is refused at its first line, not read whole.
-    r = in_process_of_its_own(["fit", "--model", "upper", "big.csv", "--out", "o"], tmp_path,
-                              env={"ROTORBAYES_MAX_DATA_MB": "2000"})
+    r = in_process_of_its_own(
+        ["fit", "--model", "upper", "big.csv", "--out", "o"],
+        tmp_path,
+        env={"ROTORBAYES_MAX_DATA_MB": "2000"},
+    )
     assert r.returncode == EXIT.REFUSED, r.stderr[-2000:]
     assert "big.csv, line 1: holds NUL bytes" in r.stderr
     assert listing(tmp_path) == ["big.csv"]
@@ -315,35 +361,58 @@ def test_binary_and_endless_lines_are_refused_when_met(tmp_path):
 
 def test_the_size_and_row_limits_and_their_variables(tmp_path, proj, monkeypatch, capsys):
     data = proj / "d.csv"
-    with pytest.raises(DataFileError, match=r"more than 100 data rows.*ROTORBAYES_MAX_DATA"
-                                            r"_ROWS"):
+    with pytest.raises(
+        DataFileError,
+        match=r"more than 100 data rows.*ROTORBAYES_MAX_DATA"
+        r"_ROWS",
+    ):
         load_experiment(data, max_rows=100)
     with pytest.raises(DataFileError, match=r"more than the 1,000 bytes.*nothing was read"):
         load_experiment(data, max_bytes=1000)
     assert load_experiment(data, max_rows=401, max_bytes=10**6).n == 401
     monkeypatch.setenv("ROTORBAYES_MAX_DATA_ROWS", "100")
-    refused(capsys, ["fit", "--model", "upper", str(data), "--out", str(tmp_path / "o")],
-            "more than 100 data rows", "ROTORBAYES_MAX_DATA_ROWS")
+    refused(
+        capsys,
+        ["fit", "--model", "upper", str(data), "--out", str(tmp_path / "o")],
+        "more than 100 data rows",
+        "ROTORBAYES_MAX_DATA_ROWS",
+    )
     monkeypatch.setenv("ROTORBAYES_MAX_DATA_ROWS", "lots")
-    refused(capsys, ["fit", "--model", "upper", str(data), "--out", str(tmp_path / "o")],
-            "ROTORBAYES_MAX_DATA_ROWS='lots' is not a positive number")
+    refused(
+        capsys,
+        ["fit", "--model", "upper", str(data), "--out", str(tmp_path / "o")],
+        "ROTORBAYES_MAX_DATA_ROWS='lots' is not a positive number",
+    )
     assert listing(tmp_path) == []
 
 
 # ------------------------------------------------------------------ 3. changed data files
-@pytest.mark.parametrize("argv", [["diagnose"], ["compare", "--out", "{tmp}/c"],
-                                  ["identify", "--out", "{tmp}/c"],
-                                  ["design", "--out", "{tmp}/c"],
-                                  ["sample", "--out", "{tmp}/c"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["diagnose"],
+        ["compare", "--out", "{tmp}/c"],
+        ["identify", "--out", "{tmp}/c"],
+        ["design", "--out", "{tmp}/c"],
+        ["sample", "--out", "{tmp}/c"],
+    ],
+)
 def test_a_changed_data_file_is_refused_by_every_command_that_reads_the_fit(
-        changed, tmp_path, capsys, argv):
+    changed, tmp_path, capsys, argv
+):
     before = tree(changed)
     doc = json.loads((changed / "fit.json").read_text())
     recorded = doc["data_files"][0]["sha256"]
     now = sha(changed.parent / "d.csv")
     argv = [argv[0], str(changed), *(a.format(tmp=tmp_path) for a in argv[1:])]
-    refused(capsys, argv, "d.csv has changed since the fit", f"SHA-256 recorded {recorded}",
-            f"now {now}", "--accept-changed-data")
+    refused(
+        capsys,
+        argv,
+        "d.csv has changed since the fit",
+        f"SHA-256 recorded {recorded}",
+        f"now {now}",
+        "--accept-changed-data",
+    )
     assert tree(changed) == before and listing(tmp_path) == []
 
 
@@ -357,9 +426,13 @@ def test_accept_changed_data_says_so_and_the_diagnosis_records_it(changed, tmp_p
     assert code == 0, err
     assert "has changed since the fit" in err and "because of --accept-changed-data" in err
     rec = json.loads((fit / "diagnosis.json").read_text())["data_changed"]
-    assert rec == [{"file": str(changed.parent / "d.csv"),
-                    "recorded": json.loads((fit / "fit.json").read_text())["data_files"][0][
-                        "sha256"], "now": sha(changed.parent / "d.csv")}]
+    assert rec == [
+        {
+            "file": str(changed.parent / "d.csv"),
+            "recorded": json.loads((fit / "fit.json").read_text())["data_files"][0]["sha256"],
+            "now": sha(changed.parent / "d.csv"),
+        }
+    ]
 
 
 def test_fit_records_the_sha256_of_the_bytes_it_fitted(proj):

@@ -56,8 +56,9 @@ def listing(folder: Path) -> list[str]:
 
 
 def _upper_data(path: Path, seconds: float = 4.0) -> Path:
-    p = rb.parameters.resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
-                              config="upper")
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
     t, u = rb.signals.make_signal("est", seconds, rate=200.0, seed=4)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     rb.save_experiment(sim.to_experiment("upper"), path)
@@ -84,13 +85,29 @@ def user_fit(tmp_path_factory):
     spec = f"{eff}:angle_friction"
     t, u = rb.signals.estimation_signal(4.0, seed=11, rate=200.0)
     truth = dict(thesis_set("4.2", "P_ref"), a_fric=0.2, phi_fric=-1.1)
-    sim = rb.simulate(truth, u, dt=t[1] - t[0], config="coupled", effects=[spec],
-                      quantize_angles=True)
+    sim = rb.simulate(
+        truth, u, dt=t[1] - t[0], config="coupled", effects=[spec], quantize_angles=True
+    )
     data = d / "est.csv"
     rb.save_experiment(sim.to_experiment(), data)
     fit = d / "fitE"
-    assert main(["fit", "--model", "coupled", str(data), "--p0", "thesis:4.2:P_ref", "--add",
-                 spec, "--max-nfev", "3", "--no-search", "--out", str(fit)]) in (0, 1)
+    assert main(
+        [
+            "fit",
+            "--model",
+            "coupled",
+            str(data),
+            "--p0",
+            "thesis:4.2:P_ref",
+            "--add",
+            spec,
+            "--max-nfev",
+            "3",
+            "--no-search",
+            "--out",
+            str(fit),
+        ]
+    ) in (0, 1)
     return SimpleNamespace(folder=fit, effect=eff, data=data)
 
 
@@ -102,15 +119,12 @@ def here(tmp_path, monkeypatch):
 
 # ---------------------------------------------------------------- 1. recursion bombs
 def _toml_bomb(path: Path, line: int = 1) -> Path:
-    path.write_text("# a parameter file\n" * (line - 1)
-                    + "J_l = " + "[" * DEEP + "]" * DEEP + "\n")
+    path.write_text("# a parameter file\n" * (line - 1) + "J_l = " + "[" * DEEP + "]" * DEEP + "\n")
     return path
 
 
-@pytest.mark.parametrize("role", ["analysis", "p0", "base", "params", "priors", "around",
-                                  "show"])
-def test_a_toml_file_nested_100000_deep_is_refused_with_its_file_and_line(
-        proj, here, capsys, role):
+@pytest.mark.parametrize("role", ["analysis", "p0", "base", "params", "priors", "around", "show"])
+def test_a_toml_file_nested_100000_deep_is_refused_with_its_file_and_line(proj, here, capsys, role):
     """Was: RecursionError inside tomllib, exit 1 ("not converged")."""
     bomb = _toml_bomb(here / "bomb.toml", line=3)
     data = str(proj / "data" / "upper.csv")
@@ -120,8 +134,7 @@ def test_a_toml_file_nested_100000_deep_is_refused_with_its_file_and_line(
         "base": ["fit", "--model", "upper", data, "--base", "bomb.toml", "--out", "o"],
         "params": ["simulate", "--model", "upper", "--params", "bomb.toml", "--out", "s.csv"],
         "priors": ["sample", str(proj / "fit"), "--priors", "bomb.toml", "--out", "o"],
-        "around": ["multistart", "--model", "upper", data, "--around", "bomb.toml",
-                   "--out", "o"],
+        "around": ["multistart", "--model", "upper", data, "--around", "bomb.toml", "--out", "o"],
         "show": ["params", "bomb.toml"],
     }[role]
     refused(capsys, argv, "bomb.toml, line 3", f"nested more than {MAX_NESTING} levels deep")
@@ -136,12 +149,23 @@ def test_a_fit_json_nested_100000_deep_is_refused(proj, here, capsys, cmd):
     text = (bad / "fit.json").read_text().rstrip()
     assert text.endswith("}")
     (bad / "fit.json").write_text(text[:-1] + ', "x": ' + "[" * DEEP + "]" * DEEP + "}\n")
-    argv = {"compare": ["compare", "bad"], "diagnose": ["diagnose", "bad"],
-            "params": ["params", "bad/fit.json"],
-            "p0": ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--p0", "bad",
-                   "--out", "o"],
-            "simulate": ["simulate", "--model", "upper", "--params", "bad", "--out", "s.csv"],
-            "sample": ["sample", "bad", "--out", "o"]}[cmd]
+    argv = {
+        "compare": ["compare", "bad"],
+        "diagnose": ["diagnose", "bad"],
+        "params": ["params", "bad/fit.json"],
+        "p0": [
+            "fit",
+            "--model",
+            "upper",
+            str(proj / "data" / "upper.csv"),
+            "--p0",
+            "bad",
+            "--out",
+            "o",
+        ],
+        "simulate": ["simulate", "--model", "upper", "--params", "bad", "--out", "s.csv"],
+        "sample": ["sample", "bad", "--out", "o"],
+    }[cmd]
     refused(capsys, argv, "fit.json, line", f"nested more than {MAX_NESTING} levels deep")
     assert listing(here) == ["bad"]
 
@@ -149,14 +173,19 @@ def test_a_fit_json_nested_100000_deep_is_refused(proj, here, capsys, cmd):
 def test_a_multistart_json_nested_too_deep_is_refused_as_a_start(proj, here, capsys):
     (here / "ms").mkdir()
     (here / "ms" / "multistart.json").write_text('{"names": ' + "[" * DEEP + "]" * DEEP + "}")
-    refused(capsys, ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--p0", "ms",
-                     "--out", "o"], "multistart.json, line 1", "nested more than")
+    refused(
+        capsys,
+        ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--p0", "ms", "--out", "o"],
+        "multistart.json, line 1",
+        "nested more than",
+    )
 
 
 def test_the_nesting_scan_skips_strings_and_comments_and_is_cheap():
     deep = "[" * 300
-    assert nesting_depth(f'a = "{deep}"\n# {deep}\nb = \'{deep}\'\nc = [[1], [2]]\n'
-                         f'd = """\n{deep}\n"""\n', limit=64) == (2, None)
+    assert nesting_depth(
+        f'a = "{deep}"\n# {deep}\nb = \'{deep}\'\nc = [[1], [2]]\nd = """\n{deep}\n"""\n', limit=64
+    ) == (2, None)
     assert nesting_depth('{"a": "\\"' + deep + '", "b": [[{}]]}', kind="json") == (4, None)
     depth, where = nesting_depth("x = 1\n" + "[" * 65 + "]" * 65, limit=64)
     assert depth == 65 and where == 6 + 64
@@ -167,24 +196,60 @@ def test_the_nesting_scan_skips_strings_and_comments_and_is_cheap():
 
 
 # ------------------------------------------------------------- 2. numeric options
-@pytest.mark.parametrize("step,needles", [
-    ("1e-12", ["--step 1e-12 s", "shorter than a hundredth of the sample interval",
-               "give a step between 5e-05 s and 4 s", "upper.csv"]),
-    ("1e9", ["--step 1e+09 s", "longer than the record", "upper.csv (4 s)"]),
-])
+@pytest.mark.parametrize(
+    "step,needles",
+    [
+        (
+            "1e-12",
+            [
+                "--step 1e-12 s",
+                "shorter than a hundredth of the sample interval",
+                "give a step between 5e-05 s and 4 s",
+                "upper.csv",
+            ],
+        ),
+        ("1e9", ["--step 1e+09 s", "longer than the record", "upper.csv (4 s)"]),
+    ],
+)
 def test_step_has_a_range_from_the_data(proj, here, capsys, step, needles):
     """Was: 1e-12 "Unable to allocate 29.1 TiB ... check the disk" (exit 3); 1e9 accepted."""
     for cmd in ("fit", "multistart"):
-        refused(capsys, [cmd, "--model", "upper", str(proj / "data" / "upper.csv"), "--step",
-                         step, "--out", "o"], *needles)
+        refused(
+            capsys,
+            [
+                cmd,
+                "--model",
+                "upper",
+                str(proj / "data" / "upper.csv"),
+                "--step",
+                step,
+                "--out",
+                "o",
+            ],
+            *needles,
+        )
     assert listing(here) == []
 
 
 def test_step_is_checked_against_the_validation_files_too(proj, here, capsys):
     short = _upper_data(here / "short.csv", seconds=2.0)
-    refused(capsys, ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--validate",
-                     str(short), "--step", "3", "--out", "o"],
-            "--step 3 s is longer than the record of", "short.csv")
+    refused(
+        capsys,
+        [
+            "fit",
+            "--model",
+            "upper",
+            str(proj / "data" / "upper.csv"),
+            "--validate",
+            str(short),
+            "--step",
+            "3",
+            "--out",
+            "o",
+        ],
+        "--step 3 s is longer than the record of",
+        "short.csv",
+    )
     assert listing(here) == ["short.csv"]
 
 
@@ -192,9 +257,22 @@ def test_step_is_checked_against_the_validation_files_too(proj, here, capsys):
 def test_extreme_weights_are_refused_without_warnings(proj, here, capsys, w):
     """Was: RuntimeWarnings with source paths and scipy's "array must not contain infs"
     (1e308); standard errors divided by zero (1e-308)."""
-    refused(capsys, ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--weights",
-                     f"theta_u={w}", "--out", "o"],
-            "--weights: the weight of theta_u", "between 0.0001 and 10000", "--channels")
+    refused(
+        capsys,
+        [
+            "fit",
+            "--model",
+            "upper",
+            str(proj / "data" / "upper.csv"),
+            "--weights",
+            f"theta_u={w}",
+            "--out",
+            "o",
+        ],
+        "--weights: the weight of theta_u",
+        "between 0.0001 and 10000",
+        "--channels",
+    )
 
 
 @pytest.mark.parametrize("tol", ["1e-300", "0.5"])
@@ -203,15 +281,27 @@ def test_tolerances_outside_the_machines_precision_are_refused(proj, here, capsy
     epsilon scipy's own message."""
     argv = ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--out", "o"]
     for flag in ("--ftol", "--xtol", "--gtol"):
-        refused(capsys, [*argv, flag, tol], f"argument {flag}: got {tol}",
-                ">= 1e-15 and <= 0.1")
+        refused(capsys, [*argv, flag, tol], f"argument {flag}: got {tol}", ">= 1e-15 and <= 0.1")
 
 
 def test_fixing_every_free_parameter_is_refused(proj, here, capsys):
     """Was: "zero-size array to reduction operation maximum which has no identity"."""
-    refused(capsys, ["fit", "--model", "upper", str(proj / "data" / "upper.csv"), "--fixed",
-                     "k_m,Tc_u,b_u,dTc_u,db_u", "--out", "o"],
-            "--fixed k_m,Tc_u,b_u,dTc_u,db_u", "nothing is left to fit", "free at least one")
+    refused(
+        capsys,
+        [
+            "fit",
+            "--model",
+            "upper",
+            str(proj / "data" / "upper.csv"),
+            "--fixed",
+            "k_m,Tc_u,b_u,dTc_u,db_u",
+            "--out",
+            "o",
+        ],
+        "--fixed k_m,Tc_u,b_u,dTc_u,db_u",
+        "nothing is left to fit",
+        "free at least one",
+    )
     assert listing(here) == []
 
 
@@ -222,8 +312,12 @@ def test_a_file_too_short_to_fit_is_refused(proj, here, capsys):
     body = [ln for ln in lines if not ln.startswith("#")]
     (here / "ten.csv").write_text("".join(head + body[:11]))  # the header and 10 rows
     for cmd in ("fit", "multistart"):
-        refused(capsys, [cmd, "--model", "upper", "ten.csv", "--out", "o"],
-                "ten.csv: only 10 samples", "at least 100")
+        refused(
+            capsys,
+            [cmd, "--model", "upper", "ten.csv", "--out", "o"],
+            "ten.csv: only 10 samples",
+            "at least 100",
+        )
     assert listing(here) == ["ten.csv"]
 
 
@@ -231,10 +325,17 @@ def test_undetermined_standard_errors_are_words_not_nan_percent():
     from rotorbayes.commands.fit import _uncertainty_words
 
     nan = float("nan")
-    u = SimpleNamespace(inflation=lambda: np.array([nan, nan]), warning=lambda: "",
-                        shares=lambda: {"a": dict(noise=nan, model_error=nan, input_hold=nan),
-                                        "b": dict(noise=nan, model_error=nan, input_hold=nan)},
-                        names=["a", "b"], n_eff=nan, n_samples=10)
+    u = SimpleNamespace(
+        inflation=lambda: np.array([nan, nan]),
+        warning=lambda: "",
+        shares=lambda: {
+            "a": dict(noise=nan, model_error=nan, input_hold=nan),
+            "b": dict(noise=nan, model_error=nan, input_hold=nan),
+        },
+        names=["a", "b"],
+        n_eff=nan,
+        n_samples=10,
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no "Mean of empty slice"
         text = _uncertainty_words(SimpleNamespace(uncertainty=u))
@@ -243,10 +344,12 @@ def test_undetermined_standard_errors_are_words_not_nan_percent():
 
 # ------------------------------------------------------------ 3. fit.json values
 @pytest.mark.parametrize("where", ["estimates", "params"])
-@pytest.mark.parametrize("value,shown", [(float("nan"), "NaN"), (None, "null"), (-5.0, "-5"),
-                                         (1e300, "1e+300")])
+@pytest.mark.parametrize(
+    "value,shown", [(float("nan"), "NaN"), (None, "null"), (-5.0, "-5"), (1e300, "1e+300")]
+)
 def test_a_hand_edited_fit_json_value_names_file_parameter_and_value(
-        proj, here, capsys, where, value, shown):
+    proj, here, capsys, where, value, shown
+):
     """Was: "the model cannot be simulated at this fit" (diagnose), or a silent run on a
     motor constant of -5 or NaN (compare, simulate --params)."""
     bad = here / "bad"
@@ -258,14 +361,27 @@ def test_a_hand_edited_fit_json_value_names_file_parameter_and_value(
         doc["params"]["k_m"] = value
     (bad / "fit.json").write_text(json.dumps(doc))  # json writes NaN as NaN
     needles = ["bad/fit.json", f"k_m = {shown}", "fit again", "correct the value"]
-    for argv in (["compare", "bad", "--out", "c"], ["diagnose", "bad"],
-                 ["identify", "bad", "--out", "i"]):
+    for argv in (
+        ["compare", "bad", "--out", "c"],
+        ["diagnose", "bad"],
+        ["identify", "bad", "--out", "i"],
+    ):
         refused(capsys, argv, *needles)
     if where == "params":  # commands that read the values alone
-        for argv in (["params", "bad/fit.json"],
-                     ["simulate", "--model", "upper", "--params", "bad", "--out", "s.csv"],
-                     ["multistart", "--model", "upper", str(proj / "data" / "upper.csv"),
-                      "--around", "bad", "--out", "m"]):
+        for argv in (
+            ["params", "bad/fit.json"],
+            ["simulate", "--model", "upper", "--params", "bad", "--out", "s.csv"],
+            [
+                "multistart",
+                "--model",
+                "upper",
+                str(proj / "data" / "upper.csv"),
+                "--around",
+                "bad",
+                "--out",
+                "m",
+            ],
+        ):
             refused(capsys, argv, *needles)
     assert listing(here) == ["bad"]
 
@@ -273,8 +389,24 @@ def test_a_hand_edited_fit_json_value_names_file_parameter_and_value(
 # ---------------------------------------------------------------- 4. user effects
 def test_simulate_params_of_a_fit_carries_its_user_effect(user_fit, here, capsys):
     """Was: the effect dropped silently (its parameters ignored)."""
-    assert main(["simulate", "--model", "coupled", "--params", str(user_fit.folder),
-                 "--duration", "2", "--rate", "200", "--out", "s.csv"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--model",
+                "coupled",
+                "--params",
+                str(user_fit.folder),
+                "--duration",
+                "2",
+                "--rate",
+                "200",
+                "--out",
+                "s.csv",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "effects carried over from" in out and "angle_friction" in out
     ex = rb.load_experiment(here / "s.csv")
@@ -282,8 +414,9 @@ def test_simulate_params_of_a_fit_carries_its_user_effect(user_fit, here, capsys
     # It is the fit's simulation: the same as the Python API with the effect on.
     doc = json.loads((user_fit.folder / "fit.json").read_text())
     vals = {k: v for k, v in doc["params"].items() if v is not None}
-    sim = rb.simulate(vals, ex.u, dt=ex.dt, config="coupled",
-                      effects=[f"{user_fit.effect}:angle_friction"])
+    sim = rb.simulate(
+        vals, ex.u, dt=ex.dt, config="coupled", effects=[f"{user_fit.effect}:angle_friction"]
+    )
     assert np.array_equal(sim.theta_l, ex.theta_l)
 
 
@@ -292,16 +425,32 @@ def test_params_and_multistart_around_a_fit_with_a_user_effect(user_fit, here, c
     assert main(["params", str(user_fit.folder / "fit.json")]) == 0
     out = capsys.readouterr().out
     assert "a_fric" in out and "(user effect angle_friction)" in out
-    assert main(["multistart", "--model", "coupled", str(user_fit.data), "--around",
-                 str(user_fit.folder), "--starts", "2", "--max-nfev", "2", "--out", "ms"]) == 0
+    assert (
+        main(
+            [
+                "multistart",
+                "--model",
+                "coupled",
+                str(user_fit.data),
+                "--around",
+                str(user_fit.folder),
+                "--starts",
+                "2",
+                "--max-nfev",
+                "2",
+                "--out",
+                "ms",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "effects carried over from" in out
     doc = json.loads((here / "ms" / "multistart.json").read_text())
     assert "a_fric" in doc["names"] and "phi_fric" in doc["names"]
 
 
-def test_a_changed_user_effect_file_needs_trust_for_simulate_and_multistart(
-        user_fit, here, capsys):
+def test_a_changed_user_effect_file_needs_trust_for_simulate_and_multistart(user_fit, here, capsys):
     changed = here / "fitC"
     shutil.copytree(user_fit.folder, changed)
     eff = here / "angle_friction.py"
@@ -316,13 +465,32 @@ def test_a_changed_user_effect_file_needs_trust_for_simulate_and_multistart(
     assert main(["params", "fitC/fit.json"]) == 0
     assert "a_fric" in capsys.readouterr().out
     eff.write_text(user_fit.effect.read_text() + "\n# edited\n")
-    for argv in (["simulate", "--model", "coupled", "--params", "fitC", "--duration", "2",
-                  "--out", "s.csv"],
-                 ["multistart", "--model", "coupled", str(user_fit.data), "--around", "fitC",
-                  "--starts", "2", "--out", "ms"]):
+    for argv in (
+        ["simulate", "--model", "coupled", "--params", "fitC", "--duration", "2", "--out", "s.csv"],
+        [
+            "multistart",
+            "--model",
+            "coupled",
+            str(user_fit.data),
+            "--around",
+            "fitC",
+            "--starts",
+            "2",
+            "--out",
+            "ms",
+        ],
+    ):
         refused(capsys, argv, "changed since the fit", "--trust-effects")
-        assert main([*argv, "--trust-effects", *(["--max-nfev", "2"] if argv[0] ==
-                                                 "multistart" else [])]) == 0, argv
+        assert (
+            main(
+                [
+                    *argv,
+                    "--trust-effects",
+                    *(["--max-nfev", "2"] if argv[0] == "multistart" else []),
+                ]
+            )
+            == 0
+        ), argv
         assert "importing it because of --trust-effects" in capsys.readouterr().err
 
 
@@ -331,13 +499,19 @@ def test_problem_names_its_bad_arguments(proj):
     ex = rb.load_experiment(proj / "data" / "upper.csv")
     with pytest.raises(ValueError, match="experiments is None.*load_experiment"):
         inference.Problem("coupled", None)
-    with pytest.raises(ValueError, match=r"experiments\[0\] is the path 'a.csv'.*"
-                                         r"rotorbayes.load_experiment\('a.csv'\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"experiments\[0\] is the path 'a.csv'.*"
+        r"rotorbayes.load_experiment\('a.csv'\)",
+    ):
         inference.Problem("coupled", ["a.csv"])
     with pytest.raises(ValueError, match="experiments is the path"):
         inference.Problem("upper", str(proj / "data" / "upper.csv"))
-    with pytest.raises(ValueError, match=r"free = 'k_m': give a list of names, e.g. "
-                                         r"free=\['k_m'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"free = 'k_m': give a list of names, e.g. "
+        r"free=\['k_m'\]",
+    ):
         inference.Problem("upper", [ex], free="k_m")
     with pytest.raises(ValueError, match="base: k_m = 'big' is not a number"):
         inference.Problem("upper", [ex], base={"k_m": "big"})
@@ -365,8 +539,7 @@ def test_simulate_names_its_bad_arguments_and_accepts_read_only_arrays(tmp_path)
     ro = u.copy()
     ro.flags.writeable = False
     for v in (mm, ro):
-        assert np.array_equal(rb.simulate(None, v, dt=0.005, config="brake").theta_l,
-                              ref.theta_l)
+        assert np.array_equal(rb.simulate(None, v, dt=0.005, config="brake").theta_l, ref.theta_l)
     # A prescribed upper angle that is read-only, too.
     thu = ref.theta_u.copy()
     thu.flags.writeable = False

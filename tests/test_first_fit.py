@@ -23,10 +23,18 @@ from rotorbayes.model.parameters import resolve
 
 # Unlike the thesis: k_m 3.1 (thesis 4.3-4.6), Tc_u 0.62 (0.38-0.48), b_u 1.7 (2.4-2.6),
 # J_l 0.062 (0.041-0.055), k_alpha 0.118 (0.078-0.093), lower friction 1.5-2x.
-COUPLED = dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05,
-               J_l=0.062, k_alpha=0.118, Tc_l=0.031, b_l=0.0065)
-BRAKE = dict(COUPLED, Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36, ws_l=0.95,
-             delta_l=1.5)
+COUPLED = dict(
+    k_m=3.1,
+    Tc_u=0.62,
+    dTc_u=0.03,
+    b_u=1.7,
+    db_u=0.05,
+    J_l=0.062,
+    k_alpha=0.118,
+    Tc_l=0.031,
+    b_l=0.0065,
+)
+BRAKE = dict(COUPLED, Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36, ws_l=0.95, delta_l=1.5)
 
 
 def _make(folder, name, config, params, seed):
@@ -72,8 +80,12 @@ def test_bare_fit_recovers_every_parameter(data, tmp_path, capsys, config, val_l
             assert p["start_source"].startswith("data:")
     # Motor and upper friction are fitted too; J_u is fixed by the disc's geometry.
     assert n_free == (9 if config == "coupled" else 13)
-    assert doc["parameters"]["J_u"] == {"value": 0.4765, "unit": "kg m^2", "status": "fixed",
-                                        "source": "eq. 5.4 (disc geometry)"}
+    assert doc["parameters"]["J_u"] == {
+        "value": 0.4765,
+        "unit": "kg m^2",
+        "status": "fixed",
+        "source": "eq. 5.4 (disc geometry)",
+    }
     assert doc["channels"] == ["theta_u", "theta_l"]
     a = doc["assessment"]
     for row in a["channels"]:
@@ -104,11 +116,28 @@ def test_chained_upper_fit_fixes_the_upper_disc(data, tmp_path):
     t, u = rb.signals.make_signal("est", 30.0, rate=200.0, seed=3)
     up = rb.simulate(truth, u, dt=1 / 200, config="upper", quantize_angles=True)
     rb.save_experiment(up.to_experiment("upper"), tmp_path / "upper.csv")
-    assert main(["fit", "--model", "upper", str(tmp_path / "upper.csv"),
-                 "--out", str(tmp_path / "fu")]) == 0
+    assert (
+        main(
+            ["fit", "--model", "upper", str(tmp_path / "upper.csv"), "--out", str(tmp_path / "fu")]
+        )
+        == 0
+    )
     _, (est, _) = data["coupled"]
-    assert main(["fit", "--model", "coupled", est, "--p0", str(tmp_path / "fu" / "fit.json"),
-                 "--out", str(tmp_path / "fc")]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "coupled",
+                est,
+                "--p0",
+                str(tmp_path / "fu" / "fit.json"),
+                "--out",
+                str(tmp_path / "fc"),
+            ]
+        )
+        == 0
+    )
     doc = _strict(tmp_path / "fc" / "fit.json")
     assert doc["channels"] == ["theta_l"]
     for n in ("k_m", "Tc_u", "b_u", "dTc_u", "db_u"):
@@ -160,8 +189,9 @@ def test_estimate_at_a_bound_is_flagged(tmp_path):
         assert any("less than two standard errors" in w for w in an.warnings) is flagged
     # With the thesis's (small, fixed) asymmetry dTc_u the fit stops on the validity
     # constraint Tc_u >= |dTc_u| instead: said as well.
-    prob2 = inference.Problem("upper", [ex], free=["k_m", "Tc_u", "b_u"], base=dict(p,
-                                                                                    dTc_u=-0.0058))
+    prob2 = inference.Problem(
+        "upper", [ex], free=["k_m", "Tc_u", "b_u"], base=dict(p, dTc_u=-0.0058)
+    )
     res2 = inference.fit(prob2, dict(p, Tc_u=0.3, dTc_u=-0.0058))
     a2 = inference.assess(res2, inference.quality(prob2, res2.x))
     assert any("validity constraint 'Tc_u must be >= |dTc_u|" in w for w in a2.warnings)
@@ -171,8 +201,9 @@ def test_a_parameter_without_influence_is_flagged(data):
     truth, (est, _) = data["coupled"]
     ex = rb.load_experiment(est)
     model = rb.Model("coupled", ["examples/angle_friction.py:angle_friction"])
-    prob = inference.Problem(model, [ex], free=["J_l", "phi_fric"], base=dict(truth, a_fric=0.0,
-                                                                      phi_fric=0.5))
+    prob = inference.Problem(
+        model, [ex], free=["J_l", "phi_fric"], base=dict(truth, a_fric=0.0, phi_fric=0.5)
+    )
     res = inference.fit(prob, {"J_l": 0.06, "phi_fric": 0.5})
     a = inference.assess(res, inference.quality(prob, res.x))
     assert any(w.startswith("phi_fric does not influence") for w in a.warnings)
@@ -189,8 +220,23 @@ def test_unsimulable_start_and_no_convergence_say_so(data, tmp_path, capsys):
     assert "start cannot be simulated" in err and "Tc_u must be >= |dTc_u|" in err
     assert "Traceback" not in err
     out2 = tmp_path / "g"
-    assert main(["fit", "--model", "coupled", est, "--p0", "thesis:4.2:P0", "--max-nfev", "2",
-                 "--out", str(out2)]) == 1
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "coupled",
+                est,
+                "--p0",
+                "thesis:4.2:P0",
+                "--max-nfev",
+                "2",
+                "--out",
+                str(out2),
+            ]
+        )
+        == 1
+    )
     captured = capsys.readouterr()
     assert "DID NOT CONVERGE" in captured.out
     assert "warning: the fit did not converge" in captured.err
@@ -201,16 +247,24 @@ def test_multistart_does_not_call_a_fit_far_from_the_floor_well_determined(data)
     truth, (est, _) = data["coupled"]
     ex = rb.load_experiment(est)
     # k_alpha fixed 25 % off: every start agrees, and every one is wrong.
-    prob = inference.Problem("coupled", [ex], free=["J_l", "Tc_l", "b_l"],
-                     base=dict(truth, k_alpha=0.09))
-    ms = inference.multistart(prob, 4, seed=1, around=dict(truth, k_alpha=0.09), spread=0.1,
-                      progress=False, max_nfev=40)
+    prob = inference.Problem(
+        "coupled", [ex], free=["J_l", "Tc_l", "b_l"], base=dict(truth, k_alpha=0.09)
+    )
+    ms = inference.multistart(
+        prob, 4, seed=1, around=dict(truth, k_alpha=0.09), spread=0.1, progress=False, max_nfev=40
+    )
     text = ms.summary()
     assert "no estimate here is well determined" in text
     assert "Well determined:" not in text
-    good = inference.multistart(inference.Problem("coupled", [ex], free=["J_l", "Tc_l"],
-                                                  base=truth), 3,
-                        seed=1, around=truth, spread=0.1, progress=False, max_nfev=40)
+    good = inference.multistart(
+        inference.Problem("coupled", [ex], free=["J_l", "Tc_l"], base=truth),
+        3,
+        seed=1,
+        around=truth,
+        spread=0.1,
+        progress=False,
+        max_nfev=40,
+    )
     assert "x the encoder floor." in good.summary()
     assert math.isfinite(quantisation_floor("alpha"))
     assert np.all(np.isfinite(good.ssr))
@@ -218,8 +272,18 @@ def test_multistart_does_not_call_a_fit_far_from_the_floor_well_determined(data)
 
 #: A coupled rig unlike the thesis tables, whose string torque is too weak in the upper
 #: disc's equation (a strong motor against a soft string) to set the lower disc's scale.
-SOFT_STRING = dict(k_m=3.9545, J_u=0.4765, Tc_u=0.8947, dTc_u=0.02496, b_u=1.2736,
-                   db_u=0.06704, J_l=0.10541, k_alpha=0.053917, Tc_l=0.03322, b_l=0.005698)
+SOFT_STRING = dict(
+    k_m=3.9545,
+    J_u=0.4765,
+    Tc_u=0.8947,
+    dTc_u=0.02496,
+    b_u=1.2736,
+    db_u=0.06704,
+    J_l=0.10541,
+    k_alpha=0.053917,
+    Tc_l=0.03322,
+    b_l=0.005698,
+)
 
 
 def test_a_lower_disc_the_joint_regression_drops_is_rescaled_by_simulation(tmp_path):
@@ -234,11 +298,19 @@ def test_a_lower_disc_the_joint_regression_drops_is_rescaled_by_simulation(tmp_p
 
     f = _fast_steps(12.0, seed=5)
     t = np.arange(12001) * 1e-3
-    sim = rb.simulate(SOFT_STRING, np.asarray(f(t)), dt=1e-3, config="coupled",
-                      effects=("upper_asymmetric_coulomb", "upper_asymmetric_viscous"),
-                      quantize_angles=True)
-    prob = inference.Problem("coupled", [sim.to_experiment("soft_string")],
-                     effects=("upper_asymmetric_coulomb", "upper_asymmetric_viscous"))
+    sim = rb.simulate(
+        SOFT_STRING,
+        np.asarray(f(t)),
+        dt=1e-3,
+        config="coupled",
+        effects=("upper_asymmetric_coulomb", "upper_asymmetric_viscous"),
+        quantize_angles=True,
+    )
+    prob = inference.Problem(
+        "coupled",
+        [sim.to_experiment("soft_string")],
+        effects=("upper_asymmetric_coulomb", "upper_asymmetric_viscous"),
+    )
     start = inference.data_start(prob)
     assert any("too weak in the upper disc's equation" in n for n in start.notes)
     for n in ("J_l", "k_alpha", "Tc_l", "b_l"):

@@ -16,13 +16,25 @@ from rotorbayes.util.numformat import fmt_value, significant_digits
 
 
 def _row(data, ratio, fitted=True):
-    return {"data": data, "experiment": "e", "channel": "theta_l", "rms": ratio,
-            "floor": 1.0, "ratio": ratio, "fitted": fitted}
+    return {
+        "data": data,
+        "experiment": "e",
+        "channel": "theta_l",
+        "rms": ratio,
+        "floor": 1.0,
+        "ratio": ratio,
+        "fitted": fitted,
+    }
 
 
 def test_headline_is_the_estimation_data_and_validation_is_named():
-    a = Assessment([_row("estimation", 710.37), _row("validation", 2711.9),
-                    _row("estimation", 900.0, fitted=False)])
+    a = Assessment(
+        [
+            _row("estimation", 710.37),
+            _row("validation", 2711.9),
+            _row("estimation", 900.0, fitted=False),
+        ]
+    )
     assert a.worst_ratio == pytest.approx(710.37)  # fitted channels, estimation data only
     assert a.worst_ratio_validation == pytest.approx(2711.9)
     assert a.verdict.startswith("710x the encoder floor on the estimation data")
@@ -78,9 +90,11 @@ def test_import_compiles_nothing():
     # entry point used to be compiled at import: 121 s with a cold cache on 2 cores).
     import subprocess
 
-    code = ("import rotorbayes\nfrom rotorbayes.kernel import solver as S\n"
-            "print(sum(len(getattr(S, n).overloads) for n in S.SIGNATURES),"
-            " len(S._integrate.overloads))")
+    code = (
+        "import rotorbayes\nfrom rotorbayes.kernel import solver as S\n"
+        "print(sum(len(getattr(S, n).overloads) for n in S.SIGNATURES),"
+        " len(S._integrate.overloads))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)  # fmt: skip
     assert out.stdout.split() == ["0", "0"]
@@ -96,10 +110,12 @@ def test_compile_notice_names_the_entry_point_and_its_time(monkeypatch):
     monkeypatch.setattr(solver, "entry", lambda name: "compiled " + name)
     buf = io.StringIO()
     assert coldstart.kernel_entry("residuals_batch_into_plain", buf) == (
-        "compiled residuals_batch_into_plain")
+        "compiled residuals_batch_into_plain"
+    )
     line = buf.getvalue()
-    assert line.startswith(coldstart.MESSAGE + " (the residuals in parallel batches, plain "
-                           "kernel), once") and line.rstrip().endswith(" s")
+    assert line.startswith(
+        coldstart.MESSAGE + " (the residuals in parallel batches, plain kernel), once"
+    ) and line.rstrip().endswith(" s")
     assert line.count("\n") == 1 and "took" in line
     assert set(coldstart.COMPILE_SECONDS) == {"residuals_batch_into_plain"}
     buf = io.StringIO()  # ready now: nothing said, nothing asked of the solver

@@ -38,8 +38,9 @@ DURATION = 8.0
 
 
 def _clean(config="brake", k=0, rate=1000.0, signal="steps", seed=1, **kw) -> Experiment:
-    return make_experiment(config, dict(SETS[config][k]), duration=DURATION, rate=rate,
-                           signal=signal, seed=seed, **kw)
+    return make_experiment(
+        config, dict(SETS[config][k]), duration=DURATION, rate=rate, signal=signal, seed=seed, **kw
+    )
 
 
 def _slip_start(ex: Experiment) -> int:
@@ -54,13 +55,18 @@ def _slip_start(ex: Experiment) -> int:
 def _glitched(ex: Experiment) -> tuple[Experiment, dict]:
     """``ex`` with four spikes added; and {(channel, index): counts}."""
     n = ex.n
-    truth = {("theta_u", int(0.17 * n)): 120, ("theta_l", int(0.21 * n)): 60,
-             ("theta_l", _slip_start(ex)): -150, ("theta_l", int(0.87 * n)): 45}
+    truth = {
+        ("theta_u", int(0.17 * n)): 120,
+        ("theta_l", int(0.21 * n)): 60,
+        ("theta_l", _slip_start(ex)): -150,
+        ("theta_l", int(0.87 * n)): 45,
+    }
     cols = {"theta_u": ex.theta_u.copy(), "theta_l": ex.theta_l.copy()}
     for (ch, i), g in truth.items():
         cols[ch][i] += g * Q[ch]
-    return Experiment(ex.t, ex.u, cols["theta_u"], cols["theta_l"], name="glitched",
-                      meta=ex.meta), truth
+    return Experiment(
+        ex.t, ex.u, cols["theta_u"], cols["theta_l"], name="glitched", meta=ex.meta
+    ), truth
 
 
 @pytest.fixture(scope="module")
@@ -73,14 +79,17 @@ def brake():
 # ------------------------------------------------------------------------ finding them
 
 
-@pytest.mark.parametrize("case", [
-    dict(),                                   # brake, steps, 1 kHz: stick-slip
-    dict(k=1, seed=2),                        # the other brake rig, more stick-slip
-    dict(rate=200.0),                         # 200 Hz: kinks 25x larger in counts
-    dict(k=1, seed=2, rate=200.0),
-    dict(config="coupled", k=1, signal="multisine"),
-    dict(noise_std=2e-4, noise_seed=4),       # noisier than the encoder
-])
+@pytest.mark.parametrize(
+    "case",
+    [
+        dict(),  # brake, steps, 1 kHz: stick-slip
+        dict(k=1, seed=2),  # the other brake rig, more stick-slip
+        dict(rate=200.0),  # 200 Hz: kinks 25x larger in counts
+        dict(k=1, seed=2, rate=200.0),
+        dict(config="coupled", k=1, signal="multisine"),
+        dict(noise_std=2e-4, noise_seed=4),  # noisier than the encoder
+    ],
+)
 def test_clean_data_have_no_glitches(case):
     """No false alarm at stick/slip transitions (where the acceleration jumps), on step
     inputs, at 200 Hz or on noisy data."""
@@ -123,14 +132,17 @@ def test_bursts_neighbours_and_the_record_ends(brake):
         gs = find_glitches(clean.t, y, "theta_l", CPR["theta_l"])
         # Sizes to 1.5 counts: the cubic through the neighbours is rounded too (and
         # extrapolates at the ends).
-        assert all(abs(g.counts - dict(spikes)[g.index]) <= 1.5 for g in gs
-                   if g.index in dict(spikes))
+        assert all(
+            abs(g.counts - dict(spikes)[g.index]) <= 1.5 for g in gs if g.index in dict(spikes)
+        )
         return [(g.index, dict(spikes).get(g.index)) for g in gs]
 
-    for spikes in ([(3000, 80), (3001, 70)],                  # a burst of two
-                   [(3000, -80), (3001, 95), (3002, -60)],     # of three, mixed signs
-                   [(3000, 50), (3004, -70)],                  # two spikes 4 apart
-                   [(1, 60), (n - 1, -70)]):                   # at the ends
+    for spikes in (
+        [(3000, 80), (3001, 70)],  # a burst of two
+        [(3000, -80), (3001, 95), (3002, -60)],  # of three, mixed signs
+        [(3000, 50), (3004, -70)],  # two spikes 4 apart
+        [(1, 60), (n - 1, -70)],
+    ):  # at the ends
         assert found(spikes) == spikes
     assert found([(3000, 14)]) == []  # below the threshold (15 counts)
     # Four in a row are not a spike the detector claims: nothing, rather than a guess.
@@ -201,8 +213,19 @@ def test_fit_names_the_glitches_and_keep_glitches_keeps_them(brake, tmp_path, ca
     assert "the data's jitter" not in text
 
     kept = tmp_path / "kept"
-    assert main(["fit", "--model", "brake", str(csv), "--keep-glitches", "--restarts", "0",
-                 "--out", str(kept)]) in (0, 1)
+    assert main(
+        [
+            "fit",
+            "--model",
+            "brake",
+            str(csv),
+            "--keep-glitches",
+            "--restarts",
+            "0",
+            "--out",
+            str(kept),
+        ]
+    ) in (0, 1)
     text = capsys.readouterr().out
     assert "4 KEPT as measured" in text
     doc = json.loads((kept / "fit.json").read_text())

@@ -35,8 +35,21 @@ from rotorbayes.inference.likelihood import LogPosterior
 from rotorbayes.model.parameters import resolve
 
 # Unlike the thesis (as in test_first_fit): motor, upper and lower friction all changed.
-BRAKE = dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05, J_l=0.062, k_alpha=0.118,
-             Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36, ws_l=0.95, delta_l=1.5)
+BRAKE = dict(
+    k_m=3.1,
+    Tc_u=0.62,
+    dTc_u=0.03,
+    b_u=1.7,
+    db_u=0.05,
+    J_l=0.062,
+    k_alpha=0.118,
+    Tc_l=0.071,
+    b_l=0.0150,
+    db_l=0.0012,
+    Ts_l=0.36,
+    ws_l=0.95,
+    delta_l=1.5,
+)
 
 #: Pooled coverage of the central 50 % intervals must lie in this band (nominal 0.5), or
 #: within three of the check's own standard errors of 0.5 ...
@@ -51,8 +64,10 @@ IID90_BELOW = 0.75
 
 
 def _perturbed(base: dict, rng) -> dict:
-    return {k: (v if k == "J_u" else v * float(np.exp(0.1 * rng.standard_normal())))
-            for k, v in base.items()}
+    return {
+        k: (v if k == "J_u" else v * float(np.exp(0.1 * rng.standard_normal())))
+        for k, v in base.items()
+    }
 
 
 def _coverage(prob, res, x_true) -> dict:
@@ -72,15 +87,18 @@ def _check(rows: list[dict], label: str) -> None:
     R = {k: np.array([r[k] for r in rows]) for k in rows[0]}
     n = len(rows)
     se50 = R["c50"].std(ddof=1) / math.sqrt(n)
-    summary = (f"{label}: {n} data sets; 50 % intervals cover {R['c50'].mean():.2f} (± "
-               f"{se50:.2f}), 90 % cover {R['c90'].mean():.2f}; i.i.d. 90 % cover "
-               f"{R['iid90'].mean():.2f}; mean z² {R['z2'].mean():.2f}; intervals "
-               f"{np.median(R['width']):.2g}x the i.i.d. ones (median)")
+    summary = (
+        f"{label}: {n} data sets; 50 % intervals cover {R['c50'].mean():.2f} (± "
+        f"{se50:.2f}), 90 % cover {R['c90'].mean():.2f}; i.i.d. 90 % cover "
+        f"{R['iid90'].mean():.2f}; mean z² {R['z2'].mean():.2f}; intervals "
+        f"{np.median(R['width']):.2g}x the i.i.d. ones (median)"
+    )
     print(summary)
     se90 = R["c90"].std(ddof=1) / math.sqrt(n)
     # Within the band, or within three of the check's own standard errors (few data sets).
-    assert (BAND50[0] <= R["c50"].mean() <= BAND50[1]
-            or abs(R["c50"].mean() - 0.5) <= 3 * se50), summary
+    assert BAND50[0] <= R["c50"].mean() <= BAND50[1] or abs(R["c50"].mean() - 0.5) <= 3 * se50, (
+        summary
+    )
     assert R["c90"].mean() >= min(MIN90, 0.9 - 3 * se90), summary
     assert BAND_Z2[0] <= R["z2"].mean() <= BAND_Z2[1], summary
     assert R["iid90"].mean() < IID90_BELOW, summary
@@ -111,8 +129,9 @@ def test_standard_errors_cover_on_reference_data_with_a_continuous_input(config,
     for d in range(n_sets):
         rng = np.random.default_rng(300 + d)
         truth = _perturbed(refdata.SETS[config][d % 2], rng)
-        ex = refdata.make_experiment(config, truth, duration=10.0, signal="steps",
-                                     hold="continuous", seed=400 + d)
+        ex = refdata.make_experiment(
+            config, truth, duration=10.0, signal="steps", hold="continuous", seed=400 + d
+        )
         prob = inference.Problem(config, [ex])
         x_true = prob.x_from(resolve(truth, config=config))
         res = inference.fit(prob, x_true)
@@ -143,8 +162,12 @@ def test_what_the_uncertainty_says_and_stores():
     d = unc.as_dict()
     assert set(d["parameters"]) == set(prob.names) and d["n_eff"] < unc.n_samples
     # The same data with a wrong friction fixed: far from the floor, said in words.
-    wrong = inference.Problem("brake", [sim.to_experiment("b")], free=["k_m", "Tc_u", "b_u"],
-                      base={**full, "Ts_l": 0.6 * full["Ts_l"]})
+    wrong = inference.Problem(
+        "brake",
+        [sim.to_experiment("b")],
+        free=["k_m", "Tc_u", "b_u"],
+        base={**full, "Ts_l": 0.6 * full["Ts_l"]},
+    )
     res_w = inference.fit(wrong, wrong.x_from(full))
     assert res_w.uncertainty.misspecified
     assert "conditional on a model these data reject" in res_w.uncertainty.warning()
@@ -164,10 +187,12 @@ def test_the_robust_posterior_is_as_wide_as_the_honest_standard_errors():
     res = inference.fit(prob, prob.x_from(full))
     sds = {}
     for noise in ("robust", "floor"):
-        lp = LogPosterior(prob, res.x, noise=noise,
-                          uncertainty=res.uncertainty if noise == "robust" else None)
-        runs = sampling.sample(lp, res.x, None, n_walkers=12, n_steps=1500, n_ensembles=1, seed=2,
-                        progress=False)
+        lp = LogPosterior(
+            prob, res.x, noise=noise, uncertainty=res.uncertainty if noise == "robust" else None
+        )
+        runs = sampling.sample(
+            lp, res.x, None, n_walkers=12, n_steps=1500, n_ensembles=1, seed=2, progress=False
+        )
         burn, thin = sampling.burn_thin(runs)
         X, _, _ = lp.split(runs[0].chain[burn::thin].reshape(-1, lp.ndim))
         sds[noise] = X.std(axis=0)
@@ -176,8 +201,12 @@ def test_the_robust_posterior_is_as_wide_as_the_honest_standard_errors():
     assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
     widening = sds["robust"] / sds["floor"]
     predicted = res.stderr / res.uncertainty.stderr_white
-    print("widening over the i.i.d. posterior:", np.round(widening, 2), "predicted",
-          np.round(predicted, 2))
+    print(
+        "widening over the i.i.d. posterior:",
+        np.round(widening, 2),
+        "predicted",
+        np.round(predicted, 2),
+    )
     assert np.median(predicted) > 1.2
     assert np.all(np.abs(np.log(widening / predicted)) < math.log(1.5)), (widening, predicted)
 
@@ -192,8 +221,9 @@ def test_the_robust_posterior_peaks_at_the_fit_when_the_channel_floors_differ():
     p = dict(refdata.SETS["coupled"][1])
     ex = refdata.make_experiment("coupled", p, duration=10.0, signal="steps", seed=21)
     full = resolve(p, config="coupled")
-    prob = inference.Problem("coupled", [ex], base=full,
-                     free=["k_m", "Tc_u", "b_u", "J_l", "k_alpha", "Tc_l", "b_l"])
+    prob = inference.Problem(
+        "coupled", [ex], base=full, free=["k_m", "Tc_u", "b_u", "J_l", "k_alpha", "Tc_l", "b_l"]
+    )
     res = inference.fit(prob, prob.x_from(full))
     lp = LogPosterior(prob, res.x, uncertainty=res.uncertainty)
     assert lp.floor["theta_l"] / lp.floor["theta_u"] > 1.2  # the case this is about

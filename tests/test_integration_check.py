@@ -23,8 +23,15 @@ def _data(tmp_path):
     f = _fast_steps(6.0, seed=2)
     t = np.arange(6001) * 1e-3
     eff = ("upper_asymmetric_coulomb", "upper_asymmetric_viscous", "lower_stribeck")
-    sim = rb.simulate(FAST_RIG, np.asarray(f(t)), dt=1e-3, config="brake", effects=eff,
-                      step=1e-3, quantize_angles=True)
+    sim = rb.simulate(
+        FAST_RIG,
+        np.asarray(f(t)),
+        dt=1e-3,
+        config="brake",
+        effects=eff,
+        step=1e-3,
+        quantize_angles=True,
+    )
     path = tmp_path / "fast.csv"
     rb.save_experiment(sim.to_experiment("brake"), path)
     p0 = tmp_path / "p0.toml"
@@ -32,11 +39,12 @@ def _data(tmp_path):
     return path, p0
 
 
-def test_the_fit_reports_its_integration_error_and_warns_when_it_is_material(tmp_path,
-                                                                             capsys):
+def test_the_fit_reports_its_integration_error_and_warns_when_it_is_material(tmp_path, capsys):
     path, p0 = _data(tmp_path)
-    assert main(["fit", "--model", "brake", str(path), "--p0", str(p0), "--out",
-                 str(tmp_path / "f")]) == 0
+    assert (
+        main(["fit", "--model", "brake", str(path), "--p0", str(p0), "--out", str(tmp_path / "f")])
+        == 0
+    )
     out, err = capsys.readouterr()
     doc = json.loads((tmp_path / "f" / "fit.json").read_text())
     assert "integration check at the fit" in out and "integrator's own error" not in err
@@ -44,8 +52,23 @@ def test_the_fit_reports_its_integration_error_and_warns_when_it_is_material(tmp
     # A step far too long for this rig (0.77x the floor's share here; 61 ms gave 0.05x with
     # the fifth-order method): the same fit, now with the integrator's error in it, and
     # both commands say so.
-    assert main(["fit", "--model", "brake", str(path), "--p0", str(p0), "--step", "0.101",
-                 "--out", str(tmp_path / "g")]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "brake",
+                str(path),
+                "--p0",
+                str(p0),
+                "--step",
+                "0.101",
+                "--out",
+                str(tmp_path / "g"),
+            ]
+        )
+        == 0
+    )
     out, err = capsys.readouterr()
     doc = json.loads((tmp_path / "g" / "fit.json").read_text())
     assert doc["step"] == 0.101 and doc["assessment"]["integration_ratio"] > 0.3

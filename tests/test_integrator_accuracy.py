@@ -158,17 +158,31 @@ def _fast_steps(duration: float, seed: int):
         tr = rng.uniform(0.03, 0.05)
         starts.append(t)
         ends.append(t + tr)
-        levels.append(max(rng.choice((-1.0, 1.0)) * np.exp(rng.uniform(np.log(0.45),
-                                                                         np.log(5.0))), -4.0))
+        levels.append(
+            max(rng.choice((-1.0, 1.0)) * np.exp(rng.uniform(np.log(0.45), np.log(5.0))), -4.0)
+        )
         t += tr + rng.uniform(0.5, 2.0)
     return StepsInput(starts, ends, levels)
 
 
 #: A brake rig unlike every thesis table: stiffer string, heavier lower disc, a Stribeck
 #: peak ten times the Coulomb level, a stronger motor.
-FAST_RIG = dict(k_m=4.64, J_u=0.4765, Tc_u=0.1999, dTc_u=-0.0204, b_u=4.76, db_u=-0.138,
-                J_l=0.0328, k_alpha=0.2546, Tc_l=0.0152, b_l=0.00534, db_l=0.0,
-                Ts_l=0.1617, ws_l=5.0, delta_l=2.81)
+FAST_RIG = dict(
+    k_m=4.64,
+    J_u=0.4765,
+    Tc_u=0.1999,
+    dTc_u=-0.0204,
+    b_u=4.76,
+    db_u=-0.138,
+    J_l=0.0328,
+    k_alpha=0.2546,
+    Tc_l=0.0152,
+    b_l=0.00534,
+    db_l=0.0,
+    Ts_l=0.1617,
+    ws_l=5.0,
+    delta_l=2.81,
+)
 
 
 def test_fast_transitions_stay_within_target_on_a_rig_unlike_the_thesis():

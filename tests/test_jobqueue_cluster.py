@@ -36,8 +36,7 @@ distributed = pytest.importorskip("distributed")
 dask_jobqueue = pytest.importorskip("dask_jobqueue")
 
 #: What a fresh shell on a node does not have: the variables rotorbayes sets when imported.
-THREAD_VARS = ("NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
-               "MKL_NUM_THREADS")
+THREAD_VARS = ("NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 @pytest.fixture(scope="module")
@@ -47,9 +46,13 @@ def jobqueue(tmp_path_factory):
     from dask_jobqueue import SLURMCluster
 
     folder = tmp_path_factory.mktemp("jobqueue")
-    cluster = SLURMCluster(cores=2, processes=1, memory="2GiB", walltime="00:10:00",
-                           scheduler_options={"dashboard_address": None,
-                                              "host": "127.0.0.1"})
+    cluster = SLURMCluster(
+        cores=2,
+        processes=1,
+        memory="2GiB",
+        walltime="00:10:00",
+        scheduler_options={"dashboard_address": None, "host": "127.0.0.1"},
+    )
     script = folder / "job.sh"
     script.write_text(cluster.job_script().replace("dummy-name", "job-0"))
     assert "-m distributed.cli.dask_worker" in script.read_text()
@@ -57,11 +60,13 @@ def jobqueue(tmp_path_factory):
     # The worker imports this module's task functions, and analyses/sbc.py's, by name, as
     # a site's workers import rotorbayes: from their path (a shared filesystem).
     here = Path(__file__).resolve().parent
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(here), str(here.parent / "analyses"),
-                                                      env.get("PYTHONPATH")]))
+    env["PYTHONPATH"] = os.pathsep.join(
+        filter(None, [str(here), str(here.parent / "analyses"), env.get("PYTHONPATH")])
+    )
     log = open(folder / "job.log", "w")  # noqa: SIM115 - the job's output, closed below
-    job = subprocess.Popen(["bash", str(script)], stdout=log, stderr=subprocess.STDOUT,
-                           env=env, start_new_session=True)
+    job = subprocess.Popen(
+        ["bash", str(script)], stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+    )
     try:
         yield cluster.scheduler_address
     finally:
@@ -117,12 +122,14 @@ def test_multistart_and_profile_points_as_serially(jobqueue):
     prob = small_problem()
     with on(jobqueue) as ex:
         ms = inference.multistart(prob, 4, seed=2, progress=False, executor=ex)
-        ref = inference.multistart(prob, 4, seed=2, progress=False,
-                                   executor=parallel.SerialExecutor())
+        ref = inference.multistart(
+            prob, 4, seed=2, progress=False, executor=parallel.SerialExecutor()
+        )
         same_fits(ref.fits, ms.fits)
         pa = identify.profile(prob, ref.best.x, "k_m", n_points=5, span=0.02, executor=ex)
-    pb = identify.profile(prob, ref.best.x, "k_m", n_points=5, span=0.02,
-                          executor=parallel.SerialExecutor())
+    pb = identify.profile(
+        prob, ref.best.x, "k_m", n_points=5, span=0.02, executor=parallel.SerialExecutor()
+    )
     assert np.array(pa["delta_chi2"]).tobytes() == np.array(pb["delta_chi2"]).tobytes()
     assert np.nanmax(pa["delta_chi2"]) > 0
 
@@ -166,8 +173,7 @@ def test_a_batch_of_studies_as_single_runs(jobqueue, tmp_path, monkeypatch, caps
     monkeypatch.setenv(parallel.TIMEOUT_ENV, "120")
     one = tmp_path / "one"
     one.mkdir()
-    assert main(["run", str(analysis(one, "a.toml", "A")), "--quiet",
-                 "--backend", "serial"]) == 0
+    assert main(["run", str(analysis(one, "a.toml", "A")), "--quiet", "--backend", "serial"]) == 0
     a = analysis(tmp_path, "a.toml", "A")
     b = analysis(tmp_path, "b.toml", "B")
     t0 = time.perf_counter()

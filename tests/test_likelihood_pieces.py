@@ -25,15 +25,25 @@ from rotorbayes.model.parameters import thesis_set
 
 def _data(seed: int, seconds: float = 1.0):
     t, u = rb.signals.estimation_signal(seconds, seed=seed)
-    sim = rb.simulate(thesis_set("4.3", "P_ref"), u, dt=t[1] - t[0], config="brake",
-                      alpha0=0.1 * seed, quantize_angles=True)
+    sim = rb.simulate(
+        thesis_set("4.3", "P_ref"),
+        u,
+        dt=t[1] - t[0],
+        config="brake",
+        alpha0=0.1 * seed,
+        quantize_angles=True,
+    )
     return sim.to_experiment(f"brake_{seed}")
 
 
 @pytest.fixture(scope="module")
 def prob():
-    return inf.Problem("brake", [_data(2), _data(3, 0.9)], channels=("theta_u", "theta_l"),
-                       weights={"theta_u": 2.0, "theta_l": 0.5})
+    return inf.Problem(
+        "brake",
+        [_data(2), _data(3, 0.9)],
+        channels=("theta_u", "theta_l"),
+        weights={"theta_u": 2.0, "theta_l": 0.5},
+    )
 
 
 def _rows(prob, n=3, seed=0):
@@ -63,8 +73,9 @@ def _reference(prob, R, S, P, ar1: bool) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("kind", [GaussianLogLikelihood, SampledSigmaLogLikelihood,
-                                  AR1LogLikelihood])
+@pytest.mark.parametrize(
+    "kind", [GaussianLogLikelihood, SampledSigmaLogLikelihood, AR1LogLikelihood]
+)
 def test_each_noise_model_is_the_gaussian_density_of_its_errors(prob, kind):
     R, S, P = _rows(prob)
     floor, _ = prob.noise_floors()
@@ -124,14 +135,19 @@ def test_log_coordinates_and_the_adjustment():
 def test_a_posterior_composed_of_pieces_is_the_fit_posterior(prob, noise):
     x = prob.start_vector(prob.base)
     kw = {"ar1": True} if noise == "ar1" else {"noise": noise}
-    fit_post = LogPosterior(prob, x, priors={"J_l": Prior("normal", 0.0, 1.0, 0.05, 0.02)},
-                            **kw)
-    lik = {"floor": GaussianLogLikelihood, "sampled": SampledSigmaLogLikelihood,
-           "ar1": AR1LogLikelihood, "robust": GaussianLogLikelihood}[noise](
-        prob, fit_post.sigma)
-    parts = LogPosterior(lik, LogPrior(prob, {"J_l": Prior("normal", 0.0, 1.0, 0.05, 0.02)}),
-                         transform=LogCoordinates.for_fit(prob.lower, x),
-                         adjustment=fit_post.adjustment)
+    fit_post = LogPosterior(prob, x, priors={"J_l": Prior("normal", 0.0, 1.0, 0.05, 0.02)}, **kw)
+    lik = {
+        "floor": GaussianLogLikelihood,
+        "sampled": SampledSigmaLogLikelihood,
+        "ar1": AR1LogLikelihood,
+        "robust": GaussianLogLikelihood,
+    }[noise](prob, fit_post.sigma)
+    parts = LogPosterior(
+        lik,
+        LogPrior(prob, {"J_l": Prior("normal", 0.0, 1.0, 0.05, 0.02)}),
+        transform=LogCoordinates.for_fit(prob.lower, x),
+        adjustment=fit_post.adjustment,
+    )
     assert parts.coord_names == fit_post.coord_names and parts.ndim == fit_post.ndim
     assert parts.noise == fit_post.noise and parts.ar1 == fit_post.ar1
     rng = np.random.default_rng(7)

@@ -36,22 +36,28 @@ def test_compress_keeps_the_cost_gradient_and_curvature():
         assert abs(a - b) <= 1e-9 * a
     # A zero residual (a perfect fit) is no division by zero.
     C0 = least_squares.compress(J, np.zeros(n))
-    np.testing.assert_allclose(C0.T @ C0, J.T @ J, rtol=1e-10,
-                               atol=1e-10 * np.abs(J.T @ J).max())
+    np.testing.assert_allclose(C0.T @ C0, J.T @ J, rtol=1e-10, atol=1e-10 * np.abs(J.T @ J).max())
 
 
 def _short(name="coupled_est", seconds=6.0):
     ex = rb.load_example(name)
     n = int(round(seconds / ex.dt)) + 1
-    return rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n],
-                         theta_l=ex.theta_l[:n], name=f"{name} {seconds:g} s", path=ex.path)
+    return rb.Experiment(
+        t=ex.t[:n],
+        u=ex.u[:n],
+        theta_u=ex.theta_u[:n],
+        theta_l=ex.theta_l[:n],
+        name=f"{name} {seconds:g} s",
+        path=ex.path,
+    )
 
 
 def test_compressed_fit_ends_where_the_plain_fit_ends():
     # The friction asymmetries fixed: with them free the upper disc's friction has a flat
     # valley (equal SSR to 1e-6), where rounding alone decides where a fit stops.
-    prob = inference.Problem("coupled", [_short()], free=["k_m", "Tc_u", "b_u", "J_l", "k_alpha",
-                                                  "Tc_l", "b_l"])
+    prob = inference.Problem(
+        "coupled", [_short()], free=["k_m", "Tc_u", "b_u", "J_l", "k_alpha", "Tc_l", "b_l"]
+    )
     x0 = prob.x_from(rb.parameters.thesis_set("4.2", "P0"))
     a = inference.fit(prob, x0, max_nfev=40, uncertainty=False, compressed=False)
     b = inference.fit(prob, x0, max_nfev=40, uncertainty=False, compressed=True)
@@ -97,8 +103,11 @@ def test_inference_data_in_blocks_holds_the_pointwise_sums(monkeypatch):
     runs = []
     for e in range(2):
         chain = lp.to_z(x)[None, None, :] + 1e-5 * rng.standard_normal((6, 4, lp.ndim))
-        runs.append(EnsembleRun(f"ensemble{e}", chain, np.zeros((6, 4)), np.full(4, 0.3),
-                                np.full(lp.ndim, np.nan)))
+        runs.append(
+            EnsembleRun(
+                f"ensemble{e}", chain, np.zeros((6, 4)), np.full(4, 0.3), np.full(lp.ndim, np.nan)
+            )
+        )
     plain = posterior.inference_data(lp, runs, max_draws=5)
     monkeypatch.setattr(posterior, "LOGLIK_BYTES", 4 * 10 * prob.n_residuals // 7)  # blocks of 7
     monkeypatch.setattr(likelihood, "BATCH_BYTES", 1)  # and the draws one batch at a time
@@ -139,10 +148,12 @@ def test_a_long_fit_task_comes_back_without_its_jacobian(monkeypatch, tmp_path):
     prob = inference.Problem("coupled", [_short(seconds=2.0)])
     monkeypatch.setattr(MS, "COMPRESS_BYTES", 1)  # as if the data were long
     with parallel.use_executor(parallel.ExecutorSpec("serial")):
-        ms = inference.multistart(prob, 2, seed=0, max_nfev=5, progress=False,
-                          resume=tmp_path / ".ms.tasks")
-        again = inference.multistart(prob, 2, seed=0, max_nfev=5, progress=False,
-                             resume=tmp_path / ".ms.tasks")
+        ms = inference.multistart(
+            prob, 2, seed=0, max_nfev=5, progress=False, resume=tmp_path / ".ms.tasks"
+        )
+        again = inference.multistart(
+            prob, 2, seed=0, max_nfev=5, progress=False, resume=tmp_path / ".ms.tasks"
+        )
     assert all(f.jac is None for f in ms.fits + again.fits)
     assert again.ends.tobytes() == ms.ends.tobytes()
     best = MS.ensure_jacobian(ms.best)

@@ -29,8 +29,9 @@ from rotorbayes.model.effects import LUGRE, EffectError
 TOL = 1.5e-5
 
 #: A rig unlike the thesis tables (lower disc), with a Stribeck curve and an asymmetry.
-RIG = dict(J_l=0.03, k_alpha=0.11, Tc_l=0.035, Ts_l=0.12, ws_l=0.8, delta_l=1.7,
-           b_l=0.006, dTc_l=0.004)
+RIG = dict(
+    J_l=0.03, k_alpha=0.11, Tc_l=0.035, Ts_l=0.12, ws_l=0.8, delta_l=1.7, b_l=0.006, dTc_l=0.004
+)
 EFFECTS = ["lower_stribeck", "lower_asymmetric_coulomb"]
 
 
@@ -65,14 +66,23 @@ def test_misuse_is_refused_with_words():
     assert any("must exceed |dTc_l|" in b and "lugre" in b for b in bad)
     with pytest.raises(EffectError, match="does not apply to the upper"):
         Model("upper", ["lugre"])
-    other = Effect("bristles2", "-", (Parameter("s", "-", 0, 1, 0, "-"),), "-",
-                   configs=("coupled", "brake"), torque=LUGRE.torque, state="b",
-                   state_rate=LUGRE.state_rate, replaces="l")
+    other = Effect(
+        "bristles2",
+        "-",
+        (Parameter("s", "-", 0, 1, 0, "-"),),
+        "-",
+        configs=("coupled", "brake"),
+        torque=LUGRE.torque,
+        state="b",
+        state_rate=LUGRE.state_rate,
+        replaces="l",
+    )
     with pytest.raises(EffectError):
         Model("coupled", ["lugre", other])
     with pytest.raises(ValueError, match="configs"):
-        Effect("x", "-", (Parameter("s", "-", 0, 1, 0, "-"),), "-", torque=LUGRE.torque,
-               replaces="l")
+        Effect(
+            "x", "-", (Parameter("s", "-", 0, 1, 0, "-"),), "-", torque=LUGRE.torque, replaces="l"
+        )
     with pytest.raises(EffectError, match="friction laws: lugre"):
         Model("coupled", ["lugree"])
 
@@ -89,8 +99,14 @@ def test_pre_sliding_creep_where_the_switch_model_sticks():
     sw = rb.simulate(base, u, dt=dt, config="coupled", effects=EFFECTS, theta_u=theta_u)
     assert np.all(sw.omega_l == 0.0) and np.all(sw.theta_l == 0.0)
     s0 = 200.0
-    lg = rb.simulate({**base, "sigma0_l": s0, "sigma1_l": 2 * np.sqrt(s0 * RIG["J_l"])}, u,
-                     dt=dt, config="coupled", effects=[*EFFECTS, "lugre"], theta_u=theta_u)
+    lg = rb.simulate(
+        {**base, "sigma0_l": s0, "sigma1_l": 2 * np.sqrt(s0 * RIG["J_l"])},
+        u,
+        dt=dt,
+        config="coupled",
+        effects=[*EFFECTS, "lugre"],
+        theta_u=theta_u,
+    )
     # Quasi-static loading from rest (a slow ramp: inertia and damping negligible):
     # dz/dtheta = 1 - sigma0 z / g with g = Ts_l + dTc_l, so the friction sigma0 z that
     # balances the string torque T has come after a creep theta = -(g/sigma0) ln(1 - T/g)

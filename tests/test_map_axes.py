@@ -24,8 +24,9 @@ from rotorbayes.inference.assess import floor_ratio
 
 def _maps(extra: dict):
     params = dict(SETS["coupled"][0], **extra)
-    ex = make_experiment("coupled", params, duration=10.0, signal="steps",
-                         hold="continuous", seed=3)
+    ex = make_experiment(
+        "coupled", params, duration=10.0, signal="steps", hold="continuous", seed=3
+    )
     prob = inference.Problem("coupled", [ex])
     res = inference.fit_from_data(prob, restarts=2).result
     return {m.disc: m for m in missing_torque(prob, res.x)}, floor_ratio(prob, res.x)
@@ -36,8 +37,15 @@ def test_the_lag_of_the_test_data_is_exact():
     lag = LaggedInput(f, 0.02, 6.0)
     from scipy.integrate import solve_ivp
 
-    sol = solve_ivp(lambda t, y: [(f(t) - y[0]) / 0.02], (0.0, 5.0), [f(0.0)], rtol=1e-11,
-                    atol=1e-12, max_step=1e-3, dense_output=True)
+    sol = solve_ivp(
+        lambda t, y: [(f(t) - y[0]) / 0.02],
+        (0.0, 5.0),
+        [f(0.0)],
+        rtol=1e-11,
+        atol=1e-12,
+        max_step=1e-3,
+        dense_output=True,
+    )
     t = np.linspace(0.0, 5.0, 5001)
     assert np.max(np.abs(sol.sol(t)[0] - lag(t))) < 1e-6  # V; the encoders see 1e-4 V
 

@@ -34,8 +34,9 @@ def small_problem() -> inference.Problem:
     ex = rb.load_example("upper_est")
     n = int(round(5.0 / ex.dt)) + 1
     assert abs(ex.dt - 0.005) < 1e-12  # 200 Hz
-    short = rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None,
-                          name="upper 5 s", path=ex.path)
+    short = rb.Experiment(
+        t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None, name="upper 5 s", path=ex.path
+    )
     return inference.Problem("upper", [short])
 
 
@@ -80,8 +81,10 @@ def test_analysis_file_refuses_an_unknown_backend(tmp_path):
     from rotorbayes.commands.study.analysis import AnalysisError, load_analysis
 
     f = tmp_path / "a.toml"
-    f.write_text('[analysis]\nout = "o"\nconfig = "upper"\ndata = ["example:upper_est"]\n'
-                 '[parallel]\nbackend = "gpu"\n')
+    f.write_text(
+        '[analysis]\nout = "o"\nconfig = "upper"\ndata = ["example:upper_est"]\n'
+        '[parallel]\nbackend = "gpu"\n'
+    )
     with pytest.raises(AnalysisError, match=r"\[parallel\] backend 'gpu'; choose one of"):
         load_analysis(f)
 
@@ -113,9 +116,13 @@ def cluster():
 def test_dask_cluster_gives_the_serial_results_bit_for_bit(cluster):
     prob = small_problem()
     client = cluster._client
-    info = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"),
-                               os.environ.get("OPENBLAS_NUM_THREADS"),
-                               __import__("numba").get_num_threads()))
+    info = client.run(
+        lambda: (
+            os.environ.get("NUMBA_NUM_THREADS"),
+            os.environ.get("OPENBLAS_NUM_THREADS"),
+            __import__("numba").get_num_threads(),
+        )
+    )
     assert len(info) == 2 and all(v == ("1", "1", 1) for v in info.values())
     plugins = client.run(lambda dask_worker: list(dask_worker.plugins))
     assert all(parallel._WarmUp.name in v for v in plugins.values())
@@ -131,8 +138,9 @@ def test_dask_cluster_gives_the_serial_results_bit_for_bit(cluster):
     # Profile-likelihood points: the same Δχ² on the cluster as serially.
     best = ref.best
     pa = identify.profile(prob, best.x, "k_m", n_points=5, span=0.02, executor=cluster)
-    pb = identify.profile(prob, best.x, "k_m", n_points=5, span=0.02,
-                          executor=parallel.SerialExecutor())
+    pb = identify.profile(
+        prob, best.x, "k_m", n_points=5, span=0.02, executor=parallel.SerialExecutor()
+    )
     assert np.array(pa["delta_chi2"]).tobytes() == np.array(pb["delta_chi2"]).tobytes()
     assert np.nanmax(pa["delta_chi2"]) > 0
 
@@ -143,9 +151,14 @@ def test_shared_data_is_scattered_once_not_sent_with_every_task(cluster):
     starts = inference.latin_hypercube(prob, 6, np.random.default_rng(0))
 
     def deps(dask_scheduler):
-        return {str(k): ([str(d.key) for d in ts.dependencies],
-                         [str(d.key) for d in ts.dependencies for _ in d.who_has])
-                for k, ts in dask_scheduler.tasks.items() if "_fit_start" in str(k)}
+        return {
+            str(k): (
+                [str(d.key) for d in ts.dependencies],
+                [str(d.key) for d in ts.dependencies for _ in d.who_has],
+            )
+            for k, ts in dask_scheduler.tasks.items()
+            if "_fit_start" in str(k)
+        }
 
     scattered = []
     scatter = parallel._scatter
@@ -158,9 +171,9 @@ def test_shared_data_is_scattered_once_not_sent_with_every_task(cluster):
     seen = None
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(parallel, "_scatter", _scatter)
-        for _i, (r, _why) in parallel.run_tasks(_fit_start, list(starts),
-                                         shared=(prob, {"uncertainty": False}),
-                                         executor=cluster):
+        for _i, (r, _why) in parallel.run_tasks(
+            _fit_start, list(starts), shared=(prob, {"uncertainty": False}), executor=cluster
+        ):
             assert r is not None
             if seen is None:
                 seen = client.run_on_scheduler(deps)
@@ -181,8 +194,9 @@ def test_a_worker_killed_mid_job_changes_nothing(cluster):
     client = cluster._client
     starts = inference.latin_hypercube(prob, 16, np.random.default_rng(7))
     shared = (prob, {"uncertainty": False, "max_nfev": 200})
-    ref = parallel.map_ordered(_fit_start, list(starts), shared=shared,
-                               executor=parallel.SerialExecutor())
+    ref = parallel.map_ordered(
+        _fit_start, list(starts), shared=shared, executor=parallel.SerialExecutor()
+    )
 
     pids = client.run(os.getpid)
     got: dict[int, tuple] = {}
@@ -214,16 +228,33 @@ def test_a_worker_killed_mid_job_changes_nothing(cluster):
 
 
 def _cli(args, env=None, **kw):
-    return subprocess.Popen([sys.executable, "-m", "rotorbayes.cli", *args],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "NUMBA_NUM_THREADS": "1", **(env or {})}, **kw)
+    return subprocess.Popen(
+        [sys.executable, "-m", "rotorbayes.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "NUMBA_NUM_THREADS": "1", **(env or {})},
+        **kw,
+    )
 
 
 def test_no_scheduler_at_the_address_is_a_plain_error(tmp_path):
     t0 = time.perf_counter()
-    p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
-              "--scheduler", "tcp://127.0.0.1:9", "--out", str(tmp_path / "ms")],
-             env={parallel.TIMEOUT_ENV: "2"})
+    p = _cli(
+        [
+            "multistart",
+            "--model",
+            "upper",
+            "example:upper_est",
+            "--starts",
+            "2",
+            "--scheduler",
+            "tcp://127.0.0.1:9",
+            "--out",
+            str(tmp_path / "ms"),
+        ],
+        env={parallel.TIMEOUT_ENV: "2"},
+    )
     out, err = p.communicate(timeout=120)
     took = time.perf_counter() - t0
     assert p.returncode == EXIT.ENVIRONMENT, (out, err)
@@ -241,9 +272,12 @@ def real_cluster(folder: Path, workers: int = 1):
     sched_file = folder / "scheduler.json"
     env = {**os.environ, **parallel.WORKER_ENV}
     dask_cli = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
-    sched = subprocess.Popen([*dask_cli, "--scheduler-file", str(sched_file), "--port", "0",
-                              "--no-dashboard"], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL, env=env)
+    sched = subprocess.Popen(
+        [*dask_cli, "--scheduler-file", str(sched_file), "--port", "0", "--no-dashboard"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
     procs = [sched]
     try:
         deadline = time.time() + 60
@@ -253,10 +287,24 @@ def real_cluster(folder: Path, workers: int = 1):
 
         address = json.loads(sched_file.read_text())["address"]
         if workers:
-            procs.append(subprocess.Popen(
-                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers",
-                 str(workers), "--nthreads", "1", "--no-dashboard"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env))
+            procs.append(
+                subprocess.Popen(
+                    [
+                        sys.executable,
+                        "-m",
+                        "distributed.cli.dask_worker",
+                        address,
+                        "--nworkers",
+                        str(workers),
+                        "--nthreads",
+                        "1",
+                        "--no-dashboard",
+                    ],
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                    env=env,
+                )
+            )
         yield address, sched, procs
     finally:
         for q in procs:
@@ -265,14 +313,30 @@ def real_cluster(folder: Path, workers: int = 1):
                 q.wait(timeout=30)
 
 
-@pytest.mark.parametrize("address", ["127.0.0.1:8786x", "http://127.0.0.1:8786",
-                                     "tcp://127.0.0.1:87860"])
+@pytest.mark.parametrize(
+    "address", ["127.0.0.1:8786x", "http://127.0.0.1:8786", "tcp://127.0.0.1:87860"]
+)
 def test_a_malformed_scheduler_address_is_refused_at_once(tmp_path, address, capsys):
     from rotorbayes.cli import main
 
     t0 = time.time()
-    assert main(["multistart", "--model", "upper", "example:upper_est", "--starts", "2",
-                 "--scheduler", address, "--out", str(tmp_path / "ms")]) == EXIT.REFUSED
+    assert (
+        main(
+            [
+                "multistart",
+                "--model",
+                "upper",
+                "example:upper_est",
+                "--starts",
+                "2",
+                "--scheduler",
+                address,
+                "--out",
+                str(tmp_path / "ms"),
+            ]
+        )
+        == EXIT.REFUSED
+    )
     out, err = capsys.readouterr()
     assert f"{address!r} (from --scheduler) is not a Dask scheduler address" in err
     assert "tcp://HOST:PORT" in err and "Traceback" not in err and "Exception" not in err
@@ -289,8 +353,11 @@ def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path):
     b = tmp_path / "b.toml"
     b.write_text('[analysis]\nout = "B"\nconfig = "upper"\ndata = ["example:upper_val"]\n')
     with real_cluster(tmp_path, workers=0) as (address, _, procs):
-        p = _cli(["run", str(a), str(b), "--scheduler", address], cwd=tmp_path,
-                 env={parallel.TIMEOUT_ENV: "3"})
+        p = _cli(
+            ["run", str(a), str(b), "--scheduler", address],
+            cwd=tmp_path,
+            env={parallel.TIMEOUT_ENV: "3"},
+        )
         procs.append(p)
         out, err = p.communicate(timeout=180)
         assert p.returncode == EXIT.ENVIRONMENT, (out, err)
@@ -302,8 +369,9 @@ def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path):
 @pytest.mark.parametrize("value", ["abc", "0", "-5", "nan", "inf"])
 def test_a_bad_dask_timeout_is_refused_with_its_name(monkeypatch, value):
     monkeypatch.setenv(parallel.TIMEOUT_ENV, value)
-    with pytest.raises(parallel.ClusterError,
-                       match=f"{parallel.TIMEOUT_ENV}='{value}' is not a number"):
+    with pytest.raises(
+        parallel.ClusterError, match=f"{parallel.TIMEOUT_ENV}='{value}' is not a number"
+    ):
         parallel.connect_timeout()
     monkeypatch.setenv(parallel.TIMEOUT_ENV, " 7.5 ")
     assert parallel.connect_timeout() == 7.5
@@ -317,9 +385,21 @@ def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
     """A real `dask scheduler` and `dask worker`; the scheduler is killed mid-job."""
     with real_cluster(tmp_path) as (address, sched, procs):
         # Through the variable, as a user on a cluster would set it.
-        p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "400",
-                  "--max-nfev", "30", "--out", str(tmp_path / "ms")],
-                 env={parallel.SCHEDULER_ENV: address})
+        p = _cli(
+            [
+                "multistart",
+                "--model",
+                "upper",
+                "example:upper_est",
+                "--starts",
+                "400",
+                "--max-nfev",
+                "30",
+                "--out",
+                str(tmp_path / "ms"),
+            ],
+            env={parallel.SCHEDULER_ENV: address},
+        )
         procs.append(p)
         lines = []
 
@@ -346,8 +426,24 @@ def test_lost_scheduler_ends_the_command_with_exit_code_3(tmp_path):
 @pytest.mark.every_python
 def test_multistart_command_on_a_local_dask_cluster(tmp_path):
     out = tmp_path / "ms"
-    p = _cli(["multistart", "--model", "upper", "example:upper_est", "--starts", "3",
-              "--max-nfev", "20", "--backend", "dask", "--workers", "2", "--out", str(out)])
+    p = _cli(
+        [
+            "multistart",
+            "--model",
+            "upper",
+            "example:upper_est",
+            "--starts",
+            "3",
+            "--max-nfev",
+            "20",
+            "--backend",
+            "dask",
+            "--workers",
+            "2",
+            "--out",
+            str(out),
+        ]
+    )
     o, e = p.communicate(timeout=300)
     assert p.returncode == 0, e
     assert "parallel tasks run on a local Dask cluster of 2 worker processes" in o

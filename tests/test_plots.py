@@ -72,14 +72,24 @@ def test_parameter_spread_has_units_and_no_overlap():
     values = rng.normal(1.0, 0.1, size=(9, len(names)))
     ssr = np.r_[6.7e-6, 6.7e-6, 6.71e-6, 1e-3, 2e-2, 0.5, 3.0, 80.0, 1e4]
     fig, axes = plots.plot_parameter_spread(
-        names, values, ssr, units={"my_gain": "N m/rad"}, reference={"k_m": 1.0},
-        noise_floor_ssr=6.5e-6, clusters=[0, 0, 0, 1, 2, 3, 4, 5, 6],
+        names,
+        values,
+        ssr,
+        units={"my_gain": "N m/rad"},
+        reference={"k_m": 1.0},
+        noise_floor_ssr=6.5e-6,
+        clusters=[0, 0, 0, 1, 2, 3, 4, 5, 6],
         title="multistart, upper: end points",
     )
     labels = [ax.get_xlabel() for ax in axes.ravel() if ax.axison]
     assert labels == [
-        "k_m [N m/V]", "Tc_u [N m]", "b_u [N m s/rad]", "dTc_u [N m]", "db_u [N m s/rad]",
-        "alpha0[1] [rad]", "my_gain [N m/rad]",
+        "k_m [N m/V]",
+        "Tc_u [N m]",
+        "b_u [N m s/rad]",
+        "dTc_u [N m]",
+        "db_u [N m s/rad]",
+        "alpha0[1] [rad]",
+        "my_gain [N m/rad]",
     ]
     assert all(ax.get_yscale() == "log" for ax in axes.ravel() if ax.axison)
     assert axes[0, 0].get_ylabel() == "final SSR [rad²]"
@@ -112,11 +122,17 @@ def test_parameter_spread_leaves_out_failed_and_says_so():
 def test_waterfall_absolute_ssr_floor_and_failed_starts():
     ssr = np.array([3e-3, 6.7e-6, np.inf, 6.71e-6, 6.702e-6, np.nan, 12.0])
     floor = 6.54e-6
-    fig, ax = plots.plot_waterfall(ssr, noise_floor_ssr=floor, n_failed=2, labels=[2, 0, 9, 0, 0,
-                                                                                   9, 1])
+    fig, ax = plots.plot_waterfall(
+        ssr, noise_floor_ssr=floor, n_failed=2, labels=[2, 0, 9, 0, 0, 9, 1]
+    )
     finite = np.sort(ssr[np.isfinite(ssr)])
-    ys = np.concatenate([c.get_offsets()[:, 1] for c in ax.collections
-                         if c.get_label() and "failed" not in c.get_label()])
+    ys = np.concatenate(
+        [
+            c.get_offsets()[:, 1]
+            for c in ax.collections
+            if c.get_label() and "failed" not in c.get_label()
+        ]
+    )
     np.testing.assert_allclose(np.sort(ys), finite)  # absolute, not relative to the best
     assert ys.min() == pytest.approx(6.7e-6)
     assert ax.get_yscale() == "log"
@@ -144,8 +160,11 @@ def test_waterfall_all_failed_and_no_floor():
 
 def test_quantisation_floor_ssr():
     ex = SimpleNamespace(n=1000)
-    prob = SimpleNamespace(experiments=[ex, ex], channels=("theta_u", "theta_l"),
-                           weights={"theta_u": 1.0, "theta_l": 2.0})
+    prob = SimpleNamespace(
+        experiments=[ex, ex],
+        channels=("theta_u", "theta_l"),
+        weights={"theta_u": 1.0, "theta_l": 2.0},
+    )
     q_u, q_l = quantisation_floor("theta_u"), quantisation_floor("theta_l")
     want = 2000 * q_u**2 + 2000 * (2 * q_l) ** 2
     assert plots.quantisation_floor_ssr(prob) == pytest.approx(want)
@@ -163,8 +182,14 @@ def test_fit_legends_list_stick_shading_on_each_shaded_axis():
     t = np.arange(3000) * 1e-2
     meas = {"theta_l": np.sin(t), "alpha": np.cos(t)}
     sim = {"theta_l": np.sin(t) + 1e-3, "alpha": np.cos(t) - 1e-3}
-    fig, axes = plots.plot_fit(t, meas, sim, mode=_stick_mode(), title="brake: est data x.csv",
-                           metrics={"theta_l": "R² 0.9990", "alpha": "R² 0.9980"})
+    fig, axes = plots.plot_fit(
+        t,
+        meas,
+        sim,
+        mode=_stick_mode(),
+        title="brake: est data x.csv",
+        metrics={"theta_l": "R² 0.9990", "alpha": "R² 0.9980"},
+    )
     assert len(axes) == 4
     for ax in axes:
         assert any(isinstance(p, matplotlib.patches.Polygon) or p.get_label() for p in ax.patches)
@@ -212,8 +237,9 @@ def test_simulation_legends_list_stick_shading(brake_sim):
 def test_friction_title_and_legend_agree():
     p = resolve("thesis:5.2:P0", config="coupled")
     ref = resolve("thesis:4.3:P0", config="brake")
-    fig, axes = plots.plot_friction(p, reference=ref,
-                                    title="fitted friction, coupled configuration")
+    fig, axes = plots.plot_friction(
+        p, reference=ref, title="fitted friction, coupled configuration"
+    )
     assert fig._suptitle.get_text() == "fitted friction, coupled configuration"
     for row, disc in enumerate(("upper disc", "lower disc")):
         for ax in axes[row]:

@@ -34,15 +34,17 @@ def narrow():
     """A posterior a few parts in 1e8 wide around the thesis's brake set, on the bundled
     brake record (angles up to 30 rad): its predictive band is about 1e-6 rad."""
     ex = load_experiment(example_path("example:brake_est"))
-    prob = Problem(Model("brake"), [ex], free=["Tc_l", "b_l"],
-                   base=parameters.resolve(None, config="brake"))
+    prob = Problem(
+        Model("brake"), [ex], free=["Tc_l", "b_l"], base=parameters.resolve(None, config="brake")
+    )
     x = prob.start_vector(prob.base)
     lp = LogPosterior(prob, x, noise="floor")
     z0 = lp.to_z(x)
     rng = np.random.default_rng(7)
     chain = z0 + 5e-8 * rng.normal(size=(24, 8, z0.size))
-    runs = [EnsembleRun("ensemble0", chain, np.zeros((24, 8)), np.full(8, 0.3),
-                        np.array([1.0, 1.0]))]
+    runs = [
+        EnsembleRun("ensemble0", chain, np.zeros((24, 8)), np.full(8, 0.3), np.array([1.0, 1.0]))
+    ]
     return prob, lp, runs
 
 
@@ -66,7 +68,7 @@ def test_stored_band_is_the_band_of_the_simulations(narrow, monkeypatch):
     ex = prob.experiments[0]
     step = max(1, math.ceil(ex.n / posterior.PREDICTIVE_POINTS))
     j = list(prob.channels).index("theta_l")
-    seg = R[:, j * ex.n:(j + 1) * ex.n][:, ::step] / prob.weights["theta_l"]
+    seg = R[:, j * ex.n : (j + 1) * ex.n][:, ::step] / prob.weights["theta_l"]
     direct = ex.theta_l[None, ::step] - seg
     lo_s, hi_s = _band(stored)
     lo_d, hi_d = _band(direct)
@@ -90,14 +92,16 @@ def test_predictive_figure_draws_a_resolved_band_and_refuses_rounding(narrow, mo
     from rotorbayes.figures import posterior as posterior_figures
 
     prob, lp, runs = narrow
-    fig, _ = posterior_figures.plot_predictive(posterior.inference_data(lp, runs, max_draws=40),
-                                               prob)
+    fig, _ = posterior_figures.plot_predictive(
+        posterior.inference_data(lp, runs, max_draws=40), prob
+    )
     polys, texts = _band_panel(fig, list(prob.channels).index("theta_l"))
     assert polys and "unresolved" not in texts
     # A posterior.nc written with float32 predictions (as before issue 36): unresolved.
     monkeypatch.setattr(posterior, "PREDICTIVE_DTYPE", np.float32)
-    fig, _ = posterior_figures.plot_predictive(posterior.inference_data(lp, runs, max_draws=40),
-                                               prob)
+    fig, _ = posterior_figures.plot_predictive(
+        posterior.inference_data(lp, runs, max_draws=40), prob
+    )
     k = list(prob.channels).index("theta_l")
     polys, texts = _band_panel(fig, k)
     # Drawn only early in the record, where the angle is small and float32 fine enough.
@@ -112,8 +116,11 @@ def test_a_band_unresolved_everywhere_is_said_not_drawn(narrow, monkeypatch):
 
     prob, lp, runs = narrow
     idata = posterior.inference_data(lp, runs, max_draws=40)
-    monkeypatch.setattr(posterior_figures, "band_resolution", lambda lo, hi, dtype: (
-        np.full(np.shape(lo), 2e-6), np.zeros(np.shape(lo), bool)))
+    monkeypatch.setattr(
+        posterior_figures,
+        "band_resolution",
+        lambda lo, hi, dtype: (np.full(np.shape(lo), 2e-6), np.zeros(np.shape(lo), bool)),
+    )
     fig, _ = posterior_figures.plot_predictive(idata, prob)
     polys, texts = _band_panel(fig, 0)
     assert not polys and "94 % predictive band unresolved" in texts and "not drawn" in texts
@@ -138,23 +145,35 @@ def test_band_resolution_rule():
 # Digits
 
 
-@pytest.mark.parametrize(("mean", "sd", "want"), [
-    (3.6187654012, 6.9e-7, ("3.61876540", "6.9e-07")),  # the issue's k_m
-    (0.0801, 0.0123, ("0.080", "0.012")),
-    (4.5, 0.00996, ("4.500", "0.010")),  # rounding the sd moves its place
-    (12345.6, 230.0, ("12350", "230")),
-    (2.3e-5, 1.1e-8, ("2.3000e-05", "1.1e-08")),
-    (-0.2, 0.05, ("-0.200", "0.050")),
-    (5.0, math.nan, ("5", "—")),
-])
+@pytest.mark.parametrize(
+    ("mean", "sd", "want"),
+    [
+        (3.6187654012, 6.9e-7, ("3.61876540", "6.9e-07")),  # the issue's k_m
+        (0.0801, 0.0123, ("0.080", "0.012")),
+        (4.5, 0.00996, ("4.500", "0.010")),  # rounding the sd moves its place
+        (12345.6, 230.0, ("12350", "230")),
+        (2.3e-5, 1.1e-8, ("2.3000e-05", "1.1e-08")),
+        (-0.2, 0.05, ("-0.200", "0.050")),
+        (5.0, math.nan, ("5", "—")),
+    ],
+)
 def test_mean_to_the_place_of_two_digits_of_the_sd(mean, sd, want):
     assert numformat.mean_sd(mean, sd) == want
 
 
 def test_summary_table_reads_the_interval(narrow):
-    row = {"parameter": "k_m", "mean": 3.6187654012, "sd": 6.9e-7, "hdi_low": 3.6187641,
-           "hdi_high": 3.6187667, "ess_bulk": 400.0, "ess_tau": 500.0, "r_hat": 1.001,
-           "tau": 12.0, "unit": "N m/V"}
+    row = {
+        "parameter": "k_m",
+        "mean": 3.6187654012,
+        "sd": 6.9e-7,
+        "hdi_low": 3.6187641,
+        "hdi_high": 3.6187667,
+        "ess_bulk": 400.0,
+        "ess_tau": 500.0,
+        "r_hat": 1.001,
+        "tau": 12.0,
+        "unit": "N m/V",
+    }
     md = posterior.table_markdown([row])
     assert "| k_m | 3.61876540 | 6.9e-07 | [3.61876410, 3.61876670] |" in md
 
@@ -163,8 +182,13 @@ def test_fit_table_prints_the_estimate_to_its_error(narrow):
     from rotorbayes.commands.fit import _fmt_params
 
     prob = narrow[0]
-    text = _fmt_params(prob, ["Tc_l", "b_l"], np.array([0.0373612345, 0.0011]),
-                       np.array([6.9e-7, math.nan]), np.array([0.04, 0.001]))
+    text = _fmt_params(
+        prob,
+        ["Tc_l", "b_l"],
+        np.array([0.0373612345, 0.0011]),
+        np.array([6.9e-7, math.nan]),
+        np.array([0.04, 0.001]),
+    )
     lines = text.splitlines()
     assert lines[1].split()[:3] == ["Tc_l", "0.03736123", "6.9e-07"]
     assert lines[2].split()[:3] == ["b_l", "0.0011", "—"]
@@ -177,8 +201,20 @@ def test_report_prints_each_estimate_to_its_error(tmp_path, capsys):
     from rotorbayes.report.markup import digits
 
     fit = tmp_path / "fit"
-    assert main(["fit", "--model", "upper", "example:upper_est", "--p0", "thesis:4.1:P_ref",
-                 "--max-nfev", "20", "--out", str(fit)]) in (0, 1)
+    assert main(
+        [
+            "fit",
+            "--model",
+            "upper",
+            "example:upper_est",
+            "--p0",
+            "thesis:4.1:P_ref",
+            "--max-nfev",
+            "20",
+            "--out",
+            str(fit),
+        ]
+    ) in (0, 1)
     assert main(["report", str(fit)]) == 0
     capsys.readouterr()
     html = (fit / "report.html").read_text()
@@ -187,4 +223,4 @@ def test_report_prints_each_estimate_to_its_error(tmp_path, capsys):
         p = doc["parameters"][n]
         value, err = (digits(t) for t in numformat.mean_sd(p["value"], p["stderr"]))
         assert f'<td class="n">{value}</td><td class="n">{err}</td>' in html, n
-    assert "<td class=\"n\">4.3687" in html  # k_m to the place of its error, not 4.369
+    assert '<td class="n">4.3687' in html  # k_m to the place of its error, not 4.369

@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 
 DATA = Path(__file__).resolve().parent / "data"
-_spec = importlib.util.spec_from_file_location("make_problem_regression",
-                                               DATA / "make_problem_regression.py")
+_spec = importlib.util.spec_from_file_location(
+    "make_problem_regression", DATA / "make_problem_regression.py"
+)
 maker = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(maker)
 
@@ -57,7 +58,8 @@ def test_the_file_holds_every_problem_and_posterior(stored):
 
 def test_every_number_is_the_recorded_one(stored, recorded_now):
     assert set(recorded_now) <= set(stored)
-    assert set(k for k in stored if not k.startswith("ex/") and k != "experiment_names") \
-        == set(recorded_now)
+    assert set(k for k in stored if not k.startswith("ex/") and k != "experiment_names") == set(
+        recorded_now
+    )
     differ = [k for k, v in recorded_now.items() if not _same(v, stored[k])]
     assert not differ, f"changed: {differ}"

@@ -64,8 +64,10 @@ def _case(extra: dict):
 def _refit(prob, x, proposal, folder):
     path = write_effect_file(proposal, folder, "rotorbayes fit ...")
     spec = f"{path}:{EFFECT_NAME}"
-    pe = prob.like(model=prob.model.with_effects([spec]),
-                   free=[*prob.names_base(), *[k.name for k in proposal.kept]])
+    pe = prob.like(
+        model=prob.model.with_effects([spec]),
+        free=[*prob.names_base(), *[k.name for k in proposal.kept]],
+    )
     x0 = pe.start_vector({**pe.base, **prob.values(x)})
     r = refit_added(pe, x0, {}, [EFFECT_NAME], verbose=False, uncertainty=False)
     return pe, r.result.x
@@ -75,10 +77,15 @@ def test_the_written_file_loads_and_gives_the_torque(tmp_path):
     """A hand-made proposal (a lower friction drift and an upper load in cos 2 theta_u)
     written out, loaded by load_user_effect, its functions evaluated at known inputs."""
     drift = Term("t", "friction", "friction level drifting in time", "t", "s")
-    load = Term("load_cos2", "torque", "a load varying as cos(2 theta_u)",
-                "math.cos(2.0 * theta_u)", "1")
-    p = Proposal(discs=[DiscProposal("l", [Kept("l", drift, 1.0, 0.002, 1e-4, 5.0, 1e-3)]),
-                        DiscProposal("u", [Kept("u", load, 0.9, 0.03, 1e-3, 0.1, 1e-2)])])
+    load = Term(
+        "load_cos2", "torque", "a load varying as cos(2 theta_u)", "math.cos(2.0 * theta_u)", "1"
+    )
+    p = Proposal(
+        discs=[
+            DiscProposal("l", [Kept("l", drift, 1.0, 0.002, 1e-4, 5.0, 1e-3)]),
+            DiscProposal("u", [Kept("u", load, 0.9, 0.03, 1e-3, 0.1, 1e-2)]),
+        ]
+    )
     path = write_effect_file(p, tmp_path, "rotorbayes fit --model coupled d.csv ...")
     e = load_user_effect(f"{path}:{EFFECT_NAME}")
     assert [q.name for q in e.parameters] == ["c_l_t", "c_u_load_cos2"]
@@ -133,8 +140,7 @@ def test_a_quadratic_drag_is_proposed_and_its_refit_reaches_the_floor(tmp_path):
 
 @pytest.mark.slow
 def test_a_drift_and_a_drag_together_are_both_proposed(tmp_path):
-    _check_case({"drift_Tc_l": 0.0006, "drag_l": 0.004}, {"t": 0.0006, "w2": 0.004},
-                tmp_path)
+    _check_case({"drift_Tc_l": 0.0006, "drag_l": 0.004}, {"t": 0.0006, "w2": 0.004}, tmp_path)
 
 
 @pytest.mark.parametrize("config", ["coupled", "brake", "upper"])
@@ -151,8 +157,7 @@ def test_a_control_proposes_nothing(config):
 
 
 @pytest.mark.slow
-def test_diagnose_writes_the_proposal_and_its_command_refits_to_the_floor(tmp_path,
-                                                                          monkeypatch):
+def test_diagnose_writes_the_proposal_and_its_command_refits_to_the_floor(tmp_path, monkeypatch):
     """The command end to end, as a user runs it: fit, diagnose (the proposal printed and
     written), the printed refit command run as printed, its validation at the floor; a
     second diagnose leaves the file alone; --no-proposal writes none."""
@@ -163,13 +168,17 @@ def test_diagnose_writes_the_proposal_and_its_command_refits_to_the_floor(tmp_pa
     from rotorbayes.io.measurements import save_experiment
 
     params = dict(SETS["coupled"][0], drift_Tc_l=0.0006)
-    save_experiment(make_experiment("coupled", params, duration=DURATION, seed=SEED),
-                    tmp_path / "est.csv")
-    save_experiment(make_experiment("coupled", params, duration=DURATION, seed=5),
-                    tmp_path / "val.csv")
+    save_experiment(
+        make_experiment("coupled", params, duration=DURATION, seed=SEED), tmp_path / "est.csv"
+    )
+    save_experiment(
+        make_experiment("coupled", params, duration=DURATION, seed=5), tmp_path / "val.csv"
+    )
     monkeypatch.chdir(tmp_path)
-    assert main(["fit", "--model", "coupled", "est.csv", "--validate", "val.csv",
-                 "--out", "fit/"]) == 0
+    assert (
+        main(["fit", "--model", "coupled", "est.csv", "--validate", "val.csv", "--out", "fit/"])
+        == 0
+    )
     assert main(["diagnose", "fit/", "--no-trials"]) == 0
     doc = json.loads((tmp_path / "fit" / "diagnosis.json").read_text())["proposal"]
     assert doc["proposed"] and doc["effect"] == "fit/proposal.py:proposed"

@@ -29,8 +29,7 @@ def python_blocks(md: str) -> list[str]:
 def _data(config: str, seconds: float = 3.0, seed: int = 2, alpha0=None):
     t, u = rb.signals.estimation_signal(seconds, seed=seed)
     params = thesis_set({"upper": "4.1", "coupled": "4.2", "brake": "4.3"}[config], "P_ref")
-    sim = rb.simulate(params, u, dt=t[1] - t[0], config=config, alpha0=alpha0,
-                      quantize_angles=True)
+    sim = rb.simulate(params, u, dt=t[1] - t[0], config=config, alpha0=alpha0, quantize_angles=True)
     return sim.to_experiment(f"{config}_{seed}")
 
 
@@ -41,10 +40,11 @@ def brake():
 
 def test_the_readme_and_docs_have_the_python_examples_this_file_runs():
     readme = python_blocks("README.md")
-    assert len(readme) == 1 and "inf.Problem(\"coupled\", [ex])" in readme[0]
+    assert len(readme) == 1 and 'inf.Problem("coupled", [ex])' in readme[0]
     assert any("LogPosterior(fit.problem, fit.x)" in b for b in python_blocks("docs/sampling.md"))
-    assert any("identify.fisher(fit.problem, fit.x)" in b
-               for b in python_blocks("docs/identifiability.md"))
+    assert any(
+        "identify.fisher(fit.problem, fit.x)" in b for b in python_blocks("docs/identifiability.md")
+    )
 
 
 def test_problem_is_built_the_documented_ways(brake):
@@ -56,9 +56,18 @@ def test_problem_is_built_the_documented_ways(brake):
     b = inf.Problem(rb.Model("brake", ["lower_stribeck"]), [ex], base="thesis:4.3:P_ref")
     assert "Ts_l" in b.names and b.config == "brake"
     # The declared settings, by keyword, as the commands pass them.
-    c = inf.Problem("brake", [ex], free=["J_l", "Tc_l", "b_l"], base=p_ref,
-                    channels=["theta_u", "theta_l"], weights={"theta_u": 0.1},
-                    shape="exp", step=None, fixed=(), run_starts=None)
+    c = inf.Problem(
+        "brake",
+        [ex],
+        free=["J_l", "Tc_l", "b_l"],
+        base=p_ref,
+        channels=["theta_u", "theta_l"],
+        weights={"theta_u": 0.1},
+        shape="exp",
+        step=None,
+        fixed=(),
+        run_starts=None,
+    )
     assert c.names == ["J_l", "Tc_l", "b_l"]
     assert c.channels == ("theta_u", "theta_l")
     assert c.weights == {"theta_u": 0.1, "theta_l": 1.0}
@@ -115,12 +124,15 @@ def test_problem_refusals_name_the_bad_argument(brake, tmp_path):
 def test_log_posterior_is_built_the_documented_ways(brake):
     prob = inf.Problem("brake", brake)
     x = prob.start_vector(prob.base)
-    kinds = {"robust": LogPosterior(prob, x),
-             "floor": LogPosterior(prob, x, noise="floor"),
-             "sampled": LogPosterior(prob, x, noise="sampled"),
-             "ar1": LogPosterior(prob, x, ar1=True),
-             "priors": LogPosterior(prob, x, noise="floor",
-                                    priors={"J_l": Prior("normal", 0.01, 1.0, 0.04, 0.01)})}
+    kinds = {
+        "robust": LogPosterior(prob, x),
+        "floor": LogPosterior(prob, x, noise="floor"),
+        "sampled": LogPosterior(prob, x, noise="sampled"),
+        "ar1": LogPosterior(prob, x, ar1=True),
+        "priors": LogPosterior(
+            prob, x, noise="floor", priors={"J_l": Prior("normal", 0.01, 1.0, 0.04, 0.01)}
+        ),
+    }
     k = len(prob.names)
     for name, lp in kinds.items():
         assert lp.problem is prob
@@ -186,8 +198,14 @@ def test_every_field_of_a_problem_holds_its_declared_type(brake):
     import dataclasses
     import typing
 
-    prob = inf.Problem("brake", tuple(brake), channels=["theta_l"], base="thesis:4.3:P_ref",
-                       fixed=["dTc_u"], run_starts={"alpha0[1]": 0.1})
+    prob = inf.Problem(
+        "brake",
+        tuple(brake),
+        channels=["theta_l"],
+        base="thesis:4.3:P_ref",
+        fixed=["dTc_u"],
+        run_starts={"alpha0[1]": 0.1},
+    )
     hints = typing.get_type_hints(inf.Problem)
     for f in dataclasses.fields(inf.Problem):
         want = hints[f.name]

@@ -40,14 +40,16 @@ def foreign_lines(text: str) -> list[str]:
 
 
 def test_the_marks_are_recognised():
-    sample = ("WARNING:root:Too few points to create valid contours\n"
-              "/x/site-packages/arviz/__init__.py:56: FutureWarning: \n"
-              "Traceback (most recent call last):\n"
-              " 10%|#         | 30/300 [00:01<00:08, 30.10it/s]\n"
-              "warning: ensemble0: 300 steps are not more than 50 τ\n"
-              "verdict: INADEQUATE — the model does not explain the data\n"
-              "(the analysis file: /v/lib/python3.13/site-packages/rotorbayes/data/demo.toml)\n"
-              '  File "/v/site-packages/corner/core.py", line 12, in hist2d\n')
+    sample = (
+        "WARNING:root:Too few points to create valid contours\n"
+        "/x/site-packages/arviz/__init__.py:56: FutureWarning: \n"
+        "Traceback (most recent call last):\n"
+        " 10%|#         | 30/300 [00:01<00:08, 30.10it/s]\n"
+        "warning: ensemble0: 300 steps are not more than 50 τ\n"
+        "verdict: INADEQUATE — the model does not explain the data\n"
+        "(the analysis file: /v/lib/python3.13/site-packages/rotorbayes/data/demo.toml)\n"
+        '  File "/v/site-packages/corner/core.py", line 12, in hist2d\n'
+    )
     found = foreign_lines(sample)
     assert len(found) == 5
     assert not any("ensemble0" in f or "verdict" in f for f in found)
@@ -62,9 +64,14 @@ def demo(tmp_path_factory):
     env["XDG_CACHE_HOME"] = str(tmp / "cache")  # arviz 0.2x's notice would fire here
     env.setdefault("NUMBA_NUM_THREADS", "2")
     # --out with a trailing slash, as people type it.
-    proc = subprocess.run([sys.executable, "-m", "rotorbayes.cli", "demo", "--out",
-                           str(tmp / "demo") + "/"], cwd=tmp, env=env,
-                          capture_output=True, text=True, timeout=1800)
+    proc = subprocess.run(
+        [sys.executable, "-m", "rotorbayes.cli", "demo", "--out", str(tmp / "demo") + "/"],
+        cwd=tmp,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc, tmp / "demo"
 
@@ -88,8 +95,8 @@ def test_demo_says_one_headline_number_and_clean_paths(demo):
     out = proc.stdout
     assert "//" not in out.replace("://", "")
     # fit0's verdict names its data, and diagnose0 gives the same number for the same fit.
-    fit0 = out[out.index("---- fit0"):out.index("---- diagnose0")]
-    diag0 = out[out.index("---- diagnose0"):out.index("---- fit1")]
+    fit0 = out[out.index("---- fit0") : out.index("---- diagnose0")]
+    diag0 = out[out.index("---- diagnose0") : out.index("---- fit1")]
     m = re.search(r"verdict: (\S+)x the encoder floor on the estimation data", fit0)
     assert m, fit0[-800:]
     assert f"{m.group(1)}x" in diag0, (m.group(1), diag0[:600])
@@ -102,24 +109,29 @@ def test_demo_report_box_and_badges_agree(demo):
 
     _, folder = demo
     page = (folder / "report.html").read_text()
-    box = page[page.index('<div class="verdict'):]
-    box = box[:box.index("</div>")]
+    box = page[page.index('<div class="verdict') :]
+    box = box[: box.index("</div>")]
     diag = json.loads((folder / "fit2" / "diagnosis.json").read_text())
     assert ('class="verdict good"' in box) == bool(diag["adequate"])
-    assert ("tag good\">adequate" in box) == bool(diag["adequate"])
+    assert ('tag good">adequate' in box) == bool(diag["adequate"])
     # The first (failing) fit's diagnosis and figures come before the final fit's.
     assert page.index("Where the first model fails: fit0") < page.index(
-        "<h3>Diagnosis of fit2</h3>")
+        "<h3>Diagnosis of fit2</h3>"
+    )
     assert "The two ESS columns count different things" in page
     # An `immaterial` list is shown as notes, never as a failure.
     diag["adequate"] = True
-    diag["immaterial"] = [{"effect": "string_damping", "words": "string_damping: p 0.004, "
-                           "predicted 1.01x -> 1.009x (immaterial)"}]
+    diag["immaterial"] = [
+        {
+            "effect": "string_damping",
+            "words": "string_damping: p 0.004, predicted 1.01x -> 1.009x (immaterial)",
+        }
+    ]
     (folder / "fit2" / "diagnosis.json").write_text(json.dumps(diag))
     write_report(folder, folder / "report2.html")
     page = (folder / "report2.html").read_text()
-    box = page[page.index('<div class="verdict'):]
-    box = box[:box.index("</div>")]
+    box = page[page.index('<div class="verdict') :]
+    box = box[: box.index("</div>")]
     assert 'class="verdict good"' in box and "inadequate" not in box
     assert "Detectable but immaterial" in box and "string_damping" in box
 
@@ -143,9 +155,11 @@ def test_corner_of_a_short_ragged_posterior_logs_nothing(caplog):
     from rotorbayes.inference import arviz_compat
 
     rng = np.random.default_rng(0)
-    post = {"k_m": 4.3687 + 3e-6 * rng.standard_normal((2, 100)),
-            "J_l": 0.0414 + 3e-7 * rng.standard_t(2, (2, 100)),  # heavy tails: ragged
-            "pinned": np.full((2, 100), 0.5)}  # every draw at one value (a bound)
+    post = {
+        "k_m": 4.3687 + 3e-6 * rng.standard_normal((2, 100)),
+        "J_l": 0.0414 + 3e-7 * rng.standard_t(2, (2, 100)),  # heavy tails: ragged
+        "pinned": np.full((2, 100), 0.5),
+    }  # every draw at one value (a bound)
     # emcee repeats a walker's position after a rejected proposal: 40 distinct correlated
     # points, each 5 times (corner's default histogram gives coinciding contour levels).
     base = rng.standard_normal((40, 4)) @ rng.standard_normal((4, 4))
@@ -154,16 +168,19 @@ def test_corner_of_a_short_ragged_posterior_logs_nothing(caplog):
     four = _Prob()
     four.names = tuple("abcd")  # no pinned parameter: the contours are drawn
     for n, draws, prob in ((200, post, _Prob()), (40, post, _Prob()), (200, repeated, four)):
-        idata = arviz_compat.from_groups({"posterior": {k: v[:, : n // 2] for k,
-                                                        v in draws.items()}})
+        idata = arviz_compat.from_groups(
+            {"posterior": {k: v[:, : n // 2] for k, v in draws.items()}}
+        )
         caplog.clear()
         with caplog.at_level("WARNING"):
             fig = plot_corner(idata, prob)
             fig.canvas.draw()
         assert not caplog.records, [r.getMessage() for r in caplog.records]
         # No offset text ("1e-6+4.3687"): it collides with the neighbouring labels.
-        offsets = [ax.xaxis.get_offset_text().get_text() + ax.yaxis.get_offset_text().get_text()
-                   for ax in fig.axes]
+        offsets = [
+            ax.xaxis.get_offset_text().get_text() + ax.yaxis.get_offset_text().get_text()
+            for ax in fig.axes
+        ]
         assert not any(offsets), offsets
         titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
         assert any(t.startswith(f"{prob.names[0]} = ") for t in titles), titles

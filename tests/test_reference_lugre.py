@@ -39,8 +39,17 @@ BEFORE = "ea7d230"
 
 #: unlike the thesis tables; the upper disc is refdata's coupled set 0
 UPPER = dict(k_m=2.7, J_u=0.4765, Tc_u=0.61, dTc_u=0.035, b_u=1.4, db_u=0.06)
-LOWER = dict(J_l=0.03, k_alpha=0.11, Tc_l=0.035, dTc_l=0.004, b_l=0.006, db_l=0.0015,
-             Ts_l=0.12, ws_l=0.8, delta_l=1.7)
+LOWER = dict(
+    J_l=0.03,
+    k_alpha=0.11,
+    Tc_l=0.035,
+    dTc_l=0.004,
+    b_l=0.006,
+    db_l=0.0015,
+    Ts_l=0.12,
+    ws_l=0.8,
+    delta_l=1.7,
+)
 BRISTLE = dict(sigma0_l=300.0, sigma1_l=0.6)
 LUGRE = {**UPPER, **LOWER, **BRISTLE}
 SWITCH = {**UPPER, **LOWER}
@@ -64,21 +73,30 @@ def _grid(T: float, dt: float = DT) -> np.ndarray:
 def _g(w, p=LUGRE):
     """g(w) of the law, sgn(0) = 0."""
     s = np.sign(w)
-    return (p["Tc_l"] + s * p["dTc_l"]
-            + (p["Ts_l"] - p["Tc_l"]) * np.exp(-((np.abs(w) / p["ws_l"]) ** p["delta_l"])))
+    return (
+        p["Tc_l"]
+        + s * p["dTc_l"]
+        + (p["Ts_l"] - p["Tc_l"]) * np.exp(-((np.abs(w) / p["ws_l"]) ** p["delta_l"]))
+    )
 
 
 @cache
-def _coupled(sigma0: float | None, sigma1: float | None, rtol: float = 1e-11,
-             atol: float = 1e-12):
+def _coupled(sigma0: float | None, sigma1: float | None, rtol: float = 1e-11, atol: float = 1e-12):
     t = _grid(DURATION)
     t0 = time.perf_counter()
     if sigma0 is None:
         res = reference_simulate(SWITCH, t, None, "coupled", u_func=_u, rtol=rtol, atol=atol)
     else:
-        res = reference_simulate({**SWITCH, "sigma0_l": sigma0, "sigma1_l": sigma1}, t,
-                                 None, "coupled", u_func=_u, rtol=rtol, atol=atol,
-                                 lower_law="lugre")
+        res = reference_simulate(
+            {**SWITCH, "sigma0_l": sigma0, "sigma1_l": sigma1},
+            t,
+            None,
+            "coupled",
+            u_func=_u,
+            rtol=rtol,
+            atol=atol,
+            lower_law="lugre",
+        )
     res["seconds"] = time.perf_counter() - t0
     return res
 
@@ -94,8 +112,7 @@ def test_steady_sliding_bristles_at_g_over_sigma0(v):
     dt, T = 0.01, 10.0
     t = _grid(T, dt)
     p = {**LUGRE, "c_alpha": 0.12}  # string damping ~critical: transients gone early
-    res = reference_simulate(p, t, None, "prescribed", theta_u_prescribed=v * t,
-                             lower_law="lugre")
+    res = reference_simulate(p, t, None, "prescribed", theta_u_prescribed=v * t, lower_law="lugre")
     late = t >= 8.0
     w, z = res["omega_l"][late], res["z_bristle"][late]
     assert np.max(np.abs(w - v)) < 1e-4  # measured: 1e-6 and 2e-6
@@ -104,8 +121,7 @@ def test_steady_sliding_bristles_at_g_over_sigma0(v):
     # measured: 4e-10 and 1e-10 (relative)
     assert np.max(np.abs(z - zs)) / np.max(np.abs(zs)) < 1e-7
     s = np.sign(w)
-    te = -(p["k_alpha"] * (res["theta_l"][late] - res["theta_u"][late])
-           + p["c_alpha"] * (w - v))
+    te = -(p["k_alpha"] * (res["theta_l"][late] - res["theta_u"][late]) + p["c_alpha"] * (w - v))
     slip = s * g + (p["b_l"] + s * p["db_l"]) * w
     # measured: 8e-8 N m (J_l w' is what is left of the transient)
     assert np.max(np.abs(te - slip)) < 1e-6
@@ -128,8 +144,7 @@ def test_presliding_spring_with_hysteresis_where_the_switch_model_sticks():
     p = LUGRE
     tmax = 0.5 * p["Ts_l"]
     thu = (tmax / p["k_alpha"]) * 0.5 * (1.0 - np.cos(2.0 * np.pi * t / T))
-    res = reference_simulate(p, t, None, "prescribed", theta_u_prescribed=thu,
-                             lower_law="lugre")
+    res = reference_simulate(p, t, None, "prescribed", theta_u_prescribed=thu, lower_law="lugre")
     thl = res["theta_l"]
     torque = -p["k_alpha"] * (thl - thu)  # the string torque on the lower disc
     s0 = p["sigma0_l"]
@@ -146,7 +161,7 @@ def test_presliding_spring_with_hysteresis_where_the_switch_model_sticks():
     assert abs(thl[-1] - end) < 1e-3 * up
     assert thl[-1] > 0.3 * up  # a real loop, not a reversible spring
     # loading and unloading branches differ at the same torque (the loop)
-    th_up = np.interp(0.5 * tmax, torque[:k + 1], thl[:k + 1])
+    th_up = np.interp(0.5 * tmax, torque[: k + 1], thl[: k + 1])
     th_dn = np.interp(0.5 * tmax, torque[k:][::-1], thl[k:][::-1])
     assert th_dn - th_up > 0.2 * up  # measured 0.32
     # one reversal, at the peak (t = 5 s)
@@ -179,8 +194,10 @@ def test_stiff_bristles_approach_the_switch_model():
     diffs = {}
     for s0 in (1e3, 1e4):
         lg = _coupled(s0, 2.0 * math.sqrt(s0 * LOWER["J_l"]))
-        diffs[s0] = (np.max(np.abs(lg["theta_l"] - sw["theta_l"])),
-                     np.max(np.abs(lg["theta_u"] - sw["theta_u"])))
+        diffs[s0] = (
+            np.max(np.abs(lg["theta_l"] - sw["theta_l"])),
+            np.max(np.abs(lg["theta_u"] - sw["theta_u"])),
+        )
     print("max |lugre - switch| (theta_l, theta_u) [rad]:", diffs)
     assert diffs[1e4][0] < STIFF_TOL_L
     assert diffs[1e4][1] < STIFF_TOL_U
@@ -200,8 +217,10 @@ def test_two_tolerances_agree_on_a_stick_slip_run_with_reversals():
     assert fine["omega_l"].min() < -1.0 and fine["omega_l"].max() > 1.0
     rev = [e for e in fine["events"] if e[1] == "l"]
     assert len(rev) >= 20  # measured 51
-    d = {k: float(np.max(np.abs(fine[k] - coarse[k])))
-         for k in ("theta_u", "theta_l", "omega_l", "z_bristle")}
+    d = {
+        k: float(np.max(np.abs(fine[k] - coarse[k])))
+        for k in ("theta_u", "theta_l", "omega_l", "z_bristle")
+    }
     print("rtol 1e-11 vs 1e-9:", d, "seconds", fine["seconds"], coarse["seconds"])
     # measured: theta_u 2.7e-10, theta_l 8.6e-10, omega_l 2.8e-9, z 2.3e-11; 0.7 s each
     assert d["theta_u"] < 1e-8 and d["theta_l"] < 1e-8
@@ -212,8 +231,9 @@ def test_a_second_stiff_method_agrees():
     """Radau (implicit Runge-Kutta, a method unlike LSODA's multistep ones) on the same run."""
     t = _grid(6.0)
     a = reference_simulate(LUGRE, t, None, "coupled", u_func=_u, lower_law="lugre")
-    b = reference_simulate(LUGRE, t, None, "coupled", u_func=_u, lower_law="lugre",
-                           lugre_method="Radau")
+    b = reference_simulate(
+        LUGRE, t, None, "coupled", u_func=_u, lower_law="lugre", lugre_method="Radau"
+    )
     d = {k: float(np.max(np.abs(a[k] - b[k]))) for k in ("theta_u", "theta_l", "z_bristle")}
     print("LSODA vs Radau:", d)
     # measured: theta_u 8e-13, theta_l 8.5e-12, z 1.9e-12 (Radau 3 s of the 4 s)
@@ -229,11 +249,9 @@ def test_misuse_is_refused():
     with pytest.raises(ValueError, match="config 'upper'"):
         reference_simulate(UPPER, t, u, "upper", lower_law="lugre")
     with pytest.raises(ValueError, match="state_rate"):
-        reference_simulate(LUGRE, t, u, "coupled", lower_law="lugre",
-                           state_rate=lambda *a: 0.0)
+        reference_simulate(LUGRE, t, u, "coupled", lower_law="lugre", state_rate=lambda *a: 0.0)
     with pytest.raises(KeyError, match="sigma1_l"):
-        reference_simulate({**SWITCH, "sigma0_l": 300.0}, t, u, "coupled",
-                           lower_law="lugre")
+        reference_simulate({**SWITCH, "sigma0_l": 300.0}, t, u, "coupled", lower_law="lugre")
     with pytest.raises(ValueError, match="sigma0_l must be positive"):
         reference_simulate({**LUGRE, "sigma0_l": 0.0}, t, u, "coupled", lower_law="lugre")
     with pytest.raises(ValueError, match="lower_law"):
@@ -242,8 +260,12 @@ def test_misuse_is_refused():
 
 def _old_reference():
     try:
-        src = subprocess.run(["git", "-C", HERE, "show", f"{BEFORE}:tests/reference.py"],
-                             capture_output=True, text=True, check=True).stdout
+        src = subprocess.run(
+            ["git", "-C", HERE, "show", f"{BEFORE}:tests/reference.py"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("git history not available")
     spec = importlib.util.spec_from_loader("reference_before_lugre", loader=None)

@@ -40,8 +40,12 @@ def _shift6(t, thu, wu, thl, wl, v):
 
 def _old_reference():
     try:
-        src = subprocess.run(["git", "-C", HERE, "show", f"{BEFORE}:tests/reference.py"],
-                             capture_output=True, text=True, check=True).stdout
+        src = subprocess.run(
+            ["git", "-C", HERE, "show", f"{BEFORE}:tests/reference.py"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("git history not available")
     spec = importlib.util.spec_from_loader("reference_before_state", loader=None)
@@ -78,8 +82,17 @@ def test_a_state_that_does_nothing_changes_nothing(config):
         return _shift6(t, thu, wu, thl, wl, v)
 
     a = reference_simulate(p, t, u, config, extra_torque=_extra6, friction_shift=_shift6)
-    b = reference_simulate(p, t, u, config, extra_torque=extra7, friction_shift=shift7,
-                           state_rate=rate, state_z0=0.0, state_reset="l")
+    b = reference_simulate(
+        p,
+        t,
+        u,
+        config,
+        extra_torque=extra7,
+        friction_shift=shift7,
+        state_rate=rate,
+        state_z0=0.0,
+        state_reset="l",
+    )
     assert np.max(np.abs(a["theta_u"] - b["theta_u"])) < 1e-12
     if config != "upper":
         assert np.max(np.abs(a["theta_l"] - b["theta_l"])) < 1e-12
@@ -95,8 +108,7 @@ def test_a_state_that_does_nothing_with_a_continuous_input_and_prescribed_motion
     assert np.max(np.abs(a["theta_l"] - b["theta_l"])) < 1e-12
     thp = 0.5 * t**2
     a = reference_simulate(BRAKE, t, None, "prescribed", theta_u_prescribed=thp)
-    b = reference_simulate(BRAKE, t, None, "prescribed", theta_u_prescribed=thp,
-                           state_rate=rate)
+    b = reference_simulate(BRAKE, t, None, "prescribed", theta_u_prescribed=thp, state_rate=rate)
     assert np.max(np.abs(a["theta_l"] - b["theta_l"])) < 1e-12
 
 
@@ -124,11 +136,21 @@ def test_a_lagged_voltage_as_a_state_matches_the_lagged_input(cont):
         return km * (z - v), 0.0
 
     if cont:
-        st = reference_simulate(p, t, None, "upper", u_func=f_lin, u_breaks=f_lin.breaks,
-                                state_rate=rate, extra_torque=extra, state_z0=u[0])
+        st = reference_simulate(
+            p,
+            t,
+            None,
+            "upper",
+            u_func=f_lin,
+            u_breaks=f_lin.breaks,
+            state_rate=rate,
+            extra_torque=extra,
+            state_z0=u[0],
+        )
     else:
-        st = reference_simulate(p, t, u, "upper", state_rate=rate, extra_torque=extra,
-                                state_z0=u[0])
+        st = reference_simulate(
+            p, t, u, "upper", state_rate=rate, extra_torque=extra, state_z0=u[0]
+        )
     assert np.max(np.abs(st["theta_u"] - ref["theta_u"])) < 1e-8
     assert np.max(np.abs(st["z"] - lagged(t))) < 1e-8
     assert np.max(np.abs(st["theta_u"])) > 1.0  # it moved
@@ -145,8 +167,9 @@ def test_a_reset_at_stick_is_exact():
     def shift(t_, thu, wu, thl, wl, v, z):
         return 0.0, -0.02 * z / (1.0 + z)
 
-    res = reference_simulate(p, t, u, "brake", state_rate=rate, friction_shift=shift,
-                             state_reset="l")
+    res = reference_simulate(
+        p, t, u, "brake", state_rate=rate, friction_shift=shift, state_reset="l"
+    )
     sticks = [e[0] for e in res["events"] if e[1] == "l" and e[2] == "stick"]
     assert len(sticks) >= 2
     z, ml = res["z"], res["mode_l"]
@@ -170,7 +193,8 @@ def test_warming_lower_friction_through_make_experiment():
     plain = refdata.make_experiment("brake", BRAKE, **kw)
     warm = refdata.make_experiment("brake", dict(BRAKE, warm_k=0.02, warm_tau=1.0), **kw)
     both = refdata.make_experiment(
-        "brake", dict(BRAKE, warm_k=0.02, warm_tau=1.0, drift_Tc_l=0.002), **kw)
+        "brake", dict(BRAKE, warm_k=0.02, warm_tau=1.0, drift_Tc_l=0.002), **kw
+    )
     d = np.max(np.abs(np.asarray(warm.theta_l) - np.asarray(plain.theta_l)))
     assert d > 1e-2, d
     assert np.max(np.abs(np.asarray(both.theta_l) - np.asarray(warm.theta_l))) > 1e-4

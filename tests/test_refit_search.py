@@ -41,8 +41,9 @@ def _doc(folder) -> dict:
 def stribeck_files(tmp_path_factory):
     d = tmp_path_factory.mktemp("refit")
     for label, seed in (("est", 3), ("val", 4)):
-        ex = make_experiment("coupled", STRIBECK, duration=30.0, signal="steps",
-                             hold="continuous", seed=seed)
+        ex = make_experiment(
+            "coupled", STRIBECK, duration=30.0, signal="steps", hold="continuous", seed=seed
+        )
         save_experiment(ex, d / f"{label}.csv")
     return d
 
@@ -60,8 +61,7 @@ def test_stribeck_refit_lands_where_the_one_step_start_does_not(stribeck_files, 
     named = diag.get("claimed_effect") or diag.get("candidate_effect")
     assert named == "lower_stribeck", named
     assert "--add lower_stribeck" in printed
-    refit = ["fit", "--model", "coupled", *data, "--p0", str(d / "fit0"),
-             "--add", "lower_stribeck"]
+    refit = ["fit", "--model", "coupled", *data, "--p0", str(d / "fit0"), "--add", "lower_stribeck"]
     # The old refit: the added parameters from the one-step estimate only.
     main([*refit, "--no-search", "--out", str(d / "one")])
     one = _doc(d / "one")["assessment"]["worst_ratio_to_floor"]
@@ -106,8 +106,7 @@ def _coupled_problem(effects):
 def test_starts_cover_one_step_typical_spread_and_data():
     prob = _coupled_problem(["lower_stribeck"])
     x = prob.start_vector(prob.base)
-    starts = refit_starts(prob, x, {"Ts_l": 0.09, "ws_l": 3.0, "delta_l": 0.7},
-                          data_start=False)
+    starts = refit_starts(prob, x, {"Ts_l": 0.09, "ws_l": 3.0, "delta_l": 0.7}, data_start=False)
     labels = [s.label for s in starts]
     assert labels[0] == "the diagnosis's one-step estimate"
     assert labels[1] == "the effect's typical start"
@@ -156,8 +155,11 @@ def test_words_when_the_refit_ends_above_its_prediction():
     note = prediction_note(111.0, 50.0, ["lower_stribeck"], "rotorbayes multistart ...")
     assert note and "above the 50x" in note and "111x" in note and "multistart" in note
     assert prediction_note(5.0, None, ["x"]) is None
-    doc = {"ranking": [{"effect": "lower_stribeck",
-                        "judgement": {"predicted_worst_rms_over_floor": 385.0}}]}
+    doc = {
+        "ranking": [
+            {"effect": "lower_stribeck", "judgement": {"predicted_worst_rms_over_floor": 385.0}}
+        ]
+    }
     assert diagnosis_prediction(doc, ["lower_stribeck"]) == 385.0
     assert diagnosis_prediction(doc, ["string_damping"]) is None
     assert diagnosis_prediction(doc, ["lower_stribeck", "string_damping"]) is None
@@ -166,9 +168,15 @@ def test_words_when_the_refit_ends_above_its_prediction():
 # ------------------------------------------- trial refits: far from the floor, refits decide
 def _loop_files(tmp, params, duration, *, alpha0_est=None):
     for label, seed in (("est", 3), ("val", 4)):
-        ex = make_experiment("coupled", params, duration=duration, signal="steps",
-                             hold="continuous", seed=seed,
-                             alpha0=alpha0_est if label == "est" else None)
+        ex = make_experiment(
+            "coupled",
+            params,
+            duration=duration,
+            signal="steps",
+            hold="continuous",
+            seed=seed,
+            alpha0=alpha0_est if label == "est" else None,
+        )
         save_experiment(ex, tmp / f"{label}.csv")
     return [str(tmp / "est.csv"), "--validate", str(tmp / "val.csv")]
 
@@ -190,8 +198,23 @@ def test_trial_refits_find_a_dead_zone_the_score_tests_miss(tmp_path, capsys):
     assert "the trial refits decide: motor_deadzone" in out
     cmd = next(line for line in out.splitlines() if "the trial refits decide" in line)
     assert "--add motor_deadzone" in cmd
-    assert main(["fit", "--model", "coupled", *data, "--p0", str(tmp_path / "fit0"),
-                 "--add", "motor_deadzone", "--out", str(tmp_path / "fit1")]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "coupled",
+                *data,
+                "--p0",
+                str(tmp_path / "fit0"),
+                "--add",
+                "motor_deadzone",
+                "--out",
+                str(tmp_path / "fit1"),
+            ]
+        )
+        == 0
+    )
     doc = _doc(tmp_path / "fit1")
     assert doc["assessment"]["worst_ratio_to_floor"] <= 1.5
     e = doc["estimates"]["u_deadzone"]
@@ -229,15 +252,17 @@ def test_long_data_screen_the_starts_and_finish_the_best(monkeypatch, capsys):
     ex = load_experiment(example_path("coupled_hidden_est"))
     prob = inference.Problem("coupled", [ex])
     parent = inference.fit_from_data(prob, restarts=0).result
-    child = prob.like(model=prob.model.with_effects(["lower_asymmetric_coulomb"]),
-                      free=[*prob.names, "dTc_l"])
+    child = prob.like(
+        model=prob.model.with_effects(["lower_asymmetric_coulomb"]), free=[*prob.names, "dTc_l"]
+    )
     x0 = child.start_vector({**child.base, **prob.values(parent.x)})
-    full = inference_refit.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"],
-                                       uncertainty=False)
+    full = inference_refit.refit_added(
+        child, x0, {}, ["lower_asymmetric_coulomb"], uncertainty=False
+    )
     monkeypatch.setattr(inference_refit, "LONG_RESIDUALS", 0)
-    screened = inference_refit.refit_added(child, x0, {}, ["lower_asymmetric_coulomb"],
-                                           verbose=True,
-                             uncertainty=False)
+    screened = inference_refit.refit_added(
+        child, x0, {}, ["lower_asymmetric_coulomb"], verbose=True, uncertainty=False
+    )
     assert "screened" in capsys.readouterr().out
     assert screened.chose.endswith("(screened, then fitted to the end)")
     assert screened.result.ssr <= full.result.ssr * 1.01

@@ -27,9 +27,16 @@ from rotorbayes.report import SECTIONS, ReportError, build_report, write_report
 from rotorbayes.report.html import HINTS
 
 CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                 "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync"]
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 SECONDS = 8.0  # of each data file kept (the bundled files are sampled at 200 Hz)
 ANALYSIS = """# a study for the report's test <script>alert("toml")</script> & more
 [analysis]
@@ -74,28 +81,67 @@ def study(tmp_path_factory) -> Path:
     fit = ["fit", "--model", "coupled", est, "--validate", val]
     log = _cli(*fit, "--restarts", "0", "--out", s / "fit0")
     log += _cli("diagnose", s / "fit0")
-    log += _cli(*fit, "--p0", s / "fit0", "--add", "lower_asymmetric_coulomb",
-                "--out", s / "fit1")
+    log += _cli(*fit, "--p0", s / "fit0", "--add", "lower_asymmetric_coulomb", "--out", s / "fit1")
     log += _cli("diagnose", s / "fit1")
     log += _cli("compare", s / "fit1", "--out", s / "compare")
-    log += _cli("sample", s / "fit1", "--walkers", 20, "--steps", 60, "--seed", 7,
-                "--out", s / "posterior", "--quiet")
-    log += _cli("identify", s / "fit1", "--profiles", "J_l", "--points", 5,
-                "--posterior", s / "posterior", "--out", s / "identify")
+    log += _cli(
+        "sample",
+        s / "fit1",
+        "--walkers",
+        20,
+        "--steps",
+        60,
+        "--seed",
+        7,
+        "--out",
+        s / "posterior",
+        "--quiet",
+    )
+    log += _cli(
+        "identify",
+        s / "fit1",
+        "--profiles",
+        "J_l",
+        "--points",
+        5,
+        "--posterior",
+        s / "posterior",
+        "--out",
+        s / "identify",
+    )
     (s / "log.txt").write_text(log)
     run = {
-        "analysis_file": str(root / "analysis.toml"), "analysis_text": ANALYSIS,
+        "analysis_file": str(root / "analysis.toml"),
+        "analysis_text": ANALYSIS,
         "versions": {"python": "3.11.0", "rotorbayes": "0.2.0", "numpy": "2.0"},
         "seeds": {"analysis": 7, "sample": 7},
-        "data": [{"path": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest()}
-                 for p in (est, val)],
-        "stages": [{"name": n, "folder": str(s / f), "seconds": 1.5, "input_hash": "ab" * 32,
-                    "skipped": n == "compare", "exit_code": 0}
-                   for n, f in (("fit0", "fit0"), ("diagnose0", "fit0"), ("fit1", "fit1"),
-                                ("diagnose1", "fit1"), ("compare", "compare"),
-                                ("sample", "posterior"), ("identify", "identify"))],
-        "started": "2026-01-01T10:00:00", "finished": "2026-01-01T10:01:00",
-        "added_effects": ["lower_asymmetric_coulomb"], "final_fit": str(s / "fit1"),
+        "data": [
+            {"path": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest()}
+            for p in (est, val)
+        ],
+        "stages": [
+            {
+                "name": n,
+                "folder": str(s / f),
+                "seconds": 1.5,
+                "input_hash": "ab" * 32,
+                "skipped": n == "compare",
+                "exit_code": 0,
+            }
+            for n, f in (
+                ("fit0", "fit0"),
+                ("diagnose0", "fit0"),
+                ("fit1", "fit1"),
+                ("diagnose1", "fit1"),
+                ("compare", "compare"),
+                ("sample", "posterior"),
+                ("identify", "identify"),
+            )
+        ],
+        "started": "2026-01-01T10:00:00",
+        "finished": "2026-01-01T10:01:00",
+        "added_effects": ["lower_asymmetric_coulomb"],
+        "final_fit": str(s / "fit1"),
     }
     (s / "run.json").write_text(json.dumps(run, indent=2))
     return s
@@ -165,8 +211,15 @@ def test_single_folders_render_what_they_hold(study, tmp_path):
         "fit1": {"verdict", "data", "fit", "diagnosis", "chain", "reproducibility"},
         "compare": {"verdict", "compare", "chain", "reproducibility"},
         # The posterior of fit1: the fit it came from (settings.json) and its chain too.
-        "posterior": {"verdict", "data", "fit", "diagnosis", "chain", "posterior",
-                      "reproducibility"},
+        "posterior": {
+            "verdict",
+            "data",
+            "fit",
+            "diagnosis",
+            "chain",
+            "posterior",
+            "reproducibility",
+        },
         "identify": {"verdict", "identifiability", "reproducibility"},
     }
     for name, want in cases.items():
@@ -204,8 +257,7 @@ def test_text_from_the_files_is_escaped(study, tmp_path):
     (fit / "diagnosis.json").write_text(json.dumps(diag))
     text = build_report(fit).read_text()
     assert "evil.example" in text and _external(text) == []
-    assert "&lt;img src=&quot;http://evil.example/x.png&quot;&gt; &amp; &quot;quoted&quot;" \
-        in text
+    assert "&lt;img src=&quot;http://evil.example/x.png&quot;&gt; &amp; &quot;quoted&quot;" in text
     assert "N m/V &lt;b&gt;bold&lt;/b&gt;" in text and "<b>bold</b>" not in text
     assert "add &lt;script&gt;alert(1)&lt;/script&gt; now" in text
     assert "<script" not in text
@@ -260,8 +312,7 @@ def test_report_command(study, tmp_path, capsys):
     assert out.stat().st_size != size
     assert [p.name for p in tmp_path.iterdir()] == ["study.html"]
     # Errors: exit 2 with one line, no traceback.
-    for folder, words in ((tmp_path / "nope", "no such folder"),
-                          (tmp_path, "nothing to report")):
+    for folder, words in ((tmp_path / "nope", "no such folder"), (tmp_path, "nothing to report")):
         assert main(["report", str(folder)]) == 2
         err = capsys.readouterr().err
         assert err.startswith("rotorbayes report: error:") and words in err
@@ -275,14 +326,20 @@ def _browser_or_fail():
     if os.environ.get("ROTORBAYES_NO_BROWSER") == "1":
         pytest.skip("ROTORBAYES_NO_BROWSER=1: the report is not opened in Chromium")
     if not CHROMIUM.exists():
-        pytest.fail(f"{CHROMIUM} is missing: the report test opens the page in a real "
-                    "headless Chromium; .ci/run installs it (apt-get install chromium), or "
-                    "set ROTORBAYES_NO_BROWSER=1 to skip this test", pytrace=False)
+        pytest.fail(
+            f"{CHROMIUM} is missing: the report test opens the page in a real "
+            "headless Chromium; .ci/run installs it (apt-get install chromium), or "
+            "set ROTORBAYES_NO_BROWSER=1 to skip this test",
+            pytrace=False,
+        )
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
-        pytest.fail("the playwright package is missing: pip install '.[test]' (.ci/run does "
-                    "it), or set ROTORBAYES_NO_BROWSER=1 to skip this test", pytrace=False)
+        pytest.fail(
+            "the playwright package is missing: pip install '.[test]' (.ci/run does "
+            "it), or set ROTORBAYES_NO_BROWSER=1 to skip this test",
+            pytrace=False,
+        )
     return sync_playwright
 
 
@@ -318,10 +375,12 @@ def test_report_renders_in_headless_chromium(study, report, tmp_path):
             imgs = page.evaluate(
                 "Promise.all([...document.images].map(i => i.decode().then(() => 0, () => 0)"
                 ".then(() => [i.alt, i.complete, i.naturalWidth, i.getBoundingClientRect()"
-                ".width])))")
+                ".width])))"
+            )
             assert len(imgs) >= 15
-            bad = [alt for alt, complete, w, shown in imgs
-                   if not (complete and w > 0 and shown > 0)]
+            bad = [
+                alt for alt, complete, w, shown in imgs if not (complete and w > 0 and shown > 0)
+            ]
             assert bad == [], f"images that did not render: {bad}"
             # No table is wider than the page (a table scrolls inside its box if it is).
             assert page.evaluate("document.documentElement.scrollWidth") <= 1280

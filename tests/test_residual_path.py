@@ -142,7 +142,11 @@ def test_a_derived_problem_keeps_every_setting_it_is_not_told_to_change():
                      shape="rational", step=0.009)  # fmt: skip
     sub = prob.like(free=["J_l", "Tc_l"], base=dict(brake, k_m=3.0))
     assert (sub.channels, sub.weights, sub.shape, sub.step) == (
-        prob.channels, prob.weights, "rational", 0.009)
+        prob.channels,
+        prob.weights,
+        "rational",
+        0.009,
+    )
     assert sub.names == ["J_l", "Tc_l"] and sub.base["k_m"] == 3.0
     eff = prob.with_effects(["input_delay"])
     assert "input_delay" in eff.effects and eff.names == prob.names

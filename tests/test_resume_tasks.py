@@ -26,23 +26,43 @@ from rotorbayes.inference.taskstore import TaskStore, store_path
 def short_upper(seconds: float = 5.0) -> rb.Experiment:
     ex = rb.load_example("upper_est")
     n = int(round(seconds / ex.dt)) + 1
-    return rb.Experiment(t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None,
-                         name="upper 5 s", path=ex.path)
+    return rb.Experiment(
+        t=ex.t[:n], u=ex.u[:n], theta_u=ex.theta_u[:n], theta_l=None, name="upper 5 s", path=ex.path
+    )
 
 
 def _cli(args, **kw):
-    return subprocess.Popen([sys.executable, "-c",
-                             "import sys; from rotorbayes.cli import main; sys.exit(main())",
-                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "NUMBA_NUM_THREADS": "1"}, **kw)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from rotorbayes.cli import main; sys.exit(main())",
+            *args,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "NUMBA_NUM_THREADS": "1"},
+        **kw,
+    )
 
 
 def test_multistart_killed_then_rerun_skips_finished_starts(tmp_path):
     data = tmp_path / "upper5.csv"
     rb.save_experiment(short_upper(), data)
     n = 20
-    args = ["multistart", "--model", "upper", str(data), "--starts", str(n), "--max-nfev",
-            "30", "--backend", "serial"]
+    args = [
+        "multistart",
+        "--model",
+        "upper",
+        str(data),
+        "--starts",
+        str(n),
+        "--max-nfev",
+        "30",
+        "--backend",
+        "serial",
+    ]
     # The reference: one uninterrupted run.
     ref = _cli([*args, "--out", str(tmp_path / "ref")])
     o, e = ref.communicate(timeout=300)
@@ -144,8 +164,9 @@ def test_a_foreign_or_damaged_key_file_empties_the_store(tmp_path, bad):
     assert s.get(1, "t") == (False, None)
 
 
-def test_first_fit_restarts_resume_after_ctrl_c_to_the_uninterrupted_fit(tmp_path,
-                                                                        monkeypatch, capsys):
+def test_first_fit_restarts_resume_after_ctrl_c_to_the_uninterrupted_fit(
+    tmp_path, monkeypatch, capsys
+):
     """`fit` without --p0 on data the model cannot explain (a hidden effect: 710x the floor)
     restarts around the data start; Ctrl-C during the restarts keeps the fits that had
     finished, and the same command ends with the fit of an uninterrupted run, bit for bit."""

@@ -45,11 +45,17 @@ def chains(path: Path) -> dict:
         out = {}
         for k, g in f.items():
             it = int(g.attrs["iteration"])
-            out[k] = (np.asarray(g["chain"][:it]).tobytes(),
-                      np.asarray(g["log_prob"][:it]).tobytes(),
-                      np.asarray(g["accepted"]).tobytes(),
-                      sorted((a, np.asarray(g.attrs[a]).tobytes()) for a in g.attrs
-                             if a.startswith(("random_state", "proposal"))), it)
+            out[k] = (
+                np.asarray(g["chain"][:it]).tobytes(),
+                np.asarray(g["log_prob"][:it]).tobytes(),
+                np.asarray(g["accepted"]).tobytes(),
+                sorted(
+                    (a, np.asarray(g.attrs[a]).tobytes())
+                    for a in g.attrs
+                    if a.startswith(("random_state", "proposal"))
+                ),
+                it,
+            )
     return out
 
 
@@ -61,8 +67,18 @@ def run(fit, folder, executor, monkeypatch, steps=20, **kw):
     monkeypatch.setattr(sampling.run, "SEGMENT_SECONDS", 1e-9)
     f = load_fit(fit)
     lp = LogPosterior(f.problem, f.x)
-    sampling.sample(lp, f.x, folder, n_walkers=10, n_steps=steps, n_ensembles=2, seed=3,
-             progress=False, executor=executor, **kw)
+    sampling.sample(
+        lp,
+        f.x,
+        folder,
+        n_walkers=10,
+        n_steps=steps,
+        n_ensembles=2,
+        seed=3,
+        progress=False,
+        executor=executor,
+        **kw,
+    )
     return chains(folder / "chain.h5"), lp.n_calls
 
 
@@ -82,13 +98,17 @@ def test_serial_and_threads_give_the_serial_loop_bit_for_bit(fitted, tmp_path, m
 
 
 def test_a_local_dask_cluster_gives_the_same_chains_and_gets_the_data_once(
-        fitted, tmp_path, monkeypatch):
+    fitted, tmp_path, monkeypatch
+):
     ref, calls = run(fitted, tmp_path / "ref", None, monkeypatch)
     seen: list = []
 
     def deps(dask_scheduler):
-        return [sorted(str(d.key) for d in ts.dependencies)
-                for k, ts in dask_scheduler.tasks.items() if "_run_segment" in str(k)]
+        return [
+            sorted(str(d.key) for d in ts.dependencies)
+            for k, ts in dask_scheduler.tasks.items()
+            if "_run_segment" in str(k)
+        ]
 
     with parallel.open_executor(parallel.ExecutorSpec("dask", 2)) as ex:
         client = ex._client
@@ -108,15 +128,28 @@ def test_a_local_dask_cluster_gives_the_same_chains_and_gets_the_data_once(
 def reference(fitted: Path, tmp_path: Path, *, steps: int, ensembles: int, seed: int) -> dict:
     """The chains of an uninterrupted serial run of 10 walkers (what the command runs)."""
     f = load_fit(fitted)
-    sampling.sample(LogPosterior(f.problem, f.x), f.x, tmp_path / "ref", n_walkers=10,
-             n_steps=steps, n_ensembles=ensembles, seed=seed, progress=False)
+    sampling.sample(
+        LogPosterior(f.problem, f.x),
+        f.x,
+        tmp_path / "ref",
+        n_walkers=10,
+        n_steps=steps,
+        n_ensembles=ensembles,
+        seed=seed,
+        progress=False,
+    )
     return chains(tmp_path / "ref" / "chain.h5")
 
 
 def cli(args, cwd):
-    return subprocess.Popen([sys.executable, "-m", "rotorbayes.cli", *args], cwd=cwd,
-                            env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "rotorbayes.cli", *args],
+        cwd=cwd,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 @pytest.mark.slow
@@ -124,12 +157,25 @@ def cli(args, cwd):
 def test_parallel_sampling_killed_resumes_to_the_uninterrupted_chains(fitted, tmp_path):
     # 900 steps, not 300: a read of chain.h5 waits for the writer, and a 300-step run once
     # ended during the read that saw the kill's step count (CI on a fast machine).
-    args = ["--walkers", "10", "--steps", "900", "--ensembles", "2", "--seed", "5",
-            "--max-draws", "5", "--quiet"]
+    args = [
+        "--walkers",
+        "10",
+        "--steps",
+        "900",
+        "--ensembles",
+        "2",
+        "--seed",
+        "5",
+        "--max-draws",
+        "5",
+        "--quiet",
+    ]
     ref = reference(fitted, tmp_path, steps=900, ensembles=2, seed=5)
     out = tmp_path / "S"
-    p = cli(["sample", str(fitted), *args, "--backend", "threads", "--workers", "2",
-             "--out", str(out)], tmp_path)
+    p = cli(
+        ["sample", str(fitted), *args, "--backend", "threads", "--workers", "2", "--out", str(out)],
+        tmp_path,
+    )
     # Killed once the chains hold a random number of steps, not after a random time: on a
     # fast machine the whole run took less than the 0-1 s wait the test had (seen in CI).
     kill_at = random.Random(8).randint(2, 200)
@@ -177,7 +223,8 @@ def whole(out: Path) -> Path:
 @pytest.mark.every_python
 @pytest.mark.parametrize("damage", ["overwritten", "truncated"])
 def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_exactly(
-        fitted, tmp_path, damage, capsys):
+    fitted, tmp_path, damage, capsys
+):
     """HDF5 is not crash-consistent: a SIGKILL while it flushes can leave chain.h5
     unreadable (seen in CI). A whole copy taken between steps is put back by --resume;
     the run then ends with the chains of an uninterrupted run, bit for bit, and the damaged
@@ -188,8 +235,26 @@ def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_ex
     ref = reference(fitted, tmp_path, steps=900, ensembles=2, seed=7)
     assert not (tmp_path / "ref" / sampling.Snapshot.NAME).exists()
     out = tmp_path / "S"
-    p = cli(["sample", str(fitted), "--walkers", "10", "--steps", "900", "--ensembles", "2",
-             "--seed", "7", "--max-draws", "5", "--quiet", "--out", str(out)], tmp_path)
+    p = cli(
+        [
+            "sample",
+            str(fitted),
+            "--walkers",
+            "10",
+            "--steps",
+            "900",
+            "--ensembles",
+            "2",
+            "--seed",
+            "7",
+            "--max-draws",
+            "5",
+            "--quiet",
+            "--out",
+            str(out),
+        ],
+        tmp_path,
+    )
     copy = out / sampling.Snapshot.NAME
     while not copy.exists():  # the first step is saved and copied
         assert p.poll() is None, "the run ended before the kill was due"
@@ -202,7 +267,7 @@ def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_ex
     chain = out / "chain.h5"
     b = bytearray(chain.read_bytes())
     if damage == "overwritten":  # what a cut-short metadata flush looks like to a reader
-        b[: 4096] = random.Random(2).randbytes(4096)
+        b[:4096] = random.Random(2).randbytes(4096)
     else:
         b = b[: len(b) // 2]
     chain.write_bytes(bytes(b))
@@ -219,7 +284,8 @@ def test_a_checkpoint_damaged_by_a_kill_is_restored_from_its_copy_and_resumes_ex
 
 
 def test_a_stop_request_ends_between_segments_and_says_where_each_ensemble_is(
-        fitted, tmp_path, monkeypatch):
+    fitted, tmp_path, monkeypatch
+):
     ref, _ = run(fitted, tmp_path / "ref", None, monkeypatch)
     # Stop once both ensembles have saved steps (not after a count of asks: on a fast
     # machine one ensemble's segments came back six times before the other's first).
@@ -241,8 +307,9 @@ def test_a_stop_request_ends_between_segments_and_says_where_each_ensemble_is(
     held = chains(tmp_path / "S" / "chain.h5")
     n0, n1 = held["ensemble0"][4], held["ensemble1"][4]
     assert 0 < n0 < 20 and 0 < n1 < 20
-    assert str(info.value) == (f"ensemble0 stopped after step {n0} of 20, ensemble1 after "
-                               f"step {n1}")
+    assert str(info.value) == (
+        f"ensemble0 stopped after step {n0} of 20, ensemble1 after step {n1}"
+    )
     got, _ = run(fitted, tmp_path / "S", parallel.SerialExecutor(), monkeypatch)
     assert got == ref
 
@@ -262,8 +329,9 @@ time.sleep(float(sys.argv[2]))
 
 
 def hold_open(path: Path, seconds: float) -> subprocess.Popen:
-    p = subprocess.Popen([sys.executable, "-c", HOLD, str(path), str(seconds)],
-                         stdout=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(path), str(seconds)], stdout=subprocess.PIPE, text=True
+    )
     assert p.stdout.readline().strip() == "open"
     return p
 
@@ -273,8 +341,26 @@ def hold_open(path: Path, seconds: float) -> subprocess.Popen:
 def test_a_reader_of_the_checkpoint_delays_sampling_and_changes_nothing(fitted, tmp_path):
     ref = reference(fitted, tmp_path, steps=150, ensembles=1, seed=4)
     out = tmp_path / "S"
-    p = cli(["sample", str(fitted), "--walkers", "10", "--steps", "150", "--ensembles", "1",
-             "--seed", "4", "--max-draws", "5", "--quiet", "--out", str(out)], tmp_path)
+    p = cli(
+        [
+            "sample",
+            str(fitted),
+            "--walkers",
+            "10",
+            "--steps",
+            "150",
+            "--ensembles",
+            "1",
+            "--seed",
+            "4",
+            "--max-draws",
+            "5",
+            "--quiet",
+            "--out",
+            str(out),
+        ],
+        tmp_path,
+    )
     while not sampling.steps_held(out / "chain.h5") and p.poll() is None:
         time.sleep(0.02)
     readers = []
@@ -287,11 +373,11 @@ def test_a_reader_of_the_checkpoint_delays_sampling_and_changes_nothing(fitted, 
     assert held == ref  # the same chains, step for step, as a run nobody looked at
 
 
-def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(fitted, tmp_path,
-                                                                       monkeypatch, capsys):
+def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(
+    fitted, tmp_path, monkeypatch, capsys
+):
     out = tmp_path / "S"
-    args = ["--walkers", "10", "--ensembles", "1", "--seed", "4", "--max-draws", "5",
-            "--quiet"]
+    args = ["--walkers", "10", "--ensembles", "1", "--seed", "4", "--max-draws", "5", "--quiet"]
     assert main(["sample", str(fitted), *args, "--steps", "20", "--out", str(out)]) == 0
     before = chains(out / "chain.h5")
     monkeypatch.setattr(sampling.locks, "LOCK_WAIT", 0.5)
@@ -308,27 +394,37 @@ def test_a_reader_that_keeps_the_checkpoint_open_stops_sampling_cleanly(fitted, 
     assert chains(out / "chain.h5") == before  # nothing written, nothing damaged
     # Once it is closed, --resume goes on: the chains of a 40-step run nobody looked at.
     assert main(["sample", str(out), "--resume", "--steps", "40", "--quiet"]) == 0
-    assert main(["sample", str(fitted), *args, "--steps", "40",
-                 "--out", str(tmp_path / "ref")]) == 0
+    assert (
+        main(["sample", str(fitted), *args, "--steps", "40", "--out", str(tmp_path / "ref")]) == 0
+    )
     assert chains(out / "chain.h5") == chains(tmp_path / "ref" / "chain.h5")
 
 
 @pytest.mark.slow
 @pytest.mark.every_python
-def test_a_lost_scheduler_stops_sampling_cleanly_and_resume_finishes_the_chains(fitted,
-                                                                               tmp_path):
+def test_a_lost_scheduler_stops_sampling_cleanly_and_resume_finishes_the_chains(fitted, tmp_path):
     """A real `dask scheduler` and worker; the scheduler is killed while the ensembles run
     on it: exit code 3 with one message, every finished step kept, and --resume on this
     machine ends with the chains of an uninterrupted run."""
     from test_parallel import real_cluster
 
-    args = ["--walkers", "10", "--steps", "300", "--ensembles", "2", "--seed", "6",
-            "--max-draws", "5", "--quiet"]
+    args = [
+        "--walkers",
+        "10",
+        "--steps",
+        "300",
+        "--ensembles",
+        "2",
+        "--seed",
+        "6",
+        "--max-draws",
+        "5",
+        "--quiet",
+    ]
     ref = reference(fitted, tmp_path, steps=300, ensembles=2, seed=6)
     out = tmp_path / "S"
     with real_cluster(tmp_path) as (address, sched, procs):
-        p = cli(["sample", str(fitted), *args, "--scheduler", address, "--out", str(out)],
-                tmp_path)
+        p = cli(["sample", str(fitted), *args, "--scheduler", address, "--out", str(out)], tmp_path)
         procs.append(p)
         deadline = time.time() + 180
         while not sampling.steps_held(out / "chain.h5") and p.poll() is None:

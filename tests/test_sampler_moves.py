@@ -16,8 +16,9 @@ from rotorbayes.inference.likelihood import LogPosterior
 @pytest.fixture(scope="module")
 def upper_lp():
     """Upper disc, 5 s at 200 Hz, quantised; the fit's 5 parameters plus σ (6 coordinates)."""
-    p = rb.parameters.resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
-                              config="upper")
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
     t, u = rb.signals.make_signal("est", 5.0, rate=200.0, seed=4)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     prob = inference.Problem("upper", [sim.to_experiment("upper")], base=p)
@@ -47,8 +48,10 @@ def test_the_default_moves_mix_better_than_the_stretch_move(upper_lp):
     stretch = sampling.sample(lp, x, None, moves="stretch", **kw)
     assert default[0].moves == sampling.DEFAULT_MOVES == "fit-de"
     d, m, s = (_min_ess_per_eval(r) for r in (default, de_mix, stretch))
-    print(f"min ESS per evaluation: default {d:.4f} (x{d / s:.2f}), de-mix {m:.4f} "
-          f"(x{m / s:.2f}), stretch {s:.4f}")
+    print(
+        f"min ESS per evaluation: default {d:.4f} (x{d / s:.2f}), de-mix {m:.4f} "
+        f"(x{m / s:.2f}), stretch {s:.4f}"
+    )
     assert d >= 4.0 * s, (d, s)
     assert m >= 1.5 * s, (m, s)
 
@@ -71,8 +74,9 @@ def test_a_run_with_the_new_moves_resumes_bit_for_bit(upper_lp, tmp_path, moves)
             assert ("proposal_cov" in fb[e].attrs) == (moves == "fit-de")
     # A resume that names other moves is refused before any step; the file is untouched.
     before = (split / "chain.h5").read_bytes()
-    with pytest.raises(sampling.CheckpointError,
-                       match=f"sampled with --moves {moves}, not stretch"):
+    with pytest.raises(
+        sampling.CheckpointError, match=f"sampled with --moves {moves}, not stretch"
+    ):
         sampling.sample(lp, x, split, n_steps=80, moves="stretch", **kw)
     assert (split / "chain.h5").read_bytes() == before
 
@@ -97,11 +101,19 @@ def test_a_checkpoint_without_moves_is_continued_with_the_stretch_move(upper_lp,
 def test_the_acceptance_warning_knows_the_moves():
     """Independence proposals are accepted less often without mixing worse: 0.12 is a
     warning for the stretch move, not for fit-de; 0.03 is one for both."""
+
     def run(acc, moves):
-        return sampling.EnsembleRun("ensemble0", np.zeros((2000, 4, 1)), np.zeros((2000, 4)),
-                             np.full(4, acc), np.array([5.0]), moves=moves)
+        return sampling.EnsembleRun(
+            "ensemble0",
+            np.zeros((2000, 4, 1)),
+            np.zeros((2000, 4)),
+            np.full(4, acc),
+            np.array([5.0]),
+            moves=moves,
+        )
 
     assert any("acceptance 0.12" in w for w in sampling.convergence([run(0.12, "stretch")], ["a"]))
     assert not sampling.convergence([run(0.12, "fit-de")], ["a"])
     assert "expected 0.1-0.6 with --moves fit-de" in " ".join(
-        sampling.convergence([run(0.03, "fit-de")], ["a"]))
+        sampling.convergence([run(0.03, "fit-de")], ["a"])
+    )

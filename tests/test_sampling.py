@@ -23,8 +23,9 @@ from rotorbayes.io.measurements import quantisation_floor
 
 
 def _short_upper(tmp_path, seconds=5.0):
-    p = rb.parameters.resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
-                              config="upper")
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
     t, u = rb.signals.make_signal("est", seconds, rate=200.0, seed=4)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     path = tmp_path / "upper.csv"
@@ -64,8 +65,10 @@ def test_priors_from_toml_and_their_errors(upper_fit, tmp_path):
 
     fit = load_fit(upper_fit[1])
     f = tmp_path / "p.toml"
-    f.write_text('[priors]\nk_m = { dist = "normal", mean = 3.0, sd = 0.1 }\n'
-                 'b_u = { dist = "loguniform", lower = 1.0, upper = 3.0 }\n')
+    f.write_text(
+        '[priors]\nk_m = { dist = "normal", mean = 3.0, sd = 0.1 }\n'
+        'b_u = { dist = "loguniform", lower = 1.0, upper = 3.0 }\n'
+    )
     pri = load_priors(f, fit.problem)
     assert pri["k_m"] == Prior("normal", 0.1, 20.0, 3.0, 0.1)
     assert pri["b_u"].kind == "loguniform"
@@ -86,8 +89,11 @@ def test_ar1_likelihood_matches_its_formula():
     z = lp.to_z(x, sigma={"theta_u": sigma}, phi={"theta_u": phi})
     e = prob.residuals(x)
     innov = np.r_[e[0] * math.sqrt(1 - phi**2), e[1:] - phi * e[:-1]]
-    ll = (-0.5 * e.size * math.log(2 * math.pi * sigma**2) + 0.5 * math.log(1 - phi**2)
-          - 0.5 * float(innov @ innov) / sigma**2)
+    ll = (
+        -0.5 * e.size * math.log(2 * math.pi * sigma**2)
+        + 0.5 * math.log(1 - phi**2)
+        - 0.5 * float(innov @ innov) / sigma**2
+    )
     prior = sum(math.log(v) for v, lg in zip(x, lp.log, strict=True) if lg)
     assert lp(z[None, :])[0] == pytest.approx(ll + prior, rel=1e-10)
 
@@ -104,14 +110,29 @@ def _iteration(path):
 @pytest.mark.every_python
 def test_a_killed_run_resumes_exactly_as_an_uninterrupted_one(upper_fit, tmp_path):
     fit = upper_fit[1]
-    args = ["--walkers", "10", "--steps", "600", "--ensembles", "1", "--seed", "3", "--quiet",
-            "--max-draws", "50"]
+    args = [
+        "--walkers",
+        "10",
+        "--steps",
+        "600",
+        "--ensembles",
+        "1",
+        "--seed",
+        "3",
+        "--quiet",
+        "--max-draws",
+        "50",
+    ]
     cmd = [sys.executable, "-m", "rotorbayes.cli", "sample", str(fit)]
     env = dict(os.environ, OMP_NUM_THREADS="1")
     a, b = tmp_path / "a", tmp_path / "b"
     subprocess.run([*cmd, *args, "--out", str(a)], check=True, env=env, capture_output=True)
-    proc = subprocess.Popen([*cmd, *args, "--out", str(b)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [*cmd, *args, "--out", str(b)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     t0 = time.time()
     while _iteration(b / "chain.h5") < 15 and time.time() - t0 < 120:
         time.sleep(0.05)
@@ -126,8 +147,15 @@ def test_a_killed_run_resumes_exactly_as_an_uninterrupted_one(upper_fit, tmp_pat
         assert fb["ensemble0"].attrs["iteration"] == 600
         assert np.array_equal(ca, cb)
         assert np.array_equal(fa["ensemble0"]["log_prob"][...], fb["ensemble0"]["log_prob"][...])
-    for f in ("posterior.nc", "summary.md", "summary.csv", "corner.png", "trace.png",
-              "predictive.png", "correlation.png"):
+    for f in (
+        "posterior.nc",
+        "summary.md",
+        "summary.csv",
+        "corner.png",
+        "trace.png",
+        "predictive.png",
+        "correlation.png",
+    ):
         assert (b / f).stat().st_size > 0
     assert json.loads((b / "settings.json").read_text())["steps"] == 600
 
@@ -136,15 +164,37 @@ def test_sample_command_writes_inference_data(upper_fit, tmp_path, capsys):
     from rotorbayes.inference import arviz_compat
 
     out = tmp_path / "post"
-    assert main(["sample", str(upper_fit[1]), "--walkers", "12", "--steps", "80",
-                 "--quiet", "--out", str(out), "--max-draws", "60"]) == 0
+    assert (
+        main(
+            [
+                "sample",
+                str(upper_fit[1]),
+                "--walkers",
+                "12",
+                "--steps",
+                "80",
+                "--quiet",
+                "--out",
+                str(out),
+                "--max-draws",
+                "60",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr()
     assert "| k_m |" in text.out and "R-hat" in text.out
     # Too short a run says so, loudly.
     assert "not more than 50 τ" in text.err
     idata = arviz_compat.load(out / "posterior.nc")
-    for g in ("posterior", "sample_stats", "log_likelihood", "observed_data",
-              "constant_data", "posterior_predictive"):
+    for g in (
+        "posterior",
+        "sample_stats",
+        "log_likelihood",
+        "observed_data",
+        "constant_data",
+        "posterior_predictive",
+    ):
         assert g in arviz_compat.group_names(idata)
     post = arviz_compat.group(idata, "posterior")
     assert post.sizes["chain"] == 2  # two independent ensembles
@@ -156,21 +206,22 @@ def test_sample_command_writes_inference_data(upper_fit, tmp_path, capsys):
     truth = upper_fit[0]
     assert abs(float(post["k_m"].mean()) / truth["k_m"] - 1) < 1e-3
     header = (out / "summary.csv").read_text().splitlines()[0].split(",")
-    assert {"ess_bulk", "ess_tail", "ess_tau", "r_hat", "r_hat_kept", "hdi_low",
-            "hdi_high"} <= set(header)
+    assert {"ess_bulk", "ess_tail", "ess_tau", "r_hat", "r_hat_kept", "hdi_low", "hdi_high"} <= set(
+        header
+    )
     # The table's R-hat is that of every thinned draw after burn-in, not of the 60 kept.
     from rotorbayes.inference import posterior, sampling
 
     runs = [sampling.read_ensemble(out / "chain.h5", f"ensemble{i}") for i in range(2)]
     _, rhat_all = posterior.ess_all_draws(None, runs)
-    row = dict(zip(header, (out / "summary.csv").read_text().splitlines()[1].split(","),
-                   strict=True))
+    row = dict(
+        zip(header, (out / "summary.csv").read_text().splitlines()[1].split(","), strict=True)
+    )
     assert row["parameter"] == "k_m"
     assert float(row["r_hat"]) == pytest.approx(rhat_all[0], abs=1e-6)
     # Misuse: an existing folder, too few walkers, --resume on a fit folder.
     assert main(["sample", str(upper_fit[1]), "--out", str(out)]) == 2
-    assert main(["sample", str(upper_fit[1]), "--walkers", "4", "--out",
-                 str(tmp_path / "x")]) == 2
+    assert main(["sample", str(upper_fit[1]), "--walkers", "4", "--out", str(tmp_path / "x")]) == 2
     assert main(["sample", str(upper_fit[1]), "--resume"]) == 2
     err = capsys.readouterr().err
     assert "already holds results" in err and "--walkers" in err and "settings.json" in err
@@ -187,17 +238,24 @@ def test_r_hat_from_every_draw_is_quiet_on_converged_ensembles_and_loud_on_split
 
     def runs(seed, shift=0.0):
         rng = np.random.default_rng(seed)
-        return [EnsembleRun(name=f"ensemble{i}", chain=rng.normal(size=(450, 24, 3))
-                            + (shift if i == 1 else 0.0), log_prob=np.zeros((450, 24)),
-                            acceptance=np.full(24, 0.3), tau=np.full(3, 2.0))
-                for i in range(2)]
+        return [
+            EnsembleRun(
+                name=f"ensemble{i}",
+                chain=rng.normal(size=(450, 24, 3)) + (shift if i == 1 else 0.0),
+                log_prob=np.zeros((450, 24)),
+                acceptance=np.full(24, 0.3),
+                tau=np.full(3, 2.0),
+            )
+            for i in range(2)
+        ]
 
     kept, every = [], []
     for seed in range(20):
         r = runs(seed)
         every.append(posterior.ess_all_draws(None, r)[1].max())
-        r_kept = [EnsembleRun(x.name, x.chain[::40], x.log_prob[::40], x.acceptance, x.tau)
-                  for x in r]  # about the 2 x 200 draws posterior.nc keeps
+        r_kept = [
+            EnsembleRun(x.name, x.chain[::40], x.log_prob[::40], x.acceptance, x.tau) for x in r
+        ]  # about the 2 x 200 draws posterior.nc keeps
         kept.append(posterior.ess_all_draws(None, r_kept)[1].max())
     assert max(every) < 1.005, max(every)
     assert sum(k >= 1.01 for k in kept) >= 3, kept  # the false alarm the fix removes
@@ -220,8 +278,7 @@ def test_simulation_based_calibration_covers_the_truth_at_the_nominal_rates():
     spec = importlib.util.spec_from_file_location("analyses_sbc", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    res = mod.main(["--case", "brake", "--datasets", "20", "--walkers", "8",
-                    "--steps", "250"])
+    res = mod.main(["--case", "brake", "--datasets", "20", "--walkers", "8", "--steps", "250"])
     for name in ("Tc_l", "b_l", "Ts_l"):
         r = res[name]
         assert abs(r["cover50"] - 0.5) <= 3 * r["sd50"], r

@@ -15,8 +15,9 @@ DATA = Path(__file__).resolve().parent / "data"
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("make_sampling_reference",
-                                                  DATA / "make_sampling_reference.py")
+    spec = importlib.util.spec_from_file_location(
+        "make_sampling_reference", DATA / "make_sampling_reference.py"
+    )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -28,8 +29,11 @@ def test_the_chains_are_bit_for_bit_those_of_the_reference(tmp_path):
     got = script.cases(lp, x, tmp_path)
     with np.load(DATA / "sampling_reference.npz") as ref:
         assert sorted(got) == sorted(ref.files)
-        differ = [k for k in ref.files
-                  if not (got[k].dtype == ref[k].dtype and np.array_equal(got[k], ref[k]))]
+        differ = [
+            k
+            for k in ref.files
+            if not (got[k].dtype == ref[k].dtype and np.array_equal(got[k], ref[k]))
+        ]
     assert not differ, differ
     # The cases agree among themselves too: threads, stop and resume, and a continued short
     # run end with the serial run's chains.

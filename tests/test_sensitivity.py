@@ -33,16 +33,19 @@ def _problem(config, params, u):
     effects = ["initial_torsion"] if params.get("alpha0", 0.0) != 0.0 else []
     s = rb.simulate(params, u, dt=DT, config=config, effects=effects)
     ch = ("theta_u",) if config == "upper" else ("theta_u", "theta_l")
-    prob = inference.Problem(config, [s.to_experiment("x")], base=params, channels=ch,
-                     effects=effects)
+    prob = inference.Problem(
+        config, [s.to_experiment("x")], base=params, channels=ch, effects=effects
+    )
     return s, prob
 
 
 def _kernel(prob, kp, names):
     """Residuals and Jacobian straight from the sensitivity kernel at kernel vector kp."""
     sim = prob.sims[0]
-    (mu, wu, cu), (ml, wl, cl) = [c if c is not None else (np.empty(0), 1.0, -1)
-                                  for c in prob._channel_columns(prob.experiments[0], 0)]
+    (mu, wu, cu), (ml, wl, cl) = [
+        c if c is not None else (np.empty(0), 1.0, -1)
+        for c in prob._channel_columns(prob.experiments[0], 0)
+    ]
     idx = np.array([layout.INDEX[n] for n in names], dtype=np.int64)
     r = np.empty((1, prob.n_residuals))
     J = np.zeros((len(names), prob.n_residuals)).T  # Fortran order, as Problem.jacobian's
@@ -179,8 +182,13 @@ def test_problem_jacobian_option_and_fallback():
     with pytest.raises(ValueError, match="method"):
         prob.jacobian(x, method="adjoint")
     # A parameter the kernel cannot differentiate by (the input delay): differences, said so.
-    dprob = inference.Problem("brake", prob.experiments, base={**p, "t_delay": 0.01},
-                      effects=["input_delay"], channels=("theta_u", "theta_l"))
+    dprob = inference.Problem(
+        "brake",
+        prob.experiments,
+        base={**p, "t_delay": 0.01},
+        effects=["input_delay"],
+        channels=("theta_u", "theta_l"),
+    )
     assert "t_delay" in (dprob.sensitivity_support() or "")
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
@@ -196,8 +204,11 @@ def test_multi_experiment_columns():
     exs = []
     for k, a0 in enumerate((0.05, -0.04)):
         u = 1.5 + 1.2 * np.sin(2 * np.pi * (0.6 + 0.3 * k) * t)
-        exs.append(rb.simulate({**p, "alpha0": a0}, u, dt=DT, config="brake",
-                               effects=["initial_torsion"]).to_experiment(f"x{k}"))
+        exs.append(
+            rb.simulate(
+                {**p, "alpha0": a0}, u, dt=DT, config="brake", effects=["initial_torsion"]
+            ).to_experiment(f"x{k}")
+        )
     prob = inference.Problem("brake", exs, base=p)
     x = prob.x_from({**p, "alpha0": 0.01})
     assert "alpha0[1]" in prob.names
@@ -208,4 +219,3 @@ def test_multi_experiment_columns():
     assert not Js[:n, j1].any()
     rel = np.abs(Js - Jd).max(axis=0) / np.abs(Jd).max(axis=0)
     assert rel.max() < 1e-2, dict(zip(prob.names, rel, strict=True))
-

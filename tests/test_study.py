@@ -15,13 +15,31 @@ from rotorbayes.model.parameters import resolve
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     d = tmp_path_factory.mktemp("study_data")
-    p = resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05, J_l=0.062,
-                     k_alpha=0.118, Tc_l=0.031, b_l=0.0065), config="coupled")
+    p = resolve(
+        dict(
+            k_m=3.1,
+            Tc_u=0.62,
+            dTc_u=0.03,
+            b_u=1.7,
+            db_u=0.05,
+            J_l=0.062,
+            k_alpha=0.118,
+            Tc_l=0.031,
+            b_l=0.0065,
+        ),
+        config="coupled",
+    )
     p["db_l"] = 0.0015
     for kind, seed in (("est", 5), ("val", 6)):
         t, u = rb.signals.make_signal(kind, 12.0, rate=200.0, seed=seed)
-        sim = rb.simulate(p, u, dt=1 / 200, config="coupled",
-                          effects=["lower_asymmetric_viscous"], quantize_angles=True)
+        sim = rb.simulate(
+            p,
+            u,
+            dt=1 / 200,
+            config="coupled",
+            effects=["lower_asymmetric_viscous"],
+            quantize_angles=True,
+        )
         rb.save_experiment(sim.to_experiment(kind), d / f"{kind}.csv")
     return d
 
@@ -62,8 +80,7 @@ def test_a_study_runs_and_a_rerun_skips_unchanged_stages(data, capsys):
     rec = json.loads((out / "run.json").read_text())
     assert rec["added_effects"] == ["lower_asymmetric_viscous"]
     names = [s["name"] for s in rec["stages"]]
-    assert names == ["fit0", "diagnose0", "fit1", "diagnose1", "compare", "sample",
-                     "identify"]
+    assert names == ["fit0", "diagnose0", "fit1", "diagnose1", "compare", "sample", "identify"]
     assert all(len(d["sha256"]) == 64 for d in rec["data"])
     assert rec["versions"]["numpy"] and "[sample]" in rec["analysis_text"]
     assert json.loads((out / "fit1" / "diagnosis.json").read_text())["adequate"]
@@ -76,8 +93,7 @@ def test_a_study_runs_and_a_rerun_skips_unchanged_stages(data, capsys):
     # Only the sampler's settings change: the fits and diagnoses are kept.
     f.write_text(STUDY.format(steps=50))
     assert main(["run", str(f), "--quiet"]) == 0
-    rec3 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())
-            ["stages"]}
+    rec3 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())["stages"]}
     assert rec3["fit0"] and rec3["fit1"] and rec3["diagnose1"] and not rec3["sample"]
 
 
@@ -117,8 +133,7 @@ def test_a_design_stage_writes_next_and_is_skipped_when_unchanged(data):
     # [fit] step reaches the fit, which keeps it for the design that reads it
     assert json.loads((out / "fit0" / "fit.json").read_text())["step"] == 0.011
     nxt = out / "design"
-    assert {"u.csv", "design.json", "design.txt", "design.png"} <= {
-        p.name for p in nxt.iterdir()}
+    assert {"u.csv", "design.json", "design.txt", "design.png"} <= {p.name for p in nxt.iterdir()}
     doc = json.loads((nxt / "design.json").read_text())
     assert doc["target"]["kind"] == "separate"
     assert doc["target"]["effects"] == ["lower_asymmetric_viscous", "string_damping"]
@@ -131,15 +146,13 @@ def test_a_design_stage_writes_next_and_is_skipped_when_unchanged(data):
     before = (nxt / "design.json").read_text()
     # Unchanged: kept.
     assert main(["run", str(f), "--quiet"]) == 0
-    rec2 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())
-            ["stages"]}
+    rec2 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())["stages"]}
     assert rec2 == {"fit0": True, "design": True}
     assert (nxt / "design.json").read_text() == before
     # Only [design] changed: the fit is kept, the design runs again.
     f.write_text(DESIGN_STUDY.format(starts=2))
     assert main(["run", str(f), "--quiet"]) == 0
-    rec3 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())
-            ["stages"]}
+    rec3 = {s["name"]: s["skipped"] for s in json.loads((out / "run.json").read_text())["stages"]}
     assert rec3 == {"fit0": True, "design": False}
     assert json.loads((nxt / "design.json").read_text())["settings"]["starts"] == 2
 
@@ -147,21 +160,28 @@ def test_a_design_stage_writes_next_and_is_skipped_when_unchanged(data):
 _D = "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[design]\n"
 
 
-@pytest.mark.parametrize("edit,message", [
-    (_D + "start=2\n", "[design] unknown key 'start'; valid keys: params, separate"),
-    (_D + "max_volts=9\n", "[design] max_volts = 9 must be positive and at most 5 V"),
-    (_D + "band_hz=0\n", "[design] band_hz = 0 must be positive"),
-    (_D + "separate=['warp', 'string_damping']\n", "[design] separate: unknown effect 'warp'"),
-    (_D + "separate=['string_damping']\n", "[design] separate = ['string_damping']: give two "
-     "or more different effects"),
-    (_D + "params=['J_l']\nseparate=['a', 'b']\n", "[design] give either params or separate"),
-    (_D + "params=['J_x']\n", "[design] params: unknown parameter 'J_x'"),
-    (_D + "family='chirp'\n", "[design] family = 'chirp'; choose steps or multisine"),
-    (_D + "starts=0\n", "[design] starts = 0 must lie between 1 and 256"),
-    ("[analysis]\nout='o'\nconfig='upper'\ndata=['est.csv']\n[design]\n"
-     "separate=['string_damping', 'voltage_offset']\n",
-     "[design] separate: effect 'string_damping' does not apply to the upper configuration"),
-])
+@pytest.mark.parametrize(
+    "edit,message",
+    [
+        (_D + "start=2\n", "[design] unknown key 'start'; valid keys: params, separate"),
+        (_D + "max_volts=9\n", "[design] max_volts = 9 must be positive and at most 5 V"),
+        (_D + "band_hz=0\n", "[design] band_hz = 0 must be positive"),
+        (_D + "separate=['warp', 'string_damping']\n", "[design] separate: unknown effect 'warp'"),
+        (
+            _D + "separate=['string_damping']\n",
+            "[design] separate = ['string_damping']: give two or more different effects",
+        ),
+        (_D + "params=['J_l']\nseparate=['a', 'b']\n", "[design] give either params or separate"),
+        (_D + "params=['J_x']\n", "[design] params: unknown parameter 'J_x'"),
+        (_D + "family='chirp'\n", "[design] family = 'chirp'; choose steps or multisine"),
+        (_D + "starts=0\n", "[design] starts = 0 must lie between 1 and 256"),
+        (
+            "[analysis]\nout='o'\nconfig='upper'\ndata=['est.csv']\n[design]\n"
+            "separate=['string_damping', 'voltage_offset']\n",
+            "[design] separate: effect 'string_damping' does not apply to the upper configuration",
+        ),
+    ],
+)
 def test_a_bad_design_table_is_refused_before_any_work(data, capsys, edit, message):
     f = data / "bad_design.toml"
     f.write_text(edit)
@@ -171,28 +191,50 @@ def test_a_bad_design_table_is_refused_before_any_work(data, capsys, edit, messa
     assert not (data / "o").exists()
 
 
-@pytest.mark.parametrize("edit,message", [
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fitt]\n", "unknown table [fitt]"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\nsede=1\n",
-     "[analysis] unknown key 'sede'"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['nope.csv']\n",
-     "[analysis] data: file 'nope.csv' not found"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\nfree=['J_x']\n",
-     "[fit] free: unknown parameter 'J_x'; valid names are: k_m"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[priors]\n"
-     "J_l = { dist = 'loguniform', lower = 0.5, upper = 0.1 }\n",
-     "[priors] J_l: lower 0.5 must be below upper 0.1"),
-    ("[analysis]\nout='o'\nconfig='wagon'\ndata=['est.csv']\n", "config = 'wagon'"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[sample]\nsteps='many'\n",
-     "[sample] steps = 'many' must be a int"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[sample]\nmoves='walk'\n",
-     "[sample] moves = 'walk'; choose one of stretch, de, de-mix"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\neffects=['warp']\n",
-     "[fit] effects: unknown effect 'warp'"),
-    ("[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\nstep=5.0\n",
-     "[fit] step = 5.0 must lie between 1e-06 and 1"),
-    ("[analysis\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "edit,message",
+    [
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fitt]\n",
+            "unknown table [fitt]",
+        ),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\nsede=1\n",
+            "[analysis] unknown key 'sede'",
+        ),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['nope.csv']\n",
+            "[analysis] data: file 'nope.csv' not found",
+        ),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\nfree=['J_x']\n",
+            "[fit] free: unknown parameter 'J_x'; valid names are: k_m",
+        ),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[priors]\n"
+            "J_l = { dist = 'loguniform', lower = 0.5, upper = 0.1 }\n",
+            "[priors] J_l: lower 0.5 must be below upper 0.1",
+        ),
+        ("[analysis]\nout='o'\nconfig='wagon'\ndata=['est.csv']\n", "config = 'wagon'"),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[sample]\nsteps='many'\n",
+            "[sample] steps = 'many' must be a int",
+        ),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[sample]\nmoves='walk'\n",
+            "[sample] moves = 'walk'; choose one of stretch, de, de-mix",
+        ),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\neffects=['warp']\n",
+            "[fit] effects: unknown effect 'warp'",
+        ),
+        (
+            "[analysis]\nout='o'\nconfig='coupled'\ndata=['est.csv']\n[fit]\nstep=5.0\n",
+            "[fit] step = 5.0 must lie between 1e-06 and 1",
+        ),
+        ("[analysis\n", "not valid TOML"),
+    ],
+)
 def test_a_bad_analysis_file_is_refused_before_any_work(data, capsys, edit, message):
     f = data / "bad.toml"
     f.write_text(edit)
@@ -206,9 +248,11 @@ def test_the_sample_table_chooses_the_moves(tmp_path):
     import h5py
 
     f = tmp_path / "m.toml"
-    f.write_text("[analysis]\nout = 'o'\nconfig = 'upper'\ndata = ['example:upper_est']\n"
-                 "[sample]\nwalkers = 10\nsteps = 12\nensembles = 1\nmoves = 'de-mix'\n"
-                 "[report]\nhtml = false\n")
+    f.write_text(
+        "[analysis]\nout = 'o'\nconfig = 'upper'\ndata = ['example:upper_est']\n"
+        "[sample]\nwalkers = 10\nsteps = 12\nensembles = 1\nmoves = 'de-mix'\n"
+        "[report]\nhtml = false\n"
+    )
     assert main(["run", str(f), "--quiet"]) == 0
     with h5py.File(tmp_path / "o" / "posterior" / "chain.h5", "r") as h:
         assert h["ensemble0"].attrs["moves"] == "de-mix"
@@ -217,8 +261,7 @@ def test_the_sample_table_chooses_the_moves(tmp_path):
 @pytest.mark.slow
 @pytest.mark.every_python
 @pytest.mark.parametrize("helps", [True, False])
-def test_a_study_tries_a_candidate_effect_and_keeps_it_only_if_it_helps(data, monkeypatch,
-                                                                        helps):
+def test_a_study_tries_a_candidate_effect_and_keeps_it_only_if_it_helps(data, monkeypatch, helps):
     """Far above the floor `diagnose` may name an effect worth trying that its low-power
     score tests do not claim (made so here: every p set to 0.05). The study tries it and
     keeps it only if the worst RMS/floor fell materially (here it does, 977x -> 0.99x; with
@@ -228,18 +271,30 @@ def test_a_study_tries_a_candidate_effect_and_keeps_it_only_if_it_helps(data, mo
 
     D = importlib.import_module("rotorbayes.diagnosis.diagnose")
     real = D.score_tests
-    monkeypatch.setattr(D, "score_tests", lambda *a, **k: [
-        dataclasses.replace(s, p_adjusted=0.05) for s in real(*a, **k)])
+    monkeypatch.setattr(
+        D,
+        "score_tests",
+        lambda *a, **k: [dataclasses.replace(s, p_adjusted=0.05) for s in real(*a, **k)],
+    )
     if not helps:  # the study's keep-or-drop rule says no (diagnose's own is untouched)
         import sys
 
         rule = D.is_material
         study_module = "rotorbayes.commands.study.analysis"
-        monkeypatch.setattr(D, "is_material", lambda before, after: False if sys._getframe(
-            1).f_globals["__name__"] == study_module else rule(before, after))
+        monkeypatch.setattr(
+            D,
+            "is_material",
+            lambda before, after: (
+                False
+                if sys._getframe(1).f_globals["__name__"] == study_module
+                else rule(before, after)
+            ),
+        )
     f = data / "cand.toml"
-    f.write_text(STUDY.split("[sample]")[0].replace('out = "out"', f'out = "cand{helps}"')
-                 + "[report]\nhtml = false\n")
+    f.write_text(
+        STUDY.split("[sample]")[0].replace('out = "out"', f'out = "cand{helps}"')
+        + "[report]\nhtml = false\n"
+    )
     assert main(["run", str(f), "--quiet"]) == 0
     out = data / f"cand{helps}"
     rec = json.loads((out / "run.json").read_text())

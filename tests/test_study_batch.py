@@ -28,8 +28,9 @@ from rotorbayes.commands.study.batch import StudyTask, run_one
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
-def analysis(folder: Path, name: str, out: str, data: str = "example:upper_est",
-             extra: str = "") -> Path:
+def analysis(
+    folder: Path, name: str, out: str, data: str = "example:upper_est", extra: str = ""
+) -> Path:
     p = folder / name
     p.write_text(f'[analysis]\nout = "{out}"\nconfig = "upper"\ndata = ["{data}"]\n{extra}')
     return p
@@ -46,14 +47,12 @@ def single(tmp_path_factory):
     d = tmp_path_factory.mktemp("single")
     ref = {}
     for name, data in (("a", "example:upper_est"), ("b", "example:upper_val")):
-        assert main(["run", str(analysis(d, f"{name}.toml", name.upper(), data)),
-                     "--quiet"]) == 0
+        assert main(["run", str(analysis(d, f"{name}.toml", name.upper(), data)), "--quiet"]) == 0
         ref[name] = estimates(d / name.upper())
     return ref
 
 
-def test_several_studies_match_single_runs_and_a_refused_one_is_reported(single, tmp_path,
-                                                                        capsys):
+def test_several_studies_match_single_runs_and_a_refused_one_is_reported(single, tmp_path, capsys):
     a = analysis(tmp_path, "a.toml", "A")
     b = analysis(tmp_path, "b.toml", "B", "example:upper_val")
     (tmp_path / "foreign").mkdir()
@@ -75,9 +74,11 @@ def test_bad_files_and_shared_output_folders_are_refused_before_any_work(tmp_pat
     a = analysis(tmp_path, "a.toml", "A")
     twin = analysis(tmp_path, "twin.toml", "A", "example:upper_val")
     bad = analysis(tmp_path, "bad.toml", "C", "example:nothing")
-    for args, said in (([a, twin], "both write [analysis] out"),
-                       ([a, a], "is given twice"),
-                       ([a, bad], "no bundled example 'nothing'")):
+    for args, said in (
+        ([a, twin], "both write [analysis] out"),
+        ([a, a], "is given twice"),
+        ([a, bad], "no bundled example 'nothing'"),
+    ):
         capsys.readouterr()
         assert main(["run", *map(str, args)]) == 2
         assert said in capsys.readouterr().err
@@ -108,11 +109,20 @@ def test_studies_on_a_local_dask_cluster_match_single_runs(single, tmp_path, cap
 @pytest.mark.every_python
 def test_ctrl_c_stops_every_study_and_the_same_command_continues(tmp_path):
     slow = "[sample]\nwalkers = 16\nsteps = 1500\n"
-    files = [analysis(tmp_path, f"{n}.toml", n.upper(), d, slow)
-             for n, d in (("a", "example:upper_est"), ("b", "example:upper_val"))]
+    files = [
+        analysis(tmp_path, f"{n}.toml", n.upper(), d, slow)
+        for n, d in (("a", "example:upper_est"), ("b", "example:upper_val"))
+    ]
     cmd = [sys.executable, "-m", "rotorbayes.cli", "run", *map(str, files)]
-    p = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    p = subprocess.Popen(
+        cmd,
+        cwd=tmp_path,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     t0 = time.time()
     while not all((tmp_path / n / "fit0" / "fit.json").exists() for n in "AB"):
         assert p.poll() is None and time.time() - t0 < 120
@@ -129,11 +139,13 @@ def test_ctrl_c_stops_every_study_and_the_same_command_continues(tmp_path):
     # The same command (with a shorter sampling) goes on from the finished fits.
     for f in files:
         f.write_text(f.read_text().replace("steps = 1500", "steps = 60"))
-    assert subprocess.run(cmd, cwd=tmp_path, env=ENV, capture_output=True,
-                          timeout=300).returncode == 0
+    assert (
+        subprocess.run(cmd, cwd=tmp_path, env=ENV, capture_output=True, timeout=300).returncode == 0
+    )
     for n in "AB":
-        stages = {s["name"]: s for s in
-                  json.loads((tmp_path / n / "run.json").read_text())["stages"]}
+        stages = {
+            s["name"]: s for s in json.loads((tmp_path / n / "run.json").read_text())["stages"]
+        }
         assert stages["fit0"]["skipped"] is True
         assert (tmp_path / n / "posterior" / "summary.md").exists()
 
@@ -159,8 +171,9 @@ def test_a_study_ends_when_the_process_that_started_it_is_killed(tmp_path):
     """A study's child process (what a Dask worker or the command starts) must not run on
     after its starter is SIGKILLed: the scheduler gives the task to another worker."""
     f = analysis(tmp_path, "a.toml", "A", extra="[sample]\nwalkers = 16\nsteps = 3000\n")
-    w = subprocess.Popen([sys.executable, "-c", WRAPPER, str(f)], stdout=subprocess.PIPE,
-                         text=True, env=ENV)
+    w = subprocess.Popen(
+        [sys.executable, "-c", WRAPPER, str(f)], stdout=subprocess.PIPE, text=True, env=ENV
+    )
     child = int(w.stdout.readline())
     t0 = time.time()
     while not (tmp_path / "A" / "fit0" / "fit.json").exists():

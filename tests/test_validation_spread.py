@@ -23,9 +23,24 @@ from rotorbayes import inference
 from rotorbayes.inference.assess import Assessment, validation_spread
 from rotorbayes.model.parameters import resolve
 
-BRAKE = resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05, J_l=0.062,
-                     k_alpha=0.118, Tc_l=0.071, b_l=0.0150, db_l=0.0012, Ts_l=0.36,
-                     ws_l=0.95, delta_l=1.5), config="brake")
+BRAKE = resolve(
+    dict(
+        k_m=3.1,
+        Tc_u=0.62,
+        dTc_u=0.03,
+        b_u=1.7,
+        db_u=0.05,
+        J_l=0.062,
+        k_alpha=0.118,
+        Tc_l=0.071,
+        b_l=0.0150,
+        db_l=0.0012,
+        Ts_l=0.36,
+        ws_l=0.95,
+        delta_l=1.5,
+    ),
+    config="brake",
+)
 
 
 def _exp(params, seconds, seed, name, scale=1.0):
@@ -63,17 +78,23 @@ def test_the_validation_verdict_compares_the_gap_with_the_estimates_uncertainty(
     assert sp2 == sp
     assert validation_spread(res, [same], floors) == sp  # fixed seed: reproducible
     # Without the spread (not computed), the words are the former ones.
-    plain = Assessment(channels=inference.assess(res, inference.quality(prob, res.x),
-                                         inference.quality(prob, res.x, [same])).channels)
+    plain = Assessment(
+        channels=inference.assess(
+            res, inference.quality(prob, res.x), inference.quality(prob, res.x, [same])
+        ).channels
+    )
     assert "does not predict others" in plain.verdict and plain.spread is None
 
 
 def test_parameters_the_estimation_data_leave_undetermined_are_named_instead():
     prob, res = _fit(4.0)  # 4 s: the lower disc's viscous terms are not determined
     same = _exp(BRAKE, 6.0, 2, "same rig", scale=1.6)
-    a = inference.assess(res, inference.quality(prob, res.x), inference.quality(prob, res.x,
-                                                                                [same]),
-                 val_experiments=[same])
+    a = inference.assess(
+        res,
+        inference.quality(prob, res.x),
+        inference.quality(prob, res.x, [same]),
+        val_experiments=[same],
+    )
     assert a.worst_ratio <= 1.5 < 3.0 < a.worst_ratio_validation
     assert set(a.spread["undetermined"]) >= {"b_l"}
     assert "do not determine" in a.verdict and "b_l" in a.verdict

@@ -40,8 +40,16 @@ VAL_AT_FLOOR = 1.12
 
 def _run(name: str):
     seed, a0 = RUNS[name]
-    return make_experiment("brake", TRUTH, duration=8, signal="steps", hold="continuous",
-                           seed=seed, alpha0=a0, name=name)
+    return make_experiment(
+        "brake",
+        TRUTH,
+        duration=8,
+        signal="steps",
+        hold="continuous",
+        seed=seed,
+        alpha0=a0,
+        name=name,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -61,8 +69,12 @@ def files(runs, tmp_path_factory) -> dict[str, str]:
 
 def _worst(rows, prob) -> float:
     floors, _ = prob.noise_floors()
-    return max(math.sqrt(st["ssr"] / st["n"]) / floors[c]
-               for r in rows for c, st in r["channels"].items() if c in prob.channels)
+    return max(
+        math.sqrt(st["ssr"] / st["n"]) / floors[c]
+        for r in rows
+        for c, st in r["channels"].items()
+        if c in prob.channels
+    )
 
 
 def test_a_validation_run_is_simulated_with_its_own_torsion(runs):
@@ -173,8 +185,23 @@ def test_the_next_fit_starts_each_run_at_its_own_torsion(chain):
 def test_a_given_torsion_is_used_and_said(files, tmp_path, capsys):
     data = [files["est_a"], files["est_b"], "--validate", files["val_wound"]]
     out = tmp_path / "G"
-    assert main(["fit", "--model", "brake", *data, "--validate-alpha0", "0.1", "--restarts",
-                 "0", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "brake",
+                *data,
+                "--validate-alpha0",
+                "0.1",
+                "--restarts",
+                "0",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "validation val_wound: its initial torsion alpha0 = 0.1 rad, given" in text
     doc = json.loads((out / "fit.json").read_text())
@@ -184,7 +211,8 @@ def test_a_given_torsion_is_used_and_said(files, tmp_path, capsys):
     assert main(["compare", str(out)]) == 0
     cmp = json.loads((out / "compare" / "compare.json").read_text())
     assert max(cmp["fits"][-1]["validation"]["rms_over_floor"].values()) == pytest.approx(
-        doc["assessment"]["worst_ratio_to_floor_validation"], rel=1e-9)
+        doc["assessment"]["worst_ratio_to_floor_validation"], rel=1e-9
+    )
     # The refit command a diagnosis prints carries the given torsion with its file.
     from rotorbayes.commands.diagnose import _with_refit_command
     from rotorbayes.diagnosis.diagnose import REFIT_TOKEN
@@ -193,17 +221,29 @@ def test_a_given_torsion_is_used_and_said(files, tmp_path, capsys):
     assert "--validate-alpha0 0.1" in cmd and "--add string_damping" in cmd
 
 
-@pytest.mark.parametrize("extra, says", [
-    (["--validate-alpha0", "0.1", "--validate-alpha0", "0.2"], "given 2 times for 1"),
-    (["--validate-alpha0", "wound"], "'wound' is not a number"),
-    (["--validate-alpha0", "12"], "alpha0 = 12 rad lies outside alpha0's bounds"),
-    (["--validate-alpha0", "inf"], "give a finite torsion"),
-])
-def test_bad_validation_torsion_is_refused_before_any_work(files, tmp_path, capsys, extra,
-                                                           says):
+@pytest.mark.parametrize(
+    "extra, says",
+    [
+        (["--validate-alpha0", "0.1", "--validate-alpha0", "0.2"], "given 2 times for 1"),
+        (["--validate-alpha0", "wound"], "'wound' is not a number"),
+        (["--validate-alpha0", "12"], "alpha0 = 12 rad lies outside alpha0's bounds"),
+        (["--validate-alpha0", "inf"], "give a finite torsion"),
+    ],
+)
+def test_bad_validation_torsion_is_refused_before_any_work(files, tmp_path, capsys, extra, says):
     out = tmp_path / "R"
-    argv = ["fit", "--model", "brake", files["est_a"], files["est_b"], "--validate",
-            files["val_wound"], *extra, "--out", str(out)]
+    argv = [
+        "fit",
+        "--model",
+        "brake",
+        files["est_a"],
+        files["est_b"],
+        "--validate",
+        files["val_wound"],
+        *extra,
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 2
     assert says in capsys.readouterr().err
     assert not out.exists()
@@ -212,11 +252,39 @@ def test_bad_validation_torsion_is_refused_before_any_work(files, tmp_path, caps
 def test_a_torsion_the_model_cannot_take_is_refused(files, tmp_path, capsys):
     out = tmp_path / "R"
     # One run, no initial_torsion: the model has no pre-wound string.
-    assert main(["fit", "--model", "brake", files["est_a"], "--validate", files["val_wound"],
-                 "--validate-alpha0", "0.1", "--out", str(out)]) == 2
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "brake",
+                files["est_a"],
+                "--validate",
+                files["val_wound"],
+                "--validate-alpha0",
+                "0.1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
     assert "--add initial_torsion" in capsys.readouterr().err
-    assert main(["fit", "--model", "brake", files["est_a"], "--validate-alpha0", "0.1",
-                 "--out", str(out)]) == 2
+    assert (
+        main(
+            [
+                "fit",
+                "--model",
+                "brake",
+                files["est_a"],
+                "--validate-alpha0",
+                "0.1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
     assert "there is no --validate file" in capsys.readouterr().err
     assert not out.exists()
 
@@ -224,15 +292,17 @@ def test_a_torsion_the_model_cannot_take_is_refused(files, tmp_path, capsys):
 def test_an_analysis_file_gives_validation_torsions(files, tmp_path):
     from rotorbayes.commands.study.analysis import AnalysisError, load_analysis
 
-    text = (f'[analysis]\nout = "out"\nconfig = "brake"\n'
-            f'data = ["{files["est_a"]}", "{files["est_b"]}"]\n'
-            f'validate = ["{files["val_wound"]}"]\n')
+    text = (
+        f'[analysis]\nout = "out"\nconfig = "brake"\n'
+        f'data = ["{files["est_a"]}", "{files["est_b"]}"]\n'
+        f'validate = ["{files["val_wound"]}"]\n'
+    )
     good = tmp_path / "good.toml"
-    good.write_text(text + 'validate_alpha0 = [0.1]\n')
+    good.write_text(text + "validate_alpha0 = [0.1]\n")
     assert load_analysis(good).doc["analysis"]["validate_alpha0"] == [0.1]
     (tmp_path / "fit.toml").write_text(text + 'validate_alpha0 = ["fit"]\n')
     load_analysis(tmp_path / "fit.toml")
-    for bad, says in (('[0.1, 0.2]', "2 entries for 1"), ('["wound"]', "neither a torsion")):
+    for bad, says in (("[0.1, 0.2]", "2 entries for 1"), ('["wound"]', "neither a torsion")):
         (tmp_path / "bad.toml").write_text(text + f"validate_alpha0 = {bad}\n")
         with pytest.raises(AnalysisError, match=says):
             load_analysis(tmp_path / "bad.toml")

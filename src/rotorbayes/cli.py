@@ -67,8 +67,15 @@ COMMANDS = (
 #: Errors that are the user's input (exit code 2): printed as one line, no traceback.
 #: (A result folder that cannot be read, rotorbayes.inference.results.ResultError, is a
 #: ValueError.)
-REFUSED = (EXIT.Refused, DataFileError, ParameterError, ValueError, FileExistsError,
-           SimulationError, OutputError)
+REFUSED = (
+    EXIT.Refused,
+    DataFileError,
+    ParameterError,
+    ValueError,
+    FileExistsError,
+    SimulationError,
+    OutputError,
+)
 
 
 def command_module(name: str):
@@ -81,9 +88,15 @@ class _Formatter(argparse.HelpFormatter):
 
     def _get_help_string(self, action):
         text = action.help or ""
-        if ("%(default)" in text or "default" in text or action.default is None
-                or action.default is False or action.default is argparse.SUPPRESS
-                or not action.option_strings or not text):
+        if (
+            "%(default)" in text
+            or "default" in text
+            or action.default is None
+            or action.default is False
+            or action.default is argparse.SUPPRESS
+            or not action.option_strings
+            or not text
+        ):
             return text
         return f"{text} (default: %(default)s)"
 
@@ -99,8 +112,13 @@ class _Parser(argparse.ArgumentParser):
     def add_argument(self, *args, **kw):
         # An option without help text would hide its default; give it one that shows it.
         default = kw.get("default")
-        if (kw.get("help") is None and args and str(args[0]).startswith("-")
-                and default is not None and default is not False):
+        if (
+            kw.get("help") is None
+            and args
+            and str(args[0]).startswith("-")
+            and default is not None
+            and default is not False
+        ):
             kw["help"] = "(default: %(default)s)"
         return super().add_argument(*args, **kw)
 
@@ -114,8 +132,12 @@ def build_parser() -> argparse.ArgumentParser:
     from .util import __version__
 
     ap = _Parser(prog="rotorbayes", description=DESCRIPTION)
-    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
-                    help="print the version and exit")
+    ap.add_argument(
+        "--version",
+        action="version",
+        version=f"%(prog)s {__version__}",
+        help="print the version and exit",
+    )
     sub = ap.add_subparsers(dest="cmd", required=True)
     for name in COMMANDS:
         module = command_module(name)
@@ -178,8 +200,10 @@ class _logged:
             err = "".join(p for p in self.cap_err.parts if "\r" not in p and "it/s" not in p)
             try:
                 with (Path(folder) / "log.txt").open("a") as fh:
-                    fh.write(f"==== {self.started} rotorbayes {' '.join(self.a._argv)} "
-                             f"(ended {stamp})\n{text}")
+                    fh.write(
+                        f"==== {self.started} rotorbayes {' '.join(self.a._argv)} "
+                        f"(ended {stamp})\n{text}"
+                    )
                     if err:
                         fh.write(f"---- stderr\n{err}")
             except OSError:
@@ -228,8 +252,9 @@ def _main(argv=None) -> int:
     except SystemExit as exc:  # --help, --version (0) or a usage error (2), already printed
         return exc.code if isinstance(exc.code, int) else 2
     except KeyboardInterrupt:  # Python code calling main(); the command ends at once instead
-        print("rotorbayes: interrupted (Ctrl-C) while starting; nothing was written",
-              file=sys.stderr)
+        print(
+            "rotorbayes: interrupted (Ctrl-C) while starting; nothing was written", file=sys.stderr
+        )
         return EXIT.INTERRUPTED
     from .util import coldstart
 
@@ -245,16 +270,21 @@ def _main(argv=None) -> int:
         # A Ctrl-C that C code turned into another exception (coldstart.ctrl_c_seen):
         # results are whole or absent whatever the exception, so the stop is what it was.
         code = _interrupted(a)
-        print(f"rotorbayes {a.cmd}: (the stop surfaced as {type(exc).__name__}: "
-              f"{str(exc)[:160]})", file=sys.stderr)
+        print(
+            f"rotorbayes {a.cmd}: (the stop surfaced as {type(exc).__name__}: {str(exc)[:160]})",
+            file=sys.stderr,
+        )
         return code
 
 
 def _interrupted(a) -> int:
     # Every command builds its results whole or not at all (a partial folder, atomic
     # files), and keeps work that was done (InterruptGuard): what is left is true.
-    print(f"rotorbayes {a.cmd}: interrupted (Ctrl-C) before its results were complete; "
-          "it wrote nothing new (earlier results, if any, are unchanged)", file=sys.stderr)
+    print(
+        f"rotorbayes {a.cmd}: interrupted (Ctrl-C) before its results were complete; "
+        "it wrote nothing new (earlier results, if any, are unchanged)",
+        file=sys.stderr,
+    )
     return EXIT.INTERRUPTED
 
 
@@ -290,16 +320,21 @@ def _run_and_report(a) -> int:
         print(f"rotorbayes {a.cmd}: error: {exc}", file=sys.stderr)
         return EXIT.REFUSED
     except (OSError, RuntimeError, MemoryError) as exc:
-        if isinstance(exc, MemoryError) or EXIT.is_disk_full(exc) or (
-                isinstance(exc, OSError) and exc.errno in EXIT.ENVIRONMENT_ERRNOS):
-            print(f"rotorbayes {a.cmd}: error: {EXIT.describe_environment(exc)}",
-                  file=sys.stderr)
+        if (
+            isinstance(exc, MemoryError)
+            or EXIT.is_disk_full(exc)
+            or (isinstance(exc, OSError) and exc.errno in EXIT.ENVIRONMENT_ERRNOS)
+        ):
+            print(f"rotorbayes {a.cmd}: error: {EXIT.describe_environment(exc)}", file=sys.stderr)
             return EXIT.ENVIRONMENT
         if not isinstance(exc, OSError) or exc.filename is None:
             raise  # not about a path the user gave: a bug, show it
         what = exc.strerror or type(exc).__name__
-        print(f"rotorbayes {a.cmd}: error: {exc.filename}: {what}; check the path and its "
-              "permissions", file=sys.stderr)
+        print(
+            f"rotorbayes {a.cmd}: error: {exc.filename}: {what}; check the path and its "
+            "permissions",
+            file=sys.stderr,
+        )
         return EXIT.REFUSED
 
 

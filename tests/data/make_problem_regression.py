@@ -39,8 +39,14 @@ def experiments() -> dict[str, object]:
         ("upper_a", "upper", "4.1", 4, None),
     ):
         t, u = rb.signals.estimation_signal(SECONDS, seed=seed)
-        sim = rb.simulate(thesis_set(thesis, "P_ref"), u, dt=t[1] - t[0], config=config,
-                          alpha0=alpha0, quantize_angles=True)
+        sim = rb.simulate(
+            thesis_set(thesis, "P_ref"),
+            u,
+            dt=t[1] - t[0],
+            config=config,
+            alpha0=alpha0,
+            quantize_angles=True,
+        )
         out[name] = sim.to_experiment(name)
     return out
 
@@ -52,9 +58,13 @@ def stored_experiments(data) -> dict[str, object]:
     out = {}
     for name in json.loads(str(data["experiment_names"])):
         th_l = data[f"ex/{name}/theta_l"]
-        out[name] = Experiment(t=data[f"ex/{name}/t"], u=data[f"ex/{name}/u"],
-                               theta_u=data[f"ex/{name}/theta_u"],
-                               theta_l=None if th_l.size == 0 else th_l, name=name)
+        out[name] = Experiment(
+            t=data[f"ex/{name}/t"],
+            u=data[f"ex/{name}/u"],
+            theta_u=data[f"ex/{name}/theta_u"],
+            theta_l=None if th_l.size == 0 else th_l,
+            name=name,
+        )
     return out
 
 
@@ -68,15 +78,22 @@ def problems(ex: dict) -> dict[str, object]:
     return {
         "brake": inference.Problem("brake", [ex["brake_a"]], base=brake),
         "brake_two": inference.Problem(
-            "brake", [ex["brake_a"], ex["brake_b"]], base=brake,
-            channels=("theta_u", "theta_l"), weights={"theta_u": 2.5, "theta_l": 0.7}),
+            "brake",
+            [ex["brake_a"], ex["brake_b"]],
+            base=brake,
+            channels=("theta_u", "theta_l"),
+            weights={"theta_u": 2.5, "theta_l": 0.7},
+        ),
         "coupled_two": inference.Problem(
-            "coupled", (ex["coupled_a"], ex["coupled_b"]), base=coupled,
+            "coupled",
+            (ex["coupled_a"], ex["coupled_b"]),
+            base=coupled,
             free=["J_l", "k_alpha", "Tc_l", "b_l", "alpha0"],
-            run_starts={"alpha0[1]": 0.15, "alpha0[5]": 1.0}),
+            run_starts={"alpha0[1]": 0.15, "alpha0[5]": 1.0},
+        ),
         "coupled_asym": inference.Problem(
-            "coupled", [ex["coupled_a"]], effects=["lower_asymmetric_coulomb"],
-            fixed=["dTc_u"]),
+            "coupled", [ex["coupled_a"]], effects=["lower_asymmetric_coulomb"], fixed=["dTc_u"]
+        ),
         "upper": inference.Problem("upper", [ex["upper_a"]], weights={"theta_u": 0.1}),
     }
 
@@ -100,7 +117,8 @@ def points(prob, n: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     x0 = prob.start_vector(prob.base)
     X = x0 * (1.0 + 0.02 * rng.standard_normal((n, x0.size))) + 1e-4 * rng.standard_normal(
-        (n, x0.size))
+        (n, x0.size)
+    )
     return np.clip(X, prob.lower, prob.upper)
 
 
@@ -121,8 +139,9 @@ def record(ex: dict) -> dict[str, np.ndarray]:
         out[f"{key}/x0"] = x0
         out[f"{key}/X"] = X
         out[f"{key}/values"] = np.array(json.dumps(prob.values(X[0])))
-        out[f"{key}/params"] = np.array(json.dumps(
-            [prob.params_for(X[0], i) for i in range(len(prob.experiments))]))
+        out[f"{key}/params"] = np.array(
+            json.dumps([prob.params_for(X[0], i) for i in range(len(prob.experiments))])
+        )
         for i in range(len(prob.experiments)):
             p, q = prob.kernel_vectors(X[0], i)
             out[f"{key}/kernel_p{i}"] = p
@@ -130,8 +149,9 @@ def record(ex: dict) -> dict[str, np.ndarray]:
         out[f"{key}/r0"] = prob.residuals(x0)
         out[f"{key}/R"] = prob.residuals_batch(X)
         out[f"{key}/n_residuals"] = np.array(prob.n_residuals)
-    fit = least_squares.fit(probs["brake"], points(probs["brake"], 1, seed=3)[0], max_nfev=8,
-                            uncertainty=False)
+    fit = least_squares.fit(
+        probs["brake"], points(probs["brake"], 1, seed=3)[0], max_nfev=8, uncertainty=False
+    )
     out["fit/brake/x"] = fit.x
     out["fit/brake/ssr"] = np.array(fit.ssr)
     for key, pkey, kw in POSTERIORS:

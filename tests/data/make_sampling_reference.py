@@ -29,8 +29,9 @@ def problem():
     from rotorbayes import inference
     from rotorbayes.inference.likelihood import LogPosterior
 
-    p = rb.parameters.resolve(dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05),
-                              config="upper")
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
     _, u = rb.signals.make_signal("est", 2.0, rate=200.0, seed=4)
     sim = rb.simulate(p, u, dt=1 / 200, config="upper", quantize_angles=True)
     prob = inference.Problem("upper", [sim.to_experiment("upper")], base=p)
@@ -89,8 +90,7 @@ def cases(lp, x, tmp: Path) -> dict[str, np.ndarray]:
     out.update(h5_arrays(tmp / "threads" / "chain.h5", "threads"))
     # 3. Stopped on request in the serial loop, then resumed to the end.
     try:
-        sampling.sample(lp, x, tmp / "stopped", n_steps=STEPS, should_stop=StopAfter(40),
-                        **kw)
+        sampling.sample(lp, x, tmp / "stopped", n_steps=STEPS, should_stop=StopAfter(40), **kw)
         raise AssertionError("the run was not stopped")
     except sampling.SamplingStopped:
         pass
@@ -103,11 +103,28 @@ def cases(lp, x, tmp: Path) -> dict[str, np.ndarray]:
         sampling.sample(lp, x, tmp / "short", n_steps=STEPS, executor=ex, **kw)
     out.update(h5_arrays(tmp / "short" / "chain.h5", "short"))
     # 5. In memory, other moves and starts.
-    out.update(run_arrays(sampling.sample(lp, x, None, n_steps=60, moves="de-mix",
-                                          start="ball", **kw), "memory_demix"))
-    out.update(run_arrays(sampling.sample(lp, x, None, n_steps=40, moves="stretch",
-                                          n_walkers=WALKERS, n_ensembles=1, seed=9,
-                                          progress=False), "memory_stretch"))
+    out.update(
+        run_arrays(
+            sampling.sample(lp, x, None, n_steps=60, moves="de-mix", start="ball", **kw),
+            "memory_demix",
+        )
+    )
+    out.update(
+        run_arrays(
+            sampling.sample(
+                lp,
+                x,
+                None,
+                n_steps=40,
+                moves="stretch",
+                n_walkers=WALKERS,
+                n_ensembles=1,
+                seed=9,
+                progress=False,
+            ),
+            "memory_stretch",
+        )
+    )
     return out
 
 

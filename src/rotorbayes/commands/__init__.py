@@ -32,4 +32,3 @@ The package imports none of its modules here: :mod:`rotorbayes.commands.study.an
 calls the fit, diagnose, compare, sample and identify functions, and the ``run`` and
 ``demo`` commands call the study.
 """
-

@@ -49,42 +49,47 @@ def data_path(name: str) -> str:
     return name
 
 
-def load_experiments(paths: Sequence[str], config: str, *,
-                     keep_glitches: bool = False, read=None) -> list[Experiment]:
+def load_experiments(
+    paths: Sequence[str], config: str, *, keep_glitches: bool = False, read=None
+) -> list[Experiment]:
     """The measurement files (or ``example:NAME``), checked, their glitches left out
     (kept with ``keep_glitches``; :func:`rotorbayes.io.measurements.leave_out_glitches`), read as
     ``read`` says (:class:`~rotorbayes.io.rigfiles.ReadSpec`; a bundled example is always a
     plain CSV); a file whose header names another configuration gets a warning."""
     exps = []
     for p in paths:
-        ex = load_experiment(data_path(p), expect_lower=config != "upper",
-                             keep_glitches=keep_glitches,
-                             read=None if p.startswith("example:") else read)
+        ex = load_experiment(
+            data_path(p),
+            expect_lower=config != "upper",
+            keep_glitches=keep_glitches,
+            read=None if p.startswith("example:") else read,
+        )
         said = str((ex.meta or {}).get("config", "")).strip()
         if said in ("upper", "coupled", "brake") and said != config:
-            print(f"warning: {p} says it holds {said}-configuration data (its header), but "
-                  f"--model is {config}; check --model", file=sys.stderr)
+            print(
+                f"warning: {p} says it holds {said}-configuration data (its header), but "
+                f"--model is {config}; check --model",
+                file=sys.stderr,
+            )
         exps.append(ex)
     return exps
 
 
-def say_glitches(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()
-                 ) -> None:
+def say_glitches(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()) -> None:
     """Print the glitches found in the data (each named; left out or kept), if any."""
     from ..io.glitches import glitch_lines
 
-    for line in glitch_lines([("estimation", e) for e in estimation]
-                             + [("validation", e) for e in validation]):
+    for line in glitch_lines(
+        [("estimation", e) for e in estimation] + [("validation", e) for e in validation]
+    ):
         print(line)
 
 
-def glitch_record(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()
-                  ) -> dict:
+def glitch_record(estimation: Sequence[Experiment], validation: Sequence[Experiment] = ()) -> dict:
     """The glitches found in the data, for a result document (fit.json's ``"glitches"``)."""
     from ..io.glitches import glitch_record as record
 
-    return record([("estimation", e) for e in estimation]
-                  + [("validation", e) for e in validation])
+    return record([("estimation", e) for e in estimation] + [("validation", e) for e in validation])
 
 
 def fit_json(spec: str | None) -> dict | None:
@@ -101,8 +106,10 @@ def fit_json(spec: str | None) -> dict | None:
     except Refused:
         raise
     except (OSError, ValueError) as exc:
-        raise Refused(f"{p}: cannot read it ({exc}); give a fit.json written by "
-                      "`rotorbayes fit`, a TOML file or a named set") from None
+        raise Refused(
+            f"{p}: cannot read it ({exc}); give a fit.json written by "
+            "`rotorbayes fit`, a TOML file or a named set"
+        ) from None
 
 
 def fit_effects(spec: str | None, config: str | None, trust: bool = False) -> list[str]:
@@ -137,13 +144,17 @@ def param_spec(spec: str | None):
         except Refused:
             raise
         except (OSError, ValueError) as exc:
-            raise Refused(f"{p}: cannot read parameters from it ({exc}); give a fit.json "
-                          "written by `rotorbayes fit`, a TOML file or a named set") from None
+            raise Refused(
+                f"{p}: cannot read parameters from it ({exc}); give a fit.json "
+                "written by `rotorbayes fit`, a TOML file or a named set"
+            ) from None
         if isinstance(data, dict) and "params" not in data:
             data = {"params": data}  # a flat {name: value} mapping
         if not isinstance(data, dict):
-            raise Refused(f"{p}: holds no parameter values (not a JSON object); give a "
-                          "fit.json written by `rotorbayes fit`, a TOML file or a named set")
+            raise Refused(
+                f"{p}: holds no parameter values (not a JSON object); give a "
+                "fit.json written by `rotorbayes fit`, a TOML file or a named set"
+            )
         # Every value checked (finite, inside its bounds): the message names the file, the
         # parameter and the value.
         try:
@@ -163,18 +174,25 @@ def _best_of_multistart(path: Path) -> dict[str, float]:
     multistart folder works as ``--p0``."""
     try:
         d = loads_json(path.read_text(), path, Refused, "multistart.json")
-        ok = [i for i, (s, e) in enumerate(zip(d["ssr"], d["ends"], strict=True))
-              if s is not None and math.isfinite(s) and e is not None]
+        ok = [
+            i
+            for i, (s, e) in enumerate(zip(d["ssr"], d["ends"], strict=True))
+            if s is not None and math.isfinite(s) and e is not None
+        ]
         if not ok:
-            raise Refused(f"{path}: no start of this multistart ended in a fit; give another "
-                          "start (a fit folder, a TOML file or a named set)")
+            raise Refused(
+                f"{path}: no start of this multistart ended in a fit; give another "
+                "start (a fit folder, a TOML file or a named set)"
+            )
         best = min(ok, key=lambda i: d["ssr"][i])
         return {n: float(v) for n, v in zip(d["names"], d["ends"][best], strict=True)}
     except Refused:
         raise
     except (OSError, KeyError, TypeError, ValueError) as exc:
-        raise Refused(f"{path}: cannot read the best start from it ({exc}); give a fit "
-                      "folder, a TOML file or a named set") from None
+        raise Refused(
+            f"{path}: cannot read the best start from it ({exc}); give a fit "
+            "folder, a TOML file or a named set"
+        ) from None
 
 
 def resolve_values(spec, model) -> dict[str, float]:
@@ -199,10 +217,15 @@ def run_values(spec: str | None) -> dict[str, float]:
         return {}
     out = {}
     est = doc.get("estimates")
-    for n, e in (est.items() if isinstance(est, dict) else ()):
+    for n, e in est.items() if isinstance(est, dict) else ():
         v = e.get("value") if isinstance(e, dict) else None
-        if "[" in n and n.split("[")[0] in _params.INFO and isinstance(v, int | float) \
-                and not isinstance(v, bool) and math.isfinite(v):
+        if (
+            "[" in n
+            and n.split("[")[0] in _params.INFO
+            and isinstance(v, int | float)
+            and not isinstance(v, bool)
+            and math.isfinite(v)
+        ):
             out[n] = float(v)
     return out
 
@@ -249,8 +272,13 @@ def json_default(o):
 
 
 @contextlib.contextmanager
-def executor(backend: str | None = None, workers: int | None = None,
-             scheduler: str | None = None, *, file: dict | None = None):
+def executor(
+    backend: str | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    *,
+    file: dict | None = None,
+):
     """Open the executor the options, DASK_SCHEDULER_ADDRESS or an analysis file's
     [parallel] table (``file``) choose, for the length of a command.  A command run inside
     ``run`` (a study stage) without options of its own uses the study's executor."""

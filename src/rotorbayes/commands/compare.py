@@ -10,8 +10,10 @@ from ..io.outputs import output_folder, save_figure_atomic, write_text_atomic
 from .common import Outcome, strict_json
 from .options import add_changed_data_option, add_trust_option
 
-HELP = ("where the model fails (error against the state, residual correlation) and, for "
-        "several fits or a chain, how the error fell")
+HELP = (
+    "where the model fails (error against the state, residual correlation) and, for "
+    "several fits or a chain, how the error fell"
+)
 
 
 def add_arguments(c) -> None:
@@ -22,8 +24,14 @@ def add_arguments(c) -> None:
     add_changed_data_option(c)
 
 
-def compare(fits, *, out: str | None = None, force: bool = False,
-            trust_effects: bool = False, accept_changed_data: bool = False) -> Outcome:
+def compare(
+    fits,
+    *,
+    out: str | None = None,
+    force: bool = False,
+    trust_effects: bool = False,
+    accept_changed_data: bool = False,
+) -> Outcome:
     """Where the model fails (one fit) and how the error fell (several fit folders, or
     the chain of --p0 parents of one): compare.json and figures in ``out`` (default: the
     last fit's compare/ folder, made again each time).  ``Outcome.doc`` is compare.json's
@@ -32,11 +40,12 @@ def compare(fits, *, out: str | None = None, force: bool = False,
 
     fits = [fits] if isinstance(fits, str) else list(fits)
     given = fits
-    fits = [load_fit(f, trust_effects=trust_effects, accept_changed_data=accept_changed_data)
-            for f in given]
+    fits = [
+        load_fit(f, trust_effects=trust_effects, accept_changed_data=accept_changed_data)
+        for f in given
+    ]
     if len(fits) == 1:
-        fits = fits[0].chain(trust_effects=trust_effects,
-                             accept_changed_data=accept_changed_data)
+        fits = fits[0].chain(trust_effects=trust_effects, accept_changed_data=accept_changed_data)
         if len(fits) > 1:
             print(f"comparing the chain of {len(fits)} fits that led to {given[0]}")
     last = fits[-1]
@@ -55,8 +64,10 @@ def _compare_into(fits, last, out: Path) -> tuple[list[str], dict]:
     doc = diagnosis_compare.compare_fits(fits)
     print(diagnosis_compare.table(doc))
     views = diagnosis_compare.residual_views(last.problem, last.x)
-    for name, (fig, _) in (("error_vs_state.png", figures.plot_error_vs_state(views)),
-                           ("residual_correlation.png", figures.plot_residual_correlation(views))):
+    for name, (fig, _) in (
+        ("error_vs_state.png", figures.plot_error_vs_state(views)),
+        ("residual_correlation.png", figures.plot_residual_correlation(views)),
+    ):
         save_figure_atomic(fig, out / name)
     written = ["compare.json", "error_vs_state.png", "residual_correlation.png"]
     if len(fits) > 1:
@@ -69,18 +80,24 @@ def _compare_into(fits, last, out: Path) -> tuple[list[str], dict]:
         floor_ratio = max(last.doc.get("assessment", {}).get("worst_ratio_to_floor") or 0, 0)
         note = ""
         if outside > 0.05:
-            note = (" (structured; at the floor this is the encoder's own quantisation error, "
-                    "which is correlated while a disc moves slowly or rests — see diagnose)"
-                    if floor_ratio and floor_ratio <= 1.5 else
-                    " (the error is structured, not noise)")
-        print(f"{c}: {100 * outside:.0f} % of autocorrelation lags 1..{lags.max()} outside the "
-              "99 % band of a white residual" + note)
+            note = (
+                " (structured; at the floor this is the encoder's own quantisation error, "
+                "which is correlated while a disc moves slowly or rests — see diagnose)"
+                if floor_ratio and floor_ratio <= 1.5
+                else " (the error is structured, not noise)"
+            )
+        print(
+            f"{c}: {100 * outside:.0f} % of autocorrelation lags 1..{lags.max()} outside the "
+            "99 % band of a white residual" + note
+        )
         lags_u, ccf = v["ccf"]
         peak = float(np.max(np.abs(ccf)))
         out_u = float(np.mean(np.abs(ccf) > v["band_u"]))
-        print(f"{c}: cross-correlation with u at most {peak:.3f}, "
-              f"{100 * out_u:.0f} % of lags outside +-{v['band_u']:.3f}, the 99 % band of a "
-              "residual unrelated to u but as correlated in time"
-              + (" (the error depends on the input)" if out_u > 0.05 else ""))
+        print(
+            f"{c}: cross-correlation with u at most {peak:.3f}, "
+            f"{100 * out_u:.0f} % of lags outside +-{v['band_u']:.3f}, the 99 % band of a "
+            "residual unrelated to u but as correlated in time"
+            + (" (the error depends on the input)" if out_u > 0.05 else "")
+        )
     write_text_atomic(out / "compare.json", strict_json(doc))
     return written, doc

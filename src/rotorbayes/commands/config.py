@@ -53,8 +53,11 @@ class ReadOptions:
     def __post_init__(self):
         from .options import read_spec
 
-        object.__setattr__(self, "spec", read_spec(self.columns, self.time_unit,
-                                                   self.angle_unit, self.counts_per_rev))
+        object.__setattr__(
+            self,
+            "spec",
+            read_spec(self.columns, self.time_unit, self.angle_unit, self.counts_per_rev),
+        )
 
 
 @dataclass(frozen=True)
@@ -146,8 +149,9 @@ class FitFolderOptions:
         """The fit in ``folder`` (a :class:`rotorbayes.results.FitResult`)."""
         from ..inference.results import load_fit
 
-        return load_fit(folder, trust_effects=self.trust_effects,
-                        accept_changed_data=self.accept_changed_data)
+        return load_fit(
+            folder, trust_effects=self.trust_effects, accept_changed_data=self.accept_changed_data
+        )
 
 
 @dataclass(frozen=True)
@@ -233,8 +237,11 @@ class IdentifyOptions:
 def _nested(cls) -> dict[str, type]:
     """The fields of ``cls`` that are option objects themselves, with their classes."""
     hints = typing.get_type_hints(cls)
-    return {f.name: hints[f.name] for f in dataclasses.fields(cls)
-            if dataclasses.is_dataclass(hints[f.name])}
+    return {
+        f.name: hints[f.name]
+        for f in dataclasses.fields(cls)
+        if dataclasses.is_dataclass(hints[f.name])
+    }
 
 
 def keyword_fields(cls) -> dict[str, tuple[str, ...]]:
@@ -284,8 +291,9 @@ def _build(cls, keywords: dict):
             continue
         if f.name in nested:
             sub = nested[f.name]
-            args[f.name] = _build(sub, {k: v for k, v in keywords.items()
-                                        if k in keyword_fields(sub)})
+            args[f.name] = _build(
+                sub, {k: v for k, v in keywords.items() if k in keyword_fields(sub)}
+            )
         elif f.name in keywords:
             args[f.name] = keywords[f.name]
     return cls(**args)

@@ -12,27 +12,44 @@ from ..util.exitcodes import Interrupted, Refused
 from .common import Outcome, say_glitches, strict_json
 from .options import add_changed_data_option, add_trust_option, ranged
 
-HELP = ("is the remaining error noise? which effect is missing? (writes diagnosis.json and "
-        "figures into the fit folder)")
+HELP = (
+    "is the remaining error noise? which effect is missing? (writes diagnosis.json and "
+    "figures into the fit folder)"
+)
 
 
 def add_arguments(g) -> None:
     g.add_argument("fit", help="a folder written by `rotorbayes fit`")
-    g.add_argument("--noise", type=ranged(ge=0, le=1, why=" rad (a standard deviation)"),
-                   default=None,
-                   help="Gaussian measurement noise std [rad] besides encoder quantisation "
-                   "(default 0)")
-    g.add_argument("--add", action="append", metavar="FILE.py:NAME", default=None,
-                   help="an effect of your own to test beside the catalogue's (repeatable): "
-                   "a score test at the fit, a one-step estimate that `fit --p0` of this "
-                   "folder starts from, a predicted fall (see docs/effects.md)")
-    g.add_argument("--no-trials", dest="trials", action="store_false",
-                   help="far above the floor, skip the trial refits (one refit of every "
-                   "candidate effect, its parameters searched, ranked by where it ends)")
-    g.add_argument("--no-proposal", dest="proposal", action="store_false",
-                   help="when no catalogue effect brings the fit near the floor, do not "
-                   "propose a missing term (a sparse regression of the missing torque, "
-                   "written as proposal.py beside the fit with its refit command)")
+    g.add_argument(
+        "--noise",
+        type=ranged(ge=0, le=1, why=" rad (a standard deviation)"),
+        default=None,
+        help="Gaussian measurement noise std [rad] besides encoder quantisation (default 0)",
+    )
+    g.add_argument(
+        "--add",
+        action="append",
+        metavar="FILE.py:NAME",
+        default=None,
+        help="an effect of your own to test beside the catalogue's (repeatable): "
+        "a score test at the fit, a one-step estimate that `fit --p0` of this "
+        "folder starts from, a predicted fall (see docs/effects.md)",
+    )
+    g.add_argument(
+        "--no-trials",
+        dest="trials",
+        action="store_false",
+        help="far above the floor, skip the trial refits (one refit of every "
+        "candidate effect, its parameters searched, ranked by where it ends)",
+    )
+    g.add_argument(
+        "--no-proposal",
+        dest="proposal",
+        action="store_false",
+        help="when no catalogue effect brings the fit near the floor, do not "
+        "propose a missing term (a sparse regression of the missing torque, "
+        "written as proposal.py beside the fit with its refit command)",
+    )
     add_trust_option(g)
     add_changed_data_option(g)
 
@@ -46,13 +63,23 @@ def _integration(result) -> dict:
     floors, _ = prob.noise_floors()
     a = Assessment(channels=channel_rows(prob, quality(prob, result.x), "estimation", floors))
     r = a.integration_ratio
-    return {"ratio": None if math.isnan(r) else r, "line": a.integration_line(),
-            "warning": integration_warning(prob, r)}
+    return {
+        "ratio": None if math.isnan(r) else r,
+        "line": a.integration_line(),
+        "warning": integration_warning(prob, r),
+    }
 
 
-def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = False,
-             add: list[str] | None = None, trials: bool = True,
-             accept_changed_data: bool = False, proposal: bool = True) -> Outcome:
+def diagnose(
+    fit: str,
+    *,
+    noise: float | None = None,
+    trust_effects: bool = False,
+    add: list[str] | None = None,
+    trials: bool = True,
+    accept_changed_data: bool = False,
+    proposal: bool = True,
+) -> Outcome:
     """Verdict, ranking of missing effects and missing-torque map of the fit folder ``fit``
     (written into it: diagnosis.json, diagnosis_candidates.png, missing_torque.png).
     ``noise`` is Gaussian measurement noise [rad] besides the encoders' rounding.  A data
@@ -66,19 +93,22 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     from ..inference.results import load_fit
     from ..io.outputs import folder_lock
 
-    result = load_fit(fit, trust_effects=trust_effects,
-                      accept_changed_data=accept_changed_data)
+    result = load_fit(fit, trust_effects=trust_effects, accept_changed_data=accept_changed_data)
     if noise is not None and not (noise >= 0 and math.isfinite(noise)):
         raise Refused(f"--noise {noise}: give the Gaussian noise std in rad (>= 0)")
-    print(f"diagnosing {result.folder}/ ({result.doc['config']} configuration, "
-          f"{len(result.problem.names)} free parameters, effects: "
-          f"{', '.join(result.problem.model.effect_names) or 'none'})")
+    print(
+        f"diagnosing {result.folder}/ ({result.doc['config']} configuration, "
+        f"{len(result.problem.names)} free parameters, effects: "
+        f"{', '.join(result.problem.model.effect_names) or 'none'})"
+    )
     say_glitches(result.problem.experiments, result.validation)  # as loaded here
     specs = {}
     for spec in add or []:
         if ":" not in spec or not spec.split(":", 1)[0].endswith(".py"):
-            raise Refused(f"--add {spec}: give an effect of your own as FILE.py:NAME (the "
-                          "catalogue's effects are tested anyway)")
+            raise Refused(
+                f"--add {spec}: give an effect of your own as FILE.py:NAME (the "
+                "catalogue's effects are tested anyway)"
+            )
         from ..model import effects as _effects
 
         try:
@@ -90,8 +120,9 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
         specs[e.name] = spec
     if specs:
         print(f"testing beside the catalogue: {', '.join(specs.values())}")
-    d = run_diagnosis(result.problem, result.x, noise_std=noise or 0.0,
-                      user_effects=list(specs.values()))
+    d = run_diagnosis(
+        result.problem, result.x, noise_std=noise or 0.0, user_effects=list(specs.values())
+    )
     d.advice = _with_refit_command(d.advice, result.folder, result.doc, specs)
     print()
     print(d.text())
@@ -108,29 +139,41 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
     sp = fa.get("validation_spread")
     if d.adequate and isinstance(v, (int, float)) and v > VALIDATION_NOTE:
         if isinstance(sp, dict) and sp.get("undetermined"):
-            why = (f"the estimation data do not determine {', '.join(sp['undetermined'])} "
-                   "(infinite standard errors), so the gap may be theirs rather than a "
-                   "missing effect: fit both together")
+            why = (
+                f"the estimation data do not determine {', '.join(sp['undetermined'])} "
+                "(infinite standard errors), so the gap may be theirs rather than a "
+                "missing effect: fit both together"
+            )
         elif isinstance(sp, dict) and v <= sp.get("q90", -1.0):
-            why = (f"within what the estimates' own uncertainty predicts there "
-                   f"({sp['q10']:.3g}x-{sp['q90']:.3g}x for 80 % of {sp['draws']} parameter "
-                   "draws): these data do not determine the parameters well enough to "
-                   "predict that experiment to the floor; fit both together to narrow them")
+            why = (
+                f"within what the estimates' own uncertainty predicts there "
+                f"({sp['q10']:.3g}x-{sp['q90']:.3g}x for 80 % of {sp['draws']} parameter "
+                "draws): these data do not determine the parameters well enough to "
+                "predict that experiment to the floor; fit both together to narrow them"
+            )
         else:
-            why = ("the model fits these data but predicts others less well (a missing "
-                   "effect these data do not excite, or parameters they do not determine)"
-                   + (f"; the estimates' own uncertainty explains up to {sp['q90']:.3g}x "
-                      "(90 % of parameter draws)" if isinstance(sp, dict) and "q90" in sp
-                      else "")
-                   + ": compare the fit on its validation data, or fit both together")
-        print(f"note: this verdict is on the estimation data; the fit's validation data are "
-              f"at {v:.3g}x the floor: {why}")
+            why = (
+                "the model fits these data but predicts others less well (a missing "
+                "effect these data do not excite, or parameters they do not determine)"
+                + (
+                    f"; the estimates' own uncertainty explains up to {sp['q90']:.3g}x "
+                    "(90 % of parameter draws)"
+                    if isinstance(sp, dict) and "q90" in sp
+                    else ""
+                )
+                + ": compare the fit on its validation data, or fit both together"
+            )
+        print(
+            f"note: this verdict is on the estimation data; the fit's validation data are "
+            f"at {v:.3g}x the floor: {why}"
+        )
     if integ["warning"]:
         print(f"warning: {integ['warning']}", file=sys.stderr)
     doc = d.as_dict()
     doc["integration"] = integ
-    doc["validation"] = None if val is None else {k: val[k] for k in (
-        "worst_ratio_to_floor", "alpha0")}
+    doc["validation"] = (
+        None if val is None else {k: val[k] for k in ("worst_ratio_to_floor", "alpha0")}
+    )
     doc["fit"] = str(result.folder)
     doc["trials"] = tried
     doc["refit_choice"] = (tried or {}).get("choice")
@@ -139,8 +182,10 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
         doc["data_changed"] = result.changed_data
     # The three files go together: one lock on the fit folder, and Ctrl-C waits for them.
     with folder_lock(result.folder, flag="diagnose", other=None), InterruptGuard().start() as guard:
-        figs = [(plot_candidates(result.problem, result.x, d)[0], "diagnosis_candidates.png"),
-                (plot_torque_map(d)[0], "missing_torque.png")]
+        figs = [
+            (plot_candidates(result.problem, result.x, d)[0], "diagnosis_candidates.png"),
+            (plot_torque_map(d)[0], "missing_torque.png"),
+        ]
         for fig, name in figs:
             save_figure_atomic(fig, result.folder / name)
         if proposed is not None and proposed.kept:
@@ -151,18 +196,23 @@ def diagnose(fit: str, *, noise: float | None = None, trust_effects: bool = Fals
                 old = proposed.file
                 proposed.file = str(Path(old).with_name(written))
                 proposed.command = proposed.command.replace(f"{old}:", f"{proposed.file}:")
-                print(f"{old} exists with other content (kept: you may have edited it, or "
-                      f"refitted it); this proposal is {proposed.file}: refit it with\n"
-                      f"  {proposed.command}")
+                print(
+                    f"{old} exists with other content (kept: you may have edited it, or "
+                    f"refitted it); this proposal is {proposed.file}: refit it with\n"
+                    f"  {proposed.command}"
+                )
             doc["proposal"] = proposed.as_dict()
         write_text_atomic(result.folder / "diagnosis.json", strict_json(doc))
     if guard.hit:
-        raise Interrupted(f"interrupted (Ctrl-C) after the diagnosis had finished; it was "
-                          f"kept, complete, in {result.folder}/ (diagnosis.json and figures)")
-    also = (f", {Path(proposed.file).name}" if proposed is not None and proposed.kept
-            else "")
-    print(f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
-          f"missing_torque.png{also} ({d.seconds:.1f} s)")
+        raise Interrupted(
+            f"interrupted (Ctrl-C) after the diagnosis had finished; it was "
+            f"kept, complete, in {result.folder}/ (diagnosis.json and figures)"
+        )
+    also = f", {Path(proposed.file).name}" if proposed is not None and proposed.kept else ""
+    print(
+        f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
+        f"missing_torque.png{also} ({d.seconds:.1f} s)"
+    )
     return Outcome(folder=Path(fit), doc=doc)
 
 
@@ -186,73 +236,113 @@ def _trials(result, d, specs: dict) -> dict | None:
         return None
     prob = result.problem
     names = [e.name for e in candidates(prob)] + list(specs.values())
-    print(f"\ntrial refits ({worst:.3g}x the floor: far from it the score tests are linear "
-          f"guesses, so each of the {len(names)} candidates is refitted, its parameters "
-          "searched from several starts; --no-trials skips this):", flush=True)
+    print(
+        f"\ntrial refits ({worst:.3g}x the floor: far from it the score tests are linear "
+        f"guesses, so each of the {len(names)} candidates is refitted, its parameters "
+        "searched from several starts; --no-trials skips this):",
+        flush=True,
+    )
     trials = trial_refits(prob, result.x, names, one_step_starts(d.ranking), verbose=True)
     print(trial_table(trials, worst))
     best = trial_choice(trials, worst, result.validation)
     tied = [t for t in trials if math.isfinite(t.validation)]
     if len(tied) > 1:
-        print(f"tied on the estimation data (within {100 * (TIE - 1):.0f} %): "
-              + ", ".join(f"{t.effect} {t.validation:.3g}x" for t in tied)
-              + " the floor on the validation data (each run with its own torsion)")
+        print(
+            f"tied on the estimation data (within {100 * (TIE - 1):.0f} %): "
+            + ", ".join(f"{t.effect} {t.validation:.3g}x" for t in tied)
+            + " the floor on the validation data (each run with its own torsion)"
+        )
     named = d.claimed or d.candidate
     by_name = {t.effect: t for t in trials}
     if best is None:
-        words = (f"no trial refit lowers the worst RMS/floor materially (the best, "
-                 f"{trials[0].effect}, ends at {trials[0].ratio:.3g}x): what is missing is "
-                 "not in the catalogue, or the fit is in a wrong basin; see the missing-"
-                 "torque map, try `rotorbayes multistart`, or write the effect yourself "
-                 "(docs/effects.md)")
+        words = (
+            f"no trial refit lowers the worst RMS/floor materially (the best, "
+            f"{trials[0].effect}, ends at {trials[0].ratio:.3g}x): what is missing is "
+            "not in the catalogue, or the fit is in a wrong basin; see the missing-"
+            "torque map, try `rotorbayes multistart`, or write the effect yourself "
+            "(docs/effects.md)"
+        )
     elif best.effect == named or (specs.get(named or "") == best.effect):
-        words = (f"the trial refits agree with the diagnosis: {best.effect} lowers the worst "
-                 f"RMS/floor most, {worst:.3g}x -> {best.ratio:.3g}x")
+        words = (
+            f"the trial refits agree with the diagnosis: {best.effect} lowers the worst "
+            f"RMS/floor most, {worst:.3g}x -> {best.ratio:.3g}x"
+        )
     else:
         other = by_name.get(named or "")
-        than = (f"; the effect the score tests named, {named}, reaches {other.ratio:.3g}x"
-                if other is not None and not other.failed else "")
-        cmd = _with_refit_command(f"{REFIT_TOKEN} --add {best.effect}", result.folder,
-                                  result.doc, specs)
-        words = (f"the trial refits decide: {best.effect} lowers the worst RMS/floor to "
-                 f"{best.ratio:.3g}x (from {worst:.3g}x){than}. Add it and refit: {cmd}")
+        than = (
+            f"; the effect the score tests named, {named}, reaches {other.ratio:.3g}x"
+            if other is not None and not other.failed
+            else ""
+        )
+        cmd = _with_refit_command(
+            f"{REFIT_TOKEN} --add {best.effect}", result.folder, result.doc, specs
+        )
+        words = (
+            f"the trial refits decide: {best.effect} lowers the worst RMS/floor to "
+            f"{best.ratio:.3g}x (from {worst:.3g}x){than}. Add it and refit: {cmd}"
+        )
     if best is not None and math.isfinite(best.validation):
         # Tied on the estimation data; the validation runs chose (whichever branch above).
-        beaten = [t for t in trials if t is not best and math.isfinite(t.validation)
-                  and t.validation > TIE * best.validation]
+        beaten = [
+            t
+            for t in trials
+            if t is not best
+            and math.isfinite(t.validation)
+            and t.validation > TIE * best.validation
+        ]
         if beaten:
-            words += (f". {best.effect} and " + ", ".join(t.effect for t in beaten)
-                      + " are tied on the estimation data; the validation data decide ("
-                      + ", ".join([f"{best.effect} {best.validation:.3g}x"]
-                                  + [f"{t.effect} {t.validation:.3g}x" for t in beaten])
-                      + " the floor, each run with its own torsion)")
+            words += (
+                f". {best.effect} and "
+                + ", ".join(t.effect for t in beaten)
+                + " are tied on the estimation data; the validation data decide ("
+                + ", ".join(
+                    [f"{best.effect} {best.validation:.3g}x"]
+                    + [f"{t.effect} {t.validation:.3g}x" for t in beaten]
+                )
+                + " the floor, each run with its own torsion)"
+            )
     if best is not None:
         # Still tied after the validation data (or with none to ask): say so.
-        alike = [t.effect for t in trials if t is not best and not t.failed
-                 and t.ratio <= TIE * best.ratio
-                 and (not math.isfinite(best.validation)
-                      or t.validation <= TIE * best.validation)]
+        alike = [
+            t.effect
+            for t in trials
+            if t is not best
+            and not t.failed
+            and t.ratio <= TIE * best.ratio
+            and (not math.isfinite(best.validation) or t.validation <= TIE * best.validation)
+        ]
         if alike:
-            words += (f". Tied with {', '.join(alike)}: "
-                      + ("the estimation and validation data" if math.isfinite(
-                          best.validation) else "these data")
-                      + " cannot tell them apart; an experiment that separates them "
-                      "(`rotorbayes design --separate`) or one more run with a different "
-                      "initial torsion would")
+            words += (
+                f". Tied with {', '.join(alike)}: "
+                + (
+                    "the estimation and validation data"
+                    if math.isfinite(best.validation)
+                    else "these data"
+                )
+                + " cannot tell them apart; an experiment that separates them "
+                "(`rotorbayes design --separate`) or one more run with a different "
+                "initial torsion would"
+            )
     if best is not None and best.on_bound:
-        words += (f" (its {', '.join(best.on_bound)} ended on a bound: distrust the size)")
+        words += f" (its {', '.join(best.on_bound)} ended on a bound: distrust the size)"
     if best is not None and best.ratio > TRIAL_ABOVE:
         # The best catalogue effect helps, but leaves the fit far from the floor: say that
         # most of what is missing lies outside the catalogue, not only what to add.
-        words += (f". Even with it the fit stays {best.ratio:.3g}x the floor: most of what "
-                  "is missing is not in the catalogue (or the fit is in a wrong basin: "
-                  "`rotorbayes multistart`); see the missing-torque map and the proposal "
-                  "below, or write the physics as your own effect -- with a state of its "
-                  "own if it has memory (docs/effects.md)")
+        words += (
+            f". Even with it the fit stays {best.ratio:.3g}x the floor: most of what "
+            "is missing is not in the catalogue (or the fit is in a wrong basin: "
+            "`rotorbayes multistart`); see the missing-torque map and the proposal "
+            "below, or write the physics as your own effect -- with a state of its "
+            "own if it has memory (docs/effects.md)"
+        )
     print(words)
-    return {"ran_above": TRIAL_ABOVE, "before": worst,
-            "choice": None if best is None else best.effect, "words": words,
-            "trials": [t.as_dict() for t in trials]}
+    return {
+        "ran_above": TRIAL_ABOVE,
+        "before": worst,
+        "choice": None if best is None else best.effect,
+        "words": words,
+        "trials": [t.as_dict() for t in trials],
+    }
 
 
 def _proposal(result, d, tried: dict | None, specs: dict):
@@ -275,8 +365,9 @@ def _proposal(result, d, tried: dict | None, specs: dict):
         path = result.folder / FILE_NAME
         rel = os.path.relpath(path)
         spec = f"{rel if len(rel) < len(str(path)) else path}:{p.effect}"
-        cmd = _with_refit_command(f"{REFIT_TOKEN} --add {p.effect}", result.folder,
-                                  result.doc, {**specs, p.effect: spec})
+        cmd = _with_refit_command(
+            f"{REFIT_TOKEN} --add {p.effect}", result.folder, result.doc, {**specs, p.effect: spec}
+        )
         # The file is written by diagnose, beside the fit: the refit trusts it as the fit's
         # own (a folder from elsewhere needs --trust-effects, as any effect file does).
         p.file, p.command = str(spec.rpartition(":")[0]), cmd
@@ -286,8 +377,9 @@ def _proposal(result, d, tried: dict | None, specs: dict):
     return p
 
 
-def _with_refit_command(advice: str, folder: Path, doc: dict,
-                        specs: dict[str, str] | None = None) -> str:
+def _with_refit_command(
+    advice: str, folder: Path, doc: dict, specs: dict[str, str] | None = None
+) -> str:
     """The advice with its generic refit command made concrete: the fit's model, data and
     validation files (as the user can type them from here), ``--p0`` the fit folder, the
     effect, and a new folder beside the fit."""
@@ -313,8 +405,12 @@ def _with_refit_command(advice: str, folder: Path, doc: dict,
     # runs whose torsion was fitted on that run alone).
     given = [t if isinstance(t, dict) else {} for t in doc.get("validation_alpha0") or []]
     if any(t.get("how") == "given" for t in given):
-        val += "".join(f" --validate-alpha0 {t['value']!r}" if t.get("how") == "given"
-                       else " --validate-alpha0 fit" for t in given)
+        val += "".join(
+            f" --validate-alpha0 {t['value']!r}"
+            if t.get("how") == "given"
+            else " --validate-alpha0 fit"
+            for t in given
+        )
     extra = " --prescribed-upper" if doc.get("prescribed_upper") else ""
     chans = doc.get("channels")
     if isinstance(chans, list) and chans and len(chans) == 1:
@@ -325,7 +421,9 @@ def _with_refit_command(advice: str, folder: Path, doc: dict,
     def command(m: re.Match) -> str:
         effect = m.group(1)
         spec = shlex.quote((specs or {}).get(effect, effect))
-        return (f"rotorbayes fit --model {doc.get('config', 'MODEL')} {files}{val}{extra} "
-                f"--p0 {name}/ --add {spec} --out {shlex.quote(out + '_' + effect)}/")
+        return (
+            f"rotorbayes fit --model {doc.get('config', 'MODEL')} {files}{val}{extra} "
+            f"--p0 {name}/ --add {spec} --out {shlex.quote(out + '_' + effect)}/"
+        )
 
     return re.sub(re.escape(REFIT_TOKEN) + r" --add (\S+?)(?=[;\s]|$)", command, advice)

@@ -19,14 +19,18 @@ def effects(name=()) -> Outcome:
         for spec in name:
             print(_effects.resolve([spec])[0].describe())
         return Outcome()
-    print("The catalogue of physical effects (switch one on with --add NAME; a user effect "
-          "with --add FILE.py:NAME, see docs/effects.md).\n")
+    print(
+        "The catalogue of physical effects (switch one on with --add NAME; a user effect "
+        "with --add FILE.py:NAME, see docs/effects.md).\n"
+    )
     for e in _effects.CATALOGUE.values():
         print(e.describe() + "\n")
     from ..model import CONFIGURATIONS
 
-    print("Friction laws to hold against the switch model (--add NAME; not nested in it, so "
-          "diagnose never tries them: fit both and compare on validation data):\n")
+    print(
+        "Friction laws to hold against the switch model (--add NAME; not nested in it, so "
+        "diagnose never tries them: fit both and compare on validation data):\n"
+    )
     for e in _effects.LAWS.values():
         print(e.describe() + "\n")
 

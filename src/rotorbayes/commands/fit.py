@@ -38,25 +38,44 @@ HELP = "least squares from a start P0"
 
 def add_arguments(f) -> None:
     add_fit_options(f)
-    f.add_argument("--validate", action="append", metavar="FILE",
-                   help="a validation CSV file or example:NAME; repeat the option for several "
-                   "(--validate a.csv --validate b.csv)")
-    f.add_argument("--validate-alpha0", action="append", metavar="RAD|fit",
-                   type=_validation_torsion,
-                   help="the initial string torsion [rad] of a validation run, once per "
-                   "--validate file in the same order ('fit': fitted on that run alone, the "
-                   "default whenever the model has a pre-wound string, as with several "
-                   "estimation files)")
-    f.add_argument("--p0", help="start: named set (thesis:4.2:P0), TOML or fit.json "
-                   "(default: a start computed from the data); a fit.json of an upper-"
-                   "configuration fit also fixes the upper-disc parameters it estimated")
-    f.add_argument("--restarts", type=ranged(int, ge=0, le=MAX_RESTARTS), default=6,
-                   help="without --p0: extra fits around the data start when the first one "
-                   "ends above 3x the encoder floor")
-    f.add_argument("--no-search", dest="search", action="store_false",
-                   help="with --p0 and effects added: start their parameters at one point "
-                   "(the diagnosis's one-step estimate, else the effect's typical value) "
-                   "instead of fitting from several starts of them and keeping the best")
+    f.add_argument(
+        "--validate",
+        action="append",
+        metavar="FILE",
+        help="a validation CSV file or example:NAME; repeat the option for several "
+        "(--validate a.csv --validate b.csv)",
+    )
+    f.add_argument(
+        "--validate-alpha0",
+        action="append",
+        metavar="RAD|fit",
+        type=_validation_torsion,
+        help="the initial string torsion [rad] of a validation run, once per "
+        "--validate file in the same order ('fit': fitted on that run alone, the "
+        "default whenever the model has a pre-wound string, as with several "
+        "estimation files)",
+    )
+    f.add_argument(
+        "--p0",
+        help="start: named set (thesis:4.2:P0), TOML or fit.json "
+        "(default: a start computed from the data); a fit.json of an upper-"
+        "configuration fit also fixes the upper-disc parameters it estimated",
+    )
+    f.add_argument(
+        "--restarts",
+        type=ranged(int, ge=0, le=MAX_RESTARTS),
+        default=6,
+        help="without --p0: extra fits around the data start when the first one "
+        "ends above 3x the encoder floor",
+    )
+    f.add_argument(
+        "--no-search",
+        dest="search",
+        action="store_false",
+        help="with --p0 and effects added: start their parameters at one point "
+        "(the diagnosis's one-step estimate, else the effect's typical value) "
+        "instead of fitting from several starts of them and keeping the best",
+    )
 
 
 def _validation_torsion(text):
@@ -68,22 +87,44 @@ def _validation_torsion(text):
     except (TypeError, ValueError):
         raise argparse.ArgumentTypeError(
             f"{text!r} is not a number; give the validation run's initial torsion in rad, "
-            "or 'fit' to fit it on that run alone") from None
+            "or 'fit' to fit it on that run alone"
+        ) from None
     if not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"{text!r}: give a finite torsion in rad, or 'fit'")
     return v
 
 
-def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
-        p0: str | None = None,
-        restarts: int = 6, free=None, fixed=None, base: str | None = None, add=None,
-        without=None, channels=None, weights: str | None = None,
-        prescribed_upper: bool = False, max_nfev: int = 200, ftol: float = 1e-10,
-        xtol: float = 1e-10, gtol: float = 1e-10, force: bool = False,
-        trust_effects: bool = False, step: float | None = None,
-        search: bool = True, keep_glitches: bool = False, columns=None,
-        time_unit: str | None = None, angle_unit: str | None = None,
-        counts_per_rev=None) -> Outcome:
+def fit(
+    data,
+    *,
+    model: str,
+    out: str,
+    validate=None,
+    validate_alpha0=None,
+    p0: str | None = None,
+    restarts: int = 6,
+    free=None,
+    fixed=None,
+    base: str | None = None,
+    add=None,
+    without=None,
+    channels=None,
+    weights: str | None = None,
+    prescribed_upper: bool = False,
+    max_nfev: int = 200,
+    ftol: float = 1e-10,
+    xtol: float = 1e-10,
+    gtol: float = 1e-10,
+    force: bool = False,
+    trust_effects: bool = False,
+    step: float | None = None,
+    search: bool = True,
+    keep_glitches: bool = False,
+    columns=None,
+    time_unit: str | None = None,
+    angle_unit: str | None = None,
+    counts_per_rev=None,
+) -> Outcome:
     """Fit the ``model`` configuration ("upper", "coupled" or "brake") to the measurement
     files ``data`` and write fit.json and figures into the folder ``out``.
 
@@ -103,15 +144,34 @@ def fit(data, *, model: str, out: str, validate=None, validate_alpha0=None,
     ``exit_code`` is 1 when the fit did not converge.
     """
     problem = ProblemOptions(
-        model=model, data=data, free=free, fixed=fixed, base=base, add=add, without=without,
-        channels=channels, weights=weights, prescribed_upper=prescribed_upper, step=step,
-        keep_glitches=keep_glitches, trust_effects=trust_effects,
-        read=ReadOptions(columns, time_unit, angle_unit, counts_per_rev))
-    return execute(FitOptions(
-        problem=problem, out=out,
-        solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
-        validate=validate, validate_alpha0=validate_alpha0, p0=p0, restarts=restarts,
-        search=search, force=force))
+        model=model,
+        data=data,
+        free=free,
+        fixed=fixed,
+        base=base,
+        add=add,
+        without=without,
+        channels=channels,
+        weights=weights,
+        prescribed_upper=prescribed_upper,
+        step=step,
+        keep_glitches=keep_glitches,
+        trust_effects=trust_effects,
+        read=ReadOptions(columns, time_unit, angle_unit, counts_per_rev),
+    )
+    return execute(
+        FitOptions(
+            problem=problem,
+            out=out,
+            solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
+            validate=validate,
+            validate_alpha0=validate_alpha0,
+            p0=p0,
+            restarts=restarts,
+            search=search,
+            force=force,
+        )
+    )
 
 
 def execute(options: FitOptions) -> Outcome:
@@ -120,8 +180,9 @@ def execute(options: FitOptions) -> Outcome:
     o, pr = options, options.problem
     guard = InterruptGuard()
     try:
-        with output_folder(o.out, o.force, inputs=[pr.data, o.validate, o.p0, pr.base,
-                                                   pr.add]) as folder:
+        with output_folder(
+            o.out, o.force, inputs=[pr.data, o.validate, o.p0, pr.base, pr.add]
+        ) as folder:
             doc = _run(o, folder, guard)
         from ..inference.taskstore import remove_store
 
@@ -137,8 +198,10 @@ def execute(options: FitOptions) -> Outcome:
     finally:
         guard.stop()
     if guard.hit:
-        raise Interrupted(f"interrupted (Ctrl-C) after the fit had finished; its results were "
-                          f"kept, complete, in {o.out}/ (fit.json and the figures)")
+        raise Interrupted(
+            f"interrupted (Ctrl-C) after the fit had finished; its results were "
+            f"kept, complete, in {o.out}/ (fit.json and the figures)"
+        )
     return Outcome(EXIT.DONE if doc["success"] else EXIT.NOT_CONVERGED, Path(o.out), doc)
 
 
@@ -151,18 +214,33 @@ def build_model(problem: ProblemOptions, n_experiments: int, carrier: str | None
     added = list(pr.add or [])
     specs = fit_effects(carrier, pr.model, pr.trust_effects)
     inherited = [e for e in specs if e not in added]
-    if (n_experiments > 1 and pr.model != "upper" and "initial_torsion" not in added
-            and "initial_torsion" not in inherited):
+    if (
+        n_experiments > 1
+        and pr.model != "upper"
+        and "initial_torsion" not in added
+        and "initial_torsion" not in inherited
+    ):
         added.append("initial_torsion")
-    model = Model(pr.model, [*inherited, *added], without=pr.without or (),
-                  prescribed_upper=pr.prescribed_upper)
+    model = Model(
+        pr.model,
+        [*inherited, *added],
+        without=pr.without or (),
+        prescribed_upper=pr.prescribed_upper,
+    )
     if inherited:
         print(f"effects carried over from {carrier}: {', '.join(inherited)}")
     return model, added
 
 
-def build_problem(problem: ProblemOptions, exps, *, p0: str | None = None,
-                  carrier: str | None = None, start_spec=None, also=()):
+def build_problem(
+    problem: ProblemOptions,
+    exps,
+    *,
+    p0: str | None = None,
+    carrier: str | None = None,
+    start_spec=None,
+    also=(),
+):
     """The estimation problem of the fit/multistart options ``problem`` and the start
     ``p0`` (fit's --p0; effects are carried over from ``carrier``, by default ``p0``).
 
@@ -177,8 +255,7 @@ def build_problem(problem: ProblemOptions, exps, *, p0: str | None = None,
     pr = problem
     for ex in [*exps, *also]:
         try:
-            check_step(pr.step, ex.dt, ex.n, what="--step",
-                       where=str(ex.path or ex.name))
+            check_step(pr.step, ex.dt, ex.n, what="--step", where=str(ex.path or ex.name))
         except _params.ParameterError as exc:
             raise Refused(str(exc)) from None
 
@@ -205,15 +282,32 @@ def build_problem(problem: ProblemOptions, exps, *, p0: str | None = None,
     base_spec = pr.base or start_spec
     base = resolve_values(base_spec, model) if base_spec else None
     channels = tuple(csv_list(pr.channels, "--channels")) if pr.channels else None
-    weights = _parse_weights(pr.weights, pr.model, channels, pr.prescribed_upper) \
-        if pr.weights is not None else None
-    prob = Problem(model, exps, free=free, base=base, channels=channels, weights=weights,
-                   fixed=fixed, step=pr.step, run_starts=run_values(p0))
+    weights = (
+        _parse_weights(pr.weights, pr.model, channels, pr.prescribed_upper)
+        if pr.weights is not None
+        else None
+    )
+    prob = Problem(
+        model,
+        exps,
+        free=free,
+        base=base,
+        channels=channels,
+        weights=weights,
+        fixed=fixed,
+        step=pr.step,
+        run_starts=run_values(p0),
+    )
     if not prob.names:
         given = pr.fixed if isinstance(pr.fixed, str) else ",".join(pr.fixed or ())
-        why, how = ((f"--fixed {given}: that is every free parameter of this fit",
-                     "leave it out of --fixed") if given else
-                    ("this fit has no free parameter", "name it with --free"))
+        why, how = (
+            (
+                f"--fixed {given}: that is every free parameter of this fit",
+                "leave it out of --fixed",
+            )
+            if given
+            else ("this fit has no free parameter", "name it with --free")
+        )
         raise Refused(f"{why}, so nothing is left to fit; free at least one ({how})")
     try:
         check_fittable(prob)
@@ -235,8 +329,10 @@ def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> 
     if channels:
         valid = tuple(c for c in valid if c in channels) or valid
     example = ",".join(f"{c}={w}" for c, w in zip(valid, ("1", "0.1"), strict=False))
-    form = (f"write CHANNEL=WEIGHT pairs separated by commas, e.g. --weights {example} "
-            f"(channels of this fit: {', '.join(valid)})")
+    form = (
+        f"write CHANNEL=WEIGHT pairs separated by commas, e.g. --weights {example} "
+        f"(channels of this fit: {', '.join(valid)})"
+    )
     weights: dict[str, float] = {}
     items = [x.strip() for x in text.split(",")]
     if not any(items):
@@ -251,26 +347,34 @@ def _parse_weights(text: str, config: str, channels, prescribed_upper: bool) -> 
             hint = f"use '=' instead of {sep!r}; " if sep else ""
             raise Refused(f"--weights: {item!r} has no '='; {hint}{form}")
         if name not in valid:
-            what = ("not a channel of this fit" if name in ("theta_u", "theta_l", "alpha")
-                    else "an unknown channel")
+            what = (
+                "not a channel of this fit"
+                if name in ("theta_u", "theta_l", "alpha")
+                else "an unknown channel"
+            )
             raise Refused(f"--weights: {name!r} is {what}; {form}")
         if name in weights:
             raise Refused(f"--weights: {name} is given twice; give each channel once")
         try:
             w = float(value)
         except ValueError:
-            raise Refused(f"--weights: the weight {value!r} of {name} is not a number; "
-                          f"{form}") from None
+            raise Refused(
+                f"--weights: the weight {value!r} of {name} is not a number; {form}"
+            ) from None
         if not (math.isfinite(w) and w > 0):
-            raise Refused(f"--weights: the weight of {name} is {value}; it must be a finite "
-                          "number > 0 (a channel you do not want to fit is left out with "
-                          "--channels instead)")
+            raise Refused(
+                f"--weights: the weight of {name} is {value}; it must be a finite "
+                "number > 0 (a channel you do not want to fit is left out with "
+                "--channels instead)"
+            )
         if not MIN_WEIGHT <= w <= MAX_WEIGHT:
-            raise Refused(f"--weights: the weight of {name} is {value}; give a weight between "
-                          f"{MIN_WEIGHT:g} and {MAX_WEIGHT:g} (weights set how much one "
-                          "channel counts against the other; beyond that a channel is ignored "
-                          "in effect, or its squared residuals overflow; a channel you do not "
-                          "want to fit is left out with --channels instead)")
+            raise Refused(
+                f"--weights: the weight of {name} is {value}; give a weight between "
+                f"{MIN_WEIGHT:g} and {MAX_WEIGHT:g} (weights set how much one "
+                "channel counts against the other; beyond that a channel is ignored "
+                "in effect, or its squared residuals overflow; a channel you do not "
+                "want to fit is left out with --channels instead)"
+            )
         weights[name] = w
     return weights
 
@@ -286,8 +390,10 @@ def _fmt_params(prob, names, x, se=None, x0=None, at_bound=(), near_bound=()) ->
         value, err = mean_sd(float(x[i]), float(se[i]) if se is not None else math.nan)
         s = f"{'AT BOUND':>12}" if n in at_bound else f"{err:>12}"
         st = f"{x0[i]:12.5g}" if x0 is not None else ""
-        rows.append(f"{n:<12} {value:>12} {s} {st}  "
-                    f"{prob.info(n).unit}" + ("  NEAR A BOUND" if n in near_bound else ""))
+        rows.append(
+            f"{n:<12} {value:>12} {s} {st}  "
+            f"{prob.info(n).unit}" + ("  NEAR A BOUND" if n in near_bound else "")
+        )
     return "\n".join(rows)
 
 
@@ -296,15 +402,18 @@ def _uncertainty_words(res) -> str:
     u = res.uncertainty
     infl = u.inflation()
     ok = np.isfinite(infl)
-    lines = ["std. errors: honest — rounding to encoder counts simulated as it is, model "
-             "error from the residuals' time blocks, an allowance for the input between "
-             "samples"]
+    lines = [
+        "std. errors: honest — rounding to encoder counts simulated as it is, model "
+        "error from the residuals' time blocks, an allowance for the input between "
+        "samples"
+    ]
     if ok.any():
         j = int(np.nanargmax(np.where(ok, infl, -np.inf)))
         lines.append(
             f"  they are {np.median(infl[ok]):.2g}x (median; {u.names[j]} {infl[j]:.2g}x) the "
             f"ones independent noise at the floor would give; the rounding alone leaves "
-            f"the information of about {u.n_eff:.3g} independent samples of {u.n_samples}")
+            f"the information of about {u.n_eff:.3g} independent samples of {u.n_samples}"
+        )
     sh = u.shares()
     keys = ("noise", "model_error", "input_hold")
     # Parameters without a finite standard error have no shares: left out of the mean,
@@ -312,12 +421,16 @@ def _uncertainty_words(res) -> str:
     finite = [v for v in sh.values() if all(math.isfinite(v[k]) for k in keys)]
     if finite:
         tot = {k: float(np.mean([v[k] for v in finite])) for k in keys}
-        lines.append(f"  variance, mean over parameters: noise {100 * tot['noise']:.0f} %, "
-                     f"model error {100 * tot['model_error']:.0f} %, input between samples "
-                     f"{100 * tot['input_hold']:.0f} %")
+        lines.append(
+            f"  variance, mean over parameters: noise {100 * tot['noise']:.0f} %, "
+            f"model error {100 * tot['model_error']:.0f} %, input between samples "
+            f"{100 * tot['input_hold']:.0f} %"
+        )
     else:
-        lines.append("  no parameter has a finite standard error: the data do not determine "
-                     "them (see the warnings below)")
+        lines.append(
+            "  no parameter has a finite standard error: the data do not determine "
+            "them (see the warnings below)"
+        )
     if u.warning():
         lines.append("  warning: " + u.warning())
     return "\n".join(lines)
@@ -328,8 +441,10 @@ def _quality_table(rows, label: str) -> str:
 
     out = []
     for r in rows:
-        fits = [ChannelFit(**{k: v for k, v in c.items() if k in ChannelFit.__dataclass_fields__})
-                for c in r["channels"].values()]
+        fits = [
+            ChannelFit(**{k: v for k, v in c.items() if k in ChannelFit.__dataclass_fields__})
+            for c in r["channels"].values()
+        ]
         out.append(fit_table(fits, title=f"{label}: {r['experiment']}"))
     return "\n\n".join(out)
 
@@ -343,16 +458,22 @@ def _sources(options: FitOptions, prob, fixed_from_upper: dict) -> dict[str, str
         if n == "J_u":
             src[n] = "eq. 5.4 (disc geometry)" if not (pr.base or options.p0) else None
         src[n] = src.get(n) or (
-            f"upper-disc fit {options.p0}" if n in fixed_from_upper
-            else f"--base {pr.base}" if pr.base
-            else f"--p0 {options.p0}" if options.p0
+            f"upper-disc fit {options.p0}"
+            if n in fixed_from_upper
+            else f"--base {pr.base}"
+            if pr.base
+            else f"--p0 {options.p0}"
+            if options.p0
             else f"default set {default}"
         )
     return src
 
 
-def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
-         guard=None) -> dict:
+def _run(
+    options: FitOptions,
+    out: Path,  # noqa: C901 - one linear report
+    guard=None,
+) -> dict:
     """Fit, print and write fit.json + figures; returns the JSON document.
 
     ``guard`` (an :class:`~rotorbayes.io.outputs.InterruptGuard`) is started once the fit has
@@ -365,20 +486,26 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
 
     pr = options.problem
     # Glitches (encoder spikes) are named and left out unless --keep-glitches.
-    exps = load_experiments(pr.data, pr.model, keep_glitches=pr.keep_glitches,
-                            read=pr.read.spec)
-    val = load_experiments(options.validate, pr.model, keep_glitches=pr.keep_glitches,
-                           read=pr.read.spec) if options.validate else []
+    exps = load_experiments(pr.data, pr.model, keep_glitches=pr.keep_glitches, read=pr.read.spec)
+    val = (
+        load_experiments(
+            options.validate, pr.model, keep_glitches=pr.keep_glitches, read=pr.read.spec
+        )
+        if options.validate
+        else []
+    )
     say_glitches(exps, val)
     # The start set also fixes the values of the parameters that are not estimated.
-    prob, fixed_from_upper = build_problem(pr, exps, p0=options.p0, start_spec=options.p0,
-                                           also=val)
+    prob, fixed_from_upper = build_problem(pr, exps, p0=options.p0, start_spec=options.p0, also=val)
     val_alpha0 = _check_validation_torsion(options, prob, val)
     sources = _sources(options, prob, fixed_from_upper)
-    print(f"model: {pr.model} configuration with "
-          f"{', '.join(prob.model.effect_names) or 'no effects'}")
-    print(f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {pr.model} "
-          f"configuration to {len(exps)} experiment(s), channels {', '.join(prob.channels)}")
+    print(
+        f"model: {pr.model} configuration with {', '.join(prob.model.effect_names) or 'no effects'}"
+    )
+    print(
+        f"fitting {len(prob.names)} parameters ({', '.join(prob.names)}) of the {pr.model} "
+        f"configuration to {len(exps)} experiment(s), channels {', '.join(prob.channels)}"
+    )
     if fixed_from_upper:
         print(f"fixed from the upper-disc fit {options.p0}: {', '.join(fixed_from_upper)}")
     fit_kw = options.solver.keywords()
@@ -393,19 +520,36 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
         # effect's) starts at its effect's default, not at a value of that fit.
         p0_params = (fit_json(options.p0) or {}).get("parameters") or {}
         # (alpha0[1] of a --p0 fit of one run: that fit's alpha0, not a default.)
-        start_source = {n: f"--p0 {options.p0}" if not p0_params or (
-            (p0_params.get(n) or p0_params.get(inference.local_name(n)[0])
-             or {"status": "off"}).get("status") != "off")
-            else "the effect's default" for n in prob.names}
+        start_source = {
+            n: f"--p0 {options.p0}"
+            if not p0_params
+            or (
+                (
+                    p0_params.get(n)
+                    or p0_params.get(inference.local_name(n)[0])
+                    or {"status": "off"}
+                ).get("status")
+                != "off"
+            )
+            else "the effect's default"
+            for n in prob.names
+        }
         from ..inference.results import diagnosis_starts
 
         # The effects new to this fit: those --add names, and any whose parameters the
         # --p0 fit did not have (their start is the effect's default).
         add_names = {s.rpartition(":")[2] for s in (pr.add or [])}
-        new_effects = [e for e in prob.model.added if e.name in add_names or any(
-            start_source.get(n) == "the effect's default" for n in e.names)]
-        diagnosed = {n: v for n, v in diagnosis_starts(
-            options.p0, [e.name for e in new_effects]).items() if n in prob.names}
+        new_effects = [
+            e
+            for e in prob.model.added
+            if e.name in add_names
+            or any(start_source.get(n) == "the effect's default" for n in e.names)
+        ]
+        diagnosed = {
+            n: v
+            for n, v in diagnosis_starts(options.p0, [e.name for e in new_effects]).items()
+            if n in prob.names
+        }
         print(f"start: --p0 {options.p0}")
         from ..inference.refit import added_names as _searched
 
@@ -428,36 +572,52 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
                     x0[j] = v
                     start_source[n] = "the diagnosis of the --p0 fit (one-step estimate)"
             if prob.model.added:
-                print("start of the added effects' parameters: " + ", ".join(
-                    f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
-                    for e in prob.model.added for n in e.names if n in prob.names))
+                print(
+                    "start of the added effects' parameters: "
+                    + ", ".join(
+                        f"{n} = {x0[prob.names.index(n)]:.4g} ({start_source[n]})"
+                        for e in prob.model.added
+                        for n in e.names
+                        if n in prob.names
+                    )
+                )
             res = inference.fit(prob, x0, verbose=True, **fit_kw)
             chose = f"--p0 {options.p0}"
     else:
-        print("start: computed from the data (the equations of motion as a regression on "
-              "smoothed derivatives of the measured angles; give --p0 to choose one)")
+        print(
+            "start: computed from the data (the equations of motion as a regression on "
+            "smoothed derivatives of the measured angles; give --p0 to choose one)"
+        )
         from ..inference.taskstore import store_path
 
         # The fit from the data start and each finished restart are kept beside --out:
         # a re-run after a kill or Ctrl-C skips them.
-        ff = inference.fit_from_data(prob, restarts=options.restarts, verbose=True,
-                             resume=store_path(options.out), **fit_kw)
+        ff = inference.fit_from_data(
+            prob, restarts=options.restarts, verbose=True, resume=store_path(options.out), **fit_kw
+        )
         res, chose = ff.result, ff.chose
-        start_source = {n: ff.start.source.get(n, ff.start.source.get(
-            inference.local_name(n)[0], "")) for n in prob.names}
+        start_source = {
+            n: ff.start.source.get(n, ff.start.source.get(inference.local_name(n)[0], ""))
+            for n in prob.names
+        }
         if ff.restarts:
             print(f"{len(ff.restarts)} restarts tried; kept {ff.chose}")
     if guard is not None:
         guard.start()  # the work is done: from here on Ctrl-C must not throw it away
     status = "" if res.success else "DID NOT CONVERGE: "
-    print(f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
-          f"{res.seconds:.1f} s)\n")
+    print(
+        f"\n{status}{res.message} ({res.nfev} evaluations, {res.njev} Jacobians, "
+        f"{res.seconds:.1f} s)\n"
+    )
     q_est = inference.quality(prob, res.x)
     q_val = inference.quality(prob, res.x, val, validation_alpha0=val_alpha0) if val else []
     torsion = [r["validation_alpha0"] for r in q_val]
     assessment = inference.assess(res, q_est, q_val, sources=sources, val_experiments=val or ())
-    print(_fmt_params(prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound,
-                      assessment.near_bound))
+    print(
+        _fmt_params(
+            prob, res.names, res.x, res.stderr, res.x0, assessment.at_bound, assessment.near_bound
+        )
+    )
     if chose.startswith("restart"):  # trial 10 read this column as the data start above
         print(f"start: where the kept fit, {chose}, began (not the start from the data)")
     if res.uncertainty is not None:
@@ -480,14 +640,17 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
     sloppy = {n: float(c) for n, c in zip(res.names, V[:, 0], strict=True)}
     ratio = float(w[-1] / max(w[0], 1e-300))
     # Only positive parameters: a common scaling "in log scale" means nothing for signed ones.
-    positive = {n for n, v, lo in zip(res.names, res.x, prob.lower, strict=True)
-                if v > 0 and lo >= 0}
+    positive = {
+        n for n, v, lo in zip(res.names, res.x, prob.lower, strict=True) if v > 0 and lo >= 0
+    }
     movers = [n for n, c in sloppy.items() if abs(c) > 0.3 and n in positive]
     if len(movers) >= 2 and ratio > 1e4:
-        print(f"\nIdentifiability: the least-determined direction (Fisher eigenvalue ratio "
-              f"{ratio:.1e}) moves {', '.join(movers)} together "
-              f"({', '.join(f'{n} {sloppy[n]:+.2f}' for n in movers)} in log scale); the data "
-              "fix their ratios far better than their values.")
+        print(
+            f"\nIdentifiability: the least-determined direction (Fisher eigenvalue ratio "
+            f"{ratio:.1e}) moves {', '.join(movers)} together "
+            f"({', '.join(f'{n} {sloppy[n]:+.2f}' for n in movers)} in log scale); the data "
+            "fix their ratios far better than their values."
+        )
     free_base = {inference.local_name(n)[0] for n in res.names}
     parameters = {}
     for n in prob.model.info:
@@ -498,21 +661,28 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
             "value": prob.base.get(n) if on else prob.model.info[n].null,
             "unit": prob.model.info[n].unit,
             "status": "fixed" if on else "off",
-            "source": sources.get(n) if on else
-            f"effect {getattr(_effects.effect_of(n), 'name', '?')} is off",
+            "source": sources.get(n)
+            if on
+            else f"effect {getattr(_effects.effect_of(n), 'name', '?')} is off",
         }
     for i, n in enumerate(res.names):
         parameters[n] = {
-            "value": float(res.x[i]), "unit": prob.info(n).unit, "status": "free",
-            "stderr": float(res.stderr[i]), "start": float(res.x0[i]),
-            "source": "estimated", "start_source": start_source.get(n, ""),
+            "value": float(res.x[i]),
+            "unit": prob.info(n).unit,
+            "status": "free",
+            "stderr": float(res.stderr[i]),
+            "start": float(res.x0[i]),
+            "source": "estimated",
+            "start_source": start_source.get(n, ""),
             "at_bound": n in assessment.at_bound,
             "near_bound": n in assessment.near_bound,
         }
     doc = {
-        "config": pr.model, "effects": list(prob.effects),
-        "added_effects": [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
-                          for e in prob.model.added],
+        "config": pr.model,
+        "effects": list(prob.effects),
+        "added_effects": [
+            e.name if e.source == "catalogue" else f"{e.source}:{e.name}" for e in prob.model.added
+        ],
         "channels": list(prob.channels),
         # Absolute paths (a fit folder works from any working folder), paths relative to the
         # fit folder (a project moved whole) and hashes; effect files' hashes (they are code).
@@ -522,10 +692,17 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
         # The SHA-256 of the bytes fitted, and how they were read (names, units).
         "data_files": data_record(exps, Path(options.out), pr.read.spec),
         "validation_files": data_record(val, Path(options.out), pr.read.spec),
-        "effect_files": {e.source: _effects.file_sha256(e.source) for e in prob.model.added
-                         if e.source != "catalogue"},
-        "success": res.success, "message": res.message, "nfev": res.nfev,
-        "seconds": res.seconds, "ssr": res.ssr, "n_residuals": res.n_residuals,
+        "effect_files": {
+            e.source: _effects.file_sha256(e.source)
+            for e in prob.model.added
+            if e.source != "catalogue"
+        },
+        "success": res.success,
+        "message": res.message,
+        "nfev": res.nfev,
+        "seconds": res.seconds,
+        "ssr": res.ssr,
+        "n_residuals": res.n_residuals,
         "start": chose,
         "free": list(res.names),
         "prescribed_upper": bool(prob.prescribed_upper),
@@ -535,21 +712,32 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
         "refit": refit.as_dict() if refit is not None else None,
         "assessment": assessment.as_dict(),
         "parameters": parameters,
-        "estimates": {n: {"value": float(v), "stderr": float(s), "stderr_iid": float(si),
-                          "start": float(s0), "unit": prob.info(n).unit}
-                      for n, v, s, si, s0 in zip(res.names, res.x, res.stderr, res.stderr_iid,
-                                                 res.x0, strict=True)},
+        "estimates": {
+            n: {
+                "value": float(v),
+                "stderr": float(s),
+                "stderr_iid": float(si),
+                "start": float(s0),
+                "unit": prob.info(n).unit,
+            }
+            for n, v, s, si, s0 in zip(
+                res.names, res.x, res.stderr, res.stderr_iid, res.x0, strict=True
+            )
+        },
         "uncertainty": res.uncertainty.as_dict() if res.uncertainty is not None else None,
         "params": res.params,
         # Each validation run's own initial torsion and how it was chosen: every later
         # command (compare, diagnose, the report, run) evaluates validation data with it.
         "validation_alpha0": [None if t is None else t.as_dict() for t in torsion]
-        if prob.config != "upper" else [],
-        "quality": {"estimation": [{k: v for k, v in r.items() if k != "simulation"}
-                                   for r in q_est],
-                    "validation": [{k: v for k, v in r.items()
-                                    if k not in ("simulation", "validation_alpha0")}
-                                   for r in q_val]},
+        if prob.config != "upper"
+        else [],
+        "quality": {
+            "estimation": [{k: v for k, v in r.items() if k != "simulation"} for r in q_est],
+            "validation": [
+                {k: v for k, v in r.items() if k not in ("simulation", "validation_alpha0")}
+                for r in q_val
+            ],
+        },
         "fisher": {"eigenvalues_log": [float(v) for v in w], "sloppiest_direction": sloppy},
         "correlation": res.correlation().tolist(),
     }
@@ -560,18 +748,34 @@ def _run(options: FitOptions, out: Path,  # noqa: C901 - one linear report
             meas, simd, txt = {}, {}, {}
             for c, st in r["channels"].items():
                 simc = {"theta_u": s.theta_u, "theta_l": s.theta_l, "alpha": s.alpha}[c]
-                measc = {"theta_u": ex.theta_u, "theta_l": ex.theta_l,
-                         "alpha": None if ex.theta_l is None else
-                         ex.theta_l - ex.theta_u + s.params["alpha0"]}[c]
+                measc = {
+                    "theta_u": ex.theta_u,
+                    "theta_l": ex.theta_l,
+                    "alpha": None
+                    if ex.theta_l is None
+                    else ex.theta_l - ex.theta_u + s.params["alpha0"],
+                }[c]
                 meas[c], simd[c] = measc, simc
-                txt[c] = (f"R² {st['r2']:.4f}, fit {st['nrmse_fit']:.2f} %, "
-                          f"max |e| {st['max_abs_error']:.3g} rad")
-            fig, _ = plot_fit(ex.t, meas, simd, mode=s.mode_l, metrics=txt,
-                              title=f"{pr.model}: {label} data {Path(str(ex.path)).name}")
+                txt[c] = (
+                    f"R² {st['r2']:.4f}, fit {st['nrmse_fit']:.2f} %, "
+                    f"max |e| {st['max_abs_error']:.3g} rad"
+                )
+            fig, _ = plot_fit(
+                ex.t,
+                meas,
+                simd,
+                mode=s.mode_l,
+                metrics=txt,
+                title=f"{pr.model}: {label} data {Path(str(ex.path)).name}",
+            )
             save_figure_atomic(fig, out / f"fit_{label}_{i}.png")
     shape_discs = ("u",) if pr.model == "upper" else ("u", "l")
-    fig, _ = plot_friction(res.params, discs=shape_discs, shape=prob.shape,
-                           title=f"fitted friction, {pr.model} configuration")
+    fig, _ = plot_friction(
+        res.params,
+        discs=shape_discs,
+        shape=prob.shape,
+        title=f"fitted friction, {pr.model} configuration",
+    )
     save_figure_atomic(fig, out / "friction.png")
     print(f"\nwrote {Path(options.out) / 'fit.json'} and figures in {options.out}/")
     for wtxt in assessment.warnings:
@@ -591,21 +795,32 @@ def _refit_words(refit, assessment, options: FitOptions) -> None:
         diag = json.loads((folder / "diagnosis.json").read_text())
     except (OSError, ValueError):
         diag = None
-    effects = [e.name for e in refit.result.problem.model.added
-               if any(n.split("[")[0] in e.names for n in refit.searched)]
+    effects = [
+        e.name
+        for e in refit.result.problem.model.added
+        if any(n.split("[")[0] in e.names for n in refit.searched)
+    ]
     pred = diagnosis_prediction(diag, effects)
     ratio = assessment.worst_ratio
     if pred is not None:
         where = "below" if ratio < pred else "at" if ratio <= pred * 1.1 else "above"
-        print(f"the diagnosis of {options.p0} predicted {pred:.3g}x the floor for adding "
-              f"{' and '.join(effects)}; the refit ended at {ratio:.3g}x ({where} it)")
-    adds = "".join(f" --add {e.name if e.source == 'catalogue' else f'{e.source}:{e.name}'}"
-                   for e in refit.result.problem.model.added)
-    note = prediction_note(ratio, pred, effects,
-                           f"rotorbayes multistart --model {options.problem.model} "
-                           f"{' '.join(options.problem.data)}"
-                           f"{adds} --around {options.out}/ "
-                           f"--out {options.out.rstrip('/')}_ms/")
+        print(
+            f"the diagnosis of {options.p0} predicted {pred:.3g}x the floor for adding "
+            f"{' and '.join(effects)}; the refit ended at {ratio:.3g}x ({where} it)"
+        )
+    adds = "".join(
+        f" --add {e.name if e.source == 'catalogue' else f'{e.source}:{e.name}'}"
+        for e in refit.result.problem.model.added
+    )
+    note = prediction_note(
+        ratio,
+        pred,
+        effects,
+        f"rotorbayes multistart --model {options.problem.model} "
+        f"{' '.join(options.problem.data)}"
+        f"{adds} --around {options.out}/ "
+        f"--out {options.out.rstrip('/')}_ms/",
+    )
     if note:
         assessment.warnings.append(note)
 
@@ -623,15 +838,21 @@ def _check_validation_torsion(options: FitOptions, prob, val) -> list | None:
     except argparse.ArgumentTypeError as exc:
         raise Refused(f"--validate-alpha0: {exc}") from None
     if not val:
-        raise Refused("--validate-alpha0 gives the initial torsion of validation runs, but "
-                      "there is no --validate file; add --validate FILE or leave it out")
+        raise Refused(
+            "--validate-alpha0 gives the initial torsion of validation runs, but "
+            "there is no --validate file; add --validate FILE or leave it out"
+        )
     if len(given) != len(val):
-        raise Refused(f"--validate-alpha0 is given {len(given)} times for {len(val)} "
-                      "--validate files; give it once per validation file, in the same order "
-                      "('fit' for a run whose torsion is fitted on that run alone)")
+        raise Refused(
+            f"--validate-alpha0 is given {len(given)} times for {len(val)} "
+            "--validate files; give it once per validation file, in the same order "
+            "('fit' for a run whose torsion is fitted on that run alone)"
+        )
     if prob.config == "upper" and any(v is not None for v in given):
-        raise Refused("--validate-alpha0: the upper configuration has no string, so no "
-                      "initial torsion; leave the option out")
+        raise Refused(
+            "--validate-alpha0: the upper configuration has no string, so no "
+            "initial torsion; leave the option out"
+        )
     x = prob.x_from(prob.base)  # any point: the check is on the values alone
     for v, ex in zip(given, val, strict=True):
         if v is None:
@@ -663,15 +884,20 @@ def _fit_interrupted(exc: KeyboardInterrupt, out: str) -> Interrupted:
     text = f"interrupted (Ctrl-C); nothing was written to {out}/"
     kept = list(store_path(out).glob("*.npz"))
     if kept:
-        text += (f" (the {len(kept)} fit(s) from the data start and its restarts that had "
-                 f"finished are kept in {store_path(out)}/: the same command with the same "
-                 "--out skips them)")
+        text += (
+            f" (the {len(kept)} fit(s) from the data start and its restarts that had "
+            f"finished are kept in {store_path(out)}/: the same command with the same "
+            "--out skips them)"
+        )
     if isinstance(exc, FitInterrupted):
-        vals = "\n".join(f"{n} = {float(v)!r}" for n, v in zip(exc.names, exc.x, strict=True)
-                         if "[" not in n)
-        text += (f". The best point after {exc.nfev} evaluations (SSR {exc.ssr:.6g} rad²) "
-                 f"was:\n{vals}\nTo continue from it, save these lines in a file such as "
-                 "best.toml and run the fit again with --p0 best.toml")
+        vals = "\n".join(
+            f"{n} = {float(v)!r}" for n, v in zip(exc.names, exc.x, strict=True) if "[" not in n
+        )
+        text += (
+            f". The best point after {exc.nfev} evaluations (SSR {exc.ssr:.6g} rad²) "
+            f"was:\n{vals}\nTo continue from it, save these lines in a file such as "
+            "best.toml and run the fit again with --p0 best.toml"
+        )
     elif not kept:
         text += " (no fit evaluation had finished yet)"
     return Interrupted(text)

@@ -33,28 +33,63 @@ HELP = "many fits from spread starts; waterfall and spread"
 
 def add_arguments(m) -> None:
     add_fit_options(m)
-    m.add_argument("--starts", type=ranged(int, ge=1, le=MAX_STARTS,
-                                            why=" (one fit per start)"),
-                   default=32, metavar="N", help="number of fits from different starts")
-    m.add_argument("--around", help="spread starts around this set (named set, TOML or "
-                   "fit.json) instead of over the bounds")
-    m.add_argument("--spread", type=ranged(gt=0, le=5, why=" (the log-sd of the start "
-                   "factors; 0.3 spreads by about ±30 %)"), default=0.3,
-                   help="log-sd of the spread around --around")
+    m.add_argument(
+        "--starts",
+        type=ranged(int, ge=1, le=MAX_STARTS, why=" (one fit per start)"),
+        default=32,
+        metavar="N",
+        help="number of fits from different starts",
+    )
+    m.add_argument(
+        "--around",
+        help="spread starts around this set (named set, TOML or "
+        "fit.json) instead of over the bounds",
+    )
+    m.add_argument(
+        "--spread",
+        type=ranged(
+            gt=0, le=5, why=" (the log-sd of the start factors; 0.3 spreads by about ±30 %)"
+        ),
+        default=0.3,
+        help="log-sd of the spread around --around",
+    )
     m.add_argument("--seed", type=ranged(int, ge=0), default=0, help="seed of the starts")
     add_parallel_options(m, "fits")
 
 
-def multistart(data, *, model: str, out: str, starts: int = 32, around: str | None = None,
-               spread: float = 0.3, seed: int = 0, free=None, fixed=None,
-               base: str | None = None, add=None, without=None, channels=None,
-               weights: str | None = None, prescribed_upper: bool = False,
-               max_nfev: int = 200, ftol: float = 1e-10, xtol: float = 1e-10,
-               gtol: float = 1e-10, backend: str | None = None, workers: int | None = None,
-               scheduler: str | None = None, force: bool = False,
-               trust_effects: bool = False, step: float | None = None,
-               keep_glitches: bool = False, columns=None, time_unit: str | None = None,
-               angle_unit: str | None = None, counts_per_rev=None) -> Outcome:
+def multistart(
+    data,
+    *,
+    model: str,
+    out: str,
+    starts: int = 32,
+    around: str | None = None,
+    spread: float = 0.3,
+    seed: int = 0,
+    free=None,
+    fixed=None,
+    base: str | None = None,
+    add=None,
+    without=None,
+    channels=None,
+    weights: str | None = None,
+    prescribed_upper: bool = False,
+    max_nfev: int = 200,
+    ftol: float = 1e-10,
+    xtol: float = 1e-10,
+    gtol: float = 1e-10,
+    backend: str | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    force: bool = False,
+    trust_effects: bool = False,
+    step: float | None = None,
+    keep_glitches: bool = False,
+    columns=None,
+    time_unit: str | None = None,
+    angle_unit: str | None = None,
+    counts_per_rev=None,
+) -> Outcome:
     """``starts`` fits of the ``model`` configuration to ``data`` from spread starts (a
     Latin hypercube over the bounds, or a log-normal ``spread`` around the set ``around``);
     writes multistart.json, summary.txt and the waterfall and spread figures into ``out``.
@@ -65,15 +100,34 @@ def multistart(data, *, model: str, out: str, starts: int = 32, around: str | No
     multistart.json's document.
     """
     problem = ProblemOptions(
-        model=model, data=data, free=free, fixed=fixed, base=base, add=add, without=without,
-        channels=channels, weights=weights, prescribed_upper=prescribed_upper, step=step,
-        keep_glitches=keep_glitches, trust_effects=trust_effects,
-        read=ReadOptions(columns, time_unit, angle_unit, counts_per_rev))
-    return execute(MultistartOptions(
-        problem=problem, out=out,
-        solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
-        executor=ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler),
-        starts=starts, around=around, spread=spread, seed=seed, force=force))
+        model=model,
+        data=data,
+        free=free,
+        fixed=fixed,
+        base=base,
+        add=add,
+        without=without,
+        channels=channels,
+        weights=weights,
+        prescribed_upper=prescribed_upper,
+        step=step,
+        keep_glitches=keep_glitches,
+        trust_effects=trust_effects,
+        read=ReadOptions(columns, time_unit, angle_unit, counts_per_rev),
+    )
+    return execute(
+        MultistartOptions(
+            problem=problem,
+            out=out,
+            solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
+            executor=ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler),
+            starts=starts,
+            around=around,
+            spread=spread,
+            seed=seed,
+            force=force,
+        )
+    )
 
 
 def execute(options: MultistartOptions) -> Outcome:
@@ -85,10 +139,10 @@ def execute(options: MultistartOptions) -> Outcome:
 
     o, pr = options, options.problem
     guard = InterruptGuard()
-    with guard, output_folder(o.out, o.force,
-                              inputs=[pr.data, o.around, pr.base, pr.add]) as out:
-        exps = load_experiments(pr.data, pr.model, keep_glitches=pr.keep_glitches,
-                                read=pr.read.spec)
+    with guard, output_folder(o.out, o.force, inputs=[pr.data, o.around, pr.base, pr.add]) as out:
+        exps = load_experiments(
+            pr.data, pr.model, keep_glitches=pr.keep_glitches, read=pr.read.spec
+        )
         say_glitches(exps)
         prob, _ = build_problem(pr, exps, carrier=o.around)
         around = None
@@ -96,47 +150,80 @@ def execute(options: MultistartOptions) -> Outcome:
             # A fit folder's values, user effects' too (their effects are on: build_model
             # carries them over from --around as fit does from --p0).
             around = resolve_values(o.around, prob.model)
-        how = (f"log-normal spread {o.spread:.2f} around {o.around}" if around
-               else "Latin hypercube over the bounds")
+        how = (
+            f"log-normal spread {o.spread:.2f} around {o.around}"
+            if around
+            else "Latin hypercube over the bounds"
+        )
         print(f"multistart: {o.starts} fits of {', '.join(prob.names)} ({how})")
         with o.executor.open() as ex:
             # Each finished start is kept beside --out: a re-run after a kill skips it.
-            ms = inference.multistart(prob, o.starts, seed=o.seed, around=around, spread=o.spread,
-                              executor=ex, resume=store_path(o.out),
-                              **o.solver.keywords())
+            ms = inference.multistart(
+                prob,
+                o.starts,
+                seed=o.seed,
+                around=around,
+                spread=o.spread,
+                executor=ex,
+                resume=store_path(o.out),
+                **o.solver.keywords(),
+            )
         guard.start()  # the starts are done: from here on Ctrl-C must not throw them away
         n_done = int(ms.ssr.size) + len(ms.failed)
         if ms.interrupted and n_done == 0:
-            raise Interrupted(f"interrupted (Ctrl-C) before any start had finished; nothing "
-                              f"was written to {o.out}/")
+            raise Interrupted(
+                f"interrupted (Ctrl-C) before any start had finished; nothing "
+                f"was written to {o.out}/"
+            )
         order = np.argsort(ms.ssr)
         print("\nbest end points:")
         print(" rank  cluster        SSR   " + " ".join(f"{n:>10}" for n in ms.names))
         for r, i in enumerate(order[: min(10, len(order))]):
-            print(f" {r + 1:4d}  {ms.clusters[i]:7d}  {ms.ssr[i]:9.4g}   "
-                  + " ".join(f"{v:10.4g}" for v in ms.ends[i]))
+            print(
+                f" {r + 1:4d}  {ms.clusters[i]:7d}  {ms.ssr[i]:9.4g}   "
+                + " ".join(f"{v:10.4g}" for v in ms.ends[i])
+            )
         summary = ms.summary()
         print("\n" + summary)
-        doc = {"config": pr.model, "names": ms.names, "starts": ms.starts, "ends": ms.ends,
-               "ssr": ms.ssr, "success": ms.success, "clusters": ms.clusters,
-               "summary": summary, "data": [str(e.path) for e in exps],
-               "read": pr.read.spec.as_dict(),
-               "glitches": glitch_record(exps),
-               "n_requested": o.starts, "n_finished": n_done, "interrupted": ms.interrupted,
-               "start_index": ms.start_index, "failed": {str(k): v for k, v in
-                                                         ms.failed.items()}}
+        doc = {
+            "config": pr.model,
+            "names": ms.names,
+            "starts": ms.starts,
+            "ends": ms.ends,
+            "ssr": ms.ssr,
+            "success": ms.success,
+            "clusters": ms.clusters,
+            "summary": summary,
+            "data": [str(e.path) for e in exps],
+            "read": pr.read.spec.as_dict(),
+            "glitches": glitch_record(exps),
+            "n_requested": o.starts,
+            "n_finished": n_done,
+            "interrupted": ms.interrupted,
+            "start_index": ms.start_index,
+            "failed": {str(k): v for k, v in ms.failed.items()},
+        }
         (out / "multistart.json").write_text(json.dumps(doc, indent=2, default=json_default))
         written = ["multistart.json"]
         if ms.ssr.size:
             floor = quantisation_floor_ssr(prob)
-            fig, _ = plot_waterfall(ms.ssr, labels=ms.clusters, n_failed=len(ms.failed),
-                                    noise_floor_ssr=floor,
-                                    title=f"multistart, {pr.model}: sorted final SSR")
+            fig, _ = plot_waterfall(
+                ms.ssr,
+                labels=ms.clusters,
+                n_failed=len(ms.failed),
+                noise_floor_ssr=floor,
+                title=f"multistart, {pr.model}: sorted final SSR",
+            )
             save_figure_atomic(fig, out / "waterfall.png")
             fig, _ = plot_parameter_spread(
-                ms.names, ms.ends, ms.ssr, clusters=ms.clusters, noise_floor_ssr=floor,
+                ms.names,
+                ms.ends,
+                ms.ssr,
+                clusters=ms.clusters,
+                noise_floor_ssr=floor,
                 units={n: prob.info(n).unit for n in ms.names},
-                title=f"multistart, {pr.model}: end points")
+                title=f"multistart, {pr.model}: end points",
+            )
             save_figure_atomic(fig, out / "parameter_spread.png")
             written += ["waterfall.png", "parameter_spread.png"]
         (out / "summary.txt").write_text(summary + "\n")
@@ -150,8 +237,11 @@ def execute(options: MultistartOptions) -> Outcome:
             f"interrupted (Ctrl-C) after {n_done} of {o.starts} starts; the finished ones are in "
             f"{o.out}/ (multistart.json, summary.txt). For the other {rest}, run again with "
             f"--starts {rest} --seed {o.seed + 1} and another --out (a new seed gives new "
-            "starts), or repeat the whole command with --force")
+            "starts), or repeat the whole command with --force"
+        )
     if guard.hit:
-        raise Interrupted(f"interrupted (Ctrl-C) after all {n_done} starts had finished; the "
-                          f"results were kept, complete, in {o.out}/")
+        raise Interrupted(
+            f"interrupted (Ctrl-C) after all {n_done} starts had finished; the "
+            f"results were kept, complete, in {o.out}/"
+        )
     return Outcome(EXIT.DONE, Path(o.out), doc)

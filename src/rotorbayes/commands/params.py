@@ -9,8 +9,12 @@ HELP = "list parameters and named sets, or show one set"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("name", nargs="?", help="a named set (thesis:4.2:P0), TOML file or "
-                   "fit.json (a fit's user effects' parameters included)")
+    p.add_argument(
+        "name",
+        nargs="?",
+        help="a named set (thesis:4.2:P0), TOML file or "
+        "fit.json (a fit's user effects' parameters included)",
+    )
 
 
 def params(name: str | None = None) -> Outcome:
@@ -30,8 +34,10 @@ def params(name: str | None = None) -> Outcome:
         for n in _params.NAMES:
             v = p[n]
             if v != v and n == "Ts_l":  # nan: the null value, no Stribeck peak
-                print(f"{n:<12} {'= Tc_l':>12}  {_params.INFO[n].unit}  (no Stribeck peak: "
-                      "the lower_stribeck effect is off)")
+                print(
+                    f"{n:<12} {'= Tc_l':>12}  {_params.INFO[n].unit}  (no Stribeck peak: "
+                    "the lower_stribeck effect is off)"
+                )
                 continue
             print(f"{n:<12} {v:12.6g}  {_params.INFO[n].unit}")
         for n, v in user.items():
@@ -48,13 +54,19 @@ def _user_values(name: str, raw) -> tuple[dict[str, float], dict[str, str], str]
     doc = fit_json(name)
     if not isinstance(raw, dict) or not isinstance(doc, dict):
         return {}, {}, ""
-    specs = [s for s in doc.get("added_effects") or () if isinstance(s, str)
-             and s.rpartition(":")[0].endswith(".py")]
+    specs = [
+        s
+        for s in doc.get("added_effects") or ()
+        if isinstance(s, str) and s.rpartition(":")[0].endswith(".py")
+    ]
     if not specs:
         return {}, {}, ""
     user = {k: v for k, v in raw.items() if k not in _params.INFO}
     table = doc.get("parameters") if isinstance(doc.get("parameters"), dict) else {}
-    units = {k: str(rec.get("unit", "")) for k, rec in table.items()
-             if k in user and isinstance(rec, dict)}
+    units = {
+        k: str(rec.get("unit", ""))
+        for k, rec in table.items()
+        if k in user and isinstance(rec, dict)
+    }
     owners = ", ".join(s.rpartition(":")[2] for s in specs)
     return user, units, owners

@@ -9,23 +9,35 @@ from .common import Outcome
 from .config import ExecutorOptions
 from .options import add_parallel_options
 
-HELP = ("a whole study from an analysis file (TOML; see docs/analysis_file.md), or several "
-        "studies at once")
+HELP = (
+    "a whole study from an analysis file (TOML; see docs/analysis_file.md), or several "
+    "studies at once"
+)
 
 
 def add_arguments(r) -> None:
-    r.add_argument("analysis", nargs="+",
-                   help="the analysis file; several files (e.g. one per data set) run as "
-                   "independent studies, several at a time")
+    r.add_argument(
+        "analysis",
+        nargs="+",
+        help="the analysis file; several files (e.g. one per data set) run as "
+        "independent studies, several at a time",
+    )
     r.add_argument("--force", action="store_true", help="rerun every stage")
     r.add_argument("--quiet", action="store_true", help="print only the summary")
-    add_parallel_options(r, "independent fits (restarts, profile points), or the studies "
-                         "of several analysis files")
+    add_parallel_options(
+        r, "independent fits (restarts, profile points), or the studies of several analysis files"
+    )
 
 
-def run(analysis: str | list[str], *, force: bool = False, quiet: bool = False,
-        backend: str | None = None, workers: int | None = None,
-        scheduler: str | None = None) -> Outcome:
+def run(
+    analysis: str | list[str],
+    *,
+    force: bool = False,
+    quiet: bool = False,
+    backend: str | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+) -> Outcome:
     """Run the study the analysis file ``analysis`` describes
     (:func:`rotorbayes.commands.study.analysis.run`)
     with one executor for its parallel tasks (the options, else the file's [parallel]
@@ -37,8 +49,9 @@ def run(analysis: str | list[str], *, force: bool = False, quiet: bool = False,
     if len(files) > 1:
         from .study.batch import run_studies
 
-        return run_studies(files, force=force, quiet=quiet, backend=backend,
-                           workers=workers, scheduler=scheduler)
+        return run_studies(
+            files, force=force, quiet=quiet, backend=backend, workers=workers, scheduler=scheduler
+        )
     from .study.analysis import load_analysis
     from .study.analysis import run as run_study
 
@@ -48,11 +61,17 @@ def run(analysis: str | list[str], *, force: bool = False, quiet: bool = False,
         rec = run_study(files[0], quiet=quiet, force=force)
     kept = [s["name"] for s in rec.get("stages", []) if s.get("skipped")]
     n = len(rec.get("stages", []))
-    again = ("; every stage's inputs were unchanged: all kept, nothing rerun (--force reruns)"
-             if kept and len(kept) == n else
-             f"; {len(kept)} of {n} stages kept (inputs unchanged)" if kept else "")
-    print(f"\nstudy done in {time.perf_counter() - t0:.0f} s{again}; outputs and run.json in "
-          f"{Path(rec['final_fit']).parent}/")
+    again = (
+        "; every stage's inputs were unchanged: all kept, nothing rerun (--force reruns)"
+        if kept and len(kept) == n
+        else f"; {len(kept)} of {n} stages kept (inputs unchanged)"
+        if kept
+        else ""
+    )
+    print(
+        f"\nstudy done in {time.perf_counter() - t0:.0f} s{again}; outputs and run.json in "
+        f"{Path(rec['final_fit']).parent}/"
+    )
     if rec.get("report"):
         print(f"report: {rec['report']}")
     return Outcome(doc=rec)

@@ -30,35 +30,63 @@ HELP = "simulate an experiment and write a measurement CSV"
 
 def add_arguments(s) -> None:
     s.add_argument("--model", default="brake", choices=CONFIGS, help="rig configuration")
-    s.add_argument("--input", choices=["est", "val"],
-                   help="generated input: est (quasi-random levels) or val (multisine) "
-                   "(default: est)")
-    s.add_argument("--input-file", help="CSV or MATLAB .mat file with t [s] and u [V] "
-                   "(other names and ms: --columns, --time-unit), uniformly sampled; "
-                   "gives the input, duration and rate (so not with --input, --duration, "
-                   "--rate)")
+    s.add_argument(
+        "--input",
+        choices=["est", "val"],
+        help="generated input: est (quasi-random levels) or val (multisine) (default: est)",
+    )
+    s.add_argument(
+        "--input-file",
+        help="CSV or MATLAB .mat file with t [s] and u [V] "
+        "(other names and ms: --columns, --time-unit), uniformly sampled; "
+        "gives the input, duration and rate (so not with --input, --duration, "
+        "--rate)",
+    )
     add_read_options(s, angles=False)
-    s.add_argument("--duration", type=ranged(gt=0, le=7200, why=" seconds (experiments on "
-                   "the rig last seconds to about an hour)"),
-                   help="seconds of generated input, > 0 and <= 7200 (default: 30)")
-    s.add_argument("--rate", type=rate_type, help=f"samples per second, {MIN_RATE:g} to "
-                   f"{MAX_RATE:g} (default: 1000)")
-    s.add_argument("--seed", type=ranged(int, ge=0), default=0,
-                   help="seed of the input and the noise")
-    s.add_argument("--params", help="named set (thesis:4.3:P_ref), TOML file or fit.json "
-                   "(default: the configuration's P_ref); a fit of the same --model also "
-                   "switches on the effects it ran with, user effect files included")
-    s.add_argument("--alpha0", type=ranged(ge=-10, le=10, why=" rad (the bounds of alpha0)"),
-                   help="initial string torsion [rad] (default: from --params)")
-    s.add_argument("--add", action="append", metavar="EFFECT",
-                   help="switch an effect on (repeatable): a catalogue name or FILE.py:NAME; "
-                   "its parameters come from --params (null values otherwise)")
+    s.add_argument(
+        "--duration",
+        type=ranged(
+            gt=0, le=7200, why=" seconds (experiments on the rig last seconds to about an hour)"
+        ),
+        help="seconds of generated input, > 0 and <= 7200 (default: 30)",
+    )
+    s.add_argument(
+        "--rate",
+        type=rate_type,
+        help=f"samples per second, {MIN_RATE:g} to {MAX_RATE:g} (default: 1000)",
+    )
+    s.add_argument(
+        "--seed", type=ranged(int, ge=0), default=0, help="seed of the input and the noise"
+    )
+    s.add_argument(
+        "--params",
+        help="named set (thesis:4.3:P_ref), TOML file or fit.json "
+        "(default: the configuration's P_ref); a fit of the same --model also "
+        "switches on the effects it ran with, user effect files included",
+    )
+    s.add_argument(
+        "--alpha0",
+        type=ranged(ge=-10, le=10, why=" rad (the bounds of alpha0)"),
+        help="initial string torsion [rad] (default: from --params)",
+    )
+    s.add_argument(
+        "--add",
+        action="append",
+        metavar="EFFECT",
+        help="switch an effect on (repeatable): a catalogue name or FILE.py:NAME; "
+        "its parameters come from --params (null values otherwise)",
+    )
     s.add_argument("--quantize", action="store_true", help="round to encoder counts")
-    s.add_argument("--noise", type=ranged(ge=0, why=" rad (a standard deviation)"),
-                   default=0.0, help="Gaussian noise std [rad]")
+    s.add_argument(
+        "--noise",
+        type=ranged(ge=0, why=" rad (a standard deviation)"),
+        default=0.0,
+        help="Gaussian noise std [rad]",
+    )
     s.add_argument("--out", required=True, help="output CSV (its folder must exist)")
-    s.add_argument("--plot", help="also save a figure (.png, .pdf, .svg, ...; its folder "
-                   "must exist)")
+    s.add_argument(
+        "--plot", help="also save a figure (.png, .pdf, .svg, ...; its folder must exist)"
+    )
     s.add_argument("--force", action="store_true", help="overwrite --out and --plot")
     add_trust_option(s)
 
@@ -110,13 +138,16 @@ def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
             t, u, rows = _input_csv(p, lines, read)
             unit = "line"
     except FileNotFoundError:
-        raise Refused(f"--input-file {p}: file not found (looked in "
-                      f"{p.resolve().parent}); check the path") from None
+        raise Refused(
+            f"--input-file {p}: file not found (looked in {p.resolve().parent}); check the path"
+        ) from None
     except IsADirectoryError:
         raise Refused(f"--input-file {p}: is a folder; give the CSV file inside it") from None
     except UnicodeDecodeError:
-        raise Refused(f"--input-file {p}: not a UTF-8 text file; export the input as "
-                      "plain-text CSV with columns t,u") from None
+        raise Refused(
+            f"--input-file {p}: not a UTF-8 text file; export the input as "
+            "plain-text CSV with columns t,u"
+        ) from None
     except OSError as exc:
         raise Refused(f"--input-file {p}: cannot be read ({exc.strerror})") from None
     if len(t) < 3:
@@ -126,18 +157,24 @@ def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
     for name, col in (("t", t), ("u", u)):
         bad = np.flatnonzero(~np.isfinite(col))
         if bad.size:
-            raise Refused(f"{p}, {unit} {rows[bad[0]]}: {name} is {col[bad[0]]!r}; every value "
-                          "must be a finite number")
+            raise Refused(
+                f"{p}, {unit} {rows[bad[0]]}: {name} is {col[bad[0]]!r}; every value "
+                "must be a finite number"
+            )
     bad = np.flatnonzero(np.abs(u) > MAX_ABS_INPUT)
     if bad.size:
-        raise Refused(f"{p}, {unit} {rows[bad[0]]}: u is {float(u[bad[0]])!r} V: no amplifier "
-                      f"of the rig gives more than {MAX_ABS_INPUT:g} V; the value is corrupt "
-                      "or not in volts -- repair the file")
+        raise Refused(
+            f"{p}, {unit} {rows[bad[0]]}: u is {float(u[bad[0]])!r} V: no amplifier "
+            f"of the rig gives more than {MAX_ABS_INPUT:g} V; the value is corrupt "
+            "or not in volts -- repair the file"
+        )
     d = np.diff(t)
     bad = np.flatnonzero(d <= 0)
     if bad.size:
-        raise Refused(f"{p}, {unit} {rows[bad[0] + 1]}: time {t[bad[0] + 1]!r} is not after "
-                      f"{t[bad[0]]!r}; time must increase from row to row")
+        raise Refused(
+            f"{p}, {unit} {rows[bad[0] + 1]}: time {t[bad[0] + 1]!r} is not after "
+            f"{t[bad[0]]!r}; time must increase from row to row"
+        )
     try:
         check_time_unit(t, d)
     except RowProblem as exc:
@@ -146,13 +183,17 @@ def read_input_file(path: str, read=None) -> tuple[np.ndarray, np.ndarray]:
     dev = np.abs(d - step) / step
     bad = np.flatnonzero(dev > 1e-6)
     if bad.size:
-        raise Refused(f"{p}, {unit} {rows[bad[0] + 1]}: time step {d[bad[0]]:.9g} s differs "
-                      f"from the median step {step:.9g} s; time must be uniformly sampled -- "
-                      "resample the input first")
+        raise Refused(
+            f"{p}, {unit} {rows[bad[0] + 1]}: time step {d[bad[0]]:.9g} s differs "
+            f"from the median step {step:.9g} s; time must be uniformly sampled -- "
+            "resample the input first"
+        )
     if not MIN_RATE <= 1.0 / step <= MAX_RATE:
-        raise Refused(f"{p}: sampled at {1.0 / step:.6g} Hz (step {step:.6g} s); simulate "
-                      f"needs {MIN_RATE:g} Hz to {MAX_RATE:g} Hz (the rig's encoders are read "
-                      "at 1 kHz); resample the input")
+        raise Refused(
+            f"{p}: sampled at {1.0 / step:.6g} Hz (step {step:.6g} s); simulate "
+            f"needs {MIN_RATE:g} Hz to {MAX_RATE:g} Hz (the rig's encoders are read "
+            "at 1 kHz); resample the input"
+        )
     return t - t[0], u
 
 
@@ -160,8 +201,11 @@ def _input_csv(p: Path, lines: list[str], read) -> tuple[list, list, list]:
     """t, u and their line numbers from the lines of a CSV input file."""
     from ..io import rigfiles
 
-    numbered = [(k, ln) for k, ln in enumerate(lines, start=1)
-                if ln.strip() and not ln.lstrip().startswith("#")]
+    numbered = [
+        (k, ln)
+        for k, ln in enumerate(lines, start=1)
+        if ln.strip() and not ln.lstrip().startswith("#")
+    ]
     if not numbered:
         raise Refused(f"{p}: the file is empty; it needs a header 't,u' and rows of numbers")
     hline, htext = numbered[0]
@@ -170,17 +214,22 @@ def _input_csv(p: Path, lines: list[str], read) -> tuple[list, list, list]:
     header = [h.strip().strip('"').strip() for h in htext.split(sep)]
     nt, nu = read.name_of("t"), read.name_of("u")
     if nt not in header or nu not in header:
-        raise Refused(f"{p}, line {hline}: the header {htext!r} must contain the columns "
-                      f"{nt} and {nu}" + (" (comma-separated)" if not read.columns else "")
-                      + "; name the file's columns with --columns t=NAME,u=NAME")
+        raise Refused(
+            f"{p}, line {hline}: the header {htext!r} must contain the columns "
+            f"{nt} and {nu}"
+            + (" (comma-separated)" if not read.columns else "")
+            + "; name the file's columns with --columns t=NAME,u=NAME"
+        )
     it, iu = header.index(nt), header.index(nu)
     # A complete file ends with a line break; without one the last number may be cut.
     if lines[-1].strip() and len(numbered) > 1 and not lines[-1].lstrip().startswith("#"):
-        raise Refused(f"{p}, line {len(lines)}: the last line {lines[-1].strip()[:80]!r} "
-                      "does not end with a line break: the file looks truncated (cut while "
-                      "being written or copied), so its last number may be incomplete; copy "
-                      "the file again, or delete the last line (if it is complete, end it "
-                      "with a line break)")
+        raise Refused(
+            f"{p}, line {len(lines)}: the last line {lines[-1].strip()[:80]!r} "
+            "does not end with a line break: the file looks truncated (cut while "
+            "being written or copied), so its last number may be incomplete; copy "
+            "the file again, or delete the last line (if it is complete, end it "
+            "with a line break)"
+        )
     t, u, rows = [], [], []
     for k, ln in numbered[1:]:
         f = ln.split(sep)
@@ -190,8 +239,10 @@ def _input_csv(p: Path, lines: list[str], read) -> tuple[list, list, list]:
             tk = rigfiles.parse_number(f[it].strip().strip('"'), comma)
             uk = rigfiles.parse_number(f[iu].strip().strip('"'), comma)
         except ValueError:
-            raise Refused(f"{p}, line {k}: {ln.strip()!r} is not a row of {len(header)} numbers "
-                          f"matching the header {htext.strip()!r}") from None
+            raise Refused(
+                f"{p}, line {k}: {ln.strip()!r} is not a row of {len(header)} numbers "
+                f"matching the header {htext.strip()!r}"
+            ) from None
         t.append(tk)
         u.append(uk)
         rows.append(k)
@@ -205,18 +256,33 @@ def check_plot_format(path: Path) -> None:
     kinds = FigureCanvasBase.get_supported_filetypes()
     ext = path.suffix[1:].lower()
     if ext and ext not in kinds:
-        raise Refused(f"--plot {path}: cannot write a .{ext} figure; use one of "
-                      f"{', '.join('.' + k for k in sorted(kinds))} (e.g. --plot "
-                      f"{path.with_suffix('.png')})")
+        raise Refused(
+            f"--plot {path}: cannot write a .{ext} figure; use one of "
+            f"{', '.join('.' + k for k in sorted(kinds))} (e.g. --plot "
+            f"{path.with_suffix('.png')})"
+        )
 
 
-def simulate(out: str, *, model: str = "brake", input: str | None = None,
-             input_file: str | None = None, duration: float | None = None,
-             rate: float | None = None, seed: int = 0, params: str | None = None,
-             alpha0: float | None = None, add: list[str] | None = None,
-             quantize: bool = False, noise: float = 0.0, plot: str | None = None,
-             force: bool = False, trust_effects: bool = False, columns=None,
-             time_unit: str | None = None) -> Outcome:
+def simulate(
+    out: str,
+    *,
+    model: str = "brake",
+    input: str | None = None,
+    input_file: str | None = None,
+    duration: float | None = None,
+    rate: float | None = None,
+    seed: int = 0,
+    params: str | None = None,
+    alpha0: float | None = None,
+    add: list[str] | None = None,
+    quantize: bool = False,
+    noise: float = 0.0,
+    plot: str | None = None,
+    force: bool = False,
+    trust_effects: bool = False,
+    columns=None,
+    time_unit: str | None = None,
+) -> Outcome:
     """Simulate one experiment of the ``model`` configuration and write it to the CSV file
     ``out`` (a measurement file whose header records how to make it again).
 
@@ -236,17 +302,23 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
 
     # Everything the user can get wrong is checked before the simulation.
     if not input_file and (columns or time_unit):
-        raise Refused("--columns and --time-unit say how to read --input-file; give the "
-                      "file, or leave them out")
+        raise Refused(
+            "--columns and --time-unit say how to read --input-file; give the "
+            "file, or leave them out"
+        )
     if input_file:
-        ignored = [flag for flag, v in (("--duration", duration), ("--rate", rate),
-                                        ("--input", input)) if v is not None]
+        ignored = [
+            flag
+            for flag, v in (("--duration", duration), ("--rate", rate), ("--input", input))
+            if v is not None
+        ]
         if ignored:
             raise Refused(
                 f"--input-file {input_file} gives the input, its duration and its sampling "
                 f"rate (the t column), so {' and '.join(ignored)} would be ignored; leave "
                 f"{'it' if len(ignored) == 1 else 'them'} out (resample the file to change the "
-                "rate)")
+                "rate)"
+            )
     out = check_output_file(out, flag="--out", force=force, example="sim.csv")
     fig_path = None
     if plot:
@@ -262,8 +334,9 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
     try:
         values = resolve_values(params, m)
     except _params.ParameterError as exc:
-        raise Refused(f"--params {params}: {exc}" if params and str(params) not in
-                      str(exc) else str(exc)) from None
+        raise Refused(
+            f"--params {params}: {exc}" if params and str(params) not in str(exc) else str(exc)
+        ) from None
     if input_file:
         read = read_spec(columns, time_unit)
         t, u = read_input_file(input_file, read)
@@ -278,21 +351,36 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
     dt = float(t[1] - t[0])
     t0 = time.perf_counter()
     try:
-        sim = run_simulation(values, u, dt=dt, config=model, alpha0=alpha0,
-                             effects=effects, quantize_angles=quantize,
-                             noise_std=noise, seed=seed)
+        sim = run_simulation(
+            values,
+            u,
+            dt=dt,
+            config=model,
+            alpha0=alpha0,
+            effects=effects,
+            quantize_angles=quantize,
+            noise_std=noise,
+            seed=seed,
+        )
     except SimulationError as exc:
         where = f"the values of --params {params}" if params else "these parameter values"
         raise Refused(f"{exc} ({where}); change the value named") from None
     el = time.perf_counter() - t0
     # The header records everything needed to make the file again.
-    meta = {"source": "rotorbayes simulate (synthetic)", "config": model,
-            "input": source, "rate_hz": f"{1 / dt:.10g}", "duration_s": f"{t[-1]:.10g}",
-            "params": params or f"default ({_params.DEFAULT_SET[model]})",
-            "effects": ", ".join(m.effect_names) or "none",
-            "added_effects": ", ".join(effects) or "none",
-            "alpha0": sim.params["alpha0"], "quantized": quantize, "noise_std": noise,
-            "seed": seed}
+    meta = {
+        "source": "rotorbayes simulate (synthetic)",
+        "config": model,
+        "input": source,
+        "rate_hz": f"{1 / dt:.10g}",
+        "duration_s": f"{t[-1]:.10g}",
+        "params": params or f"default ({_params.DEFAULT_SET[model]})",
+        "effects": ", ".join(m.effect_names) or "none",
+        "added_effects": ", ".join(effects) or "none",
+        "alpha0": sim.params["alpha0"],
+        "quantized": quantize,
+        "noise_std": noise,
+        "seed": seed,
+    }
     meta.update({f"param.{n}": repr(float(v)) for n, v in sim.params.items()})
     fig_tmp = None
     try:
@@ -312,19 +400,25 @@ def simulate(out: str, *, model: str = "brake", input: str | None = None,
         raise
     except OSError as exc:
         target = fig_path if fig_tmp is not None and out.exists() else out
-        raise Refused(f"cannot write {target} ({exc.strerror or exc}); check that its folder "
-                      "is writable and has space, or choose another path") from None
+        raise Refused(
+            f"cannot write {target} ({exc.strerror or exc}); check that its folder "
+            "is writable and has space, or choose another path"
+        ) from None
     finally:
         if fig_tmp is not None and fig_tmp.exists():
             fig_tmp.unlink()
     if inherited:
         print(f"effects carried over from {params}: {', '.join(inherited)}")
     n_stick = int(np.sum(sim.events[:, 2] == 0)) if sim.events.size else 0
-    print(f"simulated {model} configuration, {sim.t[-1]:.1f} s at {1 / dt:.0f} Hz in "
-          f"{1e3 * el:.1f} ms; {len(sim.events)} stick/slip switches ({n_stick} stick onsets)")
+    print(
+        f"simulated {model} configuration, {sim.t[-1]:.1f} s at {1 / dt:.0f} Hz in "
+        f"{1e3 * el:.1f} ms; {len(sim.events)} stick/slip switches ({n_stick} stick onsets)"
+    )
     if sim.theta_l is not None:
-        print(f"lower disc sticks {100 * sim.stick_fraction('l'):.1f} % of the time; "
-              f"string torsion {sim.alpha.min():.3f} .. {sim.alpha.max():.3f} rad")
+        print(
+            f"lower disc sticks {100 * sim.stick_fraction('l'):.1f} % of the time; "
+            f"string torsion {sim.alpha.min():.3f} .. {sim.alpha.max():.3f} rad"
+        )
     print(f"wrote {out}")
     if fig_path is not None:
         print(f"wrote {fig_path}")

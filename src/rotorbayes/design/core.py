@@ -90,14 +90,26 @@ class DesignResult:
     responses: dict = field(default_factory=dict, repr=False)
 
     def as_dict(self) -> dict:
-        return {"status": self.status, "target": self.target, "words": self.words,
-                "procedure": self.procedure or None, "input": self.input_family,
-                "predicted": self.predicted, "achieved": self.achieved,
-                "starts": self.starts, "settings": self.settings, "seconds": self.seconds}
+        return {
+            "status": self.status,
+            "target": self.target,
+            "words": self.words,
+            "procedure": self.procedure or None,
+            "input": self.input_family,
+            "predicted": self.predicted,
+            "achieved": self.achieved,
+            "starts": self.starts,
+            "settings": self.settings,
+            "seconds": self.seconds,
+        }
 
     def text(self) -> str:
-        lines = [f"status: {self.status}", f"target: {self.target.get('words', '')}", "",
-                 self.words]
+        lines = [
+            f"status: {self.status}",
+            f"target: {self.target.get('words', '')}",
+            "",
+            self.words,
+        ]
         if self.procedure and self.procedure not in self.words:
             lines += ["", f"procedure: {self.procedure}"]
         if self.input_family:
@@ -106,13 +118,13 @@ class DesignResult:
 
 
 # ------------------------------------------------------------------------------ inputs
-def _as_fit(fit, trust_effects: bool = False,
-            accept_changed_data: bool = False) -> tuple[Problem, np.ndarray, str]:
+def _as_fit(
+    fit, trust_effects: bool = False, accept_changed_data: bool = False
+) -> tuple[Problem, np.ndarray, str]:
     from ..inference.results import LoadedFit, load_fit
 
     if isinstance(fit, (str, Path)):
-        lf = load_fit(fit, trust_effects=trust_effects,
-                      accept_changed_data=accept_changed_data)
+        lf = load_fit(fit, trust_effects=trust_effects, accept_changed_data=accept_changed_data)
         return lf.problem, lf.x, str(lf.folder)
     if isinstance(fit, LoadedFit):
         return fit.problem, fit.x, str(fit.folder)
@@ -120,8 +132,10 @@ def _as_fit(fit, trust_effects: bool = False,
         return fit[0], np.asarray(fit[1], float), "(problem, x)"
     if hasattr(fit, "problem") and hasattr(fit, "x"):
         return fit.problem, np.asarray(fit.x, float), "FitResult"
-    raise DesignError(f"cannot design from {type(fit).__name__}: give a fit folder, a "
-                      "LoadedFit, a FitResult or a (problem, x) pair")
+    raise DesignError(
+        f"cannot design from {type(fit).__name__}: give a fit folder, a "
+        "LoadedFit, a FitResult or a (problem, x) pair"
+    )
 
 
 def _grid_defaults(problem: Problem, duration, rate) -> tuple[float, float]:
@@ -148,8 +162,7 @@ class _Objective:
         if self.kind == "params":
             f = self.frames[0]
             Jn = f.new_rows(t, u)
-            return math.log(max(float(np.sum(f.variances(f.F_old + Jn.T @ Jn, self.idx))),
-                                1e-300))
+            return math.log(max(float(np.sum(f.variances(f.F_old + Jn.T @ Jn, self.idx))), 1e-300))
         g = self.gaps(u, self.idx)
         return -math.log1p(min(g[d] for d in self.idx))
 
@@ -161,8 +174,12 @@ class _Objective:
         if directions is None:
             n = len(self.frames)
             directions = [(i, j) for i in range(n) for j in range(n) if i != j]
-        return {(i, j): separation_gap(self.frames[i], self.frames[j], rows[i][1],
-                                       rows[j][1], rows[j][0]) for i, j in directions}
+        return {
+            (i, j): separation_gap(
+                self.frames[i], self.frames[j], rows[i][1], rows[j][1], rows[j][0]
+            )
+            for i, j in directions
+        }
 
     def __call__(self, z: np.ndarray) -> float:
         try:
@@ -179,20 +196,34 @@ def _run_start(objective: _Objective, item) -> dict:
     f0 = objective(z0)
     bounds = list(zip(fam.lower, fam.upper, strict=True))
     if METHOD == "powell":
-        res = optimize.minimize(objective, z0, method="Powell", bounds=bounds,
-                                options={"maxfev": int(max_evals), "xtol": 1e-3,
-                                         "ftol": 1e-4})
+        res = optimize.minimize(
+            objective,
+            z0,
+            method="Powell",
+            bounds=bounds,
+            options={"maxfev": int(max_evals), "xtol": 1e-3, "ftol": 1e-4},
+        )
     else:
         # Forward differences over a step the input can feel (a hundredth of a volt).
-        res = optimize.minimize(objective, z0, method="L-BFGS-B", bounds=bounds,
-                                options={"maxfun": int(max_evals), "eps": 2e-3,
-                                         "ftol": 1e-6})
+        res = optimize.minimize(
+            objective,
+            z0,
+            method="L-BFGS-B",
+            bounds=bounds,
+            options={"maxfun": int(max_evals), "eps": 2e-3, "ftol": 1e-6},
+        )
     z = np.clip(res.x, fam.lower, fam.upper)
     val = float(res.fun)
     if not val <= f0:  # never worse than the start
         z, val = np.asarray(z0, float), f0
-    return {"start": int(i), "z": z, "value": val, "start_value": float(f0),
-            "evaluations": int(res.nfev), "seconds": time.perf_counter() - t0}
+    return {
+        "start": int(i),
+        "z": z,
+        "value": val,
+        "start_value": float(f0),
+        "evaluations": int(res.nfev),
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 # ------------------------------------------------------------------------------ checks
@@ -202,8 +233,9 @@ def _simulate_data(frame: Frame, t, u, seed: int) -> Experiment:
     p = frame.new_problem(t, u)
     sim = p.simulate(p.x_from(frame.params_new))
     if sim.meta.get("status", "ok") != "ok":
-        raise SimulationError(f"the designed experiment cannot be simulated at the fit: "
-                              f"{sim.meta['status']}")
+        raise SimulationError(
+            f"the designed experiment cannot be simulated at the fit: {sim.meta['status']}"
+        )
     rng = np.random.default_rng(seed)
     out = {}
     for c, counts in (("theta_u", UPPER_COUNTS_PER_REV), ("theta_l", LOWER_COUNTS_PER_REV)):
@@ -223,8 +255,12 @@ def _combined(frame: Frame, new_ex: Experiment) -> tuple[Problem, np.ndarray, np
     """Old data plus ``new_ex``: the problem, its start (the fit) and, per free name, the
     index in the frame's coordinates."""
     prob0 = frame.problem
-    prob = prob0.like(model=frame.model, experiments=list(prob0.experiments) + [new_ex],
-                      free=frame.names_base, base=frame.params_new)
+    prob = prob0.like(
+        model=frame.model,
+        experiments=list(prob0.experiments) + [new_ex],
+        free=frame.names_base,
+        base=frame.params_new,
+    )
     pos = [frame.names.index(n) for n in prob.names]
     return prob, frame.x_comb[pos], np.array(pos)
 
@@ -236,8 +272,7 @@ def _fisher_at(frame: Frame, prob: Problem, J: np.ndarray, pos: np.ndarray) -> n
     return F
 
 
-def _check_information(frame: Frame, t, u, kind: str, v, idx, seed: int,
-                       max_nfev: int) -> dict:
+def _check_information(frame: Frame, t, u, kind: str, v, idx, seed: int, max_nfev: int) -> dict:
     """Simulate, refit old + new, and measure the width(s) the target asks for."""
     t0 = time.perf_counter()
     new_ex = _simulate_data(frame, t, u, seed)
@@ -246,18 +281,21 @@ def _check_information(frame: Frame, t, u, kind: str, v, idx, seed: int,
     F = _fisher_at(frame, prob, res.jac, pos)
     cov = np.full((len(frame.names),) * 2, np.nan)
     if res.uncertainty is not None:
-        cov[np.ix_(pos, pos)] = res.uncertainty.cov / np.outer(frame.scale[pos],
-                                                               frame.scale[pos])
-    out = {"converged": bool(res.success), "fit_seconds": time.perf_counter() - t0,
-           "rms_over_floor": prob.rms_over_floor(prob.residuals(res.x))}
+        cov[np.ix_(pos, pos)] = res.uncertainty.cov / np.outer(frame.scale[pos], frame.scale[pos])
+    out = {
+        "converged": bool(res.success),
+        "fit_seconds": time.perf_counter() - t0,
+        "rms_over_floor": prob.rms_over_floor(prob.residuals(res.x)),
+    }
     if kind == "sloppiest":
         out["sd_white"] = frame.sd_along(F, v)
         vp = v[pos]
         out["sd_honest"] = math.sqrt(max(float(vp @ cov[np.ix_(pos, pos)] @ vp), 0.0))
         out["error_along_direction"] = float(v[pos] @ _relative_step(frame, res.x, x0, pos))
     else:
-        out["sd_white"] = {frame.names[j]: math.sqrt(x) for j, x in
-                           zip(idx, frame.variances(F, idx), strict=True)}
+        out["sd_white"] = {
+            frame.names[j]: math.sqrt(x) for j, x in zip(idx, frame.variances(F, idx), strict=True)
+        }
         out["sd_honest"] = {frame.names[j]: math.sqrt(max(cov[j, j], 0.0)) for j in idx}
     return out
 
@@ -279,8 +317,9 @@ def _direction_key(labels: Sequence[str], i: int, j: int) -> str:
     return f"{labels[i]} true" if len(labels) == 2 else f"{labels[i]} true, {labels[j]} refitted"
 
 
-def _check_separation(frames: list[Frame], labels, t, u, seed: int, max_nfev: int,
-                      used: Sequence[int] | None = None) -> dict:
+def _check_separation(
+    frames: list[Frame], labels, t, u, seed: int, max_nfev: int, used: Sequence[int] | None = None
+) -> dict:
     """For each candidate as the truth: simulate, refit every candidate to old + new, and
     the SSR gap of each other candidate over the true one (one entry per direction).
     ``used``: the candidates that take part (default all)."""
@@ -298,9 +337,12 @@ def _check_separation(frames: list[Frame], labels, t, u, seed: int, max_nfev: in
         for other in used:
             if other == k:
                 continue
-            entry = {"ssr_gap": ssr[other] - ssr[k], "ssr_true_model": ssr[k],
-                     "ssr_other_model": ssr[other],
-                     "n_residuals": int(new_ex.n * len(frames[0].problem.channels))}
+            entry = {
+                "ssr_gap": ssr[other] - ssr[k],
+                "ssr_true_model": ssr[k],
+                "ssr_other_model": ssr[other],
+                "n_residuals": int(new_ex.n * len(frames[0].problem.channels)),
+            }
             if len(labels) != 2:
                 entry = {"true": labels[k], "refitted": labels[other], **entry}
             out[_direction_key(labels, k, other)] = entry
@@ -316,8 +358,10 @@ def _candidate(problem: Problem, x: np.ndarray, name: str, max_nfev: int):
     eff = _effects.resolve([name])[0]
     m = problem.model
     if m.config not in eff.configs:
-        raise DesignError(f"effect {eff.name!r} does not apply to the {m.config} configuration "
-                          f"(it applies to {', '.join(eff.configs)})")
+        raise DesignError(
+            f"effect {eff.name!r} does not apply to the {m.config} configuration "
+            f"(it applies to {', '.join(eff.configs)})"
+        )
     names = problem.names_base()
     base = dict(problem.params_for(x, 0))
     if eff.name in m.effect_names:
@@ -425,9 +469,11 @@ def design_input(
         repeated = sorted({s for s in separate if separate.count(s) > 1})
         if len(separate) < 2 or repeated:
             why = f" ({', '.join(repeated)} given twice)" if repeated else ""
-            raise DesignError(f"--separate {','.join(separate)}: give two or more different "
-                              f"effects{why}, e.g. --separate "
-                              "lower_asymmetric_coulomb,string_damping,lower_stribeck")
+            raise DesignError(
+                f"--separate {','.join(separate)}: give two or more different "
+                f"effects{why}, e.g. --separate "
+                "lower_asymmetric_coulomb,string_damping,lower_stribeck"
+            )
         for s in separate:  # unknown names: the registry's own message, before any work
             try:
                 _effects.resolve([s])
@@ -437,12 +483,20 @@ def design_input(
     duration, rate = _grid_defaults(problem, duration, rate)
     fam = make_family(family, duration, rate, max_volts, band_hz)
     t = fam.t
-    settings = {"fit": source, "duration_s": duration, "rate_hz": rate,
-                "max_volts": max_volts, "band_hz": band_hz, "family": family,
-                "starts": int(starts), "seed": int(seed), "max_evals": int(max_evals),
-                "noise": "encoder floor per channel (quantisation q/sqrt(12), or the data's "
-                         "jitter where larger), i.i.d. in the prediction",
-                "new_experiment_alpha0": "0 (the string unwound before the new run)"}
+    settings = {
+        "fit": source,
+        "duration_s": duration,
+        "rate_hz": rate,
+        "max_volts": max_volts,
+        "band_hz": band_hz,
+        "family": family,
+        "starts": int(starts),
+        "seed": int(seed),
+        "max_evals": int(max_evals),
+        "noise": "encoder floor per channel (quantisation q/sqrt(12), or the data's "
+        "jitter where larger), i.i.d. in the prediction",
+        "new_experiment_alpha0": "0 (the string unwound before the new run)",
+    }
     seconds: dict[str, float] = {}
     plan = None
     # ------------------------------------------------------------------ the target
@@ -455,7 +509,8 @@ def design_input(
                 raise DesignError(
                     f"--separate: effect {eff.name!r} does not apply to the "
                     f"{problem.model.config} configuration (it applies to "
-                    f"{', '.join(eff.configs)})")
+                    f"{', '.join(eff.configs)})"
+                )
         effects = [e.name for e in effs]
         n_c = len(effects)
         pairs = [(i, j) for i in range(n_c) for j in range(i + 1, n_c)]
@@ -464,26 +519,38 @@ def design_input(
         ties = {}
         for i, j in pairs:
             free_ij = set(problem.names_base()) | set(effs[i].names) | set(effs[j].names)
-            tie = _ties.tie_between([effects[i], effects[j]], free_ij,
-                                    n_experiments=len(problem.experiments),
-                                    prescribed_upper=problem.prescribed_upper)
+            tie = _ties.tie_between(
+                [effects[i], effects[j]],
+                free_ij,
+                n_experiments=len(problem.experiments),
+                prescribed_upper=problem.prescribed_upper,
+            )
             if tie is not None:
                 ties[(i, j)] = tie
-        words = (f"tell {effects[0]} from {effects[1]}" if n_c == 2 else
-                 f"tell {', '.join(effects[:-1])} and {effects[-1]} apart, every pair")
+        words = (
+            f"tell {effects[0]} from {effects[1]}"
+            if n_c == 2
+            else f"tell {', '.join(effects[:-1])} and {effects[-1]} apart, every pair"
+        )
         target = {"kind": "separate", "effects": effects, "words": words}
         if ties:
             target["tied_pairs"] = [
-                {"effects": [effects[i], effects[j]], "tie": str(tie),
-                 "procedure": tie.procedure} for (i, j), tie in ties.items()]
+                {"effects": [effects[i], effects[j]], "tie": str(tie), "procedure": tie.procedure}
+                for (i, j), tie in ties.items()
+            ]
         separable = [ij for ij in pairs if ij not in ties]
         if not separable:
             return _no_input(problem, list(ties.values()), target, settings, t_all)
         cands = [_candidate(problem, x, s, max_nfev=100) for s in labels]
         frames = [Frame(c[0], c[1]) for c in cands]
-        target["candidates"] = {lab: {"how": c[3], "rms_over_floor": c[0].rms_over_floor(
-            c[0].residuals(c[1])), "estimates": c[0].values(c[1])}
-            for lab, c in zip(labels, cands, strict=True)}
+        target["candidates"] = {
+            lab: {
+                "how": c[3],
+                "rms_over_floor": c[0].rms_over_floor(c[0].residuals(c[1])),
+                "estimates": c[0].values(c[1]),
+            }
+            for lab, c in zip(labels, cands, strict=True)
+        }
         # A candidate whose effect the existing data put at its null value is the fit's
         # own model, which every other candidate contains (its effect at null too): data
         # from it are fitted by the other exactly, whatever the input.  Only the other
@@ -501,11 +568,13 @@ def design_input(
         if not designed_pairs:  # every separable pair at null on both sides
             designed_pairs = list(separable)
             dirs = [d for i, j in separable for d in ((i, j), (j, i))]
-        target["pairs"] = {"designed_for": [[effects[i], effects[j]]
-                                            for i, j in designed_pairs],
-                           "both_at_null": [[effects[i], effects[j]] for i, j in separable
-                                            if (i, j) not in designed_pairs],
-                           "tied": [[effects[i], effects[j]] for i, j in ties]}
+        target["pairs"] = {
+            "designed_for": [[effects[i], effects[j]] for i, j in designed_pairs],
+            "both_at_null": [
+                [effects[i], effects[j]] for i, j in separable if (i, j) not in designed_pairs
+            ],
+            "tied": [[effects[i], effects[j]] for i, j in ties],
+        }
         plan = _Plan(effects, designed_pairs, separable, ties, at_null)
         objective = _Objective("separate", fam, frames, idx=dirs)
         v = idx = None
@@ -515,54 +584,71 @@ def design_input(
         if params:
             idx = []
             for n in params:
-                want = [j for j, m in enumerate(frame.names)
-                        if m == n or (local_name(m)[0] == n and local_name(m)[1] is not None
-                                      and local_name(m)[1] < frame.k_old)]
+                want = [
+                    j
+                    for j, m in enumerate(frame.names)
+                    if m == n
+                    or (
+                        local_name(m)[0] == n
+                        and local_name(m)[1] is not None
+                        and local_name(m)[1] < frame.k_old
+                    )
+                ]
                 if not want:
                     raise DesignError(
                         f"--params: {n!r} is not a free parameter of this fit; its free "
-                        f"parameters are {', '.join(problem.names)}")
+                        f"parameters are {', '.join(problem.names)}"
+                    )
                 idx += [j for j in want if j not in idx]
             v = None
-            target = {"kind": "params", "parameters": [frame.names[j] for j in idx],
-                      "words": "pin " + ", ".join(frame.names[j] for j in idx)
-                               + " (sum of relative variances)"}
+            target = {
+                "kind": "params",
+                "parameters": [frame.names[j] for j in idx],
+                "words": "pin "
+                + ", ".join(frame.names[j] for j in idx)
+                + " (sum of relative variances)",
+            }
             objective = _Objective("params", fam, frames, idx=idx)
         else:
             v, width = frame.sloppiest()
             idx = None
-            movers = [(frame.names[j], float(v[j])) for j in np.argsort(-np.abs(v))
-                      if abs(v[j]) > 0.25]
-            target = {"kind": "sloppiest",
-                      "direction": {n: float(c) for n, c in zip(frame.names, v, strict=True)
-                                    if c != 0.0},
-                      "coordinates": "log of each positive parameter, value/scale of signed "
-                                     "ones (as rotorbayes identify)",
-                      "words": "the fit's sloppiest direction ("
-                               + ", ".join(f"{n} {c:+.2f}" for n, c in movers) + ")"}
-            tie = _ties.tie_in_direction(frame.names[: len(problem.names)],
-                                         v[: len(problem.names)], problem.model.effect_names,
-                                         n_experiments=len(problem.experiments),
-                                         prescribed_upper=problem.prescribed_upper)
+            movers = [
+                (frame.names[j], float(v[j])) for j in np.argsort(-np.abs(v)) if abs(v[j]) > 0.25
+            ]
+            target = {
+                "kind": "sloppiest",
+                "direction": {n: float(c) for n, c in zip(frame.names, v, strict=True) if c != 0.0},
+                "coordinates": "log of each positive parameter, value/scale of signed "
+                "ones (as rotorbayes identify)",
+                "words": "the fit's sloppiest direction ("
+                + ", ".join(f"{n} {c:+.2f}" for n, c in movers)
+                + ")",
+            }
+            tie = _ties.tie_in_direction(
+                frame.names[: len(problem.names)],
+                v[: len(problem.names)],
+                problem.model.effect_names,
+                n_experiments=len(problem.experiments),
+                prescribed_upper=problem.prescribed_upper,
+            )
             if tie is not None:
                 return _no_input(problem, [tie], target, settings, t_all)
             objective = _Objective("sloppiest", fam, frames, v=v)
     seconds["target"] = time.perf_counter() - t0
     # ------------------------------------------------------------------ the search
     t0 = time.perf_counter()
-    _, u_base = estimation_signal(duration, rate=rate, seed=seed, amplitude=max_volts,
-                                  bandwidth=band_hz)
+    _, u_base = estimation_signal(
+        duration, rate=rate, seed=seed, amplitude=max_volts, bandwidth=band_hz
+    )
     rng = np.random.default_rng(seed)
     z_starts = [fam.random(rng) for _ in range(int(starts))]
     if family == "steps":
         # One start is the estimation input seen through the family (its levels sampled
         # in the middle of each hold): the search begins where the standard input is.
-        mids = np.searchsorted(t, 0.5 * (2.0 / band_hz) + fam.hold * (np.arange(fam.size)
-                                                                     + 0.5))
+        mids = np.searchsorted(t, 0.5 * (2.0 / band_hz) + fam.hold * (np.arange(fam.size) + 0.5))
         z_starts[0] = np.clip(u_base[np.minimum(mids, t.size - 1)] / max_volts, -1, 1)
     items = [(i, z, max_evals) for i, z in enumerate(z_starts)]
-    runs = dict(run_tasks(_run_start, items, shared=objective, executor=executor,
-                          workers=workers))
+    runs = dict(run_tasks(_run_start, items, shared=objective, executor=executor, workers=workers))
     runs = [runs[i] for i in range(len(items))]
     best = min(runs, key=lambda r: r["value"])
     u = fam(best["z"])
@@ -573,19 +659,35 @@ def design_input(
     achieved = None
     if check and status != NO_INPUT:
         t0 = time.perf_counter()
-        achieved = _achieve(objective, frames, t, u, u_base, target, v, idx, seed,
-                            check_nfev, predicted, plan)
+        achieved = _achieve(
+            objective, frames, t, u, u_base, target, v, idx, seed, check_nfev, predicted, plan
+        )
         seconds["check"] = time.perf_counter() - t0
         words += "\n" + achieved.pop("words")
     seconds["total"] = time.perf_counter() - t_all
     return DesignResult(
-        status=status, target=target, words=words, t=t, u=u, baseline=u_base,
+        status=status,
+        target=target,
+        words=words,
+        t=t,
+        u=u,
+        baseline=u_base,
         input_family={"description": fam.describe(), **fam.settings(best["z"])},
-        predicted=predicted, achieved=achieved,
-        starts=[{k: (v_.tolist() if isinstance(v_, np.ndarray) else v_)
-                 for k, v_ in r.items() if k != "z"} for r in runs],
-        settings=settings, seconds=seconds, responses=responses,
-        procedure=plan.procedure() if plan is not None else "")
+        predicted=predicted,
+        achieved=achieved,
+        starts=[
+            {
+                k: (v_.tolist() if isinstance(v_, np.ndarray) else v_)
+                for k, v_ in r.items()
+                if k != "z"
+            }
+            for r in runs
+        ],
+        settings=settings,
+        seconds=seconds,
+        responses=responses,
+        procedure=plan.procedure() if plan is not None else "",
+    )
 
 
 @dataclass
@@ -612,8 +714,7 @@ class _Plan:
         return "; ".join(dict.fromkeys(t.procedure for t in self.ties.values()))
 
 
-def _no_input(problem: Problem, ties: list, target: dict, settings: dict,
-              t_all) -> DesignResult:
+def _no_input(problem: Problem, ties: list, target: dict, settings: dict, t_all) -> DesignResult:
     """The registry says no input can help: the words, the procedure, and the existing
     input to repeat after re-zeroing (u.csv).  ``ties``: the registry entries that apply
     (one for a sloppiest direction or two candidates; one per tied pair otherwise)."""
@@ -625,17 +726,29 @@ def _no_input(problem: Problem, ties: list, target: dict, settings: dict,
         target["ties"] = [str(q) for q in ties]
     words = " ".join(_ties.no_input_words(q) for q in ties)
     label = ex.name or ex.path or "the first experiment"
-    words += (f" u.csv holds the existing experiment's input ({label}, "
-              f"{ex.t[-1] - ex.t[0]:g} s) to run again: with the same input, what differs "
-              "between the two runs is what the procedure changed.")
+    words += (
+        f" u.csv holds the existing experiment's input ({label}, "
+        f"{ex.t[-1] - ex.t[0]:g} s) to run again: with the same input, what differs "
+        "between the two runs is what the procedure changed."
+    )
     return DesignResult(
-        status=NO_INPUT, target=target, words=words, t=np.asarray(ex.t - ex.t[0]),
-        u=np.asarray(ex.u), baseline=None,
-        input_family={"description": "the existing experiment's input, to run again "
-                                     "after the procedure", "family": "repeat"},
-        predicted={}, achieved=None, starts=[], settings=settings,
+        status=NO_INPUT,
+        target=target,
+        words=words,
+        t=np.asarray(ex.t - ex.t[0]),
+        u=np.asarray(ex.u),
+        baseline=None,
+        input_family={
+            "description": "the existing experiment's input, to run again after the procedure",
+            "family": "repeat",
+        },
+        predicted={},
+        achieved=None,
+        starts=[],
+        settings=settings,
         seconds={"total": time.perf_counter() - t_all},
-        procedure="; ".join(dict.fromkeys(q.procedure for q in ties)))
+        procedure="; ".join(dict.fromkeys(q.procedure for q in ties)),
+    )
 
 
 def _predict(objective: _Objective, frames, u, u_base, target, plan=None):
@@ -648,44 +761,67 @@ def _predict(objective: _Objective, frames, u, u_base, target, plan=None):
         Jn, Jb = f.new_rows(t, u), f.new_rows(t, u_base)
         sd_new = f.sd_along(f.F_old + Jn.T @ Jn, v)
         sd_base = f.sd_along(f.F_old + Jb.T @ Jb, v)
-        pred = {"sd_existing_data": sd_old, "sd_with_design": sd_new,
-                "sd_with_estimation_input": sd_base,
-                "gain_vs_existing": sd_old / sd_new,
-                "gain_vs_estimation_input": sd_base / sd_new,
-                "units": "1-sigma width along the direction, relative units (white noise "
-                         "at the floor)"}
+        pred = {
+            "sd_existing_data": sd_old,
+            "sd_with_design": sd_new,
+            "sd_with_estimation_input": sd_base,
+            "gain_vs_existing": sd_old / sd_new,
+            "gain_vs_estimation_input": sd_base / sd_new,
+            "units": "1-sigma width along the direction, relative units (white noise at the floor)",
+        }
         gain = sd_old / sd_new
-        words = (f"Target: {target['words']}. Its predicted 1-sigma width falls from "
-                 f"{sd_old:.3g} (existing data) to {sd_new:.3g} with the designed input, "
-                 f"against {sd_base:.3g} with the standard estimation input of the same "
-                 f"length and limits: {sd_base / sd_new:.2f}x narrower than that input, "
-                 f"{gain:.2f}x narrower than now.")
+        words = (
+            f"Target: {target['words']}. Its predicted 1-sigma width falls from "
+            f"{sd_old:.3g} (existing data) to {sd_new:.3g} with the designed input, "
+            f"against {sd_base:.3g} with the standard estimation input of the same "
+            f"length and limits: {sd_base / sd_new:.2f}x narrower than that input, "
+            f"{gain:.2f}x narrower than now."
+        )
     elif kind == "params":
         idx = objective.idx
-        old = {f.names[j]: math.sqrt(max(float(s), 0.0)) for j, s in zip(
-            idx, f.variances(f.F_old + 1e-300 * np.eye(len(f.names)), idx), strict=True)}
+        old = {
+            f.names[j]: math.sqrt(max(float(s), 0.0))
+            for j, s in zip(
+                idx, f.variances(f.F_old + 1e-300 * np.eye(len(f.names)), idx), strict=True
+            )
+        }
         Jn, Jb = f.new_rows(t, u), f.new_rows(t, u_base)
-        new = {f.names[j]: math.sqrt(s) for j, s in
-               zip(idx, f.variances(f.F_old + Jn.T @ Jn, idx), strict=True)}
-        base = {f.names[j]: math.sqrt(s) for j, s in
-                zip(idx, f.variances(f.F_old + Jb.T @ Jb, idx), strict=True)}
-        pred = {"sd_existing_data": old, "sd_with_design": new,
-                "sd_with_estimation_input": base,
-                "gain_vs_existing": {n: old[n] / new[n] for n in new},
-                "gain_vs_estimation_input": {n: base[n] / new[n] for n in new},
-                "units": "relative 1-sigma widths (white noise at the floor)"}
+        new = {
+            f.names[j]: math.sqrt(s)
+            for j, s in zip(idx, f.variances(f.F_old + Jn.T @ Jn, idx), strict=True)
+        }
+        base = {
+            f.names[j]: math.sqrt(s)
+            for j, s in zip(idx, f.variances(f.F_old + Jb.T @ Jb, idx), strict=True)
+        }
+        pred = {
+            "sd_existing_data": old,
+            "sd_with_design": new,
+            "sd_with_estimation_input": base,
+            "gain_vs_existing": {n: old[n] / new[n] for n in new},
+            "gain_vs_estimation_input": {n: base[n] / new[n] for n in new},
+            "units": "relative 1-sigma widths (white noise at the floor)",
+        }
         gain = min(old[n] / new[n] for n in new)
-        words = "Target: " + target["words"] + ". Predicted relative 1-sigma widths: " + \
-            "; ".join(f"{n} {old[n]:.3g} -> {new[n]:.3g} (estimation input: {base[n]:.3g})"
-                      for n in new) + "."
+        words = (
+            "Target: "
+            + target["words"]
+            + ". Predicted relative 1-sigma widths: "
+            + "; ".join(
+                f"{n} {old[n]:.3g} -> {new[n]:.3g} (estimation input: {base[n]:.3g})" for n in new
+            )
+            + "."
+        )
     else:
         return _predict_separation(objective, u, u_base, target, plan)
     status = DESIGNED if gain >= MIN_GAIN else LITTLE_GAIN
     if status == LITTLE_GAIN:
-        words += (" The best input found narrows the target by less than "
-                  f"{100 * (MIN_GAIN - 1):.0f} %: one more experiment of this length and "
-                  "these limits adds little; the existing data already hold what such an "
-                  "input can tell.")
+        words += (
+            " The best input found narrows the target by less than "
+            f"{100 * (MIN_GAIN - 1):.0f} %: one more experiment of this length and "
+            "these limits adds little; the existing data already hold what such an "
+            "input can tell."
+        )
     return pred, status, words
 
 
@@ -701,84 +837,122 @@ def _predict_separation(objective: _Objective, u, u_base, target, plan: _Plan):
     pairs = []
     for ij in plan.separable:
         dd = plan.directions(ij)
-        pairs.append({"effects": [labels[ij[0]], labels[ij[1]]],
-                      "directions_designed_for": [key[d] for d in dd],
-                      "designed_for": ij in plan.designed,
-                      "ssr_gap_with_design": min(gd[d] for d in dd),
-                      "ssr_gap_with_estimation_input": min(gb[d] for d in dd)})
+        pairs.append(
+            {
+                "effects": [labels[ij[0]], labels[ij[1]]],
+                "directions_designed_for": [key[d] for d in dd],
+                "designed_for": ij in plan.designed,
+                "ssr_gap_with_design": min(gd[d] for d in dd),
+                "ssr_gap_with_estimation_input": min(gb[d] for d in dd),
+            }
+        )
     designed = [p for p in pairs if p["designed_for"]]
     limit = min(designed, key=lambda p: p["ssr_gap_with_design"])
     gain = min(gd[d] for d in use)
     base = min(gb[d] for d in use)
-    pred = {"ssr_gap_with_design": {key[d]: gd[d] for d in shown},
-            "ssr_gap_with_estimation_input": {key[d]: gb[d] for d in shown},
-            "gain_vs_estimation_input": gain / max(base, 1e-12),
-            "directions_designed_for": [key[d] for d in use],
-            "pairs": pairs, "limiting_pair": limit["effects"],
-            "units": "expected SSR gap in noise variances (floor^2): the part of the "
-                     "prediction difference the other model cannot absorb by refitting"}
+    pred = {
+        "ssr_gap_with_design": {key[d]: gd[d] for d in shown},
+        "ssr_gap_with_estimation_input": {key[d]: gb[d] for d in shown},
+        "gain_vs_estimation_input": gain / max(base, 1e-12),
+        "directions_designed_for": [key[d] for d in use],
+        "pairs": pairs,
+        "limiting_pair": limit["effects"],
+        "units": "expected SSR gap in noise variances (floor^2): the part of the "
+        "prediction difference the other model cannot absorb by refitting",
+    }
     nulls = [lab for lab, z in target.get("at_null", {}).items() if z]
     if len(labels) == 2:
         a, b = labels
-        words = (f"Target: {target['words']}. Expected SSR gap between the two models' best "
-                 f"fits to old and new data (noise variances, linearised): {gain:.3g} with the "
-                 f"designed input ({a} true {gd[(0, 1)]:.3g}, {b} true {gd[(1, 0)]:.3g}), "
-                 f"{base:.3g} with the standard estimation input.")
+        words = (
+            f"Target: {target['words']}. Expected SSR gap between the two models' best "
+            f"fits to old and new data (noise variances, linearised): {gain:.3g} with the "
+            f"designed input ({a} true {gd[(0, 1)]:.3g}, {b} true {gd[(1, 0)]:.3g}), "
+            f"{base:.3g} with the standard estimation input."
+        )
         if len(nulls) == 1:
             other = b if nulls[0] == a else a
-            words += (f" The existing data put {nulls[0]}'s parameters at their null value: "
-                      f"that candidate is the fit's own model, which {other} contains, so "
-                      f"data from it are fitted by {other} exactly whatever the input; the "
-                      f"design shows whether {other} is needed ({other} true).")
+            words += (
+                f" The existing data put {nulls[0]}'s parameters at their null value: "
+                f"that candidate is the fit's own model, which {other} contains, so "
+                f"data from it are fitted by {other} exactly whatever the input; the "
+                f"design shows whether {other} is needed ({other} true)."
+            )
         elif len(nulls) == 2:
-            words += (" The existing data put both effects at their null values: neither is "
-                      "supported by them, and either candidate fits data from the other.")
+            words += (
+                " The existing data put both effects at their null values: neither is "
+                "supported by them, and either candidate fits data from the other."
+            )
         both_null = len(nulls) == 2
     else:
-        words = (f"Target: {target['words']}. The design maximises the smallest expected SSR "
-                 "gap over the pairs (noise variances, linearised; a pair's gap is the "
-                 "smaller of its two directions, each candidate true in turn with the other "
-                 "refitted to old and new data): "
-                 f"{gain:.3g} with the designed input, {base:.3g} with the standard "
-                 f"estimation input; the pair that limits the design is "
-                 f"{' / '.join(limit['effects'])}. Per pair, design (estimation input): "
-                 + "; ".join(f"{' / '.join(p['effects'])} {p['ssr_gap_with_design']:.3g} "
-                             f"({p['ssr_gap_with_estimation_input']:.3g})"
-                             + ("" if p["designed_for"] else " [not designed for]")
-                             for p in pairs) + ".")
+        words = (
+            f"Target: {target['words']}. The design maximises the smallest expected SSR "
+            "gap over the pairs (noise variances, linearised; a pair's gap is the "
+            "smaller of its two directions, each candidate true in turn with the other "
+            "refitted to old and new data): "
+            f"{gain:.3g} with the designed input, {base:.3g} with the standard "
+            f"estimation input; the pair that limits the design is "
+            f"{' / '.join(limit['effects'])}. Per pair, design (estimation input): "
+            + "; ".join(
+                f"{' / '.join(p['effects'])} {p['ssr_gap_with_design']:.3g} "
+                f"({p['ssr_gap_with_estimation_input']:.3g})"
+                + ("" if p["designed_for"] else " [not designed for]")
+                for p in pairs
+            )
+            + "."
+        )
         if nulls:
-            words += (" The existing data put " + ", ".join(nulls) + " at "
-                      + ("its" if len(nulls) == 1 else "their") + " null value: such a "
-                      "candidate is the fit's own model, which every other candidate "
-                      "contains, so only the other candidate's direction of its pairs is "
-                      "designed for (does the other effect show?).")
+            words += (
+                " The existing data put "
+                + ", ".join(nulls)
+                + " at "
+                + ("its" if len(nulls) == 1 else "their")
+                + " null value: such a "
+                "candidate is the fit's own model, which every other candidate "
+                "contains, so only the other candidate's direction of its pairs is "
+                "designed for (does the other effect show?)."
+            )
         left = target.get("pairs", {}).get("both_at_null", [])
         if left:
-            words += (" Left out of the design: " + "; ".join(" / ".join(p) for p in left)
-                      + " (both at their null values: both are the fit's own model, no "
-                      "data can tell them apart at these fits).")
-        both_null = not any(p["designed_for"] and not all(
-            target["at_null"][e] for e in p["effects"]) for p in pairs)
-    poor = {lab: max((r for r in c["rms_over_floor"].values()
-                      if r is not None and math.isfinite(r)), default=0.0)
-            for lab, c in target.get("candidates", {}).items()}
+            words += (
+                " Left out of the design: "
+                + "; ".join(" / ".join(p) for p in left)
+                + " (both at their null values: both are the fit's own model, no "
+                "data can tell them apart at these fits)."
+            )
+        both_null = not any(
+            p["designed_for"] and not all(target["at_null"][e] for e in p["effects"]) for p in pairs
+        )
+    poor = {
+        lab: max(
+            (r for r in c["rms_over_floor"].values() if r is not None and math.isfinite(r)),
+            default=0.0,
+        )
+        for lab, c in target.get("candidates", {}).items()
+    }
     poor = {lab: r for lab, r in poor.items() if r > POOR_FIT}
     if poor:
-        words += (" The candidates do not all fit the existing data: " + ", ".join(
-            f"{lab} {r:.0f}x the floor" for lab, r in poor.items()) + ". The gaps assume "
+        words += (
+            " The candidates do not all fit the existing data: "
+            + ", ".join(f"{lab} {r:.0f}x the floor" for lab, r in poor.items())
+            + ". The gaps assume "
             "each candidate sits at its best fit; far from it the refits of the check move "
             "the old data's misfit too, and the achieved gaps need not follow the predicted "
-            "ones. Fit the data well first (diagnose, restarts), then design.")
+            "ones. Fit the data well first (diagnose, restarts), then design."
+        )
     if plan.ties:
         words += " " + " ".join(
             f"No input can tell {plan.names(ij)} apart: {tie}. This holds in {tie.scope}, "
             f"whatever the input. What separates them: {tie.procedure} (a second experiment;"
-            " the designed input serves the other pairs)." for ij, tie in plan.ties.items())
+            " the designed input serves the other pairs)."
+            for ij, tie in plan.ties.items()
+        )
     status = DESIGNED if gain >= 9.0 and not both_null else LITTLE_GAIN
     if status == LITTLE_GAIN:
-        words += (" Even the best input found leaves a gap below 9 noise variances "
-                  "(3 sd): these effects cannot be told apart reliably by one more "
-                  "experiment of this length and these limits.")
+        words += (
+            " Even the best input found leaves a gap below 9 noise variances "
+            "(3 sd): these effects cannot be told apart reliably by one more "
+            "experiment of this length and these limits."
+        )
     return pred, status, words
 
 
@@ -806,14 +980,17 @@ def _responses(objective, frames, t, u, target, v, plan=None) -> dict:
         f = frames[0]
         Jn = f.new_rows(t, u)
         sd_old = 1.0 / math.sqrt(max(np.linalg.eigvalsh(f.F_fit)[0], 1e-300))
-        out["difference"] = ("change / floor for one existing-data sd along the direction",
-                             Jn @ (sd_old * v))
+        out["difference"] = (
+            "change / floor for one existing-data sd along the direction",
+            Jn @ (sd_old * v),
+        )
     out["channels"] = frames[0].problem.channels
     return out
 
 
-def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predicted,
-             plan=None) -> dict:
+def _achieve(
+    objective, frames, t, u, u_base, target, v, idx, seed, nfev, predicted, plan=None
+) -> dict:
     kind = target["kind"]
     if kind == "separate":
         labels = target["effects"]
@@ -823,12 +1000,18 @@ def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predic
         gd = min(d[k]["ssr_gap"] for k in keys)
         gb = min(b[k]["ssr_gap"] for k in keys)
         pred = min(predicted["ssr_gap_with_design"][k] for k in keys)
-        out = {"design": d, "estimation_input": b, "ssr_gap_with_design": gd,
-               "ssr_gap_with_estimation_input": gb}
+        out = {
+            "design": d,
+            "estimation_input": b,
+            "ssr_gap_with_design": gd,
+            "ssr_gap_with_estimation_input": gb,
+        }
         if len(labels) == 2:
-            words = (f"Check (each model's simulated data fitted by both, old and new data "
-                     f"together): achieved SSR gap {gd:.3g} noise variances with the design "
-                     f"(predicted {pred:.3g}), {gb:.3g} with the estimation input.")
+            words = (
+                f"Check (each model's simulated data fitted by both, old and new data "
+                f"together): achieved SSR gap {gd:.3g} noise variances with the design "
+                f"(predicted {pred:.3g}), {gb:.3g} with the estimation input."
+            )
         else:
             ppred = {tuple(q["effects"]): q for q in predicted["pairs"]}
             pairs = []
@@ -836,31 +1019,45 @@ def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predic
                 ks = [_direction_key(labels, *dd) for dd in plan.directions(ij)]
                 names = (labels[ij[0]], labels[ij[1]])
                 q = ppred.get(names, {})
-                pairs.append({"effects": list(names), "tied": ij in plan.ties,
-                              "designed_for": ij in plan.designed,
-                              "predicted_with_design": q.get("ssr_gap_with_design"),
-                              "ssr_gap_with_design": min(d[k]["ssr_gap"] for k in ks),
-                              "ssr_gap_with_estimation_input": min(b[k]["ssr_gap"]
-                                                                   for k in ks)})
+                pairs.append(
+                    {
+                        "effects": list(names),
+                        "tied": ij in plan.ties,
+                        "designed_for": ij in plan.designed,
+                        "predicted_with_design": q.get("ssr_gap_with_design"),
+                        "ssr_gap_with_design": min(d[k]["ssr_gap"] for k in ks),
+                        "ssr_gap_with_estimation_input": min(b[k]["ssr_gap"] for k in ks),
+                    }
+                )
             designed = [q for q in pairs if q["designed_for"]]
             limit = min(designed, key=lambda q: q["ssr_gap_with_design"])
             out["pairs"] = pairs
             out["limiting_pair"] = limit["effects"]
-            words = ("Check (each candidate's simulated data fitted by every candidate, old "
-                     f"and new data together): achieved smallest gap {gd:.3g} noise "
-                     f"variances with the design (predicted {pred:.3g}), {gb:.3g} with the "
-                     "estimation input; the pair that limits it is "
-                     f"{' / '.join(limit['effects'])}. Per pair, achieved with the design "
-                     "(predicted; estimation input): " + "; ".join(
-                         f"{' / '.join(q['effects'])} {q['ssr_gap_with_design']:.3g} ("
-                         + ("tied, no input separates it" if q["tied"] else
-                            f"{q['predicted_with_design']:.3g}")
-                         + f"; {q['ssr_gap_with_estimation_input']:.3g})"
-                         for q in pairs) + ".")
+            words = (
+                "Check (each candidate's simulated data fitted by every candidate, old "
+                f"and new data together): achieved smallest gap {gd:.3g} noise "
+                f"variances with the design (predicted {pred:.3g}), {gb:.3g} with the "
+                "estimation input; the pair that limits it is "
+                f"{' / '.join(limit['effects'])}. Per pair, achieved with the design "
+                "(predicted; estimation input): "
+                + "; ".join(
+                    f"{' / '.join(q['effects'])} {q['ssr_gap_with_design']:.3g} ("
+                    + (
+                        "tied, no input separates it"
+                        if q["tied"]
+                        else f"{q['predicted_with_design']:.3g}"
+                    )
+                    + f"; {q['ssr_gap_with_estimation_input']:.3g})"
+                    for q in pairs
+                )
+                + "."
+            )
         if gd < 0.5 * pred:
-            words += (" The achieved gap is far below the linearised prediction: the "
-                      "refitted model moved further than one linear step reaches, so the "
-                      "prediction does not hold for this input; trust the achieved number.")
+            words += (
+                " The achieved gap is far below the linearised prediction: the "
+                "refitted model moved further than one linear step reaches, so the "
+                "prediction does not hold for this input; trust the achieved number."
+            )
         out["words"] = words
         return out
     f = frames[0]
@@ -873,32 +1070,46 @@ def _achieve(objective, frames, t, u, u_base, target, v, idx, seed, nfev, predic
         vv = v[: len(f.problem.names)]
         C = unc.cov / np.outer(f.scale_old, f.scale_old)
         sd_old_honest = math.sqrt(max(float(vv @ C @ vv), 0.0))
-        out = {"design": d, "estimation_input": b,
-               "sd_existing_data_honest": sd_old_honest,
-               "gain_vs_existing": predicted["sd_existing_data"] / d["sd_white"],
-               "gain_vs_existing_honest": sd_old_honest / d["sd_honest"],
-               "gain_vs_estimation_input": b["sd_white"] / d["sd_white"],
-               "gain_vs_estimation_input_honest": b["sd_honest"] / d["sd_honest"]}
-        words = (f"Check (the designed experiment simulated at the fit, quantised, fitted "
-                 f"together with the existing data): width {d['sd_white']:.3g} (white noise)"
-                 f" / {d['sd_honest']:.3g} (honest errors) with the design against "
-                 f"{b['sd_white']:.3g} / {b['sd_honest']:.3g} with the estimation input: "
-                 f"achieved {out['gain_vs_estimation_input']:.2f}x / "
-                 f"{out['gain_vs_estimation_input_honest']:.2f}x narrower (predicted "
-                 f"{predicted['gain_vs_estimation_input']:.2f}x); against the existing data "
-                 f"alone {out['gain_vs_existing']:.2f}x / {out['gain_vs_existing_honest']:.2f}x"
-                 f" (predicted {predicted['gain_vs_existing']:.2f}x).")
+        out = {
+            "design": d,
+            "estimation_input": b,
+            "sd_existing_data_honest": sd_old_honest,
+            "gain_vs_existing": predicted["sd_existing_data"] / d["sd_white"],
+            "gain_vs_existing_honest": sd_old_honest / d["sd_honest"],
+            "gain_vs_estimation_input": b["sd_white"] / d["sd_white"],
+            "gain_vs_estimation_input_honest": b["sd_honest"] / d["sd_honest"],
+        }
+        words = (
+            f"Check (the designed experiment simulated at the fit, quantised, fitted "
+            f"together with the existing data): width {d['sd_white']:.3g} (white noise)"
+            f" / {d['sd_honest']:.3g} (honest errors) with the design against "
+            f"{b['sd_white']:.3g} / {b['sd_honest']:.3g} with the estimation input: "
+            f"achieved {out['gain_vs_estimation_input']:.2f}x / "
+            f"{out['gain_vs_estimation_input_honest']:.2f}x narrower (predicted "
+            f"{predicted['gain_vs_estimation_input']:.2f}x); against the existing data "
+            f"alone {out['gain_vs_existing']:.2f}x / {out['gain_vs_existing_honest']:.2f}x"
+            f" (predicted {predicted['gain_vs_existing']:.2f}x)."
+        )
     else:
-        out = {"design": d, "estimation_input": b,
-               "gain_vs_estimation_input": {n: b["sd_white"][n] / d["sd_white"][n]
-                                            for n in d["sd_white"]},
-               "gain_vs_estimation_input_honest": {
-                   n: b["sd_honest"][n] / max(d["sd_honest"][n], 1e-300)
-                   for n in d["sd_honest"]}}
-        words = ("Check (simulated, quantised, refitted with the existing data): relative "
-                 "widths with the design / the estimation input: " + "; ".join(
-                     f"{n} {d['sd_white'][n]:.3g} / {b['sd_white'][n]:.3g} (honest "
-                     f"{d['sd_honest'][n]:.3g} / {b['sd_honest'][n]:.3g})"
-                     for n in d["sd_white"]) + ".")
+        out = {
+            "design": d,
+            "estimation_input": b,
+            "gain_vs_estimation_input": {
+                n: b["sd_white"][n] / d["sd_white"][n] for n in d["sd_white"]
+            },
+            "gain_vs_estimation_input_honest": {
+                n: b["sd_honest"][n] / max(d["sd_honest"][n], 1e-300) for n in d["sd_honest"]
+            },
+        }
+        words = (
+            "Check (simulated, quantised, refitted with the existing data): relative "
+            "widths with the design / the estimation input: "
+            + "; ".join(
+                f"{n} {d['sd_white'][n]:.3g} / {b['sd_white'][n]:.3g} (honest "
+                f"{d['sd_honest'][n]:.3g} / {b['sd_honest'][n]:.3g})"
+                for n in d["sd_white"]
+            )
+            + "."
+        )
     out["words"] = words
     return out

@@ -63,13 +63,20 @@ class Frame:
         The fit's Jacobian, if already known.
     """
 
-    def __init__(self, problem: Problem, x: np.ndarray, *, alpha0_new: float = 0.0,
-                 J: np.ndarray | None = None):
+    def __init__(
+        self,
+        problem: Problem,
+        x: np.ndarray,
+        *,
+        alpha0_new: float = 0.0,
+        J: np.ndarray | None = None,
+    ):
         if problem.prescribed_upper:
             raise ValueError(
                 "this fit drives the lower disc with the measured upper angle, so it cannot "
                 "predict a new input's response; design from a fit with the motor model "
-                "(fit without --prescribed-upper)")
+                "(fit without --prescribed-upper)"
+            )
         self.problem = problem
         self.x = np.asarray(x, float)
         self.model = problem.model
@@ -107,8 +114,11 @@ class Frame:
         self.F_old[: F.shape[0], : F.shape[0]] = F
         self.params_new = dict(problem.params_for(self.x, 0))
         if "alpha0" in self.model.active:
-            self.params_new["alpha0"] = self.alpha0_new if self.per_exp else \
-                problem.params_for(self.x, 0).get("alpha0", 0.0)
+            self.params_new["alpha0"] = (
+                self.alpha0_new
+                if self.per_exp
+                else problem.params_for(self.x, 0).get("alpha0", 0.0)
+            )
 
     def _old_name(self, n: str) -> str:
         if n == "alpha0" and self.k_old == 1:
@@ -130,8 +140,9 @@ class Frame:
         lower = self.model.config != "upper"
         z = np.zeros_like(u)
         ex = Experiment(t, u, z, z.copy() if lower else None, name="designed")
-        return self.problem.like(model=self.model, experiments=[ex], free=self.names_base,
-                                 base=self.params_new)
+        return self.problem.like(
+            model=self.model, experiments=[ex], free=self.names_base, base=self.params_new
+        )
 
     def new_rows(self, t: np.ndarray, u: np.ndarray, *, with_prediction: bool = False):
         """The new experiment's Jacobian in combined relative coordinates and noise units
@@ -174,8 +185,7 @@ class Frame:
         return np.array(out)
 
 
-def separation_gap(a: Frame, b: Frame, ya: np.ndarray, yb: np.ndarray,
-                   Jb: np.ndarray) -> float:
+def separation_gap(a: Frame, b: Frame, ya: np.ndarray, yb: np.ndarray, Jb: np.ndarray) -> float:
     """Expected SSR gap [noise variances] when ``a`` is true and ``b`` is refitted to the
     old and new data (module docstring); ``ya``, ``yb`` predictions in noise units."""
     d = ya - yb

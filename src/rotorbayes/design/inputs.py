@@ -51,35 +51,43 @@ def time_grid(duration: float, rate: float) -> np.ndarray:
     if abs(n - round(n)) > 1e-6 * max(1.0, n):
         raise DesignInputError(
             f"duration {duration:g} s at {rate:g} Hz is not a whole number of samples; "
-            f"choose a multiple of 1/rate = {1 / rate:g} s")
+            f"choose a multiple of 1/rate = {1 / rate:g} s"
+        )
     return np.arange(int(round(n)) + 1) / rate
 
 
 def check_limits(max_volts: float, band_hz: float, rate: float, duration: float) -> None:
     """Refuse settings the rig does not allow, with the reason and the fix."""
     if not (math.isfinite(max_volts) and max_volts > 0):
-        raise DesignInputError(f"--max-volts {max_volts:g}: give a positive voltage "
-                               f"(at most {MAX_VOLTAGE:g} V)")
+        raise DesignInputError(
+            f"--max-volts {max_volts:g}: give a positive voltage (at most {MAX_VOLTAGE:g} V)"
+        )
     if max_volts > MAX_VOLTAGE:
         raise DesignInputError(
             f"--max-volts {max_volts:g} V exceeds the rig's amplifier limit of "
-            f"{MAX_VOLTAGE:g} V; give --max-volts {MAX_VOLTAGE:g} or less")
+            f"{MAX_VOLTAGE:g} V; give --max-volts {MAX_VOLTAGE:g} or less"
+        )
     if not (math.isfinite(band_hz) and band_hz > 0):
-        raise DesignInputError(f"--band-hz {band_hz:g}: give a positive frequency "
-                               f"(at most {MAX_BAND_HZ:g} Hz)")
+        raise DesignInputError(
+            f"--band-hz {band_hz:g}: give a positive frequency (at most {MAX_BAND_HZ:g} Hz)"
+        )
     if band_hz > MAX_BAND_HZ:
         raise DesignInputError(
             f"--band-hz {band_hz:g} Hz is above the rig's {MAX_BAND_HZ:g} Hz: the thesis "
             "keeps every input below it (faster inputs risk damaging the set-up, §3.2); "
-            f"give --band-hz {MAX_BAND_HZ:g} or less")
+            f"give --band-hz {MAX_BAND_HZ:g} or less"
+        )
     if band_hz >= rate / 2:
-        raise DesignInputError(f"--band-hz {band_hz:g} Hz is not below the Nyquist frequency "
-                               f"{rate / 2:g} Hz of the data's rate")
+        raise DesignInputError(
+            f"--band-hz {band_hz:g} Hz is not below the Nyquist frequency "
+            f"{rate / 2:g} Hz of the data's rate"
+        )
     if duration < 4.0 / band_hz + 1.0:
         raise DesignInputError(
             f"--duration {duration:g} s is too short for an input with band {band_hz:g} Hz "
             f"(a ramp in, levels, a ramp out need at least {4.0 / band_hz + 1.0:g} s); "
-            "give a longer duration")
+            "give a longer duration"
+        )
 
 
 @dataclass
@@ -123,14 +131,20 @@ class Steps:
         return rng.uniform(-1.0, 1.0, self.n_levels)
 
     def describe(self) -> str:
-        return (f"smoothed steps: {self.n_levels} levels held {self.hold:.2f} s each, "
-                f"transitions of {2.0 / self.band_hz:.2f} s (Hann-smoothed, no overshoot), "
-                f"|u| <= {self.max_volts:g} V, no energy above about {self.band_hz:g} Hz, "
-                "0 V at both ends")
+        return (
+            f"smoothed steps: {self.n_levels} levels held {self.hold:.2f} s each, "
+            f"transitions of {2.0 / self.band_hz:.2f} s (Hann-smoothed, no overshoot), "
+            f"|u| <= {self.max_volts:g} V, no energy above about {self.band_hz:g} Hz, "
+            "0 V at both ends"
+        )
 
     def settings(self, z) -> dict:
-        return {"family": self.name, "levels_V": (np.clip(z, -1, 1) * self.max_volts).tolist(),
-                "hold_s": self.hold, "transition_s": 2.0 / self.band_hz}
+        return {
+            "family": self.name,
+            "levels_V": (np.clip(z, -1, 1) * self.max_volts).tolist(),
+            "hold_s": self.hold,
+            "transition_s": 2.0 / self.band_hz,
+        }
 
 
 @dataclass
@@ -152,8 +166,9 @@ class Multisine:
         f_hi = self.band_hz - 1.0 / self.fade
         f_lo = min(max(2.0 / self.duration, 0.03), 0.5 * f_hi)
         self.freqs = np.geomspace(f_lo, f_hi, self.n_sines)
-        self.envelope = (_smooth_step(self.t / self.fade)
-                         * _smooth_step((self.duration - self.t) / self.fade))
+        self.envelope = _smooth_step(self.t / self.fade) * _smooth_step(
+            (self.duration - self.t) / self.fade
+        )
         w = 2 * np.pi * np.multiply.outer(self.t, self.freqs)
         self._sin, self._cos = np.sin(w), np.cos(w)
         k = self.n_sines
@@ -167,7 +182,7 @@ class Multisine:
     def __call__(self, z: np.ndarray) -> np.ndarray:
         z = np.clip(np.asarray(z, float), self.lower, self.upper)
         k = self.n_sines
-        a, ph, g = z[:k], 2 * np.pi * z[k:2 * k], z[-1]
+        a, ph, g = z[:k], 2 * np.pi * z[k : 2 * k], z[-1]
         raw = self.envelope * (self._sin @ (a * np.cos(ph)) + self._cos @ (a * np.sin(ph)))
         peak = float(np.max(np.abs(raw)))
         if peak <= 0:
@@ -181,20 +196,26 @@ class Multisine:
         return np.r_[rng.uniform(0.2, 1.0, k), rng.uniform(0, 1, k), rng.uniform(0.5, 1.0)]
 
     def describe(self) -> str:
-        return (f"multisine: {self.n_sines} sines at {self.freqs[0]:.3g}-{self.freqs[-1]:.3g}"
-                f" Hz (log-spaced) with free amplitudes and phases, faded in and out over "
-                f"{self.fade:g} s, peak |u| <= {self.max_volts:g} V, band {self.band_hz:g} Hz")
+        return (
+            f"multisine: {self.n_sines} sines at {self.freqs[0]:.3g}-{self.freqs[-1]:.3g}"
+            f" Hz (log-spaced) with free amplitudes and phases, faded in and out over "
+            f"{self.fade:g} s, peak |u| <= {self.max_volts:g} V, band {self.band_hz:g} Hz"
+        )
 
     def settings(self, z) -> dict:
         z = np.clip(np.asarray(z, float), self.lower, self.upper)
         k = self.n_sines
-        return {"family": self.name, "frequencies_hz": self.freqs.tolist(),
-                "amplitudes": z[:k].tolist(), "phases_rad": (2 * np.pi * z[k:2 * k]).tolist(),
-                "gain": float(z[-1]), "fade_s": self.fade}
+        return {
+            "family": self.name,
+            "frequencies_hz": self.freqs.tolist(),
+            "amplitudes": z[:k].tolist(),
+            "phases_rad": (2 * np.pi * z[k : 2 * k]).tolist(),
+            "gain": float(z[-1]),
+            "fade_s": self.fade,
+        }
 
 
-def make_family(name: str, duration: float, rate: float, max_volts: float,
-                band_hz: float):
+def make_family(name: str, duration: float, rate: float, max_volts: float, band_hz: float):
     """The family ``name`` ('steps' or 'multisine') on this grid and within these limits."""
     if name == "steps":
         return Steps(duration, rate, max_volts, band_hz)

@@ -50,15 +50,22 @@ def plot_design(res: DesignResult):
     resp = {k: v for k, v in res.responses.items() if k not in ("difference", "channels")}
     diff = res.responses.get("difference")
     n = 1 + (1 if resp else 0) + (1 if diff is not None else 0)
-    fig, axes = plt.subplots(n, 1, figsize=(10, 2.2 * n + 0.6), sharex=True,
-                             constrained_layout=True, squeeze=False)
+    fig, axes = plt.subplots(
+        n, 1, figsize=(10, 2.2 * n + 0.6), sharex=True, constrained_layout=True, squeeze=False
+    )
     axes = axes[:, 0]
     ax = axes[0]
     if res.baseline is not None:
-        ax.plot(res.t, res.baseline, color="0.6", lw=0.8, ls="--",
-                label="standard estimation input")
-    ax.plot(res.t, res.u, color="k", lw=1.0,
-            label="designed input" if res.status != "no input can help" else "input to repeat")
+        ax.plot(
+            res.t, res.baseline, color="0.6", lw=0.8, ls="--", label="standard estimation input"
+        )
+    ax.plot(
+        res.t,
+        res.u,
+        color="k",
+        lw=1.0,
+        label="designed input" if res.status != "no input can help" else "input to repeat",
+    )
     ax.set_ylabel("u [V]")
     _legend_outside(ax)
     k = 1
@@ -67,8 +74,13 @@ def plot_design(res: DesignResult):
         for label, r in resp.items():
             ax.plot(res.t, r["theta_u"], lw=1.0, label=rf"$\theta_u$ ({label})")
             if r.get("theta_l") is not None:
-                ax.plot(res.t, r["theta_l"], lw=1.0, ls="-" if label == "fit" else "--",
-                        label=rf"$\theta_l$ ({label})")
+                ax.plot(
+                    res.t,
+                    r["theta_l"],
+                    lw=1.0,
+                    ls="-" if label == "fit" else "--",
+                    label=rf"$\theta_l$ ({label})",
+                )
         ax.set_ylabel("predicted angle [rad]")
         _legend_outside(ax)
         k += 1
@@ -78,25 +90,30 @@ def plot_design(res: DesignResult):
         channels = res.responses.get("channels", ("theta_l",))
         m = len(res.t)
         for j, c in enumerate(channels):  # the prediction is laid out channel by channel
-            ax.plot(res.t, y[j * m:(j + 1) * m], lw=0.9, label=c)
+            ax.plot(res.t, y[j * m : (j + 1) * m], lw=0.9, label=c)
         ax.axhline(1.0, color="0.5", lw=0.6, ls=":")
         ax.axhline(-1.0, color="0.5", lw=0.6, ls=":", label="one floor")
         ax.set_ylabel("[floor units]")
         ax.set_title(what, fontsize=9)
         _legend_outside(ax)
     axes[-1].set_xlabel("t [s]")
-    fig.suptitle(f"next experiment: {res.target.get('words', '')} — {res.status}",
-                 fontsize=10)
+    fig.suptitle(f"next experiment: {res.target.get('words', '')} — {res.status}", fontsize=10)
     return fig, axes
 
 
 def design_document(res: DesignResult, command: str = "") -> dict:
     """design.json's content: JSON-safe (no arrays, no NaN)."""
-    return _clean({**res.as_dict(), "command": command or None,
-                   "files": {"u.csv": "the input, columns t [s], u [V]",
-                             "design.txt": "the account in words",
-                             "design.png": "input, predicted responses, what tells the "
-                                           "target"}})
+    return _clean(
+        {
+            **res.as_dict(),
+            "command": command or None,
+            "files": {
+                "u.csv": "the input, columns t [s], u [V]",
+                "design.txt": "the account in words",
+                "design.png": "input, predicted responses, what tells the target",
+            },
+        }
+    )
 
 
 def write_into(res: DesignResult, folder: Path, *, command: str = "") -> None:
@@ -110,8 +127,9 @@ def write_into(res: DesignResult, folder: Path, *, command: str = "") -> None:
     save_figure_atomic(fig, folder / "design.png", dpi=100)
 
 
-def write_design(res: DesignResult, out: str | Path, *, force: bool = False,
-                 command: str = "") -> Path:
+def write_design(
+    res: DesignResult, out: str | Path, *, force: bool = False, command: str = ""
+) -> Path:
     """Write the ``next/`` folder (module docstring); returns its path.  A folder that holds
     results is refused (:class:`~rotorbayes.io.outputs.OutputError`) unless ``force``."""
     out = Path(out)

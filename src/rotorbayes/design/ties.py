@@ -21,8 +21,11 @@ def registry_ties() -> list[_effects.Equivalence]:
     out: list[_effects.Equivalence] = []
     for e in _effects.CATALOGUE.values():
         for q in e.equivalences:
-            if isinstance(q, _effects.Equivalence) and not q.input_can_break and \
-                    all(q is not o and str(q) != str(o) for o in out):
+            if (
+                isinstance(q, _effects.Equivalence)
+                and not q.input_can_break
+                and all(q is not o and str(q) != str(o) for o in out)
+            ):
                 out.append(q)
     return out
 
@@ -34,8 +37,13 @@ def _needed_free(tie, prescribed_upper: bool) -> list[str]:
     return need
 
 
-def tie_between(effects: Sequence[str], free: Iterable[str], *, n_experiments: int = 1,
-                prescribed_upper: bool = False):
+def tie_between(
+    effects: Sequence[str],
+    free: Iterable[str],
+    *,
+    n_experiments: int = 1,
+    prescribed_upper: bool = False,
+):
     """The registry tie that makes candidate ``effects`` indistinguishable by any input,
     given the parameters free in the candidates' fits and the number of experiments in the
     data; ``None`` if there is none."""
@@ -45,14 +53,21 @@ def tie_between(effects: Sequence[str], free: Iterable[str], *, n_experiments: i
         if not tie.holds_for(n_experiments):
             continue
         if want <= set(tie.effects) and all(
-                n in free_base for n in _needed_free(tie, prescribed_upper)):
+            n in free_base for n in _needed_free(tie, prescribed_upper)
+        ):
             return tie
     return None
 
 
-def tie_in_direction(names: Sequence[str], v: np.ndarray, active_effects: Iterable[str], *,
-                     n_experiments: int = 1, prescribed_upper: bool = False,
-                     share: float = 0.9):
+def tie_in_direction(
+    names: Sequence[str],
+    v: np.ndarray,
+    active_effects: Iterable[str],
+    *,
+    n_experiments: int = 1,
+    prescribed_upper: bool = False,
+    share: float = 0.9,
+):
     """The registry tie that a (sloppiest) direction ``v`` lies in: every effect of the tie
     on and free, the tie's extra parameters free, and at least ``share`` of ``v``'s squared
     length on the tie's parameters.  ``None`` if there is none."""
@@ -76,5 +91,7 @@ def tie_in_direction(names: Sequence[str], v: np.ndarray, active_effects: Iterab
 
 def no_input_words(tie) -> str:
     """The plain-words account of a tie no input breaks, with its procedure."""
-    return (f"No input can help: {tie}. This holds in {tie.scope}, whatever the input. "
-            f"What separates them: {tie.procedure}.")
+    return (
+        f"No input can help: {tie}. This holds in {tie.scope}, whatever the input. "
+        f"What separates them: {tie.procedure}."
+    )

@@ -10,5 +10,12 @@ from .diagnose import Diagnosis, diagnose
 from .score import EffectScore, candidates, score_tests
 from .torque import TorqueMap, missing_torque
 
-__all__ = ["Diagnosis", "EffectScore", "TorqueMap", "candidates", "diagnose",
-           "missing_torque", "score_tests"]
+__all__ = [
+    "Diagnosis",
+    "EffectScore",
+    "TorqueMap",
+    "candidates",
+    "diagnose",
+    "missing_torque",
+    "score_tests",
+]

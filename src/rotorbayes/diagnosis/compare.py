@@ -107,8 +107,9 @@ class FitSummary:
     validation_alpha0: list = field(default_factory=list)
 
 
-def summarise(label: str, problem, x, experiments=None, data: str = "estimation", *,
-              validation_alpha0=None):
+def summarise(
+    label: str, problem, x, experiments=None, data: str = "estimation", *, validation_alpha0=None
+):
     """:class:`FitSummary` of ``problem`` at ``x`` on its data or on ``experiments``
     (validation data: each run with the alpha0 ``validation_alpha0`` holds -- the fit's
     stored records -- or, without it, decided by
@@ -136,18 +137,26 @@ def summarise(label: str, problem, x, experiments=None, data: str = "estimation"
     resid = np.concatenate(res)
     floors, _ = problem.noise_floors()
     return FitSummary(
-        label=label, data=data, k=k, n=n, ssr=ssr,
+        label=label,
+        data=data,
+        k=k,
+        n=n,
+        ssr=ssr,
         # The problem's noise floors, as fit and diagnose divide by (the encoders' rounding,
         # or the data's own jitter where it is larger): one figure in every command.
         # The worst run per channel, as fit's headline takes it (a run far off is not
         # averaged away by a good one; several validation runs give fit's figure).
-        rms_over_floor={c: math.sqrt(max(v)) / floors.get(c, quantisation_floor(c))
-                        for c, v in rms.items()},
+        rms_over_floor={
+            c: math.sqrt(max(v)) / floors.get(c, quantisation_floor(c)) for c, v in rms.items()
+        },
         nrmse_fit={c: float(np.mean(v)) for c, v in fit.items()},
         max_error={c: float(np.max(v)) for c, v in mx.items()},
-        aicc=_metrics.aicc(ssr, n, k), bic=_metrics.bic(ssr, n, k),
-        rho=lag1(resid), residual=resid,
-        validation_alpha0=[r.get("validation_alpha0") for r in rows] if experiments is not None
+        aicc=_metrics.aicc(ssr, n, k),
+        bic=_metrics.bic(ssr, n, k),
+        rho=lag1(resid),
+        residual=resid,
+        validation_alpha0=[r.get("validation_alpha0") for r in rows]
+        if experiments is not None
         else [],
     )
 
@@ -161,8 +170,13 @@ def lr_test(a: FitSummary, b: FitSummary) -> dict:
     if df <= 0 or b.ssr <= 0 or a.ssr <= 0:
         return {"df": df, "statistic": math.nan, "p_value": math.nan, "n_effective": n_eff}
     lr = n_eff * math.log(a.ssr / b.ssr)
-    return {"df": df, "statistic": lr, "p_value": float(stats.chi2.sf(max(lr, 0.0), df)),
-            "n_effective": n_eff, "rho": rho}
+    return {
+        "df": df,
+        "statistic": lr,
+        "p_value": float(stats.chi2.sf(max(lr, 0.0), df)),
+        "n_effective": n_eff,
+        "rho": rho,
+    }
 
 
 def weigh_step(step: dict) -> dict:
@@ -179,8 +193,10 @@ def weigh_step(step: dict) -> dict:
     p = lr.get("p_value", math.nan)
     significant = bool(math.isfinite(p) and p < LEVEL)
     where = "validation" if val else "estimation"
-    nums = (f"worst RMS/floor {before:.4g} -> {after:.4g} ({where}); SSR "
-            f"{on['ssr_change_percent']:+.3g} % ({where})")
+    nums = (
+        f"worst RMS/floor {before:.4g} -> {after:.4g} ({where}); SSR "
+        f"{on['ssr_change_percent']:+.3g} % ({where})"
+    )
     if val and est:
         nums += f", {est['ssr_change_percent']:+.3g} % (estimation)"
     if math.isfinite(p):
@@ -200,19 +216,25 @@ def weigh_step(step: dict) -> dict:
         verdict = "detectable but immaterial"
     else:
         verdict = "not significant"
-    rule = (f"material = the worst RMS/floor falls by at least {100 * MATERIAL_FRACTION:g} % "
-            f"and {MATERIAL_FLOOR_UNITS:g} floor units")
+    rule = (
+        f"material = the worst RMS/floor falls by at least {100 * MATERIAL_FRACTION:g} % "
+        f"and {MATERIAL_FLOOR_UNITS:g} floor units"
+    )
     words = f"{verdict}: {nums} ({rule})"
     if not nested:
-        words += ("; the second fit is not the first with parameters added, so no test says "
-                  "whether the difference is more than chance: compare their AICc and BIC")
+        words += (
+            "; the second fit is not the first with parameters added, so no test says "
+            "whether the difference is more than chance: compare their AICc and BIC"
+        )
     if material and after > NEAR_FLOOR:
         # An added effect absorbs part of any missing one; far from the floor its fall
         # does not show that it is the physics (trial 12: a spurious asymmetric Coulomb
         # level, "significant and material" at 20x -> 17.8x the floor).
-        words += (f"; after it the error is still {after:.3g}x the floor, where an added "
-                  "effect can absorb part of a different missing one: judge it again once "
-                  "the error is near the floor")
+        words += (
+            f"; after it the error is still {after:.3g}x the floor, where an added "
+            "effect can absorb part of a different missing one: judge it again once "
+            "the error is near the floor"
+        )
     return {"material": material, "verdict": verdict, "words": words}
 
 
@@ -223,8 +245,12 @@ def compare_fits(fits) -> dict:
     prev = {}
     for f in fits:
         label = f.folder.name
-        entry = {"fit": str(f.folder), "label": label, "k": len(f.problem.names),
-                 "effects": list(f.problem.model.effect_names)}
+        entry = {
+            "fit": str(f.folder),
+            "label": label,
+            "k": len(f.problem.names),
+            "effects": list(f.problem.model.effect_names),
+        }
         cur = {}
         for data, exps in (("estimation", None), ("validation", f.validation or None)):
             if data == "validation" and exps is None:
@@ -234,36 +260,51 @@ def compare_fits(fits) -> dict:
             if s is None:
                 continue
             cur[data] = s
-            entry[data] = {"ssr": s.ssr, "rms_over_floor": s.rms_over_floor,
-                           "nrmse_fit_percent": s.nrmse_fit, "max_error_rad": s.max_error,
-                           "aicc": s.aicc, "bic": s.bic, "lag1_autocorrelation": s.rho}
+            entry[data] = {
+                "ssr": s.ssr,
+                "rms_over_floor": s.rms_over_floor,
+                "nrmse_fit_percent": s.nrmse_fit,
+                "max_error_rad": s.max_error,
+                "aicc": s.aicc,
+                "bic": s.bic,
+                "lag1_autocorrelation": s.rho,
+            }
             if data == "validation" and s.validation_alpha0:
-                entry["validation_alpha0"] = [t.as_dict() for t in s.validation_alpha0
-                                              if t is not None]
+                entry["validation_alpha0"] = [
+                    t.as_dict() for t in s.validation_alpha0 if t is not None
+                ]
         out["fits"].append(entry)
         if prev:
-            nested = (f.problem.config == prev["config"]
-                      and set(prev["names"]) <= set(f.problem.names)
-                      and set(prev["effects"]) <= set(entry["effects"])
-                      and len(f.problem.names) > len(prev["names"]))
+            nested = (
+                f.problem.config == prev["config"]
+                and set(prev["names"]) <= set(f.problem.names)
+                and set(prev["effects"]) <= set(entry["effects"])
+                and len(f.problem.names) > len(prev["names"])
+            )
             step = {"from": prev["label"], "to": label, "nested": nested}
             for data in ("estimation", "validation"):
                 if data in prev["s"] and data in cur:
                     a, b = prev["s"][data], cur[data]
                     step[data] = {
                         "ssr_ratio": b.ssr / a.ssr if a.ssr > 0 else math.nan,
-                        "ssr_change_percent": 100 * (b.ssr / a.ssr - 1) if a.ssr > 0
-                        else math.nan,
-                        "worst_rms_over_floor": [max(a.rms_over_floor.values()),
-                                                 max(b.rms_over_floor.values())],
-                        "delta_aicc": b.aicc - a.aicc, "delta_bic": b.bic - a.bic,
-                        "lr_test": lr_test(a, b) if data == "estimation" and nested
-                        else None,
+                        "ssr_change_percent": 100 * (b.ssr / a.ssr - 1) if a.ssr > 0 else math.nan,
+                        "worst_rms_over_floor": [
+                            max(a.rms_over_floor.values()),
+                            max(b.rms_over_floor.values()),
+                        ],
+                        "delta_aicc": b.aicc - a.aicc,
+                        "delta_bic": b.bic - a.bic,
+                        "lr_test": lr_test(a, b) if data == "estimation" and nested else None,
                     }
             step.update(weigh_step(step))
             out["steps"].append(step)
-        prev = {"label": label, "s": cur, "names": list(f.problem.names),
-                "effects": entry["effects"], "config": f.problem.config}
+        prev = {
+            "label": label,
+            "s": cur,
+            "names": list(f.problem.names),
+            "effects": entry["effects"],
+            "config": f.problem.config,
+        }
     return out
 
 
@@ -272,8 +313,10 @@ def table(doc: dict) -> str:
     # The whole label: the folder names the diagnosis suggests ("fit0_motor_deadzone")
     # differ at their ends, and a cut one reads as another fit.
     w = max([18] + [len(f["label"]) for f in doc["fits"]])
-    lines = [f"{'fit':<{w}} {'data':<10} {'k':>3} {'SSR [rad²]':>11} {'RMS/floor':>22} "
-             f"{'fit %':>14} {'max |e|':>9} {'AICc':>11} {'BIC':>11}"]
+    lines = [
+        f"{'fit':<{w}} {'data':<10} {'k':>3} {'SSR [rad²]':>11} {'RMS/floor':>22} "
+        f"{'fit %':>14} {'max |e|':>9} {'AICc':>11} {'BIC':>11}"
+    ]
     for f in doc["fits"]:
         for data in ("estimation", "validation"):
             if data not in f:
@@ -282,8 +325,10 @@ def table(doc: dict) -> str:
             rms = " ".join(f"{c[6:]} {v:.3g}" for c, v in d["rms_over_floor"].items())
             fit = " ".join(f"{v:.2f}" for v in d["nrmse_fit_percent"].values())
             mx = max(d["max_error_rad"].values())
-            lines.append(f"{f['label']:<{w}} {data:<10} {f['k']:3d} {d['ssr']:11.4g} "
-                         f"{rms:>22} {fit:>14} {mx:9.3g} {d['aicc']:11.5g} {d['bic']:11.5g}")
+            lines.append(
+                f"{f['label']:<{w}} {data:<10} {f['k']:3d} {d['ssr']:11.4g} "
+                f"{rms:>22} {fit:>14} {mx:9.3g} {d['aicc']:11.5g} {d['bic']:11.5g}"
+            )
     for f in doc["fits"]:
         for t in f.get("validation_alpha0") or []:
             lines.append(f"  {f['label']}: " + ValidationTorsion.from_dict(t).words())
@@ -294,16 +339,18 @@ def table(doc: dict) -> str:
         e = s.get("estimation", {})
         v = s.get("validation")
         lr = e.get("lr_test") or {}
-        txt = (f"  {s['from']} -> {s['to']}: SSR x{e.get('ssr_ratio', math.nan):.3g} "
-               f"(estimation)")
+        txt = f"  {s['from']} -> {s['to']}: SSR x{e.get('ssr_ratio', math.nan):.3g} (estimation)"
         if v:
             txt += f", x{v['ssr_ratio']:.3g} (validation)"
-        txt += (f"; ΔAICc {e.get('delta_aicc', math.nan):.4g}, ΔBIC "
-                f"{e.get('delta_bic', math.nan):.4g}")
+        txt += (
+            f"; ΔAICc {e.get('delta_aicc', math.nan):.4g}, ΔBIC {e.get('delta_bic', math.nan):.4g}"
+        )
         if lr and math.isfinite(lr.get("statistic", math.nan)):
-            txt += (f"; LR test {lr['statistic']:.3g} on {lr['df']} df, p {lr['p_value']:.2g} "
-                    f"(effective n {lr['n_effective']:.0f} for lag-1 autocorrelation "
-                    f"{lr['rho']:.3f})")
+            txt += (
+                f"; LR test {lr['statistic']:.3g} on {lr['df']} df, p {lr['p_value']:.2g} "
+                f"(effective n {lr['n_effective']:.0f} for lag-1 autocorrelation "
+                f"{lr['rho']:.3f})"
+            )
         lines.append(txt)
         if "words" in s:
             lines.append(f"    -> {s['words']}")
@@ -324,8 +371,11 @@ def residual_views(problem, x, i: int = 0) -> dict:
         lags, acf = correlation(e, e, max_lag)
         lags_u, ccf = correlation(e, ex.u, max_lag)
         views["channels"][c] = {
-            "error": e, "acf": (lags, acf), "ccf": (lags_u, ccf),
-            "band": Z99 / math.sqrt(e.size), "band_u": cross_band(e, ex.u),
+            "error": e,
+            "acf": (lags, acf),
+            "ccf": (lags_u, ccf),
+            "band": Z99 / math.sqrt(e.size),
+            "band_u": cross_band(e, ex.u),
         }
     if ex.theta_l is not None:
         views["omega_l"] = wl

@@ -133,17 +133,21 @@ class Diagnosis:
             "advice": self.advice,
             "evidence": self.evidence,
             "immaterial": self.immaterial,
-            "rule": {"level": LEVEL, "material_fraction": MATERIAL_FRACTION,
-                     "material_floor_units": MATERIAL_FLOOR_UNITS,
-                     "at_floor": AT_FLOOR},
+            "rule": {
+                "level": LEVEL,
+                "material_fraction": MATERIAL_FRACTION,
+                "material_floor_units": MATERIAL_FLOOR_UNITS,
+                "at_floor": AT_FLOOR,
+            },
             "rms_over_floor": self.rms_over_floor,
             "floor_rad": self.floor,
             "noise_std_rad": self.noise_std,
             "ssr": self.ssr,
             "ranking": ranking,
-            "missing_torque": [dict(m.as_dict(), words=self.map_words(m),
-                                    agreement=self.map_notes.get(m.disc))
-                               for m in self.maps],
+            "missing_torque": [
+                dict(m.as_dict(), words=self.map_words(m), agreement=self.map_notes.get(m.disc))
+                for m in self.maps
+            ],
             "level": LEVEL,
             "seconds": self.seconds,
         }
@@ -152,15 +156,20 @@ class Diagnosis:
         lines = [f"verdict: {'ADEQUATE' if self.adequate else 'INADEQUATE'} — {self.verdict}"]
         lines += [f"  {e}" for e in self.evidence]
         lines.append("")
-        lines.append("catalogue effects that are off: those worth a claim first (largest "
-                     "predicted fall of the error first), then by adjusted p (score tests at "
-                     f"the fit; p adjusted by Holm over {len(self.ranking)} effects):")
-        lines.append(f"  {'effect':<26} {'p':>9} {'p adj.':>9} {'pred. RMS/floor':>16}  "
-                     "one-step estimate")
+        lines.append(
+            "catalogue effects that are off: those worth a claim first (largest "
+            "predicted fall of the error first), then by adjusted p (score tests at "
+            f"the fit; p adjusted by Holm over {len(self.ranking)} effects):"
+        )
+        lines.append(
+            f"  {'effect':<26} {'p':>9} {'p adj.':>9} {'pred. RMS/floor':>16}  one-step estimate"
+        )
         for s in self.ranking:
             pred = ", ".join(f"{c} {v:.3g}" for c, v in s.predicted_rms_ratio.items())
-            est = ", ".join(f"{n} = {v:.3g} {u}" if math.isfinite(v) else f"{n}: —"
-                            for (n, v), u in zip(s.step.items(), s.units, strict=True))
+            est = ", ".join(
+                f"{n} = {v:.3g} {u}" if math.isfinite(v) else f"{n}: —"
+                for (n, v), u in zip(s.step.items(), s.units, strict=True)
+            )
             tag = ""
             if s.equivalent_to_free:
                 tag = "  [equivalent to the free parameters: cannot be told apart]"
@@ -169,16 +178,19 @@ class Diagnosis:
             j = self.judgements.get(s.effect)
             if j and j["significant"] and not j["claimable"]:
                 tag += "  [detectable but immaterial]"
-            lines.append(f"  {s.effect:<26} {s.p_value:9.2g} {s.p_adjusted:9.2g} "
-                         f"{pred:>16}  {est}{tag}")
+            lines.append(
+                f"  {s.effect:<26} {s.p_value:9.2g} {s.p_adjusted:9.2g} {pred:>16}  {est}{tag}"
+            )
         if self.immaterial:
             lines.append("")
-            lines.append("detectable but immaterial (a significant score test, yet not "
-                         "evidence that the effect is there: a claim needs a predicted fall "
-                         f"of the worst RMS/floor of at least {100 * MATERIAL_FRACTION:g} % "
-                         f"and {MATERIAL_FLOOR_UNITS:g} floor units, and a size the data can "
-                         "resolve; below that, what the test sees is as likely the input's "
-                         "unknown shape between samples or the encoder rounding):")
+            lines.append(
+                "detectable but immaterial (a significant score test, yet not "
+                "evidence that the effect is there: a claim needs a predicted fall "
+                f"of the worst RMS/floor of at least {100 * MATERIAL_FRACTION:g} % "
+                f"and {MATERIAL_FLOOR_UNITS:g} floor units, and a size the data can "
+                "resolve; below that, what the test sees is as likely the input's "
+                "unknown shape between samples or the encoder rounding):"
+            )
             for item in self.immaterial:
                 lines.append("  " + item["words"])
         lines.append("")
@@ -186,8 +198,10 @@ class Diagnosis:
         for m in self.maps:
             lines.append("  " + self.map_words(m))
         if not self.maps:
-            lines.append("  none: fewer than 50 samples in clear slip (at rest, friction "
-                         "balances any torque, so a map has nothing to show)")
+            lines.append(
+                "  none: fewer than 50 samples in clear slip (at rest, friction "
+                "balances any torque, so a map has nothing to show)"
+            )
         lines.append("")
         lines.append(self.advice)
         return "\n".join(lines)
@@ -228,30 +242,39 @@ def diagnose(
         if not new:
             raise ValueError(f"{spec}: the fit has this effect on already; nothing to test")
         extra[new[0].name] = pe
-    ranking = score_tests(problem, x, n_blocks=n_blocks, seed=seed, floor=floor,
-                          context=context, extra=extra)
+    ranking = score_tests(
+        problem, x, n_blocks=n_blocks, seed=seed, floor=floor, context=context, extra=extra
+    )
     maps = missing_torque(problem, x, floors=floor)
-    pooled = (f" (the worst of the {len(problem.experiments)} experiments, as `fit` "
-              "quotes it)" if len(problem.experiments) > 1 else "")
+    pooled = (
+        f" (the worst of the {len(problem.experiments)} experiments, as `fit` quotes it)"
+        if len(problem.experiments) > 1
+        else ""
+    )
     evidence = notes + [
         "residual RMS / noise floor: "
         + ", ".join(f"{c} {v:.2f} (floor {floor[c]:.2g} rad)" for c, v in ratios.items())
         + pooled
     ]
     judgements = {s.effect: _judge(s, problem, x, worst, context) for s in ranking}
+
     # Effects worth a claim come first, the one predicted to lower the error most first
     # (all of them are significant: size decides; ties keep the score tests' order), then
     # the rest by adjusted p.  The first row is what the advice names.
     def order(s):
         j = judgements[s.effect]
-        return ((0, float(f"{j['predicted_worst_rms_over_floor']:.3g}")) if j["claimable"]
-                else (1, 0.0))
+        return (
+            (0, float(f"{j['predicted_worst_rms_over_floor']:.3g}")) if j["claimable"] else (1, 0.0)
+        )
 
     ranking = sorted(ranking, key=order)
     significant = [s for s in ranking if judgements[s.effect]["significant"]]
     claimable = [s for s in significant if judgements[s.effect]["claimable"]]
-    immaterial = [dict(judgements[s.effect], effect=s.effect) for s in significant
-                  if not judgements[s.effect]["claimable"]]
+    immaterial = [
+        dict(judgements[s.effect], effect=s.effect)
+        for s in significant
+        if not judgements[s.effect]["claimable"]
+    ]
     at_floor = worst <= AT_FLOOR
     adequate = at_floor and not claimable
     untested = None
@@ -264,18 +287,22 @@ def diagnose(
         default=None,
     )
     foreign = None
-    if strongest is not None and strongest.strongest[0] in FOREIGN and \
-            strongest.strongest[1] > 0.5:
+    if strongest is not None and strongest.strongest[0] in FOREIGN and strongest.strongest[1] > 0.5:
         foreign = strongest
     claimed = None
     notes: dict[str, str] = {}
-    n_imm = (f"; {len(immaterial)} detectable but immaterial, listed below"
-             if immaterial else "")
+    n_imm = f"; {len(immaterial)} detectable but immaterial, listed below" if immaterial else ""
     # Material but without the tests' support, largest predicted fall first.
     unsupported = sorted(
-        (s for s in ranking if judgements[s.effect]["material"]
-         and not judgements[s.effect]["significant"] and not s.equivalent_to_free),
-        key=lambda s: judgements[s.effect]["predicted_worst_rms_over_floor"])
+        (
+            s
+            for s in ranking
+            if judgements[s.effect]["material"]
+            and not judgements[s.effect]["significant"]
+            and not s.equivalent_to_free
+        ),
+        key=lambda s: judgements[s.effect]["predicted_worst_rms_over_floor"],
+    )
     if adequate:
         notes = _notes(maps, ranking, judgements, None)
         if unsupported:
@@ -283,36 +310,54 @@ def diagnose(
             # one would, by the one-step prediction, but its test does not support it.
             u = unsupported[0]
             w, pr = apart(worst, judgements[u.effect]["predicted_worst_rms_over_floor"])
-            verdict = (f"the remaining error is consistent with measurement noise (worst "
-                       f"channel {worst:.2f}x the floor; no catalogue effect is both supported "
-                       f"by its test and material: {u.effect} is predicted to lower it from "
-                       f"{w}x to {pr}x, but its test gives p {u.p_adjusted:.2g} after "
-                       f"correction{n_imm})")
-            advice = ("Nothing the tests support to add: the model explains these data to the "
-                      f"encoders' resolution. {u.effect} would lower the worst RMS/floor from "
-                      f"{w}x to {pr}x by its one-step prediction, but its score test does not "
-                      f"support it (p {u.p_adjusted:.2g} after correction, a claim needs "
-                      f"{LEVEL:g}); a longer record, or a refit with --add {u.effect} judged "
-                      "by `rotorbayes compare` on validation data, would tell whether it is "
-                      "there.")
+            verdict = (
+                f"the remaining error is consistent with measurement noise (worst "
+                f"channel {worst:.2f}x the floor; no catalogue effect is both supported "
+                f"by its test and material: {u.effect} is predicted to lower it from "
+                f"{w}x to {pr}x, but its test gives p {u.p_adjusted:.2g} after "
+                f"correction{n_imm})"
+            )
+            advice = (
+                "Nothing the tests support to add: the model explains these data to the "
+                f"encoders' resolution. {u.effect} would lower the worst RMS/floor from "
+                f"{w}x to {pr}x by its one-step prediction, but its score test does not "
+                f"support it (p {u.p_adjusted:.2g} after correction, a claim needs "
+                f"{LEVEL:g}); a longer record, or a refit with --add {u.effect} judged "
+                "by `rotorbayes compare` on validation data, would tell whether it is "
+                "there."
+            )
         else:
-            verdict = (f"the remaining error is consistent with measurement noise (worst "
-                       f"channel {worst:.2f}x the floor; no catalogue effect would change the "
-                       f"fit materially{n_imm})")
-            advice = ("Nothing to add: the model explains these data to the encoders' "
-                      "resolution.")
+            verdict = (
+                f"the remaining error is consistent with measurement noise (worst "
+                f"channel {worst:.2f}x the floor; no catalogue effect would change the "
+                f"fit materially{n_imm})"
+            )
+            advice = "Nothing to add: the model explains these data to the encoders' resolution."
         if immaterial:
-            advice += (" What the tests detect is far too small to matter (see 'detectable "
-                       "but immaterial'); adding it would not change the fit materially.")
+            advice += (
+                " What the tests detect is far too small to matter (see 'detectable "
+                "but immaterial'); adding it would not change the fit materially."
+            )
     else:
         top = claimable[0] if claimable else None
         # Far above the floor the score tests lose power (their variance is estimated from
         # the residuals, which the missing physics dominates): an effect predicted to lower
         # the error materially, and of a size the data resolve, is then named as the one to
         # try -- not claimed -- rather than left out.
-        untested = next((s for s in unsupported if judgements[s.effect]["resolvable"]
-                         and s.p_adjusted < TRY_LEVEL and worst > NEAR_FLOOR),
-                        None) if top is None else None
+        untested = (
+            next(
+                (
+                    s
+                    for s in unsupported
+                    if judgements[s.effect]["resolvable"]
+                    and s.p_adjusted < TRY_LEVEL
+                    and worst > NEAR_FLOOR
+                ),
+                None,
+            )
+            if top is None
+            else None
+        )
         vetoed = None
         if untested is not None and _vetoes(foreign, untested.effect):
             vetoed, untested = untested, None  # as for a claim: the dependence comes first
@@ -321,36 +366,45 @@ def diagnose(
         if top is not None:
             j = judgements[top.effect]
             pred = j["predicted_worst_rms_over_floor"]
-            verdict = (f"the model does not explain the data: worst channel {worst:.3g}x the "
-                       f"floor; adding {top.effect} is predicted to lower it to {pred:.3g}x"
-                       if not at_floor else
-                       f"the error is near the floor ({worst:.2f}x) but {top.effect} is "
-                       f"significant and material (predicted {pred:.3g}x)")
+            verdict = (
+                f"the model does not explain the data: worst channel {worst:.3g}x the "
+                f"floor; adding {top.effect} is predicted to lower it to {pred:.3g}x"
+                if not at_floor
+                else f"the error is near the floor ({worst:.2f}x) but {top.effect} is "
+                f"significant and material (predicted {pred:.3g}x)"
+            )
         elif untested is not None:
             pred = judgements[untested.effect]["predicted_worst_rms_over_floor"]
-            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor; no "
-                       f"catalogue effect passes the significance test, but adding "
-                       f"{untested.effect} is predicted to lower it to {pred:.3g}x (p "
-                       f"{untested.p_adjusted:.2g} after correction): worth a refit")
+            verdict = (
+                f"the error is not noise: worst channel {worst:.3g}x the floor; no "
+                f"catalogue effect passes the significance test, but adding "
+                f"{untested.effect} is predicted to lower it to {pred:.3g}x (p "
+                f"{untested.p_adjusted:.2g} after correction): worth a refit"
+            )
         elif vetoed is not None:
-            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor; "
-                       f"{vetoed.effect} would lower it to "
-                       f"{judgements[vetoed.effect]['predicted_worst_rms_over_floor']:.3g}x but "
-                       "cannot produce the dependence the missing-torque map shows (below)")
+            verdict = (
+                f"the error is not noise: worst channel {worst:.3g}x the floor; "
+                f"{vetoed.effect} would lower it to "
+                f"{judgements[vetoed.effect]['predicted_worst_rms_over_floor']:.3g}x but "
+                "cannot produce the dependence the missing-torque map shows (below)"
+            )
         elif unsupported:
             # Material but without the tests' support: say so, not "immaterial".
             u = unsupported[0]
             j = judgements[u.effect]
-            verdict = (f"the error is not noise: worst channel {worst:.3g}x the floor, and "
-                       "no catalogue effect is supported by the tests (the largest "
-                       f"predicted fall, {u.effect} to "
-                       f"{j['predicted_worst_rms_over_floor']:.3g}x, has p "
-                       f"{u.p_adjusted:.2g} after correction"
-                       + ("" if j["resolvable"] else ", and a size below what the data "
-                          "resolve") + ")")
+            verdict = (
+                f"the error is not noise: worst channel {worst:.3g}x the floor, and "
+                "no catalogue effect is supported by the tests (the largest "
+                f"predicted fall, {u.effect} to "
+                f"{j['predicted_worst_rms_over_floor']:.3g}x, has p "
+                f"{u.p_adjusted:.2g} after correction"
+                + ("" if j["resolvable"] else ", and a size below what the data resolve")
+                + ")"
+            )
         else:
-            verdict = ("the error is not noise: "
-                       + nothing_material_words(worst, ranking, judgements))
+            verdict = "the error is not noise: " + nothing_material_words(
+                worst, ranking, judgements
+            )
         if top is not None and foreign is None:
             claimed = top.effect
         named = claimed or (untested.effect if untested is not None else None)
@@ -358,46 +412,60 @@ def diagnose(
         if claimed is not None:
             tie = [s.effect for s in significant[1:] if s.effect in top.alike]
             est = _estimate_words(top)
-            advice = (f"Most likely missing: {top.effect} — {top.physics.rstrip('.')} "
-                      f"(p {top.p_adjusted:.2g}"
-                      f" after correction; one-step estimate {est}; predicted worst RMS/floor "
-                      f"{worst:.3g} -> "
-                      f"{judgements[top.effect]['predicted_worst_rms_over_floor']:.3g}).")
+            advice = (
+                f"Most likely missing: {top.effect} — {top.physics.rstrip('.')} "
+                f"(p {top.p_adjusted:.2g}"
+                f" after correction; one-step estimate {est}; predicted worst RMS/floor "
+                f"{worst:.3g} -> "
+                f"{judgements[top.effect]['predicted_worst_rms_over_floor']:.3g})."
+            )
             if tie:
-                advice += (f" These data cannot tell it from {', '.join(tie)} (their "
-                           "corrections are nearly parallel); validation data or another "
-                           "input can.")
+                advice += (
+                    f" These data cannot tell it from {', '.join(tie)} (their "
+                    "corrections are nearly parallel); validation data or another "
+                    "input can."
+                )
             if top.equivalences:
                 advice += " Registry: " + "; ".join(top.equivalences) + "."
-            advice += (f"\nAdd it and refit: {REFIT_TOKEN} --add "
-                       f"{top.effect}; then diagnose the new fit (one effect at a time).")
+            advice += (
+                f"\nAdd it and refit: {REFIT_TOKEN} --add "
+                f"{top.effect}; then diagnose the new fit (one effect at a time)."
+            )
         elif untested is not None:
             where = _map_words(None, strongest, maps, notes)
             est = _estimate_words(untested)
-            advice = (f"Worth trying first: {untested.effect} — "
-                      f"{untested.physics.rstrip('.')} (one-step "
-                      f"estimate {est}; predicted worst RMS/floor {worst:.3g} -> "
-                      f"{judgements[untested.effect]['predicted_worst_rms_over_floor']:.3g}). "
-                      f"Its score test is not significant (p {untested.p_adjusted:.2g} after "
-                      "correction): this far above the floor the tests have little power, so "
-                      "a refit decides, not the test. Missing-torque map: " + where + ".\n"
-                      f"Add it and refit: {REFIT_TOKEN} --add "
-                      f"{untested.effect}; keep it only if `rotorbayes compare` finds the new "
-                      "fit materially better on validation data, then diagnose the new fit. "
-                      "If it does not help, make sure the fit is not a local minimum "
-                      "(`rotorbayes multistart`).")
+            advice = (
+                f"Worth trying first: {untested.effect} — "
+                f"{untested.physics.rstrip('.')} (one-step "
+                f"estimate {est}; predicted worst RMS/floor {worst:.3g} -> "
+                f"{judgements[untested.effect]['predicted_worst_rms_over_floor']:.3g}). "
+                f"Its score test is not significant (p {untested.p_adjusted:.2g} after "
+                "correction): this far above the floor the tests have little power, so "
+                "a refit decides, not the test. Missing-torque map: " + where + ".\n"
+                f"Add it and refit: {REFIT_TOKEN} --add "
+                f"{untested.effect}; keep it only if `rotorbayes compare` finds the new "
+                "fit materially better on validation data, then diagnose the new fit. "
+                "If it does not help, make sure the fit is not a local minimum "
+                "(`rotorbayes multistart`)."
+            )
         else:
             where = _map_words(foreign, strongest, maps, notes)
             best = top if top is not None else vetoed
-            advice = ("No catalogue effect explains the residual"
-                      + (f" (the best, {best.effect}, is material but cannot produce the "
-                         "dependence below)" if best is not None else "")
-                      + f": {where}.\nFirst make sure the fit is not a local minimum "
-                      "(`rotorbayes multistart` with the fit's options; a better basin is "
-                      "then the --p0 of a new fit). If it is the best there is, write a user "
-                      "effect for it (docs/effects.md; examples/angle_friction.py is a worked "
-                      "example), test it with `rotorbayes diagnose` of this fit and --add "
-                      "FILE.py:NAME, and refit with the same --add.")
+            advice = (
+                "No catalogue effect explains the residual"
+                + (
+                    f" (the best, {best.effect}, is material but cannot produce the "
+                    "dependence below)"
+                    if best is not None
+                    else ""
+                )
+                + f": {where}.\nFirst make sure the fit is not a local minimum "
+                "(`rotorbayes multistart` with the fit's options; a better basin is "
+                "then the --p0 of a new fit). If it is the best there is, write a user "
+                "effect for it (docs/effects.md; examples/angle_friction.py is a worked "
+                "example), test it with `rotorbayes diagnose` of this fit and --add "
+                "FILE.py:NAME, and refit with the same --add."
+            )
     return Diagnosis(
         adequate=adequate,
         verdict=verdict,
@@ -432,12 +500,17 @@ def _vetoes(foreign: TorqueMap | None, effect: str) -> bool:
 
 def _estimate_words(s: EffectScore) -> str:
     """``t_delay ≈ 0.0069 s``: an effect's one-step estimate."""
-    return ", ".join(f"{n} ≈ {v:.3g} {u}" for (n, v), u in
-                     zip(s.step.items(), s.units, strict=True))
+    return ", ".join(
+        f"{n} ≈ {v:.3g} {u}" for (n, v), u in zip(s.step.items(), s.units, strict=True)
+    )
 
 
-def _map_words(foreign: TorqueMap | None, strongest: TorqueMap | None, maps,
-               notes: dict[str, str] | None = None) -> str:
+def _map_words(
+    foreign: TorqueMap | None,
+    strongest: TorqueMap | None,
+    maps,
+    notes: dict[str, str] | None = None,
+) -> str:
     """The missing-torque map to quote: a foreign dependence, else the map standing
     highest above its noise, else every map (with what the tests say against it)."""
     notes = notes or {}
@@ -451,8 +524,9 @@ def _map_words(foreign: TorqueMap | None, strongest: TorqueMap | None, maps,
     return "; ".join(words(x) for x in maps) or "no missing-torque map could be made"
 
 
-def nothing_material_words(worst: float, ranking: Sequence[EffectScore],
-                           judgements: dict[str, dict]) -> str:
+def nothing_material_words(
+    worst: float, ranking: Sequence[EffectScore], judgements: dict[str, dict]
+) -> str:
     """The verdict's words when no catalogue effect is material and none is material
     without the tests' support: "worst channel W x the floor, and ...".
 
@@ -460,13 +534,17 @@ def nothing_material_words(worst: float, ranking: Sequence[EffectScore],
     when every one-step prediction is at or above it, the words say that no catalogue
     effect is predicted to lower the error (a rise is never "the best")."""
     head = f"worst channel {worst:.3g}x the floor, and "
-    preds = [(judgements[s.effect]["predicted_worst_rms_over_floor"], i, s)
-             for i, s in enumerate(ranking) if not s.equivalent_to_free
-             and s.effect in judgements]
+    preds = [
+        (judgements[s.effect]["predicted_worst_rms_over_floor"], i, s)
+        for i, s in enumerate(ranking)
+        if not s.equivalent_to_free and s.effect in judgements
+    ]
     lower = sorted(x for x in preds if x[0] < worst)
     if not lower:
-        return head + ("no catalogue effect is predicted to lower it (every one-step "
-                       f"prediction is at or above {worst:.3g}x)")
+        return head + (
+            "no catalogue effect is predicted to lower it (every one-step "
+            f"prediction is at or above {worst:.3g}x)"
+        )
     detectable = [x for x in lower if judgements[x[2].effect]["significant"]]
     pred, _, s = (detectable or lower)[0]
     j = judgements[s.effect]
@@ -474,16 +552,22 @@ def nothing_material_words(worst: float, ranking: Sequence[EffectScore],
     if detectable and j["material"]:
         # significant and material, yet not claimable: its size is below what the data
         # resolve
-        return head + (f"no catalogue effect passes the claim rule (the best detectable, "
-                       f"{s.effect}, is predicted to lower it from {w}x to {pr}x, but its "
-                       "size is below what the data resolve)")
+        return head + (
+            f"no catalogue effect passes the claim rule (the best detectable, "
+            f"{s.effect}, is predicted to lower it from {w}x to {pr}x, but its "
+            "size is below what the data resolve)"
+        )
     if detectable:
-        return head + (f"no catalogue effect would lower it materially (the best "
-                       f"detectable, {s.effect}, is predicted to lower it only from {w}x "
-                       f"to {pr}x)")
-    return head + (f"no catalogue effect would lower it materially (the largest predicted "
-                   f"fall, {s.effect}, from {w}x to {pr}x, is immaterial and its test not "
-                   "significant)")
+        return head + (
+            f"no catalogue effect would lower it materially (the best "
+            f"detectable, {s.effect}, is predicted to lower it only from {w}x "
+            f"to {pr}x)"
+        )
+    return head + (
+        f"no catalogue effect would lower it materially (the largest predicted "
+        f"fall, {s.effect}, from {w}x to {pr}x, is immaterial and its test not "
+        "significant)"
+    )
 
 
 def effect_discs(effect: str) -> set[str]:
@@ -507,8 +591,12 @@ def _produces(effect: str) -> str:
     return _or_list([SHORT[k] for k in SHORT if k in own]) or "none of the map's variables"
 
 
-def map_agreement(tmap: TorqueMap, ranking: Sequence[EffectScore],
-                  judgements: dict[str, dict], named: str | None = None) -> str:
+def map_agreement(
+    tmap: TorqueMap,
+    ranking: Sequence[EffectScore],
+    judgements: dict[str, dict],
+    named: str | None = None,
+) -> str:
     """Whether a map's named dependence and the score tests agree: ``""`` when they do
     (or the map names no dependence), else a sentence that says which contradicts which,
     with the numbers, and what else it could be.
@@ -548,41 +636,60 @@ def map_agreement(tmap: TorqueMap, ranking: Sequence[EffectScore],
             if s.equivalent_to_free:
                 parts.append(f"{s.effect} cannot be told from the free parameters")
             elif j.get("significant"):
-                parts.append(f"{s.effect} p {s.p_adjusted:.2g} after correction but not "
-                             f"claimable, {fall(s)}")
+                parts.append(
+                    f"{s.effect} p {s.p_adjusted:.2g} after correction but not claimable, {fall(s)}"
+                )
             else:
                 parts.append(f"{s.effect} p {s.p_adjusted:.2g} after correction")
         if all(s.equivalent_to_free for s in family):
-            lead = ("the catalogue's version of that cause cannot be tested on these data "
-                    f"({'; '.join(parts)})")
+            lead = (
+                "the catalogue's version of that cause cannot be tested on these data "
+                f"({'; '.join(parts)})"
+            )
         else:
-            lead = ("the score test of the catalogue's version of that cause does not "
-                    f"support it ({'; '.join(parts)})")
+            lead = (
+                "the score test of the catalogue's version of that cause does not "
+                f"support it ({'; '.join(parts)})"
+            )
         mine = {s.effect for s in family}
-        others = sorted((s for s in ranking if backed(s) and s.effect not in mine),
-                        key=lambda s: s.effect != named)
+        others = sorted(
+            (s for s in ranking if backed(s) and s.effect not in mine),
+            key=lambda s: s.effect != named,
+        )
         if not others:
-            return (f"{lead}: it may be {otherwise}, or a side effect of a torque missing "
-                    "elsewhere (a fit that lacks a torque bends its parameters to take part "
-                    "of it)")
+            return (
+                f"{lead}: it may be {otherwise}, or a side effect of a torque missing "
+                "elsewhere (a fit that lacks a torque bends its parameters to take part "
+                "of it)"
+            )
         o = others[0]
-        how = ("can vary with " + SHORT[var] + " too" if var in EXPLAINS.get(o.effect, ())
-               else f"would vary with {_produces(o.effect)}, not with {SHORT[var]}")
-        return (f"{lead}; the tests point at {o.effect} instead (p {o.p_adjusted:.2g} after "
-                f"correction, {fall(o)}), whose torque {how}: the map's dependence may be a "
-                "side effect of it (a fit that lacks a torque bends its parameters, on both "
-                f"discs, to take part of it), or {otherwise}")
+        how = (
+            "can vary with " + SHORT[var] + " too"
+            if var in EXPLAINS.get(o.effect, ())
+            else f"would vary with {_produces(o.effect)}, not with {SHORT[var]}"
+        )
+        return (
+            f"{lead}; the tests point at {o.effect} instead (p {o.p_adjusted:.2g} after "
+            f"correction, {fall(o)}), whose torque {how}: the map's dependence may be a "
+            "side effect of it (a fit that lacks a torque bends its parameters, on both "
+            f"discs, to take part of it), or {otherwise}"
+        )
     if named is None or named not in _effects.CATALOGUE or named not in scores:
         return ""
-    if tmap.disc not in effect_discs(named) or var in EXPLAINS.get(named, ()) \
-            or any(s.effect == named for s in family):
+    if (
+        tmap.disc not in effect_discs(named)
+        or var in EXPLAINS.get(named, ())
+        or any(s.effect == named for s in family)
+    ):
         return ""
     s = scores[named]
     what = "claim" if judgements.get(named, {}).get("claimable") else "name as worth trying"
-    return (f"the score tests {what} {named} (p {s.p_adjusted:.2g} after correction, "
-            f"{fall(s)}), whose torque would vary with {_produces(named)}, not with "
-            f"{SHORT[var]}: one of the two findings is a side effect of the other; refit with "
-            f"{named} and diagnose again")
+    return (
+        f"the score tests {what} {named} (p {s.p_adjusted:.2g} after correction, "
+        f"{fall(s)}), whose torque would vary with {_produces(named)}, not with "
+        f"{SHORT[var]}: one of the two findings is a side effect of the other; refit with "
+        f"{named} and diagnose again"
+    )
 
 
 def _notes(maps, ranking, judgements, named) -> dict[str, str]:
@@ -604,12 +711,13 @@ def _rms_speeds(problem: Problem, x: np.ndarray) -> dict[str, float]:
         if sim.omega_l is not None:
             acc["omega_l"].append(np.asarray(sim.omega_l))
             acc["dalpha"].append(np.asarray(sim.omega_l) - np.asarray(sim.omega_u))
-    return {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) if v else math.nan
-            for k, v in acc.items()}
+    return {
+        k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) if v else math.nan
+        for k, v in acc.items()
+    }
 
 
-def _judge(s: EffectScore, problem: Problem, x: np.ndarray, worst: float,
-           context: dict) -> dict:
+def _judge(s: EffectScore, problem: Problem, x: np.ndarray, worst: float, context: dict) -> dict:
     """Significant, material, resolvable? With the numbers (see the module docstring)."""
     pred = max(s.predicted_rms_ratio.values()) if s.predicted_rms_ratio else worst
     fall = worst - pred
@@ -619,20 +727,28 @@ def _judge(s: EffectScore, problem: Problem, x: np.ndarray, worst: float,
     res = effect.resolution if effect is not None else None
     sizes = [abs(v) for v in s.size.values() if math.isfinite(v)]
     size = max(sizes) if sizes else math.nan
-    out = {"significant": significant, "material": material,
-           "p_value": s.p_value, "p_adjusted": s.p_adjusted,
-           "rms_over_floor": worst, "predicted_rms_over_floor": s.predicted_rms_ratio,
-           "predicted_worst_rms_over_floor": pred, "predicted_fall": fall}
+    out = {
+        "significant": significant,
+        "material": material,
+        "p_value": s.p_value,
+        "p_adjusted": s.p_adjusted,
+        "rms_over_floor": worst,
+        "predicted_rms_over_floor": s.predicted_rms_ratio,
+        "predicted_worst_rms_over_floor": pred,
+        "predicted_fall": fall,
+    }
     if res is None or not math.isfinite(size):
-        out.update(size=None, resolution=None, resolvable=True,
-                   resolution_words="no resolution stated")
+        out.update(
+            size=None, resolution=None, resolvable=True, resolution_words="no resolution stated"
+        )
     else:
         unit = problem.model.info[local_name(next(iter(s.size)))[0]].unit
         if res.kind == "sample":
             dt = min(ex.dt for ex in problem.experiments)
-            out.update(size={"value": size, "unit": unit},
-                       resolution={"value": res.factor * dt, "unit": unit,
-                                   "samples": res.factor})
+            out.update(
+                size={"value": size, "unit": unit},
+                resolution={"value": res.factor * dt, "unit": unit, "samples": res.factor},
+            )
             resolvable = size >= res.factor * dt
         else:
             if res.per_unit in ("", None):
@@ -645,33 +761,50 @@ def _judge(s: EffectScore, problem: Problem, x: np.ndarray, worst: float,
                 per = float(problem.params_for(x, 0).get(res.per_unit, math.nan))
             se = context.get("robust_se", {}).get(f"Tc_{res.disc}", math.nan)
             torque = size * per
-            out.update(size={"value": size, "unit": unit, "torque_N_m": torque},
-                       resolution={"torque_N_m": res.factor * se,
-                                   "of": f"robust standard error of Tc_{res.disc}"})
+            out.update(
+                size={"value": size, "unit": unit, "torque_N_m": torque},
+                resolution={
+                    "torque_N_m": res.factor * se,
+                    "of": f"robust standard error of Tc_{res.disc}",
+                },
+            )
             # Without a known uncertainty (Tc fixed) only the materiality rule applies.
-            resolvable = not math.isfinite(se) or not math.isfinite(torque) or \
-                torque >= res.factor * se
+            resolvable = (
+                not math.isfinite(se) or not math.isfinite(torque) or torque >= res.factor * se
+            )
         out.update(resolvable=bool(resolvable), resolution_words=res.words)
     out["claimable"] = bool(significant and material and out["resolvable"])
     why = []
     if not significant:
-        why.append("equivalent to the free parameters" if s.equivalent_to_free else
-                   f"not significant (a claim needs p < {LEVEL:g} after correction)")
+        why.append(
+            "equivalent to the free parameters"
+            if s.equivalent_to_free
+            else f"not significant (a claim needs p < {LEVEL:g} after correction)"
+        )
     if not material:
         w, pr = apart(worst, pred, 4)
-        change = (f"a fall of {fall:.2g} ({100 * fall / worst if worst else 0:.2g} %)"
-                  if fall > 0 else "no fall" if fall == 0 else
-                  f"a rise of {-fall:.2g} ({-100 * fall / worst if worst else 0:.2g} %)")
+        change = (
+            f"a fall of {fall:.2g} ({100 * fall / worst if worst else 0:.2g} %)"
+            if fall > 0
+            else "no fall"
+            if fall == 0
+            else f"a rise of {-fall:.2g} ({-100 * fall / worst if worst else 0:.2g} %)"
+        )
         why.append(f"predicted worst RMS/floor {w} -> {pr}, {change}: immaterial")
     if not out["resolvable"]:
         if res.kind == "sample":
-            why.append(f"size {size:.2g} s is below the resolution "
-                       f"{out['resolution']['value']:.2g} s ({res.factor:g} sample): "
-                       f"{res.words}")
+            why.append(
+                f"size {size:.2g} s is below the resolution "
+                f"{out['resolution']['value']:.2g} s ({res.factor:g} sample): "
+                f"{res.words}"
+            )
         else:
-            why.append(f"size {size:.2g} {out['size']['unit']} ({out['size']['torque_N_m']:.2g}"
-                       f" N m) is below the resolution {out['resolution']['torque_N_m']:.2g}"
-                       f" N m: {res.words}")
-    out["words"] = (f"{s.effect}: p {s.p_adjusted:.2g} after correction; "
-                    + ("; ".join(why) if why else "claimable"))
+            why.append(
+                f"size {size:.2g} {out['size']['unit']} ({out['size']['torque_N_m']:.2g}"
+                f" N m) is below the resolution {out['resolution']['torque_N_m']:.2g}"
+                f" N m: {res.words}"
+            )
+    out["words"] = f"{s.effect}: p {s.p_adjusted:.2g} after correction; " + (
+        "; ".join(why) if why else "claimable"
+    )
     return out

@@ -9,16 +9,25 @@ from ..figures.plots import pyplot
 from .diagnose import LEVEL
 
 _LABEL = {
-    "velocity": "velocity [rad/s]", "direction": "direction of rotation",
-    "angle_1": "angle within a revolution [rad]", "angle_2": "angle within a revolution [rad]",
-    "torsion": "string torsion α [rad]", "torsion_rate": "twist rate dα/dt [rad/s]",
-    "input": "input voltage [V]", "input_rate": "input rate [V/s]", "time": "time [s]",
+    "velocity": "velocity [rad/s]",
+    "direction": "direction of rotation",
+    "angle_1": "angle within a revolution [rad]",
+    "angle_2": "angle within a revolution [rad]",
+    "torsion": "string torsion α [rad]",
+    "torsion_rate": "twist rate dα/dt [rad/s]",
+    "input": "input voltage [V]",
+    "input_rate": "input rate [V/s]",
+    "time": "time [s]",
     "input_history": "the fitted mix of filtered input minus input [N m]",
 }
 #: Panel titles of the map's variables (the names in diagnosis.json are terse).
-_TITLE = {"angle_1": "angle, once per revolution", "angle_2": "angle, twice per revolution",
-          "torsion_rate": "twist rate", "input_rate": "input rate",
-          "input_history": "input's recent history"}
+_TITLE = {
+    "angle_1": "angle, once per revolution",
+    "angle_2": "angle, twice per revolution",
+    "torsion_rate": "twist rate",
+    "input_rate": "input rate",
+    "input_history": "input's recent history",
+}
 
 
 #: Colours of the top candidates' corrections (the residual is grey).
@@ -33,37 +42,61 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     ex = problem.experiments[0]
     r = problem.residuals(x)
     chans = list(problem.channels)
-    fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.8 * len(chans) + 0.6),
-                             sharex=True, squeeze=False, constrained_layout=True)
-    shown = [s for s in diagnosis.ranking if s.correction is not None and not
-             s.equivalent_to_free][:top]
+    fig, axes = plt.subplots(
+        len(chans),
+        1,
+        figsize=(10, 2.8 * len(chans) + 0.6),
+        sharex=True,
+        squeeze=False,
+        constrained_layout=True,
+    )
+    shown = [s for s in diagnosis.ranking if s.correction is not None and not s.equivalent_to_free][
+        :top
+    ]
     for k, c in enumerate(chans):
         ax = axes[k, 0]
         seg = slice(k * ex.n, (k + 1) * ex.n)
         # The residual is drawn last, thin and dark, so that a candidate that explains it
         # (a thick curve on the same path) does not hide it.
-        ax.plot(ex.t, r[seg], color="0.15", lw=0.6, zorder=3,
-                label="residual (measured − simulated)")
+        ax.plot(
+            ex.t, r[seg], color="0.15", lw=0.6, zorder=3, label="residual (measured − simulated)"
+        )
         # Candidates' corrections can coincide (an exact tie such as initial_torsion and
         # lower_asymmetric_coulomb): wide to narrow lines, own dashes and markers at shifted
         # samples, and a word in the legend when one lies on another.
         every = max(1, ex.n // 10)
         for i, s in enumerate(shown):
             y = -s.correction[seg]
-            same = [o.effect for o in shown[:i] if np.allclose(
-                -o.correction[seg], y, rtol=0.02, atol=0.02 * float(np.max(np.abs(y))) + 1e-300)]
-            ax.plot(ex.t, y, color=_CAND_COLORS[i % 3], lw=(3.2, 2.0, 1.0)[i % 3], alpha=0.8,
-                    ls=("-", "--", ":")[i % 3], marker=("o", "s", "^")[i % 3], ms=5,
-                    markevery=(i * every // 3, every),
-                    label=f"{s.effect}: its one-step correction (p adj. {s.p_adjusted:.2g}"
-                    + ("; not significant" if s.p_adjusted >= LEVEL else "") + ")"
-                    + (f" — the same curve as {', '.join(same)}" if same else ""))
+            same = [
+                o.effect
+                for o in shown[:i]
+                if np.allclose(
+                    -o.correction[seg], y, rtol=0.02, atol=0.02 * float(np.max(np.abs(y))) + 1e-300
+                )
+            ]
+            ax.plot(
+                ex.t,
+                y,
+                color=_CAND_COLORS[i % 3],
+                lw=(3.2, 2.0, 1.0)[i % 3],
+                alpha=0.8,
+                ls=("-", "--", ":")[i % 3],
+                marker=("o", "s", "^")[i % 3],
+                ms=5,
+                markevery=(i * every // 3, every),
+                label=f"{s.effect}: its one-step correction (p adj. {s.p_adjusted:.2g}"
+                + ("; not significant" if s.p_adjusted >= LEVEL else "")
+                + ")"
+                + (f" — the same curve as {', '.join(same)}" if same else ""),
+            )
         ax.set_ylabel(f"{c} error [rad]")
     axes[-1, 0].set_xlabel("time [s]")
     # One legend for all panels, below them: inside, it would cover the curves.
     axes[-1, 0].legend(loc="upper left", bbox_to_anchor=(0.0, -0.22), ncol=1, fontsize=8)
-    fig.suptitle("residual and the predicted corrections of the top-ranked effects "
-                 f"(experiment {ex.name or 0})")
+    fig.suptitle(
+        "residual and the predicted corrections of the top-ranked effects "
+        f"(experiment {ex.name or 0})"
+    )
     return fig, axes
 
 
@@ -76,8 +109,13 @@ def plot_torque_map(diagnosis, *, top: int = 3):
         ax.text(0.5, 0.5, "no missing-torque map (too few slip samples)", ha="center")
         ax.axis("off")
         return fig, np.array([[ax]])
-    fig, axes = plt.subplots(len(maps), top, figsize=(4 * top, 3.2 * len(maps) + 0.6),
-                             squeeze=False, constrained_layout=True)
+    fig, axes = plt.subplots(
+        len(maps),
+        top,
+        figsize=(4 * top, 3.2 * len(maps) + 0.6),
+        squeeze=False,
+        constrained_layout=True,
+    )
     for i, m in enumerate(maps):
         disc = "upper" if m.disc == "u" else "lower"
         for j in range(top):
@@ -97,12 +135,15 @@ def plot_torque_map(diagnosis, *, top: int = 3):
             if s is not None and var != "direction":
                 # By direction of rotation: friction changes sign with it (mirrored
                 # bands), a load does not (one band).
-                for sign, colour, what in ((1.0, "tab:blue", "turning +"),
-                                           (-1.0, "tab:orange", "turning −")):
+                for sign, colour, what in (
+                    (1.0, "tab:blue", "turning +"),
+                    (-1.0, "tab:orange", "turning −"),
+                ):
                     k = s == sign
                     if np.any(k):
-                        ax.plot(xv[k], m.torque[k], ".", ms=1.5, alpha=0.4, color=colour,
-                                label=what)
+                        ax.plot(
+                            xv[k], m.torque[k], ".", ms=1.5, alpha=0.4, color=colour, label=what
+                        )
                 if j == 0:
                     ax.legend(fontsize=7, markerscale=5, loc="upper right")
             else:
@@ -111,8 +152,10 @@ def plot_torque_map(diagnosis, *, top: int = 3):
             ax.set_xlabel(_LABEL.get(var, var))
             ax.set_ylabel(f"{disc} disc missing torque [N m]")
             ax.set_title(f"{disc}: {_TITLE.get(var, var)} (adj. R² {r2:.2f})", fontsize=9)
-    fig.suptitle("missing torque (the data's balance minus the fit's own simulation, slip samples) "
-                 "against candidate variables")
+    fig.suptitle(
+        "missing torque (the data's balance minus the fit's own simulation, slip samples) "
+        "against candidate variables"
+    )
     return fig, axes
 
 
@@ -137,22 +180,35 @@ def plot_error_vs_state(views):
     chans = list(views["channels"])
     lower = "omega_l" in views
     cols = ["velocity", "direction", "torsion", "angle"] if lower else ["angle"]
-    fig, axes = plt.subplots(len(chans), len(cols), figsize=(3.6 * len(cols),
-                             2.9 * len(chans) + 0.7), squeeze=False, constrained_layout=True)
+    fig, axes = plt.subplots(
+        len(chans),
+        len(cols),
+        figsize=(3.6 * len(cols), 2.9 * len(chans) + 0.7),
+        squeeze=False,
+        constrained_layout=True,
+    )
     for i, c in enumerate(chans):
         e = views["channels"][c]["error"]
         for j, col in enumerate(cols):
             ax = axes[i, j]
             if col == "velocity":
                 w = views["omega_l"]
-                stick = np.asarray(views["mode_l"]) == 0 if views["mode_l"] is not None \
+                stick = (
+                    np.asarray(views["mode_l"]) == 0
+                    if views["mode_l"] is not None
                     else np.zeros(w.size, bool)
+                )
                 m, mu, sd = _binned_mean(w[~stick], e[~stick])
                 ax.fill_between(m, mu - sd, mu + sd, color="tab:blue", alpha=0.2, lw=0)
                 ax.plot(m, mu, "o-", ms=3, color="tab:blue", label="slip (bin mean ± sd)")
                 if stick.any():
-                    ax.plot(np.zeros(1), [np.mean(e[stick])], "s", color="tab:red",
-                            label=f"stick ({100 * stick.mean():.0f} % of samples)")
+                    ax.plot(
+                        np.zeros(1),
+                        [np.mean(e[stick])],
+                        "s",
+                        color="tab:red",
+                        label=f"stick ({100 * stick.mean():.0f} % of samples)",
+                    )
                 ax.set_xlabel("lower disc velocity [rad/s]")
                 ax.legend(fontsize=7, loc="best")
             elif col == "direction":
@@ -186,23 +242,35 @@ def plot_residual_correlation(views):
     cross_band`): the white band is far too narrow for a smooth input."""
     plt = pyplot()
     chans = list(views["channels"])
-    fig, axes = plt.subplots(len(chans), 2, figsize=(10, 2.8 * len(chans) + 0.6),
-                             squeeze=False, constrained_layout=True)
+    fig, axes = plt.subplots(
+        len(chans), 2, figsize=(10, 2.8 * len(chans) + 0.6), squeeze=False, constrained_layout=True
+    )
     for i, c in enumerate(chans):
         v = views["channels"][c]
-        for j, (key, title) in enumerate((("acf", "autocorrelation"),
-                                          ("ccf", "cross-correlation with u"))):
+        for j, (key, title) in enumerate(
+            (("acf", "autocorrelation"), ("ccf", "cross-correlation with u"))
+        ):
             lags, val = v[key]
             ax = axes[i, j]
             ax.plot(lags, val, color="tab:blue", lw=1)
             if key == "acf":
-                ax.axhspan(-v["band"], v["band"], color="0.8", alpha=0.6,
-                           label="99 % band of a white residual")
+                ax.axhspan(
+                    -v["band"],
+                    v["band"],
+                    color="0.8",
+                    alpha=0.6,
+                    label="99 % band of a white residual",
+                )
             else:
                 bu = v.get("band_u", v["band"])
-                ax.axhspan(-bu, bu, color="0.8", alpha=0.6,
-                           label="99 % band of a residual unrelated to u\n"
-                                 "(its own and u's autocorrelation)")
+                ax.axhspan(
+                    -bu,
+                    bu,
+                    color="0.8",
+                    alpha=0.6,
+                    label="99 % band of a residual unrelated to u\n"
+                    "(its own and u's autocorrelation)",
+                )
             ax.set_xlabel("lag [samples]")
             ax.set_ylabel(f"{c}")
             ax.set_title(f"{c}: {title}", fontsize=9)
@@ -224,10 +292,13 @@ def plot_chain(doc):
         for c in chans:
             series.append((data, c))
     for k, (data, c) in enumerate(series):
-        vals = [f[data]["rms_over_floor"].get(c, np.nan) if data in f else np.nan
-                for f in fits]
-        ax.bar(np.arange(len(fits)) + (k - (len(series) - 1) / 2) * width, vals, width,
-               label=f"{c}, {data}")
+        vals = [f[data]["rms_over_floor"].get(c, np.nan) if data in f else np.nan for f in fits]
+        ax.bar(
+            np.arange(len(fits)) + (k - (len(series) - 1) / 2) * width,
+            vals,
+            width,
+            label=f"{c}, {data}",
+        )
     ax.axhline(1.0, color="k", ls="--", lw=1, label="encoder floor")
     ax.set_yscale("log")
     ax.set_xticks(np.arange(len(fits)), labels, rotation=15)

@@ -117,10 +117,20 @@ class Kept:
         return "N m" if u == "1" else f"N m/({u})" if " " in u or "^" in u else f"N m/{u}"
 
     def as_dict(self) -> dict:
-        return {"parameter": self.name, "disc": self.disc, "term": self.term.key,
-                "kind": self.term.kind, "words": self.term.words, "expression": self.term.expr,
-                "frequency": self.frequency, "value": self.value, "std": self.std,
-                "unit": self.unit, "centre": self.centre, "explains_rms_N_m": self.part_rms}
+        return {
+            "parameter": self.name,
+            "disc": self.disc,
+            "term": self.term.key,
+            "kind": self.term.kind,
+            "words": self.term.words,
+            "expression": self.term.expr,
+            "frequency": self.frequency,
+            "value": self.value,
+            "std": self.std,
+            "unit": self.unit,
+            "centre": self.centre,
+            "explains_rms_N_m": self.part_rms,
+        }
 
 
 @dataclass
@@ -136,9 +146,15 @@ class DiscProposal:
     reason: str = ""  # why nothing is proposed (empty when something is)
 
     def as_dict(self) -> dict:
-        return {"disc": self.disc, "kept": [k.as_dict() for k in self.kept], "r2": self.r2,
-                "explained_rms_N_m": self.explained_rms, "noise_rms_N_m": self.noise_rms,
-                "selection_frequencies": self.frequencies, "reason": self.reason or None}
+        return {
+            "disc": self.disc,
+            "kept": [k.as_dict() for k in self.kept],
+            "r2": self.r2,
+            "explained_rms_N_m": self.explained_rms,
+            "noise_rms_N_m": self.noise_rms,
+            "selection_frequencies": self.frequencies,
+            "reason": self.reason or None,
+        }
 
 
 @dataclass
@@ -178,32 +194,49 @@ class Proposal:
     def words(self) -> str:
         if not self.kept:
             return f"no missing term is proposed: {self.reason}"
-        lines = ["proposed missing term (sparse regression of the missing torque, "
-                 f"terms kept in >= {KEEP:.0%} of {RESAMPLES} block-bootstrap resamples):"]
+        lines = [
+            "proposed missing term (sparse regression of the missing torque, "
+            f"terms kept in >= {KEEP:.0%} of {RESAMPLES} block-bootstrap resamples):"
+        ]
         for d in self.discs:
             disc = "upper" if d.disc == "u" else "lower"
             if not d.kept:
                 lines.append(f"  {disc} disc: nothing ({d.reason})")
                 continue
-            lines.append(f"  {disc} disc: explains {100 * d.r2:.0f} % of its missing torque "
-                         f"at this fit (RMS {d.explained_rms:.2g} N m; the map's noise "
-                         f"{d.noise_rms:.2g} N m)")
+            lines.append(
+                f"  {disc} disc: explains {100 * d.r2:.0f} % of its missing torque "
+                f"at this fit (RMS {d.explained_rms:.2g} N m; the map's noise "
+                f"{d.noise_rms:.2g} N m)"
+            )
             for k in d.kept:
-                lines.append(f"    {k.term.words}: {k.name} = {k.value:.3g} ± {k.std:.2g} "
-                             f"{k.unit} (kept in {k.frequency:.0%})")
+                lines.append(
+                    f"    {k.term.words}: {k.name} = {k.value:.3g} ± {k.std:.2g} "
+                    f"{k.unit} (kept in {k.frequency:.0%})"
+                )
         if self.file:
-            lines.append(f"written as {self.file}:{self.effect}; refit it (the validation "
-                         "data judge it):")
+            lines.append(
+                f"written as {self.file}:{self.effect}; refit it (the validation data judge it):"
+            )
             lines.append(f"  {self.command}")
         return "\n".join(lines)
 
     def as_dict(self) -> dict:
-        return {"proposed": bool(self.kept), "reason": self.reason or None,
-                "discs": [d.as_dict() for d in self.discs], "file": self.file or None,
-                "effect": f"{self.file}:{self.effect}" if self.file else None,
-                "command": self.command or None, "seconds": self.seconds,
-                "method": {"regression": "sklearn LassoLarsIC (BIC)", "resamples": RESAMPLES,
-                           "block_s": BLOCK, "keep": KEEP, "thin_s": THIN}}
+        return {
+            "proposed": bool(self.kept),
+            "reason": self.reason or None,
+            "discs": [d.as_dict() for d in self.discs],
+            "file": self.file or None,
+            "effect": f"{self.file}:{self.effect}" if self.file else None,
+            "command": self.command or None,
+            "seconds": self.seconds,
+            "method": {
+                "regression": "sklearn LassoLarsIC (BIC)",
+                "resamples": RESAMPLES,
+                "block_s": BLOCK,
+                "keep": KEEP,
+                "thin_s": THIN,
+            },
+        }
 
 
 def library(m: TorqueMap) -> list[tuple[Term, np.ndarray]]:
@@ -213,22 +246,54 @@ def library(m: TorqueMap) -> list[tuple[Term, np.ndarray]]:
     d = m.disc
     w = f["velocity"]
     aw = np.abs(w)
-    th, om = (("theta_l", "omega_l") if d == "l" else ("theta_u", "omega_u"))
+    th, om = ("theta_l", "omega_l") if d == "l" else ("theta_u", "omega_u")
     out: list[tuple[Term, np.ndarray]] = [
-        (Term("w2", "friction", "friction level rising with speed squared",
-              f"{om} * {om}", "rad^2/s^2"), w * w),
-        (Term("w3", "friction", "friction level rising with speed cubed",
-              f"abs({om}) ** 3", "rad^3/s^3"), aw**3),
-        (Term("sqrtw", "friction", "friction level rising with the square root of speed",
-              f"math.sqrt(abs({om}))", "(rad/s)^0.5"), np.sqrt(aw)),
+        (
+            Term(
+                "w2",
+                "friction",
+                "friction level rising with speed squared",
+                f"{om} * {om}",
+                "rad^2/s^2",
+            ),
+            w * w,
+        ),
+        (
+            Term(
+                "w3",
+                "friction",
+                "friction level rising with speed cubed",
+                f"abs({om}) ** 3",
+                "rad^3/s^3",
+            ),
+            aw**3,
+        ),
+        (
+            Term(
+                "sqrtw",
+                "friction",
+                "friction level rising with the square root of speed",
+                f"math.sqrt(abs({om}))",
+                "(rad/s)^0.5",
+            ),
+            np.sqrt(aw),
+        ),
     ]
     for wk in BUMP_WIDTHS:
         key = f"bump{wk:g}".replace(".", "p")
-        out.append((Term(key, "friction", f"Stribeck-like bump of width {wk:g} rad/s",
-                         f"math.exp(-({om} / {wk!r}) ** 2)", "1"),
-                    np.exp(-(w / wk) ** 2)))
-    out.append((Term("t", "friction", "friction level drifting in time", "t", "s"),
-                m.t.copy()))
+        out.append(
+            (
+                Term(
+                    key,
+                    "friction",
+                    f"Stribeck-like bump of width {wk:g} rad/s",
+                    f"math.exp(-({om} / {wk!r}) ** 2)",
+                    "1",
+                ),
+                np.exp(-((w / wk) ** 2)),
+            )
+        )
+    out.append((Term("t", "friction", "friction level drifting in time", "t", "s"), m.t.copy()))
     out.append((Term("load_t", "torque", "a load drifting in time", "t", "s"), m.t.copy()))
     if "angle_1" in f:
         a = f["angle_1"]
@@ -236,22 +301,56 @@ def library(m: TorqueMap) -> list[tuple[Term, np.ndarray]]:
             arg = th if h == 1 else f"2.0 * {th}"
             for fn in ("cos", "sin"):
                 val = getattr(np, fn)(h * a)
-                out.append((Term(f"{fn}{h}", "friction",
-                                 f"friction level varying as {fn}({'' if h == 1 else '2 '}"
-                                 f"{th})", f"math.{fn}({arg})", "1"), val))
-                out.append((Term(f"load_{fn}{h}", "torque",
-                                 f"a load varying as {fn}({'' if h == 1 else '2 '}{th})",
-                                 f"math.{fn}({arg})", "1"), val))
+                out.append(
+                    (
+                        Term(
+                            f"{fn}{h}",
+                            "friction",
+                            f"friction level varying as {fn}({'' if h == 1 else '2 '}{th})",
+                            f"math.{fn}({arg})",
+                            "1",
+                        ),
+                        val,
+                    )
+                )
+                out.append(
+                    (
+                        Term(
+                            f"load_{fn}{h}",
+                            "torque",
+                            f"a load varying as {fn}({'' if h == 1 else '2 '}{th})",
+                            f"math.{fn}({arg})",
+                            "1",
+                        ),
+                        val,
+                    )
+                )
     if "torsion" in f:
         al = f["torsion"]
         alpha = "(theta_l - theta_u + p[ALPHA0])"
-        out.append((Term("alpha2", "torque", "string torque in torsion squared",
-                         f"{alpha} ** 2", "rad^2"), al**2))
-        out.append((Term("alpha3", "torque", "string torque in torsion cubed",
-                         f"{alpha} ** 3", "rad^3"), al**3))
+        out.append(
+            (
+                Term(
+                    "alpha2", "torque", "string torque in torsion squared", f"{alpha} ** 2", "rad^2"
+                ),
+                al**2,
+            )
+        )
+        out.append(
+            (
+                Term(
+                    "alpha3", "torque", "string torque in torsion cubed", f"{alpha} ** 3", "rad^3"
+                ),
+                al**3,
+            )
+        )
     if d == "u":
-        out.append((Term("v3", "torque", "motor torque in voltage cubed", "v ** 3", "V^3"),
-                    f["input"] ** 3))
+        out.append(
+            (
+                Term("v3", "torque", "motor torque in voltage cubed", "v ** 3", "V^3"),
+                f["input"] ** 3,
+            )
+        )
     return out
 
 
@@ -307,8 +406,10 @@ def propose_disc(m: TorqueMap, *, seed: int = 0) -> DiscProposal:
     """The sparse regression of one disc's missing torque (see the module docstring)."""
     out = DiscProposal(m.disc, noise_rms=m.noise_rms)
     if not m.above_noise:
-        out.reason = (f"its missing torque is {m.rms_over_noise:.2g}x the map's noise, below "
-                      f"{NOISE_FACTOR:g}x")
+        out.reason = (
+            f"its missing torque is {m.rms_over_noise:.2g}x the map's noise, below "
+            f"{NOISE_FACTOR:g}x"
+        )
         return out
     dt = float(np.median(np.diff(m.t))) if m.t.size > 1 else 1.0
     dt = dt if dt > 0 else 1e-3
@@ -347,8 +448,10 @@ def propose_disc(m: TorqueMap, *, seed: int = 0) -> DiscProposal:
             break
         keep = keep[~weak]
     if not keep.size:
-        out.reason = ("no term was selected in at least "
-                      f"{KEEP:.0%} of the resamples (the regression explains little)")
+        out.reason = (
+            "no term was selected in at least "
+            f"{KEEP:.0%} of the resamples (the regression explains little)"
+        )
         return out
     fitted = X_full[:, keep] @ beta
     st = float(np.sum(y_full**2))
@@ -360,17 +463,20 @@ def propose_disc(m: TorqueMap, *, seed: int = 0) -> DiscProposal:
     z = np.abs(beta) / np.maximum(sd, 1e-300)
     if r2 < MIN_R2 or (z < MIN_Z).any():
         names = ", ".join(lib[j][0].key for j in keep)
-        out.reason = (f"the regression explains little: the {keep.size} term(s) it keeps "
-                      f"({names}) explain {100 * r2:.0f} % of the missing torque (RMS "
-                      f"{explained:.2g} N m), and {int(np.sum(z < MIN_Z))} of their "
-                      f"coefficients lie within {MIN_Z:g} bootstrap standard deviations of 0 "
-                      f"(a proposal needs {100 * MIN_R2:.0f} % and every coefficient beyond "
-                      f"{MIN_Z:g}); nothing written")
+        out.reason = (
+            f"the regression explains little: the {keep.size} term(s) it keeps "
+            f"({names}) explain {100 * r2:.0f} % of the missing torque (RMS "
+            f"{explained:.2g} N m), and {int(np.sum(z < MIN_Z))} of their "
+            f"coefficients lie within {MIN_Z:g} bootstrap standard deviations of 0 "
+            f"(a proposal needs {100 * MIN_R2:.0f} % and every coefficient beyond "
+            f"{MIN_Z:g}); nothing written"
+        )
         return out
     for j, c, e, part in zip(keep, beta, sd, parts, strict=True):
         term, g = lib[j]
-        out.kept.append(Kept(m.disc, term, float(freq[j]), float(c), float(e),
-                             float(g.mean()), float(part)))
+        out.kept.append(
+            Kept(m.disc, term, float(freq[j]), float(c), float(e), float(g.mean()), float(part))
+        )
     return out
 
 
@@ -386,13 +492,17 @@ def propose(maps, *, catalogue_near_floor: bool, seed: int = 0) -> Proposal:
         p.reason = "the catalogue brings the fit near the floor"
         return p
     if not any(m.above_noise for m in maps):
-        p.reason = ("no disc's missing torque is " f"{NOISE_FACTOR:g}x the map's noise "
-                    "(nothing beyond noise to explain)")
+        p.reason = (
+            "no disc's missing torque is "
+            f"{NOISE_FACTOR:g}x the map's noise "
+            "(nothing beyond noise to explain)"
+        )
         return p
     p.discs = [propose_disc(m, seed=seed) for m in maps]
     if not p.kept:
-        p.reason = "; ".join(f"{'upper' if d.disc == 'u' else 'lower'} disc: {d.reason}"
-                             for d in p.discs)
+        p.reason = "; ".join(
+            f"{'upper' if d.disc == 'u' else 'lower'} disc: {d.reason}" for d in p.discs
+        )
     p.seconds = time.perf_counter() - t0
     return p
 
@@ -411,20 +521,27 @@ def catalogue_near_floor(diagnosis, trials: dict | None) -> str:
         return "the model is adequate (the remaining error is noise)"
     if worst <= NEAR:
         return f"the fit is within {NEAR:g}x the floor ({worst:.3g}x)"
-    ends = [t.get("rms_over_floor") for t in (trials or {}).get("trials") or []
-            if not t.get("failed")]
+    ends = [
+        t.get("rms_over_floor") for t in (trials or {}).get("trials") or [] if not t.get("failed")
+    ]
     ends = [e for e in ends if isinstance(e, (int, float)) and math.isfinite(e)]
     if ends and min(ends) <= NEAR:
-        best = min((t for t in trials["trials"] if t.get("rms_over_floor") == min(ends)),
-                   key=lambda t: t["effect"])
-        return (f"the trial refit with {best['effect']} ends at {min(ends):.3g}x the floor "
-                f"(within {NEAR:g}x): add it first")
+        best = min(
+            (t for t in trials["trials"] if t.get("rms_over_floor") == min(ends)),
+            key=lambda t: t["effect"],
+        )
+        return (
+            f"the trial refit with {best['effect']} ends at {min(ends):.3g}x the floor "
+            f"(within {NEAR:g}x): add it first"
+        )
     if not trials and diagnosis.claimed:
         s = next((r for r in diagnosis.ranking if r.effect == diagnosis.claimed), None)
         pred = max((s.predicted_rms_ratio or {}).values(), default=math.inf) if s else math.inf
         if pred <= NEAR:
-            return (f"the score tests claim {diagnosis.claimed}, predicted to end at "
-                    f"{pred:.3g}x the floor: add it first")
+            return (
+                f"the score tests claim {diagnosis.claimed}, predicted to end at "
+                f"{pred:.3g}x the floor: add it first"
+            )
     return ""
 
 
@@ -446,8 +563,11 @@ def effect_source(p: Proposal, *, header: str = "") -> str:
     kept = p.kept
     if not kept:
         raise ValueError("nothing proposed: no effect file to write")
-    configs = ("coupled", "brake") if any(k.disc == "l" or k.term.key.startswith("alpha")
-                                          for k in kept) else ("upper", "coupled", "brake")
+    configs = (
+        ("coupled", "brake")
+        if any(k.disc == "l" or k.term.key.startswith("alpha") for k in kept)
+        else ("upper", "coupled", "brake")
+    )
 
     def body(kind: str) -> list[str]:
         lines = []
@@ -456,8 +576,10 @@ def effect_source(p: Proposal, *, header: str = "") -> str:
             for i, k in enumerate(kept):
                 if k.disc == disc and k.term.kind == kind:
                     acc.append(f"q[{i}] * ({k.term.expr} - {k.centre!r})")
-            lines.append(f"    {'upper' if disc == 'u' else 'lower'} = "
-                         + (" + ".join(acc) if acc else "0.0"))
+            lines.append(
+                f"    {'upper' if disc == 'u' else 'lower'} = "
+                + (" + ".join(acc) if acc else "0.0")
+            )
         lines.append("    return upper, lower")
         return lines
 
@@ -465,25 +587,47 @@ def effect_source(p: Proposal, *, header: str = "") -> str:
     params = []
     for k in kept:
         lo, hi = _bounds(k)
-        params.append(f"        Parameter({k.name!r}, {k.unit!r}, {lo!r}, {hi!r}, 0.0,\n"
-                      f"                  {k.term.words!r}, start={k.value!r}),")
+        params.append(
+            f"        Parameter({k.name!r}, {k.unit!r}, {lo!r}, {hi!r}, 0.0,\n"
+            f"                  {k.term.words!r}, start={k.value!r}),"
+        )
     words = "; ".join(f"{'upper' if k.disc == 'u' else 'lower'}: {k.term.words}" for k in kept)
-    src = [f'"""{header.strip()}\n"""' if header else '"""A proposed missing term."""', "",
-           "import math", "", "from rotorbayes import Effect, Parameter",
-           "from rotorbayes.kernel.layout import ALPHA0  # noqa: F401 (torsion terms)", ""]
+    src = [
+        f'"""{header.strip()}\n"""' if header else '"""A proposed missing term."""',
+        "",
+        "import math",
+        "",
+        "from rotorbayes import Effect, Parameter",
+        "from rotorbayes.kernel.layout import ALPHA0  # noqa: F401 (torsion terms)",
+        "",
+    ]
     if has["friction"]:
-        src += ["", "def proposed_friction_shift(t, theta_u, omega_u, theta_l, omega_l, v, p, q):",
-                '    """Shift of each disc\'s friction levels [N m] (Coulomb and static)."""',
-                *body("friction"), ""]
+        src += [
+            "",
+            "def proposed_friction_shift(t, theta_u, omega_u, theta_l, omega_l, v, p, q):",
+            '    """Shift of each disc\'s friction levels [N m] (Coulomb and static)."""',
+            *body("friction"),
+            "",
+        ]
     if has["torque"]:
-        src += ["", "def proposed_torque(t, theta_u, omega_u, theta_l, omega_l, v, p, q):",
-                '    """Extra torque on each disc [N m], alike in both directions."""',
-                *body("torque"), ""]
-    src += ["", f"{p.effect} = Effect(", f"    name={p.effect!r},",
-            f"    physics={('proposed by rotorbayes diagnose: ' + words)!r},",
-            "    parameters=(", *params, "    ),",
-            "    signature='the missing-torque map of the fit this was proposed from',",
-            f"    configs={configs!r},"]
+        src += [
+            "",
+            "def proposed_torque(t, theta_u, omega_u, theta_l, omega_l, v, p, q):",
+            '    """Extra torque on each disc [N m], alike in both directions."""',
+            *body("torque"),
+            "",
+        ]
+    src += [
+        "",
+        f"{p.effect} = Effect(",
+        f"    name={p.effect!r},",
+        f"    physics={('proposed by rotorbayes diagnose: ' + words)!r},",
+        "    parameters=(",
+        *params,
+        "    ),",
+        "    signature='the missing-torque map of the fit this was proposed from',",
+        f"    configs={configs!r},",
+    ]
     if has["friction"]:
         src.append("    friction_shift=proposed_friction_shift,")
     if has["torque"]:
@@ -494,21 +638,31 @@ def effect_source(p: Proposal, *, header: str = "") -> str:
 
 def header_text(p: Proposal, command: str) -> str:
     """The effect file's docstring: what was kept, how often, and the refit command."""
-    lines = ["A missing term proposed by `rotorbayes diagnose` (a sparse regression of the",
-             "missing torque; edit it as you like, it is your effect file now).", ""]
+    lines = [
+        "A missing term proposed by `rotorbayes diagnose` (a sparse regression of the",
+        "missing torque; edit it as you like, it is your effect file now).",
+        "",
+    ]
     for d in p.discs:
         disc = "upper" if d.disc == "u" else "lower"
         if d.kept:
-            lines.append(f"{disc} disc: the kept terms explain {100 * d.r2:.0f} % of its "
-                         "missing torque")
+            lines.append(
+                f"{disc} disc: the kept terms explain {100 * d.r2:.0f} % of its missing torque"
+            )
             for k in d.kept:
-                lines.append(f"  {k.name}: {k.term.words}, {k.value:.4g} +- {k.std:.2g} "
-                             f"{k.unit}, kept in {k.frequency:.0%} of {RESAMPLES} resamples")
+                lines.append(
+                    f"  {k.name}: {k.term.words}, {k.value:.4g} +- {k.std:.2g} "
+                    f"{k.unit}, kept in {k.frequency:.0%} of {RESAMPLES} resamples"
+                )
         else:
             lines.append(f"{disc} disc: nothing ({d.reason})")
-    lines += ["", "Each term enters centred on its mean over the estimation data (the constant",
-              "is a friction level the refit re-estimates).  Refit it with:", "",
-              f"    {command}"]
+    lines += [
+        "",
+        "Each term enters centred on its mean over the estimation data (the constant",
+        "is a friction level the refit re-estimates).  Refit it with:",
+        "",
+        f"    {command}",
+    ]
     return "\n".join(lines)
 
 

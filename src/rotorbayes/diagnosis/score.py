@@ -172,7 +172,10 @@ def _stat(S_blocks: np.ndarray, one_sided_up: bool | None):
 
 
 def robust_standard_errors(
-    Jf: np.ndarray, r: np.ndarray, blocks: np.ndarray, names: Sequence[str],
+    Jf: np.ndarray,
+    r: np.ndarray,
+    blocks: np.ndarray,
+    names: Sequence[str],
     noise_ssr: float | None = None,
 ) -> dict[str, float]:
     """Autocorrelation-robust standard errors of the free parameters at a fit.
@@ -241,10 +244,8 @@ def score_tests(
     ssr = float(r @ r)
     if context is not None:
         n_per = {c: sum(ex.n for ex in problem.experiments) for c in problem.channels}
-        noise_ssr = sum(n_per[c] * (problem.weights[c] * floor[c]) ** 2
-                        for c in problem.channels)
-        context["robust_se"] = robust_standard_errors(Jf, r, blocks, problem.names,
-                                                      noise_ssr)
+        noise_ssr = sum(n_per[c] * (problem.weights[c] * floor[c]) ** 2 for c in problem.channels)
+        context["robust_se"] = robust_standard_errors(Jf, r, blocks, problem.names, noise_ssr)
     floor = floor or {c: quantisation_floor(c) for c in problem.channels}
     rng = np.random.default_rng(seed)
     cands = list(effects) if effects is not None else candidates(problem)
@@ -260,7 +261,8 @@ def score_tests(
         # A switch whose response is not differentiable at its null (a dead zone: nothing
         # happens while |u| < width) is probed by a secant over a fifth of its typical size.
         secant = {
-            p.name: 0.2 * p.start for p in e.switches
+            p.name: 0.2 * p.start
+            for p in e.switches
             if p.name == "u_deadzone" and math.isfinite(p.start)
         }
         nuis = [p for p in e.parameters if p.nuisance]
@@ -268,9 +270,16 @@ def score_tests(
             grids = [
                 dict(zip([p.name for p in nuis], vals, strict=True))
                 for vals in itertools.product(
-                    *[WS_GRID if p.name == "ws_l" else DELTA_GRID if p.name == "delta_l"
-                      else _user_grid(p) if e.name in extra
-                      else (p.start,) for p in nuis]
+                    *[
+                        WS_GRID
+                        if p.name == "ws_l"
+                        else DELTA_GRID
+                        if p.name == "delta_l"
+                        else _user_grid(p)
+                        if e.name in extra
+                        else (p.start,)
+                        for p in nuis
+                    ]
                 )
             ]
         else:
@@ -356,8 +365,12 @@ def score_tests(
         # Ties (alike effects give the same p and SSR to rounding) fall back to the
         # catalogue's order, so the ranking does not depend on the last digits.
         idx = order.index(s.effect) if s.effect in order else len(order)
-        return (s.equivalent_to_free, float(f"{s.p_adjusted:.3g}"),
-                float(f"{s.predicted_ssr - ssr:.3g}"), idx)
+        return (
+            s.equivalent_to_free,
+            float(f"{s.p_adjusted:.3g}"),
+            float(f"{s.predicted_ssr - ssr:.3g}"),
+            idx,
+        )
 
     out.sort(key=key)
     return out

@@ -47,30 +47,52 @@ from ..model.friction import friction_curve
 
 #: Words for a dependence: (what varies, what usually causes it).
 WORDS = {
-    "velocity": ("varies with its speed", "a friction law unlike the model's (viscous "
-                 "or Stribeck part, or their asymmetry)"),
-    "direction": ("depends on the direction of rotation", "friction that differs between "
-                  "the two directions (asymmetric Coulomb or viscous friction)"),
-    "angle_1": ("varies with its angle, once per revolution", "friction or load varying "
-                "with angle (an eccentric or uneven bearing or brake surface)"),
-    "angle_2": ("varies with its angle, twice per revolution", "friction or load varying "
-                "with angle (an oval or misaligned contact)"),
-    "torsion": ("varies with the string's torsion", "a string stiffness that is not "
-                "linear, or damping in the string (a fit without it bends the stiffness "
-                "to take part of it)"),
-    "torsion_rate": ("varies with the rate of the string's twist", "damping in the string "
-                     "(string_damping)"),
-    "input": ("varies with the input voltage", "a motor constant, offset or dead zone "
-              "unlike the model's"),
-    "input_rate": ("follows changes of the input", "a delay or dynamics between the "
-                   "command and the motor torque"),
-    "input_history": ("follows the input's recent history (the input low-pass filtered "
-                      "over 10-200 ms, against the input itself)",
-                      "a lag between the command and the motor torque (the amplifier's "
-                      "and the motor's electrical dynamics), not a pure delay"),
-    "time": ("drifts with time within the run", "slow changes: a friction level that "
-             "warms up or wears (it changes sign with the motion), or a drifting load or "
-             "sensor"),
+    "velocity": (
+        "varies with its speed",
+        "a friction law unlike the model's (viscous or Stribeck part, or their asymmetry)",
+    ),
+    "direction": (
+        "depends on the direction of rotation",
+        "friction that differs between the two directions (asymmetric Coulomb or viscous friction)",
+    ),
+    "angle_1": (
+        "varies with its angle, once per revolution",
+        "friction or load varying with angle (an eccentric or uneven bearing or brake surface)",
+    ),
+    "angle_2": (
+        "varies with its angle, twice per revolution",
+        "friction or load varying with angle (an oval or misaligned contact)",
+    ),
+    "torsion": (
+        "varies with the string's torsion",
+        "a string stiffness that is not "
+        "linear, or damping in the string (a fit without it bends the stiffness "
+        "to take part of it)",
+    ),
+    "torsion_rate": (
+        "varies with the rate of the string's twist",
+        "damping in the string (string_damping)",
+    ),
+    "input": (
+        "varies with the input voltage",
+        "a motor constant, offset or dead zone unlike the model's",
+    ),
+    "input_rate": (
+        "follows changes of the input",
+        "a delay or dynamics between the command and the motor torque",
+    ),
+    "input_history": (
+        "follows the input's recent history (the input low-pass filtered "
+        "over 10-200 ms, against the input itself)",
+        "a lag between the command and the motor torque (the amplifier's "
+        "and the motor's electrical dynamics), not a pure delay",
+    ),
+    "time": (
+        "drifts with time within the run",
+        "slow changes: a friction level that "
+        "warms up or wears (it changes sign with the motion), or a drifting load or "
+        "sensor",
+    ),
 }
 
 #: Time constants [s] of the low-pass filtered inputs the map's input-history variable
@@ -79,12 +101,18 @@ WORDS = {
 HISTORY_TAUS = (0.01, 0.04, 0.16)
 
 #: Short names of the variables, for a list.
-SHORT = {"velocity": "its speed", "direction": "the direction of rotation",
-         "angle_1": "its angle (once per revolution)",
-         "angle_2": "its angle (twice per revolution)", "torsion": "the string's torsion",
-         "torsion_rate": "the twist rate",
-         "input": "the input voltage", "input_rate": "the input's rate",
-         "input_history": "the input's recent history", "time": "time"}
+SHORT = {
+    "velocity": "its speed",
+    "direction": "the direction of rotation",
+    "angle_1": "its angle (once per revolution)",
+    "angle_2": "its angle (twice per revolution)",
+    "torsion": "the string's torsion",
+    "torsion_rate": "the twist rate",
+    "input": "the input voltage",
+    "input_rate": "the input's rate",
+    "input_history": "the input's recent history",
+    "time": "time",
+}
 
 #: The catalogue's version of each dependence's usual cause: per disc, the effects whose
 #: score tests test what :data:`WORDS` names, and what else the dependence can be when
@@ -92,27 +120,41 @@ SHORT = {"velocity": "its speed", "direction": "the direction of rotation",
 #: produces them).  :func:`rotorbayes.diagnosis.diagnose.map_agreement` is the one place
 #: that weighs a map's words against these tests.
 TESTED_BY: dict[str, tuple[dict[str, tuple[str, ...]], str]] = {
-    "velocity": ({"l": ("lower_stribeck", "lower_asymmetric_viscous",
-                        "lower_asymmetric_coulomb"),
-                  "u": ("upper_stribeck", "upper_asymmetric_viscous",
-                        "upper_asymmetric_coulomb")},
-                 "a friction law of another shape than the catalogue's"),
-    "direction": ({"l": ("lower_asymmetric_coulomb", "lower_asymmetric_viscous"),
-                   "u": ("upper_asymmetric_coulomb", "upper_asymmetric_viscous")},
-                  "another torque that changes sign with the motion"),
-    "torsion": ({"l": ("string_damping",), "u": ("string_damping",)},
-                "a string stiffness that is not linear (not in the catalogue)"),
-    "torsion_rate": ({"l": ("string_damping",), "u": ("string_damping",)},
-                     "damping of another form than the catalogue's"),
-    "input": ({"l": ("voltage_offset", "motor_deadzone"),
-               "u": ("voltage_offset", "motor_deadzone")},
-              "a motor nonlinearity the catalogue does not hold"),
-    "input_rate": ({"l": ("input_delay", "drive_lag"), "u": ("input_delay", "drive_lag")},
-                   "dynamics between the command and the motor torque other than a pure "
-                   "delay or a first-order lag (not in the catalogue)"),
-    "input_history": ({"l": ("drive_lag", "input_delay"), "u": ("drive_lag", "input_delay")},
-                      "drive dynamics of higher order than the catalogue's first-order "
-                      "lag"),
+    "velocity": (
+        {
+            "l": ("lower_stribeck", "lower_asymmetric_viscous", "lower_asymmetric_coulomb"),
+            "u": ("upper_stribeck", "upper_asymmetric_viscous", "upper_asymmetric_coulomb"),
+        },
+        "a friction law of another shape than the catalogue's",
+    ),
+    "direction": (
+        {
+            "l": ("lower_asymmetric_coulomb", "lower_asymmetric_viscous"),
+            "u": ("upper_asymmetric_coulomb", "upper_asymmetric_viscous"),
+        },
+        "another torque that changes sign with the motion",
+    ),
+    "torsion": (
+        {"l": ("string_damping",), "u": ("string_damping",)},
+        "a string stiffness that is not linear (not in the catalogue)",
+    ),
+    "torsion_rate": (
+        {"l": ("string_damping",), "u": ("string_damping",)},
+        "damping of another form than the catalogue's",
+    ),
+    "input": (
+        {"l": ("voltage_offset", "motor_deadzone"), "u": ("voltage_offset", "motor_deadzone")},
+        "a motor nonlinearity the catalogue does not hold",
+    ),
+    "input_rate": (
+        {"l": ("input_delay", "drive_lag"), "u": ("input_delay", "drive_lag")},
+        "dynamics between the command and the motor torque other than a pure "
+        "delay or a first-order lag (not in the catalogue)",
+    ),
+    "input_history": (
+        {"l": ("drive_lag", "input_delay"), "u": ("drive_lag", "input_delay")},
+        "drive dynamics of higher order than the catalogue's first-order lag",
+    ),
 }
 
 #: A map whose RMS is at most this many times its noise shows no missing torque.  The
@@ -188,9 +230,13 @@ class TorqueMap:
             return []
         # Another variable is as good if its R² is within DISTINCT_R2 of the best one's and
         # it leaves less than DISTINCT_RATIO times the best one's unexplained part.
-        return [(k, v) for k, v in self.ranking if v >= s[1] - DISTINCT_R2
-                and (1 - v) < DISTINCT_RATIO * max(1 - s[1], 1e-12)
-                and (k == s[0] or self.shared.get(k, 1.0) >= SHARED)]
+        return [
+            (k, v)
+            for k, v in self.ranking
+            if v >= s[1] - DISTINCT_R2
+            and (1 - v) < DISTINCT_RATIO * max(1 - s[1], 1e-12)
+            and (k == s[0] or self.shared.get(k, 1.0) >= SHARED)
+        ]
 
     def bar(self, variable: str) -> float:
         """The explained RMS [N m] a dependence on ``variable`` must reach to be named:
@@ -203,14 +249,19 @@ class TorqueMap:
     def supports_words(self) -> bool:
         """The map supports naming one dependence (above noise, clear, distinct)."""
         s = self.strongest
-        return bool(s is not None and self.above_noise and s[1] >= MIN_R2
-                    and math.sqrt(max(s[1], 0.0)) * self.rms >= self.bar(s[0])
-                    and len(self.together) == 1)
+        return bool(
+            s is not None
+            and self.above_noise
+            and s[1] >= MIN_R2
+            and math.sqrt(max(s[1], 0.0)) * self.rms >= self.bar(s[0])
+            and len(self.together) == 1
+        )
 
     def variables(self) -> str:
         """The map's candidate variables in words: "its speed, ... or time"."""
-        keys = [k for k in SHORT if k in self.features] or \
-            [k for k in SHORT if k in dict(self.ranking)]
+        keys = [k for k in SHORT if k in self.features] or [
+            k for k in SHORT if k in dict(self.ranking)
+        ]
         names = []
         for k in keys:
             name = "its angle within a revolution" if k.startswith("angle_") else SHORT[k]
@@ -225,44 +276,70 @@ class TorqueMap:
         noise = f"the map's noise {self.noise_rms:.2g} N m"
         ratio = _times(self.rms_over_noise, WITHIN_NOISE)
         if not self.exceeds_noise:
-            return (f"the {disc} disc's map shows no missing torque beyond its noise (RMS "
-                    f"{self.rms:.2g} N m, {ratio}x {noise}: within it)")
-        head = (f"the {disc} disc lacks a torque {ratio}x the map's noise (RMS "
-                f"{self.rms:.2g} N m, {noise})")
+            return (
+                f"the {disc} disc's map shows no missing torque beyond its noise (RMS "
+                f"{self.rms:.2g} N m, {ratio}x {noise}: within it)"
+            )
+        head = (
+            f"the {disc} disc lacks a torque {ratio}x the map's noise (RMS "
+            f"{self.rms:.2g} N m, {noise})"
+        )
         s = self.strongest
         if s is None or s[1] < MIN_R2:
             best = f"; the best, {SHORT[s[0]]}, at {s[1]:.2f}" if s is not None else ""
-            return (f"{head} that none of {self.variables()} explains (no clear dependence: "
-                    f"no adjusted R² reaches {MIN_R2:g}{best}): a torque these variables do "
-                    "not describe, or several missing torques at once")
+            return (
+                f"{head} that none of {self.variables()} explains (no clear dependence: "
+                f"no adjusted R² reaches {MIN_R2:g}{best}): a torque these variables do "
+                "not describe, or several missing torques at once"
+            )
         explained = math.sqrt(max(s[1], 0.0)) * self.rms
         if explained < self.bar(s[0]):
             # The best candidate is worth a look, but its part is not clearly above what
             # noise alone would explain: say so, as a hint (no claim).
             best = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
-            what = ("the map's noise" if s[0] not in self.null else
-                    "what rounding noise alone seems to explain")
-            return (f"{head}; the best candidate, {best}, explains {explained:.2g} N m of "
-                    f"it, below {NOISE_FACTOR:g}x {what}: a hint to look at in "
-                    "missing_torque.png, not a finding")
+            what = (
+                "the map's noise"
+                if s[0] not in self.null
+                else "what rounding noise alone seems to explain"
+            )
+            return (
+                f"{head}; the best candidate, {best}, explains {explained:.2g} N m of "
+                f"it, below {NOISE_FACTOR:g}x {what}: a hint to look at in "
+                "missing_torque.png, not a finding"
+            )
         if not self.above_noise:
             best = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
-            return (f"{head}; the best candidate, {best}, explains {explained:.2g} N m of "
-                    f"it, but the torque is below {NOISE_FACTOR:g}x the map's noise, the bar "
-                    "for naming what it depends on: a hint to look at in missing_torque.png, "
-                    "not a finding")
+            return (
+                f"{head}; the best candidate, {best}, explains {explained:.2g} N m of "
+                f"it, but the torque is below {NOISE_FACTOR:g}x the map's noise, the bar "
+                "for naming what it depends on: a hint to look at in missing_torque.png, "
+                "not a finding"
+            )
         if len(self.together) > 1:
             names = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
-            return (f"{head} that varies with several variables alike: {names}; they move "
-                    "together in these data, so the map cannot tell which")
+            return (
+                f"{head} that varies with several variables alike: {names}; they move "
+                "together in these data, so the map cannot tell which"
+            )
         what, cause = WORDS[s[0]]
-        also = [k for k, v in self.ranking[1:] if v >= MIN_R2 and k not in dict(self.together)
-                and self.shared.get(k, 1.0) < SHARED
-                and math.sqrt(v) * self.rms >= self.bar(k)]
-        more = (f"; apart from it, also with {', '.join(SHORT[k] for k in also)} (each "
-                "explains a part of its own)" if also else "")
-        return (f"{head} that {what} (explains {100 * s[1]:.0f} % of it): {cause}"
-                f"{self._angle_words(s[0])}{more}")
+        also = [
+            k
+            for k, v in self.ranking[1:]
+            if v >= MIN_R2
+            and k not in dict(self.together)
+            and self.shared.get(k, 1.0) < SHARED
+            and math.sqrt(v) * self.rms >= self.bar(k)
+        ]
+        more = (
+            f"; apart from it, also with {', '.join(SHORT[k] for k in also)} (each "
+            "explains a part of its own)"
+            if also
+            else ""
+        )
+        return (
+            f"{head} that {what} (explains {100 * s[1]:.0f} % of it): {cause}"
+            f"{self._angle_words(s[0])}{more}"
+        )
 
     def angle_terms(self, variable: str) -> dict | None:
         """For a dependence on angle (``angle_1``, ``angle_2``): the two parts the map's
@@ -284,11 +361,16 @@ class TorqueMap:
         h = int(variable[-1])
         out = {}
         # columns: 1, s, sin, cos, s sin, s cos
-        for name, (a, b, sign) in (("load", (beta[2], beta[3], 1.0)),
-                                   ("friction", (beta[4], beta[5], -1.0))):
+        for name, (a, b, sign) in (
+            ("load", (beta[2], beta[3], 1.0)),
+            ("friction", (beta[4], beta[5], -1.0)),
+        ):
             a, b = sign * a, sign * b
-            out[name] = {"amplitude": float(math.hypot(a, b)),
-                         "phase": float(math.atan2(a, b) / h), "harmonic": h}
+            out[name] = {
+                "amplitude": float(math.hypot(a, b)),
+                "phase": float(math.atan2(a, b) / h),
+                "harmonic": h,
+            }
         return out
 
     def _angle_words(self, variable: str) -> str:
@@ -300,26 +382,44 @@ class TorqueMap:
         h = f["harmonic"]
         arg = f"{th} - " if h == 1 else f"{h}*({th} - "
         close = "" if h == 1 else ")"
-        main, other = (("friction", f), ("load", ld)) if f["amplitude"] >= ld["amplitude"] \
+        main, other = (
+            (("friction", f), ("load", ld))
+            if f["amplitude"] >= ld["amplitude"]
             else (("load", ld), ("friction", f))
-        what = {"friction": "extra friction against the motion",
-                "load": "a torque alike in both directions (a load)"}
-        return (f"; its form: mostly {what[main[0]]}, {main[1]['amplitude']:.2g}*cos({arg}"
-                f"{main[1]['phase']:.3g}{close}) N m, beside {other[0]} of amplitude "
-                f"{other[1]['amplitude']:.2g} N m (a start for your own effect, "
-                "docs/effects.md)")
+        )
+        what = {
+            "friction": "extra friction against the motion",
+            "load": "a torque alike in both directions (a load)",
+        }
+        return (
+            f"; its form: mostly {what[main[0]]}, {main[1]['amplitude']:.2g}*cos({arg}"
+            f"{main[1]['phase']:.3g}{close}) N m, beside {other[0]} of amplitude "
+            f"{other[1]['amplitude']:.2g} N m (a start for your own effect, "
+            "docs/effects.md)"
+        )
 
     def as_dict(self) -> dict:
         terms = {k: self.angle_terms(k) for k, _ in self.ranking if k.startswith("angle_")}
-        return {"disc": self.disc, "rms_N_m": self.rms, "noise_rms_N_m": self.noise_rms,
-                "rms_over_noise": self.rms_over_noise, "exceeds_noise": self.exceeds_noise,
-                "angle_terms": {k: v for k, v in terms.items() if v},
-                "above_noise": self.above_noise, "supports_words": self.supports_words,
-                "ranking": [{"variable": k, "adjusted_r2": v,
-                             "noise_explains_N_m": self.null.get(k),
-                             "shared_with_strongest": self.shared.get(k)}
-                            for k, v in self.ranking],
-                "words": self.words()}
+        return {
+            "disc": self.disc,
+            "rms_N_m": self.rms,
+            "noise_rms_N_m": self.noise_rms,
+            "rms_over_noise": self.rms_over_noise,
+            "exceeds_noise": self.exceeds_noise,
+            "angle_terms": {k: v for k, v in terms.items() if v},
+            "above_noise": self.above_noise,
+            "supports_words": self.supports_words,
+            "ranking": [
+                {
+                    "variable": k,
+                    "adjusted_r2": v,
+                    "noise_explains_N_m": self.null.get(k),
+                    "shared_with_strongest": self.shared.get(k),
+                }
+                for k, v in self.ranking
+            ],
+            "words": self.words(),
+        }
 
 
 def apart(a: float, b: float, digits: int = 3) -> tuple[str, str]:
@@ -372,8 +472,9 @@ def _design(k: str, feats: dict[str, np.ndarray]) -> np.ndarray | None:
         # varying with angle acts against the motion: both columns, with the sign.
         h = int(k[-1])
         s = feats["direction"]
-        return np.column_stack([one, s, np.sin(h * v), np.cos(h * v), s * np.sin(h * v),
-                                s * np.cos(h * v)])
+        return np.column_stack(
+            [one, s, np.sin(h * v), np.cos(h * v), s * np.sin(h * v), s * np.cos(h * v)]
+        )
     if k == "time":
         # A drift is a trend, not any function of time (which would explain everything):
         # of a load (the same in both directions) or of a friction level (against the
@@ -399,8 +500,9 @@ def _rank(M: np.ndarray, feats: dict[str, np.ndarray]) -> list[tuple[str, float]
     return sorted([o for o in out if math.isfinite(o[1])], key=lambda kv: -kv[1])
 
 
-def _null_and_shared(M: np.ndarray, R: np.ndarray, feats: dict[str, np.ndarray],
-                     ranking: list[tuple[str, float]]) -> tuple[dict, dict]:
+def _null_and_shared(
+    M: np.ndarray, R: np.ndarray, feats: dict[str, np.ndarray], ranking: list[tuple[str, float]]
+) -> tuple[dict, dict]:
     """What rounding noise alone seems to explain per variable, and how much of each
     variable's R² the strongest one already holds (see :class:`TorqueMap`).
 
@@ -426,8 +528,14 @@ def _null_and_shared(M: np.ndarray, R: np.ndarray, feats: dict[str, np.ndarray],
     return null, shared
 
 
-def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
-                   seed: int = 0, floors: dict | None = None) -> list[TorqueMap]:
+def missing_torque(
+    problem: Problem,
+    x: np.ndarray,
+    *,
+    window: float = 0.1,
+    seed: int = 0,
+    floors: dict | None = None,
+) -> list[TorqueMap]:
     """The missing-torque maps of the discs the problem models (lower, then upper).
 
     The map of each disc is the data's balance minus that of the fit's own simulation
@@ -452,15 +560,21 @@ def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
         sim_thl = sim.theta_l if ex.theta_l is not None else None
 
         def rounded(theta, channel, counts):
-            extra = math.sqrt(max(floors.get(channel, 0.0) ** 2
-                                  - quantisation_floor(channel) ** 2, 0.0))
+            extra = math.sqrt(
+                max(floors.get(channel, 0.0) ** 2 - quantisation_floor(channel) ** 2, 0.0)
+            )
             th = theta + extra * rng.standard_normal(theta.size) if extra > 0 else theta
             return quantize(th, counts)
 
         data = _balance(problem, ex, p, ex.theta_u, ex.theta_l, window)
-        model_q = _balance(problem, ex, p, rounded(sim.theta_u, "theta_u", UPPER_COUNTS_PER_REV),
-                           None if sim_thl is None else
-                           rounded(sim_thl, "theta_l", LOWER_COUNTS_PER_REV), window)
+        model_q = _balance(
+            problem,
+            ex,
+            p,
+            rounded(sim.theta_u, "theta_u", UPPER_COUNTS_PER_REV),
+            None if sim_thl is None else rounded(sim_thl, "theta_l", LOWER_COUNTS_PER_REV),
+            window,
+        )
         model_x = _balance(problem, ex, p, sim.theta_u, sim_thl, window)
         for disc in ("l", "u"):
             if disc not in data:
@@ -468,8 +582,9 @@ def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
             t, M, feats, sel = data[disc]
             Mq = model_q[disc][1]
             Mx = model_x[disc][1]
-            maps[disc].append((t[sel], (M - Mq)[sel], {k: v[sel] for k, v in feats.items()},
-                               (Mq - Mx)[sel]))
+            maps[disc].append(
+                (t[sel], (M - Mq)[sel], {k: v[sel] for k, v in feats.items()}, (Mq - Mx)[sel])
+            )
     out = []
     for disc in ("l", "u"):
         parts = maps[disc]
@@ -484,8 +599,9 @@ def missing_torque(problem: Problem, x: np.ndarray, *, window: float = 0.1,
         noise = float(np.sqrt(np.mean(R**2)))
         ranking = _rank(M, F)
         null, shared = _null_and_shared(M, R, F, ranking)
-        out.append(TorqueMap(disc, T, M, F, ranking, float(np.sqrt(np.mean(M**2))), noise,
-                             null, shared))
+        out.append(
+            TorqueMap(disc, T, M, F, ranking, float(np.sqrt(np.mean(M**2))), noise, null, shared)
+        )
     return out
 
 
@@ -543,8 +659,13 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             pl = {**pl, "Tc_l": 0.0, "dTc_l": 0.0, "Ts_l": 0.0}
         fl = np.nan_to_num(friction_curve(wl, pl, "l", shape=problem.shape))
         Ml = p["J_l"] * al + fl + np.sign(wl) * shift_l + string - extra_l
-        feats = {"velocity": wl, "direction": np.sign(wl), "torsion": alpha,
-                 "torsion_rate": dalpha, **common}
+        feats = {
+            "velocity": wl,
+            "direction": np.sign(wl),
+            "torsion": alpha,
+            "torsion_rate": dalpha,
+            **common,
+        }
         if np.ptp(thl) >= MIN_TURNS * 2 * np.pi:
             feats.update(angle_1=np.mod(thl, 2 * np.pi), angle_2=np.mod(thl, 2 * np.pi))
         out["l"] = (t, Ml, feats, slip_mask(wl, n, 0.02))
@@ -590,5 +711,4 @@ def _voltage(u: np.ndarray, t: np.ndarray, p: dict) -> np.ndarray:
 
     pv = np.array([float(p.get(n, 0.0) or 0.0) for n in NAMES])
     dt = float(t[1] - t[0]) if t.size > 1 else 1.0
-    return voltage_at(np.arange(t.size) * dt, np.ascontiguousarray(u, float), pv, dt,
-                      CFG_COUPLED)
+    return voltage_at(np.arange(t.size) * dt, np.ascontiguousarray(u, float), pv, dt, CFG_COUPLED)

@@ -50,12 +50,18 @@ class Trial:
     result: object = field(default=None, repr=False)  # the refit (a FitResult)
 
     def as_dict(self) -> dict:
-        return {"effect": self.effect,
-                "rms_over_floor": self.ratio if math.isfinite(self.ratio) else None,
-                "values": self.values, "on_bound": self.on_bound, "start": self.chose,
-                "starts_disagreed": self.disagreed, "failed": self.failed or None,
-                "validation_rms_over_floor": (self.validation if math.isfinite(
-                    self.validation) else None)}
+        return {
+            "effect": self.effect,
+            "rms_over_floor": self.ratio if math.isfinite(self.ratio) else None,
+            "values": self.values,
+            "on_bound": self.on_bound,
+            "start": self.chose,
+            "starts_disagreed": self.disagreed,
+            "failed": self.failed or None,
+            "validation_rms_over_floor": (
+                self.validation if math.isfinite(self.validation) else None
+            ),
+        }
 
 
 def _on_bound(prob: Problem, x: np.ndarray, names: Sequence[str]) -> list[str]:
@@ -63,15 +69,20 @@ def _on_bound(prob: Problem, x: np.ndarray, names: Sequence[str]) -> list[str]:
     for n in names:
         j = prob.names.index(n)
         width = prob.upper[j] - prob.lower[j]
-        if math.isfinite(width) and min(x[j] - prob.lower[j], prob.upper[j] - x[j]) \
-                <= 1e-3 * width:
+        if math.isfinite(width) and min(x[j] - prob.lower[j], prob.upper[j] - x[j]) <= 1e-3 * width:
             out.append(n)
     return out
 
 
-def trial_refits(problem: Problem, x: np.ndarray, effects: Sequence[str],
-                 starts: Mapping[str, Mapping[str, float]] | None = None, *,
-                 verbose: bool = False, **fit_kw) -> list[Trial]:
+def trial_refits(
+    problem: Problem,
+    x: np.ndarray,
+    effects: Sequence[str],
+    starts: Mapping[str, Mapping[str, float]] | None = None,
+    *,
+    verbose: bool = False,
+    **fit_kw,
+) -> list[Trial]:
     """Refit ``problem`` at ``x`` once per effect in ``effects`` (catalogue names), each
     with its parameters searched from several starts (``starts[effect]``: the diagnosis's
     one-step estimates and nuisance grid point), every other parameter from ``x``.  Returns
@@ -87,26 +98,42 @@ def trial_refits(problem: Problem, x: np.ndarray, effects: Sequence[str],
         t0 = time.perf_counter()
         e = _effects.resolve([name])[0]
         try:
-            pe = problem.like(model=problem.model.with_effects([name]),
-                              free=[*problem.names_base(), *[p for p in e.names
-                                                              if p not in problem.names_base()]])
+            pe = problem.like(
+                model=problem.model.with_effects([name]),
+                free=[
+                    *problem.names_base(),
+                    *[p for p in e.names if p not in problem.names_base()],
+                ],
+            )
             x0 = pe.start_vector({**pe.base, **vals})
-            diag = {n: v for n, v in (starts or {}).get(e.name, {}).items()
-                    if n in pe.names and math.isfinite(v)}
+            diag = {
+                n: v
+                for n, v in (starts or {}).get(e.name, {}).items()
+                if n in pe.names and math.isfinite(v)
+            }
             r = refit_added(pe, x0, diag, [e.name], verbose=False, **fit_kw)
         except Exception as exc:  # noqa: BLE001 - a trial that cannot run is reported as such
             out.append(Trial(name, math.inf, failed=str(exc)))
             continue
         searched = added_names(pe, [e.name])
         xr = r.result.x
-        t = Trial(name, r.starts[r.kept].ratio,
-                  {n: float(xr[pe.names.index(n)]) for n in searched},
-                  _on_bound(pe, xr, searched), r.chose, r.disagreed(), result=r.result)
+        t = Trial(
+            name,
+            r.starts[r.kept].ratio,
+            {n: float(xr[pe.names.index(n)]) for n in searched},
+            _on_bound(pe, xr, searched),
+            r.chose,
+            r.disagreed(),
+            result=r.result,
+        )
         out.append(t)
         t.effect = name  # as the user names it (a file's effect with its file)
         if verbose:
-            print(f"  trial refit with {name}: {t.ratio:.3g}x the floor "
-                  f"({time.perf_counter() - t0:.1f} s)", flush=True)
+            print(
+                f"  trial refit with {name}: {t.ratio:.3g}x the floor "
+                f"({time.perf_counter() - t0:.1f} s)",
+                flush=True,
+            )
     out.sort(key=lambda t: (t.ratio, t.effect))
     return out
 

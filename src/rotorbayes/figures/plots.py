@@ -60,9 +60,9 @@ def _with_unit(label: str, unit: str) -> str:
 
 def legend_outside(ax, **kw):
     """Legend to the right of the axes, so it never covers data."""
-    return ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
-                     fontsize=8, **kw)
-
+    return ax.legend(
+        loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8, **kw
+    )
 
 
 #: Points drawn per line at most: a figure is about 1000 pixels wide, so a long record is
@@ -129,8 +129,9 @@ def plot_simulation(sim, *, title: str | None = None):
     plt = pyplot()
     lower = sim.theta_l is not None
     n = 4 if lower else 3
-    fig, axes = plt.subplots(n, 1, figsize=(10, 2.0 * n + 0.6), sharex=True,
-                             constrained_layout=True)
+    fig, axes = plt.subplots(
+        n, 1, figsize=(10, 2.0 * n + 0.6), sharex=True, constrained_layout=True
+    )
     t = sim.t
     axes[0].plot(t, sim.u, color="k", lw=1)
     axes[0].set_ylabel("u [V]")
@@ -182,8 +183,11 @@ def plot_fit(
     Legends sit to the right of the panels so they never cover the data.
     """
     plt = pyplot()
-    chans = [c for c in measured if c in simulated and measured[c] is not None
-             and simulated[c] is not None]
+    chans = [
+        c
+        for c in measured
+        if c in simulated and measured[c] is not None and simulated[c] is not None
+    ]
     if not chans:
         raise ValueError("plot_fit needs at least one channel in both measured and simulated")
     fig, axes = plt.subplots(
@@ -199,15 +203,18 @@ def plot_fit(
         a, b = axes[2 * i], axes[2 * i + 1]
         sym = CHANNEL_LABELS.get(c, c)
         a.plot(*envelope(t, measured[c]), color="k", lw=1.2, label="measured")
-        a.plot(*envelope(t, simulated[c]), color="tab:orange", lw=1, ls="--",
-               label="simulated")
+        a.plot(*envelope(t, simulated[c]), color="tab:orange", lw=1, ls="--", label="simulated")
         a.set_ylabel(f"{sym} [rad]")
         head = f"{CHANNEL_WORDS[c]} {sym}" if c in CHANNEL_WORDS else c
         if metrics and c in metrics:
             head += f": {metrics[c]}"
         a.set_title(head, fontsize=9, loc="left")
-        b.plot(*envelope(t, np.asarray(measured[c]) - np.asarray(simulated[c])),
-               color="tab:red", lw=0.8, label="measured − simulated")
+        b.plot(
+            *envelope(t, np.asarray(measured[c]) - np.asarray(simulated[c])),
+            color="tab:red",
+            lw=0.8,
+            label="measured − simulated",
+        )
         b.axhline(0, color="0.5", lw=0.5)
         b.set_ylabel(f"{sym} error [rad]", fontsize=9)
         for ax in (a, b):
@@ -224,8 +231,21 @@ def _friction_params(params: Mapping[str, float]) -> dict[str, float]:
     at their null value)."""
     from ..model.parameters import INFO
 
-    out = {n: INFO[n].null for n in ("dTc_u", "db_u", "dTc_l", "db_l", "Ts_l", "ws_l",
-                                     "delta_l", "dTs_u", "ws_u", "delta_u")}
+    out = {
+        n: INFO[n].null
+        for n in (
+            "dTc_u",
+            "db_u",
+            "dTc_l",
+            "db_l",
+            "Ts_l",
+            "ws_l",
+            "delta_l",
+            "dTs_u",
+            "ws_u",
+            "delta_u",
+        )
+    }
     out.update({k: float(v) for k, v in params.items() if isinstance(v, (int, float, np.number))})
     return out
 
@@ -272,8 +292,9 @@ def plot_friction(
     sets = [(label, _friction_params(params), "-", "tab:blue")]
     if reference is not None:
         sets.append((reference_label, _friction_params(reference), "--", "tab:orange"))
-    fig, axes = plt.subplots(len(discs), 2, figsize=(10, 3.0 * len(discs) + 0.6),
-                             squeeze=False, constrained_layout=True)
+    fig, axes = plt.subplots(
+        len(discs), 2, figsize=(10, 3.0 * len(discs) + 0.6), squeeze=False, constrained_layout=True
+    )
     for i, d in enumerate(discs):
         if d not in DISC_NAMES:
             raise ValueError(f"disc must be 'u' or 'l', not {d!r}")
@@ -374,23 +395,49 @@ def plot_waterfall(
         good = ok <= best * (1 + near) + 1e-300
         colors = np.array(_cluster_colors(lab, ok.size), dtype=object)
         ax.plot(x, ok, "-", color="0.7", lw=1, zorder=1)
-        ax.scatter(x[good], ok[good], c=list(colors[good]), s=30, zorder=3,
-                   label=f"{int(good.sum())} of {total} starts within {100 * near:g} % "
-                   f"of the best ({best:.3g} rad²)")
+        ax.scatter(
+            x[good],
+            ok[good],
+            c=list(colors[good]),
+            s=30,
+            zorder=3,
+            label=f"{int(good.sum())} of {total} starts within {100 * near:g} % "
+            f"of the best ({best:.3g} rad²)",
+        )
         if (~good).any():
-            ax.scatter(x[~good], ok[~good], c=list(colors[~good]), s=18, marker="s",
-                       zorder=3, label=f"{int((~good).sum())} other end points")
+            ax.scatter(
+                x[~good],
+                ok[~good],
+                c=list(colors[~good]),
+                s=18,
+                marker="s",
+                zorder=3,
+                label=f"{int((~good).sum())} other end points",
+            )
     if noise_floor_ssr is not None and np.isfinite(noise_floor_ssr) and noise_floor_ssr > 0:
-        ax.axhline(noise_floor_ssr, color="tab:green", ls="--", lw=1.2,
-                   label=f"encoder quantisation floor ({noise_floor_ssr:.3g} rad²)")
+        ax.axhline(
+            noise_floor_ssr,
+            color="tab:green",
+            ls="--",
+            lw=1.2,
+            label=f"encoder quantisation floor ({noise_floor_ssr:.3g} rad²)",
+        )
     if nfail:
         xf = np.arange(ok.size + 1, total + 1)
         tr = blended_transform_factory(ax.transData, ax.transAxes)
         # off the SSR scale: on the top frame, in a faint band of their own
         ax.axvspan(ok.size + 0.5, total + 0.5, color="tab:red", alpha=0.06, lw=0)
-        ax.scatter(xf, np.ones(xf.size), transform=tr, marker="x", color="tab:red",
-                   s=40, zorder=4, clip_on=False,
-                   label=f"{nfail} failed start{'s' if nfail != 1 else ''} (no SSR)")
+        ax.scatter(
+            xf,
+            np.ones(xf.size),
+            transform=tr,
+            marker="x",
+            color="tab:red",
+            s=40,
+            zorder=4,
+            clip_on=False,
+            label=f"{nfail} failed start{'s' if nfail != 1 else ''} (no SSR)",
+        )
     ax.set_yscale("log")
     ax.set_ylim(*(_decade_limits(ok, noise_floor_ssr) or (1e-6, 1.0)))
     ax.set_xlim(0.5, max(total, 1) + 0.5)
@@ -446,8 +493,14 @@ def plot_parameter_spread(
     k = len(names)
     rows = int(np.ceil(k / 4))
     cols = int(np.ceil(k / rows))
-    fig, axes = plt.subplots(rows, cols, figsize=(2.9 * cols + 0.4, 2.3 * rows + 1.0),
-                             squeeze=False, sharey=True, constrained_layout=True)
+    fig, axes = plt.subplots(
+        rows,
+        cols,
+        figsize=(2.9 * cols + 0.4, 2.3 * rows + 1.0),
+        squeeze=False,
+        sharey=True,
+        constrained_layout=True,
+    )
     colors = np.array(_cluster_colors(clusters, costs.size), dtype=object)
     v, y, col = values[fin], costs[fin], list(colors[fin])
     floor_ok = noise_floor_ssr is not None and np.isfinite(noise_floor_ssr) and noise_floor_ssr > 0
@@ -470,17 +523,33 @@ def plot_parameter_spread(
     lims = _decade_limits(y, noise_floor_ssr if floor_ok else None)
     if lims:
         axes[0, 0].set_ylim(*lims)
-    handles = [Line2D([], [], ls="", marker="o", color="tab:blue" if clusters is None else "0.4",
-                      label=f"end points ({int(fin.sum())}"
-                      + (f"; {int((~fin).sum())} failed not shown)" if (~fin).any() else ")")
-                      + (", colour: cluster" if clusters is not None else ""))]
+    handles = [
+        Line2D(
+            [],
+            [],
+            ls="",
+            marker="o",
+            color="tab:blue" if clusters is None else "0.4",
+            label=f"end points ({int(fin.sum())}"
+            + (f"; {int((~fin).sum())} failed not shown)" if (~fin).any() else ")")
+            + (", colour: cluster" if clusters is not None else ""),
+        )
+    ]
     if reference is not None and any(n in reference for n in names):
         handles.append(Line2D([], [], color="tab:red", ls="--", label="reference"))
     if floor_ok:
-        handles.append(Line2D([], [], color="tab:green", ls=":",
-                              label=f"encoder quantisation floor ({noise_floor_ssr:.3g} rad²)"))
-    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=8,
-               frameon=False)
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="tab:green",
+                ls=":",
+                label=f"encoder quantisation floor ({noise_floor_ssr:.3g} rad²)",
+            )
+        )
+    fig.legend(
+        handles=handles, loc="outside lower center", ncol=len(handles), fontsize=8, frameon=False
+    )
     fig.suptitle(title or "multistart end points", fontsize=11)
     return fig, axes
 
@@ -492,8 +561,10 @@ def quantisation_floor_ssr(problem) -> float:
     :func:`plot_parameter_spread`."""
     from ..io.measurements import quantisation_floor
 
-    return float(sum(
-        ex.n * (problem.weights[c] * quantisation_floor(c)) ** 2
-        for ex in problem.experiments
-        for c in problem.channels
-    ))
+    return float(
+        sum(
+            ex.n * (problem.weights[c] * quantisation_floor(c)) ** 2
+            for ex in problem.experiments
+            for c in problem.channels
+        )
+    )

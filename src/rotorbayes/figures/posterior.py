@@ -65,8 +65,7 @@ def contour_settings(X: np.ndarray, ranges) -> tuple[int, float | None, bool]:
         ok = True
         for i in range(k):
             for j in range(i):
-                H, _, _ = np.histogram2d(X[:, j], X[:, i], bins=bins,
-                                         range=[ranges[j], ranges[i]])
+                H, _, _ = np.histogram2d(X[:, j], X[:, i], bins=bins, range=[ranges[j], ranges[i]])
                 if smooth is not None:
                     H = gaussian_filter(H, smooth)
                 if _levels_coincide(H):
@@ -84,8 +83,7 @@ def _inner_ticks(lo: float, hi: float):
     from matplotlib.ticker import FixedLocator, MaxNLocator
 
     w = hi - lo
-    ticks = [t for t in MaxNLocator(4).tick_values(lo, hi)
-             if lo + 0.12 * w <= t <= hi - 0.12 * w]
+    ticks = [t for t in MaxNLocator(4).tick_values(lo, hi) if lo + 0.12 * w <= t <= hi - 0.12 * w]
     return FixedLocator(ticks[:3] if len(ticks) <= 3 else ticks[::2])
 
 
@@ -119,11 +117,21 @@ def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
     labels = _labels(prob, names)
     bins, smooth, contours = contour_settings(X, ranges)
     contours = contours and not degenerate
-    fig = corner.corner(X, bins=bins, smooth=smooth, range=ranges, labels=labels,
-                        quantiles=[0.03, 0.5, 0.97], show_titles=False,
-                        plot_contours=contours, plot_density=contours,
-                        max_n_ticks=3, label_kwargs={"fontsize": 8}, labelpad=0.12,
-                        truths=truth)
+    fig = corner.corner(
+        X,
+        bins=bins,
+        smooth=smooth,
+        range=ranges,
+        labels=labels,
+        quantiles=[0.03, 0.5, 0.97],
+        show_titles=False,
+        plot_contours=contours,
+        plot_density=contours,
+        max_n_ticks=3,
+        label_kwargs={"fontsize": 8},
+        labelpad=0.12,
+        truths=truth,
+    )
     k = len(names)
     axes = np.array(fig.axes).reshape(k, k)
     for i in range(k):
@@ -140,17 +148,23 @@ def plot_corner(idata, prob, *, overlay: np.ndarray | None = None, truth=None):
                     f.set_scientific(False)
             ax.tick_params(labelsize=7)
         med, sd = float(np.median(X[:, i])), float(np.std(X[:, i]))
-        unit = labels[i][len(names[i]) + 1:]
-        axes[i, i].set_title(f"{names[i]} = {fmt_value(med, sd)}\n± {sd:.2g} {unit}",
-                             fontsize=8)
+        unit = labels[i][len(names[i]) + 1 :]
+        axes[i, i].set_title(f"{names[i]} = {fmt_value(med, sd)}\n± {sd:.2g} {unit}", fontsize=8)
     if overlay is not None and len(overlay):
         for i in range(k):
             for j in range(i):
-                axes[i, j].plot(overlay[:, j], overlay[:, i], "x", color="tab:red", ms=4,
-                                label="multistart end points" if (i, j) == (1, 0) else None)
+                axes[i, j].plot(
+                    overlay[:, j],
+                    overlay[:, i],
+                    "x",
+                    color="tab:red",
+                    ms=4,
+                    label="multistart end points" if (i, j) == (1, 0) else None,
+                )
         axes[1, 0].legend(fontsize=7, loc="best")
-    fig.suptitle(f"posterior, {n} draws (dashed: 3 %, 50 %, 97 % quantiles; "
-                 "title: median ± sd)", fontsize=10)
+    fig.suptitle(
+        f"posterior, {n} draws (dashed: 3 %, 50 %, 97 % quantiles; title: median ± sd)", fontsize=10
+    )
     return fig
 
 
@@ -158,8 +172,9 @@ def plot_trace(runs, coord_names):
     """Walker traces per coordinate and ensemble (sampling coordinates)."""
     plt = pyplot()
     k = len(coord_names)
-    fig, axes = plt.subplots(k, 1, figsize=(10, 1.5 * k + 0.8), sharex=True, squeeze=False,
-                             constrained_layout=True)
+    fig, axes = plt.subplots(
+        k, 1, figsize=(10, 1.5 * k + 0.8), sharex=True, squeeze=False, constrained_layout=True
+    )
     colors = ["tab:blue", "tab:orange", "tab:green", "tab:red"]
     for j, n in enumerate(coord_names):
         ax = axes[j, 0]
@@ -208,8 +223,14 @@ def plot_predictive(idata, prob, *, i: int = 0):
     ex = prob.experiments[i]
     pp = arviz_compat.group(idata, "posterior_predictive")
     obs = arviz_compat.group(idata, "observed_data")
-    fig, axes = plt.subplots(3 * len(chans), 1, figsize=(10, 1.9 * 3 * len(chans) + 0.8),
-                             sharex=True, squeeze=False, constrained_layout=True)
+    fig, axes = plt.subplots(
+        3 * len(chans),
+        1,
+        figsize=(10, 1.9 * 3 * len(chans) + 0.8),
+        sharex=True,
+        squeeze=False,
+        constrained_layout=True,
+    )
     for k, c in enumerate(chans):
         key = f"{c}_exp{i}"
         da = pp[key]
@@ -221,15 +242,16 @@ def plot_predictive(idata, prob, *, i: int = 0):
         meas = np.interp(tp, ex.t, full)
         width = float(np.max(hi - lo, where=resolved, initial=0.0))
         finest = float(np.max(spacing))
-        band_words = (f"94 % band (≤ {width:.2g} rad wide: see the third panel)"
-                      if resolved.any() else
-                      f"94 % band unresolved (narrower than {RESOLVED_SPACINGS}x the "
-                      f"storage spacing, ≤ {finest:.2g} rad)")
+        band_words = (
+            f"94 % band (≤ {width:.2g} rad wide: see the third panel)"
+            if resolved.any()
+            else f"94 % band unresolved (narrower than {RESOLVED_SPACINGS}x the "
+            f"storage spacing, ≤ {finest:.2g} rad)"
+        )
         ax = axes[3 * k, 0]
         ax.plot(ex.t, full, color="k", lw=1.2, label="measured")
         ax.plot(tp, med, color="tab:orange", lw=1.2, ls="--", label="posterior median")
-        ax.fill_between(tp, lo, hi, where=resolved, color="tab:orange", alpha=0.5,
-                        label=band_words)
+        ax.fill_between(tp, lo, hi, where=resolved, color="tab:orange", alpha=0.5, label=band_words)
         ax.set_ylabel(f"{c} [rad]")
         ax.legend(loc="upper left", fontsize=8)
         ax2 = axes[3 * k + 1, 0]
@@ -239,26 +261,45 @@ def plot_predictive(idata, prob, *, i: int = 0):
         ax2.legend(loc="upper left", fontsize=8)
         ax3 = axes[3 * k + 2, 0]
         if resolved.any():
-            gaps = "" if resolved.all() else (
-                f"; not drawn at {int(np.count_nonzero(~resolved))} of {resolved.size} "
-                f"points, where narrower than {RESOLVED_SPACINGS}x the storage spacing "
-                f"({finest:.2g} rad)")
-            ax3.fill_between(tp, lo - med, hi - med, where=resolved, color="tab:orange",
-                             alpha=0.6, label="94 % predictive band − median (parameter "
-                             f"uncertainty){gaps}")
+            gaps = (
+                ""
+                if resolved.all()
+                else (
+                    f"; not drawn at {int(np.count_nonzero(~resolved))} of {resolved.size} "
+                    f"points, where narrower than {RESOLVED_SPACINGS}x the storage spacing "
+                    f"({finest:.2g} rad)"
+                )
+            )
+            ax3.fill_between(
+                tp,
+                lo - med,
+                hi - med,
+                where=resolved,
+                color="tab:orange",
+                alpha=0.6,
+                label=f"94 % predictive band − median (parameter uncertainty){gaps}",
+            )
         else:
-            ax3.text(0.5, 0.5, f"94 % predictive band unresolved: narrower than "
-                     f"{RESOLVED_SPACINGS}x the spacing of the stored predictions "
-                     f"({np.dtype(stored.dtype).name}: {finest:.2g} rad at these angles), so "
-                     "not drawn", transform=ax3.transAxes, ha="center", va="center",
-                     fontsize=9)
+            ax3.text(
+                0.5,
+                0.5,
+                f"94 % predictive band unresolved: narrower than "
+                f"{RESOLVED_SPACINGS}x the spacing of the stored predictions "
+                f"({np.dtype(stored.dtype).name}: {finest:.2g} rad at these angles), so "
+                "not drawn",
+                transform=ax3.transAxes,
+                ha="center",
+                va="center",
+                fontsize=9,
+            )
         ax3.axhline(0, color="k", lw=0.5)
         ax3.set_ylabel(f"{c} band [rad]")
         if resolved.any():
             ax3.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle(f"posterior predictive (noise-free simulations of the draws), experiment "
-                 f"{ex.name or i}")
+    fig.suptitle(
+        f"posterior predictive (noise-free simulations of the draws), experiment {ex.name or i}"
+    )
     return fig, axes
 
 
@@ -269,8 +310,9 @@ def plot_correlation(idata, prob):
     post = arviz_compat.group(idata, "posterior")
     X = np.column_stack([post[n].values.reshape(-1) for n in names])
     C = np.corrcoef(X, rowvar=False)
-    fig, ax = plt.subplots(figsize=(1.0 + 0.6 * len(names), 0.8 + 0.6 * len(names)),
-                           constrained_layout=True)
+    fig, ax = plt.subplots(
+        figsize=(1.0 + 0.6 * len(names), 0.8 + 0.6 * len(names)), constrained_layout=True
+    )
     im = ax.imshow(C, vmin=-1, vmax=1, cmap="RdBu_r")
     ax.set_xticks(range(len(names)), names, rotation=60, fontsize=8)
     ax.set_yticks(range(len(names)), names, fontsize=8)
@@ -286,16 +328,23 @@ def plot_fisher(F):
     """Eigenvalues of the Fisher information and the eigenvectors' components."""
     plt = pyplot()
     k = len(F.names)
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(5 + 0.5 * k, 0.6 * k + 2.2),
-                                 constrained_layout=True,
-                                 gridspec_kw={"width_ratios": [1, 1.6]})
+    fig, (a1, a2) = plt.subplots(
+        1,
+        2,
+        figsize=(5 + 0.5 * k, 0.6 * k + 2.2),
+        constrained_layout=True,
+        gridspec_kw={"width_ratios": [1, 1.6]},
+    )
     a1.semilogy(range(k), F.eigenvalues, "o-")
     a1.set_xlabel("direction (sloppiest first)")
     a1.set_ylabel("eigenvalue (1/relative units²)")
     a1.set_title("Fisher information spectrum", fontsize=9)
     im = a2.imshow(F.vectors, cmap="RdBu_r", vmin=-1, vmax=1, aspect="auto")
-    a2.set_yticks(range(k), [f"{'log ' if lg else ''}{n}" for n, lg in
-                             zip(F.names, F.log, strict=True)], fontsize=8)
+    a2.set_yticks(
+        range(k),
+        [f"{'log ' if lg else ''}{n}" for n, lg in zip(F.names, F.log, strict=True)],
+        fontsize=8,
+    )
     a2.set_xticks(range(k), [f"{i}" for i in range(k)])
     a2.set_xlabel("direction (sloppiest first)")
     a2.set_title("eigenvector components", fontsize=9)
@@ -307,8 +356,7 @@ def plot_profiles(profiles):
     """Profile likelihoods: Δχ² against each profiled parameter, the 95 % line."""
     plt = pyplot()
     n = len(profiles)
-    fig, axes = plt.subplots(1, n, figsize=(4 * n, 3.2), squeeze=False,
-                             constrained_layout=True)
+    fig, axes = plt.subplots(1, n, figsize=(4 * n, 3.2), squeeze=False, constrained_layout=True)
     for ax, pr in zip(axes[0], profiles, strict=True):
         g = np.array(pr["grid"], float)
         d = np.array([np.nan if v is None else v for v in pr["delta_chi2"]], float)

@@ -43,8 +43,9 @@ def arviz():
     if _AZ is None:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=FutureWarning, module=r"arviz.*")
-            warnings.filterwarnings("ignore", message=r".*ArviZ is undergoing a major refactor",
-                                    category=FutureWarning)
+            warnings.filterwarnings(
+                "ignore", message=r".*ArviZ is undergoing a major refactor", category=FutureWarning
+            )
             import arviz as az
         _AZ = az
     return _AZ
@@ -70,8 +71,10 @@ def _dataset(variables: dict, dims: dict, coords: dict, sample: bool, attrs: dic
         lead = list(SAMPLE_DIMS) if sample else []
         n_free = a.ndim - len(lead) - len(extra)
         if n_free < 0:
-            raise ValueError(f"{name}: {a.ndim} dimensions, fewer than the "
-                             f"{len(lead) + len(extra)} named ({lead + extra})")
+            raise ValueError(
+                f"{name}: {a.ndim} dimensions, fewer than the "
+                f"{len(lead) + len(extra)} named ({lead + extra})"
+            )
         extra += [f"{name}_dim_{i}" for i in range(n_free)]
         all_dims = lead + extra
         data_vars[name] = (all_dims, a)
@@ -83,8 +86,13 @@ def _dataset(variables: dict, dims: dict, coords: dict, sample: bool, attrs: dic
     return xr.Dataset(data_vars, coords=used, attrs=dict(attrs or {}))
 
 
-def from_groups(groups: dict[str, dict[str, np.ndarray]], *, dims: dict | None = None,
-                coords: dict | None = None, attrs: dict[str, dict] | None = None):
+def from_groups(
+    groups: dict[str, dict[str, np.ndarray]],
+    *,
+    dims: dict | None = None,
+    coords: dict | None = None,
+    attrs: dict[str, dict] | None = None,
+):
     """The posterior container of the installed arviz line.
 
     Parameters
@@ -191,11 +199,14 @@ def load(path: str | Path):
     if failure is not None:  # raised here, without the library's frames (and open objects)
         raise PosteriorFileError(
             f"{path}: cannot be read as a posterior ({failure}): damaged (truncated or "
-            "overwritten?), or not a posterior.nc written by `rotorbayes sample`")
+            "overwritten?), or not a posterior.nc written by `rotorbayes sample`"
+        )
     if "posterior" not in group_names(idata):
-        raise PosteriorFileError(f"{path}: holds no posterior group (it has "
-                                 f"{', '.join(group_names(idata)) or 'no group'}): not a "
-                                 "posterior.nc written by `rotorbayes sample`")
+        raise PosteriorFileError(
+            f"{path}: holds no posterior group (it has "
+            f"{', '.join(group_names(idata)) or 'no group'}): not a "
+            "posterior.nc written by `rotorbayes sample`"
+        )
     return idata
 
 
@@ -237,8 +248,17 @@ def _load(path: Path):
 
 
 #: The columns of :func:`summary`, the same on both lines.
-SUMMARY_COLUMNS = ("mean", "sd", "hdi_low", "hdi_high", "ess_bulk", "ess_tail", "r_hat",
-                   "mcse_mean", "mcse_sd")
+SUMMARY_COLUMNS = (
+    "mean",
+    "sd",
+    "hdi_low",
+    "hdi_high",
+    "ess_bulk",
+    "ess_tail",
+    "r_hat",
+    "mcse_mean",
+    "mcse_sd",
+)
 
 
 def summary(idata, var_names: list[str] | None = None, hdi_prob: float = 0.94):
@@ -254,11 +274,18 @@ def summary(idata, var_names: list[str] | None = None, hdi_prob: float = 0.94):
         # table); arviz says so with a RuntimeWarning the table already conveys.
         warnings.simplefilter("ignore", RuntimeWarning)
         if is_datatree_line():
-            s = az.summary(idata, var_names=var_names, kind="all", ci_prob=hdi_prob,
-                           ci_kind="hdi", round_to="none")
+            s = az.summary(
+                idata,
+                var_names=var_names,
+                kind="all",
+                ci_prob=hdi_prob,
+                ci_kind="hdi",
+                round_to="none",
+            )
         else:
-            s = az.summary(idata, var_names=var_names, kind="all", hdi_prob=hdi_prob,
-                           round_to="none")
+            s = az.summary(
+                idata, var_names=var_names, kind="all", hdi_prob=hdi_prob, round_to="none"
+            )
     # The interval's two columns, lower first: hdi_3%, hdi_97% (0.2x); hdi94_lb, hdi94_ub (1.x).
     lo_c, hi_c = [c for c in s.columns if str(c).startswith("hdi")]
     s = s.rename(columns={lo_c: "hdi_low", hi_c: "hdi_high"})

@@ -68,23 +68,32 @@ class Assessment:
     def integration_ratio(self) -> float:
         """The integrator's own error (RMS) over the floor, worst fitted channel on any
         data (NaN when not checked)."""
-        r = [c["integration_ratio"] for c in self.channels
-             if c["fitted"] and c.get("integration_ratio") is not None]
+        r = [
+            c["integration_ratio"]
+            for c in self.channels
+            if c["fitted"] and c.get("integration_ratio") is not None
+        ]
         return max(r) if r else math.nan
 
     def integration_line(self) -> str:
         """One line: the integrator's own error at the fit, per fitted channel."""
-        rows = [c for c in self.channels if c["fitted"] and c["data"] == "estimation"
-                and c.get("integration_max") is not None]
+        rows = [
+            c
+            for c in self.channels
+            if c["fitted"] and c["data"] == "estimation" and c.get("integration_max") is not None
+        ]
         if not rows:
             return "integration check: not made (the simulation failed at the fit)"
         several = len({c["experiment"] for c in rows}) > 1
-        parts = ", ".join((f"{c['experiment']} " if several else "")
-                          + f"{c['channel']} {c['integration_max']:.2g} rad largest "
-                          f"({c['integration_ratio']:.2g}x the floor as RMS)" for c in rows)
+        parts = ", ".join(
+            (f"{c['experiment']} " if several else "")
+            + f"{c['channel']} {c['integration_max']:.2g} rad largest "
+            f"({c['integration_ratio']:.2g}x the floor as RMS)"
+            for c in rows
+        )
         fine = rows[0].get("integration_fine_step")
-        against = (f"steps of {1e3 * fine:.3g} ms" if fine else "finer steps")
-        return (f"integration check at the fit (its step grid against {against}): {parts}")
+        against = f"steps of {1e3 * fine:.3g} ms" if fine else "finer steps"
+        return f"integration check at the fit (its step grid against {against}): {parts}"
 
     @property
     def worst_ratio_validation(self) -> float:
@@ -97,8 +106,9 @@ class Assessment:
         text = self._verdict()
         if self.jitter_floor:
             text = text.replace("the encoder floor", "the noise floor").replace(
-                "the quantisation RMS", "the floor (the data's jitter is above the encoder's "
-                "quantisation)")
+                "the quantisation RMS",
+                "the floor (the data's jitter is above the encoder's quantisation)",
+            )
         return text
 
     def _verdict(self) -> str:
@@ -106,17 +116,23 @@ class Assessment:
         if not math.isfinite(w):
             return "no fitted channel could be simulated"
         v = self.worst_ratio_validation
-        val = (f"; validation data: {_times(v)} the floor" if math.isfinite(v) else "")
+        val = f"; validation data: {_times(v)} the floor" if math.isfinite(v) else ""
         if w <= AT_FLOOR:
-            text = (f"at the encoder floor on the estimation data (worst fitted channel "
-                    f"{_times(w)} the quantisation RMS{val})")
+            text = (
+                f"at the encoder floor on the estimation data (worst fitted channel "
+                f"{_times(w)} the quantisation RMS{val})"
+            )
         elif w <= NEAR_FLOOR:
-            text = (f"near the encoder floor on the estimation data (worst fitted channel "
-                    f"{_times(w)} the quantisation RMS{val})")
+            text = (
+                f"near the encoder floor on the estimation data (worst fitted channel "
+                f"{_times(w)} the quantisation RMS{val})"
+            )
         else:
-            text = (f"{_times(w)} the encoder floor on the estimation data (worst fitted "
-                    f"channel{val}): the model does not explain the data to the encoders' "
-                    "resolution (a missing effect, a wrong fixed value or a wrong basin)")
+            text = (
+                f"{_times(w)} the encoder floor on the estimation data (worst fitted "
+                f"channel{val}): the model does not explain the data to the encoders' "
+                "resolution (a missing effect, a wrong fixed value or a wrong basin)"
+            )
         if math.isfinite(v) and v > NEAR_FLOOR >= w:
             text += "; " + self.validation_words()
         return text
@@ -128,23 +144,31 @@ class Assessment:
         v = self.worst_ratio_validation
         sp = self.spread
         if sp is None:
-            return ("above the floor on the validation data: the model fits these data "
-                    "but does not predict others")
+            return (
+                "above the floor on the validation data: the model fits these data "
+                "but does not predict others"
+            )
         if "undetermined" in sp:
-            return ("above the floor on the validation data, and the estimation data do not "
-                    f"determine {', '.join(sp['undetermined'])} (infinite standard errors): "
-                    "the gap may be theirs rather than a missing effect; fit both together")
+            return (
+                "above the floor on the validation data, and the estimation data do not "
+                f"determine {', '.join(sp['undetermined'])} (infinite standard errors): "
+                "the gap may be theirs rather than a missing effect; fit both together"
+            )
         band = f"{_times(sp['q10'])}-{_times(sp['q90'])}"
         if v <= sp["q90"]:
-            return (f"above the floor on the validation data, but within what the estimates' "
-                    f"own uncertainty predicts there ({band} for 80 % of {sp['draws']} "
-                    "parameter draws from the fit's covariance): these data do not determine "
-                    "the parameters well enough to predict that experiment to the floor; fit "
-                    "both together to narrow them")
-        return (f"above the floor on the validation data, more than the estimates' own "
-                f"uncertainty predicts there ({band} for 80 % of {sp['draws']} parameter "
-                "draws from the fit's covariance): the model fits these data but does not "
-                "predict others (a missing effect these data do not excite)")
+            return (
+                f"above the floor on the validation data, but within what the estimates' "
+                f"own uncertainty predicts there ({band} for 80 % of {sp['draws']} "
+                "parameter draws from the fit's covariance): these data do not determine "
+                "the parameters well enough to predict that experiment to the floor; fit "
+                "both together to narrow them"
+            )
+        return (
+            f"above the floor on the validation data, more than the estimates' own "
+            f"uncertainty predicts there ({band} for 80 % of {sp['draws']} parameter "
+            "draws from the fit's covariance): the model fits these data but does not "
+            "predict others (a missing effect these data do not excite)"
+        )
 
     def table(self) -> str:
         rows = [
@@ -163,11 +187,13 @@ class Assessment:
         return {
             "verdict": self.verdict,
             "worst_ratio_to_floor": self.worst_ratio,
-            "worst_ratio_to_floor_validation": (None if math.isnan(self.worst_ratio_validation)
-                                                else self.worst_ratio_validation),
+            "worst_ratio_to_floor_validation": (
+                None if math.isnan(self.worst_ratio_validation) else self.worst_ratio_validation
+            ),
             "headline": "worst fitted channel's RMS / floor on the estimation data",
-            "integration_ratio": (None if math.isnan(self.integration_ratio)
-                                  else self.integration_ratio),
+            "integration_ratio": (
+                None if math.isnan(self.integration_ratio) else self.integration_ratio
+            ),
             "integration": self.integration_line(),
             "channels": self.channels,
             "warnings": self.warnings,
@@ -225,15 +251,18 @@ def integration_warning(problem, ratio: float) -> str | None:
     if not (math.isfinite(ratio) and ratio > INTEGRATION_LIMIT):
         return None
     step = problem.sims[0].step if problem.sims else math.nan
-    return (f"the integrator's own error at this fit is {ratio:.2g}x the floor (RMS, its "
-            f"steps of up to {1e3 * step:.3g} ms against finer ones): part of the residual is "
-            "the integration, not the model, so distrust the verdict, the diagnosis and the "
-            f"intervals; fit again with a shorter step (--step {step / 3:.2g}) and report "
-            "the input and parameters (the default step should have been short enough)")
+    return (
+        f"the integrator's own error at this fit is {ratio:.2g}x the floor (RMS, its "
+        f"steps of up to {1e3 * step:.3g} ms against finer ones): part of the residual is "
+        "the integration, not the model, so distrust the verdict, the diagnosis and the "
+        f"intervals; fit again with a shorter step (--step {step / 3:.2g}) and report "
+        "the input and parameters (the default step should have been short enough)"
+    )
 
 
-def validation_spread(result, experiments, floors: dict, *, draws: int = 40,
-                      seed: int = 0, validation_alpha0=None) -> dict | None:
+def validation_spread(
+    result, experiments, floors: dict, *, draws: int = 40, seed: int = 0, validation_alpha0=None
+) -> dict | None:
     """The worst fitted channel's RMS/floor that ``experiments`` (validation data) would
     show if the model were right and the truth were a draw from the fit's honest
     covariance: per draw ``sqrt(floor² + mean((sim(draw) - sim(fit))²)) / floor``, the worst
@@ -255,16 +284,15 @@ def validation_spread(result, experiments, floors: dict, *, draws: int = 40,
         return {"undetermined": bad}
     rng = np.random.default_rng(seed)
     try:
-        Z = rng.multivariate_normal(np.asarray(result.x, float), cov, size=draws,
-                                    method="eigh")
+        Z = rng.multivariate_normal(np.asarray(result.x, float), cov, size=draws, method="eigh")
     except (np.linalg.LinAlgError, ValueError):
         return None
     lo, hi = prob.lower, prob.upper
     x_fit = np.asarray(result.x, float)
-    given = list(validation_alpha0) if validation_alpha0 is not None else [None] * len(
-        experiments)
-    torsion = [prob.validation_params(x_fit, ex, g)[1] for ex, g in zip(
-        experiments, given, strict=True)]
+    given = list(validation_alpha0) if validation_alpha0 is not None else [None] * len(experiments)
+    torsion = [
+        prob.validation_params(x_fit, ex, g)[1] for ex, g in zip(experiments, given, strict=True)
+    ]
 
     def angles(x, ex, sim, rec):
         s = sim.simulate(prob.validation_params(x, ex, rec)[0], raise_on_failure=False)
@@ -294,8 +322,9 @@ def validation_spread(result, experiments, floors: dict, *, draws: int = 40,
     return {"q10": float(q10), "q50": float(q50), "q90": float(q90), "draws": len(worst)}
 
 
-def assess(result, q_est, q_val=(), *, sources: dict | None = None,
-           val_experiments=()) -> Assessment:
+def assess(
+    result, q_est, q_val=(), *, sources: dict | None = None, val_experiments=()
+) -> Assessment:
     """The :class:`Assessment` of a :class:`~rotorbayes.inference.FitResult`.
 
     ``q_est`` / ``q_val`` are :func:`~rotorbayes.inference.quality` rows on estimation and
@@ -306,15 +335,20 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None,
     """
     prob = result.problem
     floors, notes = prob.noise_floors()
-    a = Assessment(channels=channel_rows(prob, q_est, "estimation", floors) + channel_rows(
-        prob, q_val, "validation", floors))
+    a = Assessment(
+        channels=channel_rows(prob, q_est, "estimation", floors)
+        + channel_rows(prob, q_val, "validation", floors)
+    )
     v = a.worst_ratio_validation
     if val_experiments and math.isfinite(v) and v > VALIDATION_NOTE and a.worst_ratio <= NEAR_FLOOR:
         # The runs' alpha0 as the figure had them (quality's rows carry the records).
         recs = [r.get("validation_alpha0") for r in q_val]
-        a.spread = validation_spread(result, list(val_experiments), floors,
-                                     validation_alpha0=recs if len(recs) == len(
-                                         val_experiments) else None)
+        a.spread = validation_spread(
+            result,
+            list(val_experiments),
+            floors,
+            validation_alpha0=recs if len(recs) == len(val_experiments) else None,
+        )
     a.warnings.extend(notes)
     a.jitter_floor = bool(notes)
     sources = sources or {}
@@ -328,29 +362,39 @@ def assess(result, q_est, q_val=(), *, sources: dict | None = None,
     # most 5, standard error 4.6, passed without a word).
     se = getattr(result, "stderr", None)
     se = np.full(len(result.names), np.nan) if se is None else np.asarray(se, float)
-    for n, v, lo, hi, e in zip(result.names, result.x, prob.lower, prob.upper, se,
-                               strict=True):
+    for n, v, lo, hi, e in zip(result.names, result.x, prob.lower, prob.upper, se, strict=True):
         width = hi - lo
         unit = prob.info(n).unit
         d_lo, d_hi = v - lo, hi - v
         at = d_lo <= BOUND_TOL * width or d_hi <= BOUND_TOL * width
-        near = (not at and math.isfinite(e) and e > 0
-                and min(d_lo, d_hi) < min(2.0 * e, NEAR_BOUND * width))
+        near = (
+            not at
+            and math.isfinite(e)
+            and e > 0
+            and min(d_lo, d_hi) < min(2.0 * e, NEAR_BOUND * width)
+        )
         if at or near:
             which, b = ("lower", lo) if d_lo <= d_hi else ("upper", hi)
             (a.at_bound if at else a.near_bound).append(n)
             if which == "lower" and b == 0:
-                why = ("the data show none of it, or the fit stopped in a wrong basin "
-                       "where it does not matter; with the RMS far above the floor suspect "
-                       "the latter")
+                why = (
+                    "the data show none of it, or the fit stopped in a wrong basin "
+                    "where it does not matter; with the RMS far above the floor suspect "
+                    "the latter"
+                )
             else:
-                why = ("the fit wants to leave the physical range: usually a wrong basin, "
-                       "a missing effect or a wrong fixed value; its standard error means "
-                       "nothing")
-            where = (f"at its {which} bound {b:g} (within {100 * BOUND_TOL:g} % of its "
-                     f"range, {lo:g} to {hi:g})" if at else
-                     f"{min(d_lo, d_hi):.2g} from its {which} bound {b:g}, less than two "
-                     f"standard errors ({e:.2g} each; range {lo:g} to {hi:g})")
+                why = (
+                    "the fit wants to leave the physical range: usually a wrong basin, "
+                    "a missing effect or a wrong fixed value; its standard error means "
+                    "nothing"
+                )
+            where = (
+                f"at its {which} bound {b:g} (within {100 * BOUND_TOL:g} % of its "
+                f"range, {lo:g} to {hi:g})"
+                if at
+                else f"{min(d_lo, d_hi):.2g} from its {which} bound {b:g}, less than two "
+                f"standard errors ({e:.2g} each; range {lo:g} to {hi:g})"
+            )
             a.warnings.append(f"{n} = {v:.4g} {unit} is {where}: {why}")
     # Validity constraints between two parameters (Tc >= |dTc|, ...): the optimiser sees a
     # wall there, and an end point on it is as suspect as one on a bound.
@@ -403,8 +447,11 @@ def fixed_influence(result, sources: dict, *, min_drop: float = 0.1) -> list[dic
     prob = result.problem
     free = {local_name(n)[0] for n in result.names}
     cands = [
-        n for n in prob.model.active
-        if n not in free and n != "alpha0" and math.isfinite(prob.base.get(n, math.nan))
+        n
+        for n in prob.model.active
+        if n not in free
+        and n != "alpha0"
+        and math.isfinite(prob.base.get(n, math.nan))
         and not (prob.model.info[n].lower == prob.model.info[n].upper)
     ]
     if not cands:

@@ -68,8 +68,9 @@ class CurvatureAdjustment:
         self.C = np.asarray(C, float)
         k = self.z_fit.size
         if self.C.shape != (k, k):
-            raise ValueError(f"C has shape {self.C.shape}; give a ({k}, {k}) matrix for "
-                             f"{k} coordinates")
+            raise ValueError(
+                f"C has shape {self.C.shape}; give a ({k}, {k}) matrix for {k} coordinates"
+            )
 
     @classmethod
     def matching(cls, z_fit: np.ndarray, H: np.ndarray, V: np.ndarray) -> CurvatureAdjustment:

@@ -52,8 +52,13 @@ class FirstFit:
 
 
 #: Friction levels and the asymmetries they bound (a friction may not push along the motion).
-_LEVELS = (("Tc_u", "dTc_u"), ("b_u", "db_u"), ("Tc_l", "dTc_l"), ("b_l", "db_l"),
-           ("Ts_l", "dTc_l"))
+_LEVELS = (
+    ("Tc_u", "dTc_u"),
+    ("b_u", "db_u"),
+    ("Tc_l", "dTc_l"),
+    ("b_l", "db_l"),
+    ("Ts_l", "dTc_l"),
+)
 
 
 def _within_constraints(problem: Problem, x0: np.ndarray) -> np.ndarray:
@@ -128,9 +133,19 @@ def fit_from_data(
     from .taskstore import TaskStore, fingerprint, problem_fingerprint
 
     def open_store():  # made only when restarts are needed: a fit without them leaves none
-        return TaskStore(resume, fingerprint(
-            "first fit", problem_fingerprint(problem), seed, restarts, spread, x0,
-            {k: v for k, v in sorted(fit_kw.items())}), "fit")
+        return TaskStore(
+            resume,
+            fingerprint(
+                "first fit",
+                problem_fingerprint(problem),
+                seed,
+                restarts,
+                spread,
+                x0,
+                {k: v for k, v in sorted(fit_kw.items())},
+            ),
+            "fit",
+        )
 
     use = resume is not None and restarts > 0
     store = open_store() if use and Path(resume).is_dir() else None
@@ -157,23 +172,35 @@ def fit_from_data(
 
     best = res
     if 8 * problem.n_residuals * len(problem.names) > LOCAL_PARALLEL_BYTES and isinstance(
-            executor if executor is not None else current_executor(),
-            ThreadPoolExecutor | DefaultPool | type(None)):
+        executor if executor is not None else current_executor(),
+        ThreadPoolExecutor | DefaultPool | type(None),
+    ):
         # Long data on this machine: one restart at a time (each holds its own Jacobian).
         executor, workers = SerialExecutor(), 1
         res.jac = None  # not held while the restarts run theirs; computed again if kept
         if verbose:
-            print("long data: the restarts run one at a time (each fit's Jacobian is "
-                  "large); --backend dask spreads them over other machines", flush=True)
+            print(
+                "long data: the restarts run one at a time (each fit's Jacobian is "
+                "large); --backend dask spreads them over other machines",
+                flush=True,
+            )
     found: dict[int, tuple] = {}
     if store is not None:
         found = kept_fits(store, starts, problem, first=1)  # 0: the data start's fit
         if found and verbose:
-            print(f"{len(found)} of {restarts} restarts had finished in an earlier run: read "
-                  f"from {store.folder}", flush=True)
+            print(
+                f"{len(found)} of {restarts} restarts had finished in an earlier run: read "
+                f"from {store.folder}",
+                flush=True,
+            )
     todo = [i for i in range(restarts) if i not in found]
-    tasks = run_tasks(_fit_start, [starts[i] for i in todo], shared=(problem, fit_kw),
-                      executor=executor, workers=workers)
+    tasks = run_tasks(
+        _fit_start,
+        [starts[i] for i in todo],
+        shared=(problem, fit_kw),
+        executor=executor,
+        workers=workers,
+    )
     for j, (r, why) in progress(tasks, len(todo), "restarts", enabled=verbose):
         if r is not None:
             r.problem = problem  # a process or Dask worker sent back its own copy
@@ -182,8 +209,12 @@ def fit_from_data(
         found[todo[j]] = (r, why)
     for i in range(restarts):  # in start order: the choice does not depend on who finished
         r, why = found[i]
-        row = {"start": starts[i].tolist(), "ssr": r.ssr if r else None,
-               "success": bool(r and r.success), "failed": why}
+        row = {
+            "start": starts[i].tolist(),
+            "ssr": r.ssr if r else None,
+            "success": bool(r and r.success),
+            "failed": why,
+        }
         out.restarts.append(row)
         if r is not None and r.ssr < best.ssr:
             best = r

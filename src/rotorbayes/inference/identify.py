@@ -38,10 +38,13 @@ class Fisher:
         return 1.0 / math.sqrt(max(self.eigenvalues[i], 1e-300))
 
     def as_dict(self) -> dict:
-        return {"names": self.names, "log_coordinates": self.log.tolist(),
-                "eigenvalues": self.eigenvalues.tolist(),
-                "eigenvectors": self.vectors.T.tolist(),
-                "widths_1sigma": [self.width(i) for i in range(len(self.names))]}
+        return {
+            "names": self.names,
+            "log_coordinates": self.log.tolist(),
+            "eigenvalues": self.eigenvalues.tolist(),
+            "eigenvectors": self.vectors.T.tolist(),
+            "widths_1sigma": [self.width(i) for i in range(len(self.names))],
+        }
 
 
 def _weights(problem: Problem) -> np.ndarray:
@@ -80,20 +83,29 @@ def describe(F: Fisher, *, n: int = 2) -> list[str]:
         same = all(c > 0 for _, c in movers)
         if len(movers) >= 2 and logs and same:
             pct = 100 * (math.exp(min(wdt, 50.0)) - 1)
-            txt = (f"{kind} direction ({coords}; relative units): scaling "
-                   f"{', '.join(nm for nm, _ in movers)} together by {pct:.3g} % "
-                   f"changes the fit by one standard deviation of the noise — "
-                   + ("only their ratios are determined by these data"
-                      if wdt > 0.05 else "their common scale is determined too"))
+            txt = (
+                f"{kind} direction ({coords}; relative units): scaling "
+                f"{', '.join(nm for nm, _ in movers)} together by {pct:.3g} % "
+                f"changes the fit by one standard deviation of the noise — "
+                + (
+                    "only their ratios are determined by these data"
+                    if wdt > 0.05
+                    else "their common scale is determined too"
+                )
+            )
         elif len(movers) >= 2 and kind == "stiffest":
-            txt = (f"{kind} direction ({coords}): this combination is the best determined; "
-                   f"1-σ width {wdt:.3g} in relative units")
+            txt = (
+                f"{kind} direction ({coords}): this combination is the best determined; "
+                f"1-σ width {wdt:.3g} in relative units"
+            )
         elif len(movers) >= 2:
-            txt = (f"{kind} direction ({coords}): these trade off against each other; "
-                   f"1-σ width {wdt:.3g} in relative units")
+            txt = (
+                f"{kind} direction ({coords}): these trade off against each other; "
+                f"1-σ width {wdt:.3g} in relative units"
+            )
         else:
             nm = movers[0][0] if movers else F.names[int(np.argmax(np.abs(v)))]
-            txt = (f"{kind} direction is {nm} alone: 1-σ relative width {wdt:.3g}")
+            txt = f"{kind} direction is {nm} alone: 1-σ relative width {wdt:.3g}"
         out.append(txt)
     return out
 
@@ -162,17 +174,22 @@ def profile(
         from .taskstore import TaskStore, fingerprint, problem_fingerprint
 
         # One store for every profile of a command: a point is known by its own hash.
-        store = TaskStore(resume, fingerprint("profiles", problem_fingerprint(problem), x),
-                          "profile point")
+        store = TaskStore(
+            resume, fingerprint("profiles", problem_fingerprint(problem), x), "profile point"
+        )
         for i, v in enumerate(grid):
             keys[i] = fingerprint(name, float(v), max_nfev)
             hit, rec = store.get(_point_index(keys[i]), keys[i])
             if hit and rec is not None:
                 values[i] = float(rec["chi2"])
     todo = [i for i in range(len(grid)) if i not in values]
-    tasks = run_tasks(_profile_point, [grid[i] for i in todo],
-                      shared=(problem, x, name, max_nfev, w), executor=executor,
-                      workers=workers)
+    tasks = run_tasks(
+        _profile_point,
+        [grid[i] for i in todo],
+        shared=(problem, x, name, max_nfev, w),
+        executor=executor,
+        workers=workers,
+    )
     for j, v in progress(tasks, len(todo), f"profile {name}"):
         i = todo[j]
         if store is not None:
@@ -181,9 +198,13 @@ def profile(
     chi2 = np.array([values[i] for i in range(len(grid))])
     r0 = problem.residuals(x)
     chi2_min = float(np.sum((r0 * w) ** 2))
-    return {"parameter": name, "unit": info.unit, "grid": grid.tolist(),
-            "delta_chi2": (chi2 - min(chi2_min, np.nanmin(chi2))).tolist(),
-            "estimate": float(v0)}
+    return {
+        "parameter": name,
+        "unit": info.unit,
+        "grid": grid.tolist(),
+        "delta_chi2": (chi2 - min(chi2_min, np.nanmin(chi2))).tolist(),
+        "estimate": float(v0),
+    }
 
 
 #: Δχ² of a 95 % profile-likelihood interval (one parameter).
@@ -202,9 +223,12 @@ def profile_interval(pr: dict, level: float = PROFILE_LEVEL) -> dict:
     d = [float(v) if v is not None else math.nan for v in pr.get("delta_chi2") or []]
     ok = [i for i in range(min(len(g), len(d))) if math.isfinite(d[i]) and d[i] < level]
     if not ok:
-        return {"lo": None, "hi": None, "inside": 0,
-                "note": "no grid point within the interval: the grid is too coarse; give "
-                "more points"}
+        return {
+            "lo": None,
+            "hi": None,
+            "inside": 0,
+            "note": "no grid point within the interval: the grid is too coarse; give more points",
+        }
     k = min(ok, key=lambda i: d[i])
     a = b = k
     while a - 1 in ok:
@@ -224,6 +248,8 @@ def profile_interval(pr: dict, level: float = PROFILE_LEVEL) -> dict:
     if a == 0 or b == len(g) - 1:
         notes.append("the interval reaches the grid's edge: widen it")
     if b - a + 1 < 3:
-        notes.append(f"only {b - a + 1} grid point(s) inside: the ends are rough "
-                     "interpolations; give more points")
+        notes.append(
+            f"only {b - a + 1} grid point(s) inside: the ends are rough "
+            "interpolations; give more points"
+        )
     return {"lo": lo, "hi": hi, "inside": b - a + 1, "note": "; ".join(notes)}

@@ -137,8 +137,11 @@ class FitResult:
 
     def undetermined(self) -> list[str]:
         """Free parameters in a direction the data do not determine (singular JᵀJ)."""
-        return [n for n, v in zip(self.names, np.diag(self.covariance()), strict=True)
-                if not np.isfinite(v)]
+        return [
+            n
+            for n, v in zip(self.names, np.diag(self.covariance()), strict=True)
+            if not np.isfinite(v)
+        ]
 
     def sloppy_directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Eigenvalues (ascending) and eigenvectors of the Fisher information in
@@ -174,7 +177,7 @@ def tsqr(*parts: np.ndarray) -> np.ndarray:
         blk[: T.shape[0]] = T
         j = 0
         for c in cols:
-            blk[T.shape[0]:, j : j + c.shape[1]] = c[a:b]
+            blk[T.shape[0] :, j : j + c.shape[1]] = c[a:b]
             j += c.shape[1]
         T = np.asarray(np.linalg.qr(blk, mode="r"))  # mode "r": the triangle alone
     if T.shape[0] < k:
@@ -220,7 +223,8 @@ def check_fittable(problem: Problem) -> None:
     if not problem.names:
         raise ParameterError(
             "the problem has no free parameters: nothing left to fit; free at least one "
-            "(name it in free=[...], or leave it out of fixed)")
+            "(name it in free=[...], or leave it out of fixed)"
+        )
     for i, ex in enumerate(problem.experiments):
         if ex.n < MIN_FIT_SAMPLES:
             where = ex.path or ex.name or f"experiment {i}"
@@ -228,7 +232,8 @@ def check_fittable(problem: Problem) -> None:
                 f"{where}: only {ex.n} samples ({(ex.n - 1) * ex.dt:.3g} s); a fit needs at "
                 f"least {MIN_FIT_SAMPLES} per experiment (its angles must show the discs "
                 "moving and sticking, and the standard errors need stretches of data to "
-                "compare): record or simulate a longer run")
+                "compare): record or simulate a longer run"
+            )
 
 
 def _scale(problem: Problem, x0: np.ndarray) -> np.ndarray:
@@ -295,7 +300,8 @@ def fit(
     if not ev0.ok:
         why = problem.model.problems(problem.params_for(x0, 0)) or ev0.reasons()
         raise StartError(
-            "the start cannot be simulated: " + "; ".join(why)
+            "the start cannot be simulated: "
+            + "; ".join(why)
             + "; choose another start (e.g. leave out --p0 for a start from the data)"
         )
     scale = _scale(problem, x0)
@@ -373,8 +379,9 @@ def fit(
     except KeyboardInterrupt:
         if "x" not in best_x:
             raise
-        raise FitInterrupted(list(problem.names), best_x["x"], counter["best"],
-                             int(counter["n"])) from None
+        raise FitInterrupted(
+            list(problem.names), best_x["x"], counter["best"], int(counter["n"])
+        ) from None
     seconds = time.perf_counter() - t0
     x = res.x * scale
     J = full_jac(res.x)
@@ -391,8 +398,9 @@ def fit(
         ssr=ssr_val,
         n_residuals=r.size,
         success=bool(res.status > 0) and ev.ok,
-        message=_explain(res) if ev.ok else "the model cannot be simulated at the end point: "
-        + "; ".join(ev.reasons()),
+        message=_explain(res)
+        if ev.ok
+        else "the model cannot be simulated at the end point: " + "; ".join(ev.reasons()),
         nfev=int(res.nfev),
         njev=int(res.njev or 0),
         seconds=seconds,
@@ -431,8 +439,7 @@ def _explain(res) -> str:
 
 
 # --------------------------------------------------------------------------- quality
-def integration_error(problem: Problem, ex: Experiment, sim: Simulator, p: Mapping,
-                      s) -> dict:
+def integration_error(problem: Problem, ex: Experiment, sim: Simulator, p: Mapping, s) -> dict:
     """The integrator's own error at ``p``: per angle channel the largest and the RMS
     difference [rad] between the simulation ``s`` on ``sim``'s step grid and one with
     finer steps: one sample (within 1e-10 rad of the event-driven reference at 1 kHz), or a
@@ -440,8 +447,14 @@ def integration_error(problem: Problem, ex: Experiment, sim: Simulator, p: Mappi
     when either run fails."""
     longest = float(np.max(np.diff(sim.grid)))
     fine_step = ex.dt if longest > 1.0 else longest * ex.dt / 3.0
-    fine = Simulator(sim.model, ex.u, ex.dt, shape=problem.shape, step=fine_step,
-                     theta_u=ex.theta_u if problem.prescribed_upper else None)
+    fine = Simulator(
+        sim.model,
+        ex.u,
+        ex.dt,
+        shape=problem.shape,
+        step=fine_step,
+        theta_u=ex.theta_u if problem.prescribed_upper else None,
+    )
     f = fine.simulate(p, raise_on_failure=False)
     if not (s.ok and f.ok):
         return {}
@@ -450,8 +463,11 @@ def integration_error(problem: Problem, ex: Experiment, sim: Simulator, p: Mappi
         if problem.prescribed_upper and c == "theta_u":
             continue
         d = getattr(s, c) - getattr(f, c)
-        out[c] = {"max": float(np.max(np.abs(d))), "rms": float(np.sqrt(np.mean(d * d))),
-                  "fine_step": fine_step}
+        out[c] = {
+            "max": float(np.max(np.abs(d))),
+            "rms": float(np.sqrt(np.mean(d * d))),
+            "fine_step": fine_step,
+        }
     return out
 
 
@@ -479,8 +495,10 @@ def quality(
     k = len(problem.names) if k is None else k
     given = list(validation_alpha0) if validation_alpha0 is not None else [None] * len(exps)
     if experiments is not None and len(given) != len(exps):
-        raise ValueError(f"validation_alpha0 has {len(given)} entries for {len(exps)} "
-                         "validation experiments; give one per experiment (None: decide)")
+        raise ValueError(
+            f"validation_alpha0 has {len(given)} entries for {len(exps)} "
+            "validation experiments; give one per experiment (None: decide)"
+        )
     rows = []
     for i, ex in enumerate(exps):
         own = experiments is None
@@ -518,5 +536,3 @@ def quality(
         if not own:
             rows[-1]["validation_alpha0"] = torsion
     return rows
-
-

@@ -98,8 +98,13 @@ class Prior:
 
 
 #: The keys of one prior's table and their types.
-PRIOR_KEYS = {"dist": (str,), "lower": (int, float), "upper": (int, float),
-              "mean": (int, float), "sd": (int, float)}
+PRIOR_KEYS = {
+    "dist": (str,),
+    "lower": (int, float),
+    "upper": (int, float),
+    "mean": (int, float),
+    "sd": (int, float),
+}
 
 
 def check_prior_spec(spec: Mapping, where: str) -> None:
@@ -107,8 +112,7 @@ def check_prior_spec(spec: Mapping, where: str) -> None:
     (``ParameterError`` starting with ``where``); the analysis file uses it too."""
     for k, v in spec.items():
         if k not in PRIOR_KEYS:
-            raise ParameterError(f"{where}: unknown key {k!r}; a prior has "
-                                 f"{', '.join(PRIOR_KEYS)}")
+            raise ParameterError(f"{where}: unknown key {k!r}; a prior has {', '.join(PRIOR_KEYS)}")
         if not isinstance(v, PRIOR_KEYS[k]) or isinstance(v, bool):
             want = "a string" if k == "dist" else "a number"
             raise ParameterError(f"{where}: {k} = {v!r} must be {want}")
@@ -128,13 +132,18 @@ def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
     from ..io.tomlfile import read_toml
 
     p = Path(path)
-    doc = read_toml(p, ParameterError, "priors file",
-                    'write a [priors] table, e.g. k_alpha = { dist = "normal", mean = 0.08, '
-                    'sd = 0.004 }')
+    doc = read_toml(
+        p,
+        ParameterError,
+        "priors file",
+        'write a [priors] table, e.g. k_alpha = { dist = "normal", mean = 0.08, sd = 0.004 }',
+    )
     table = doc.get("priors", doc)
     if not isinstance(table, Mapping):
-        raise ParameterError(f"{p}: priors = {table!r} must be a table: write [priors] on its "
-                             "own line, then one line per parameter")
+        raise ParameterError(
+            f"{p}: priors = {table!r} must be a table: write [priors] on its "
+            "own line, then one line per parameter"
+        )
     out = {}
     names = problem.names_base()
     for name, spec in table.items():
@@ -144,21 +153,26 @@ def load_priors(path: str | Path, problem: Problem) -> dict[str, Prior]:
                 f"{', '.join(names)}"
             )
         if not isinstance(spec, Mapping):
-            raise ParameterError(f"{p}: [priors] {name} must be a table like "
-                                 "{ dist = \"normal\", mean = 0.08, sd = 0.004 }")
+            raise ParameterError(
+                f"{p}: [priors] {name} must be a table like "
+                '{ dist = "normal", mean = 0.08, sd = 0.004 }'
+            )
         check_prior_spec(spec, f"{p}: [priors] {name}")
         info = problem.info(name)
         kind = spec.get("dist", "uniform")
         if kind not in ("uniform", "loguniform", "normal"):
-            raise ParameterError(f"{p}: [priors] {name}: dist {kind!r}; choose uniform, "
-                                 "loguniform or normal")
+            raise ParameterError(
+                f"{p}: [priors] {name}: dist {kind!r}; choose uniform, loguniform or normal"
+            )
         lo = float(spec.get("lower", info.lower))
         hi = float(spec.get("upper", info.upper))
         lo, hi = max(lo, info.lower), min(hi, info.upper)
         if not lo < hi:
-            raise ParameterError(f"{p}: [priors] {name}: lower {lo:g} must be below upper "
-                                 f"{hi:g} (within the physical bounds [{info.lower:g}, "
-                                 f"{info.upper:g}] {info.unit})")
+            raise ParameterError(
+                f"{p}: [priors] {name}: lower {lo:g} must be below upper "
+                f"{hi:g} (within the physical bounds [{info.lower:g}, "
+                f"{info.upper:g}] {info.unit})"
+            )
         if kind == "loguniform" and lo <= 0:
             raise ParameterError(f"{p}: [priors] {name}: a log-uniform prior needs lower > 0")
         mean = float(spec.get("mean", math.nan))
@@ -210,8 +224,11 @@ class LogPrior:
 
 
 #: The noise model of each ``noise`` name (AR(1) errors: :class:`AR1LogLikelihood`).
-NOISE_CLASSES = {"robust": GaussianLogLikelihood, "floor": GaussianLogLikelihood,
-                 "sampled": SampledSigmaLogLikelihood}
+NOISE_CLASSES = {
+    "robust": GaussianLogLikelihood,
+    "floor": GaussianLogLikelihood,
+    "sampled": SampledSigmaLogLikelihood,
+}
 
 
 class LogPosterior:
@@ -246,25 +263,49 @@ class LogPosterior:
         AR(1) errors per channel (then σ is the innovation scale and is sampled).
     """
 
-    def __init__(self, log_likelihood, log_prior=None, *, transform=None, adjustment=None,
-                 priors=None, noise: str | None = None, ar1: bool = False, uncertainty=None):
+    def __init__(
+        self,
+        log_likelihood,
+        log_prior=None,
+        *,
+        transform=None,
+        adjustment=None,
+        priors=None,
+        noise: str | None = None,
+        ar1: bool = False,
+        uncertainty=None,
+    ):
         if isinstance(log_likelihood, Problem):
             if transform is not None or adjustment is not None:
-                raise TypeError("the posterior of a fit, LogPosterior(problem, x_fit, ...), "
-                                "chooses its coordinates and adjustment itself; to give "
-                                "them, compose it: LogPosterior(log_likelihood, log_prior, "
-                                "transform=..., adjustment=...)")
-            self._init_for_fit(log_likelihood, log_prior, priors=priors,
-                               noise="robust" if noise is None else noise, ar1=ar1,
-                               uncertainty=uncertainty)
+                raise TypeError(
+                    "the posterior of a fit, LogPosterior(problem, x_fit, ...), "
+                    "chooses its coordinates and adjustment itself; to give "
+                    "them, compose it: LogPosterior(log_likelihood, log_prior, "
+                    "transform=..., adjustment=...)"
+                )
+            self._init_for_fit(
+                log_likelihood,
+                log_prior,
+                priors=priors,
+                noise="robust" if noise is None else noise,
+                ar1=ar1,
+                uncertainty=uncertainty,
+            )
             return
         if priors is not None or noise is not None or ar1 or uncertainty is not None:
-            raise TypeError("priors, noise, ar1 and uncertainty choose the pieces of a fit's "
-                            "posterior, LogPosterior(problem, x_fit, ...); a posterior "
-                            "composed of pieces takes the pieces themselves")
+            raise TypeError(
+                "priors, noise, ar1 and uncertainty choose the pieces of a fit's "
+                "posterior, LogPosterior(problem, x_fit, ...); a posterior "
+                "composed of pieces takes the pieces themselves"
+            )
         self._compose(log_likelihood, log_prior, transform, adjustment)
-        self.noise = ("sampled" if isinstance(log_likelihood, SampledSigmaLogLikelihood)
-                      else "robust" if adjustment is not None else "floor")
+        self.noise = (
+            "sampled"
+            if isinstance(log_likelihood, SampledSigmaLogLikelihood)
+            else "robust"
+            if adjustment is not None
+            else "floor"
+        )
         self.z_fit = None if adjustment is None else adjustment.z_fit
 
     def _compose(self, log_likelihood, log_prior, transform, adjustment) -> None:
@@ -272,40 +313,54 @@ class LogPosterior:
         self.likelihood: GaussianLogLikelihood = log_likelihood
         self.prior: LogPrior = LogPrior(problem) if log_prior is None else log_prior
         k = len(problem.names)
-        self.transform: LogCoordinates = (LogCoordinates(np.zeros(k, bool)) if transform is None
-                                          else transform)
+        self.transform: LogCoordinates = (
+            LogCoordinates(np.zeros(k, bool)) if transform is None else transform
+        )
         self.adjustment: CurvatureAdjustment | None = adjustment
         if self.prior.problem is not problem:
-            raise ValueError("the log prior and the log-likelihood belong to different "
-                             "problems; build both from the same Problem")
+            raise ValueError(
+                "the log prior and the log-likelihood belong to different "
+                "problems; build both from the same Problem"
+            )
         if len(self.transform) != k:
-            raise ValueError(f"the coordinates have {len(self.transform)} entries, the "
-                             f"problem {k} free parameters")
+            raise ValueError(
+                f"the coordinates have {len(self.transform)} entries, the "
+                f"problem {k} free parameters"
+            )
         if adjustment is not None and adjustment.z_fit.size != k:
-            raise ValueError(f"the adjustment has {adjustment.z_fit.size} coordinates, the "
-                             f"problem {k} free parameters")
+            raise ValueError(
+                f"the adjustment has {adjustment.z_fit.size} coordinates, the "
+                f"problem {k} free parameters"
+            )
         self.problem = problem
         self.k: int = k
         floor, notes = problem.noise_floors()
         self.floor: dict[str, float] = floor
         self.floor_notes: list[str] = notes
-        self.coord_names = (self.transform.names(problem.names)
-                            + log_likelihood.noise_names())
+        self.coord_names = self.transform.names(problem.names) + log_likelihood.noise_names()
         self.ndim = len(self.coord_names)
         self.n_failed = 0
         self.n_calls = 0
         self.uncertainty: Any = None  # the fit's honest covariance, robust noise only
 
     @classmethod
-    def for_fit(cls, problem: Problem, x_fit, *, priors=None, noise: str = "robust",
-                ar1: bool = False, uncertainty=None) -> LogPosterior:
+    def for_fit(
+        cls,
+        problem: Problem,
+        x_fit,
+        *,
+        priors=None,
+        noise: str = "robust",
+        ar1: bool = False,
+        uncertainty=None,
+    ) -> LogPosterior:
         """The posterior of the fit ``x_fit`` of ``problem`` (the class docstring's
         first form)."""
-        return cls(problem, x_fit, priors=priors, noise=noise, ar1=ar1,
-                   uncertainty=uncertainty)
+        return cls(problem, x_fit, priors=priors, noise=noise, ar1=ar1, uncertainty=uncertainty)
 
-    def _init_for_fit(self, problem: Problem, x_fit, *, priors, noise: str, ar1: bool,
-                      uncertainty) -> None:
+    def _init_for_fit(
+        self, problem: Problem, x_fit, *, priors, noise: str, ar1: bool, uncertainty
+    ) -> None:
         if noise not in NOISE_MODELS:
             raise ValueError(f"noise must be one of {', '.join(NOISE_MODELS)}, not {noise!r}")
         x_fit = np.asarray(x_fit, float)
@@ -321,18 +376,22 @@ class LogPosterior:
         sigma = dict(floor)
         if noise == "robust" and not ar1:
             w = problem.weights
-            common = math.exp(float(np.mean([math.log(floor[c] * w[c])
-                                             for c in problem.channels])))
+            common = math.exp(float(np.mean([math.log(floor[c] * w[c]) for c in problem.channels])))
             sigma = {c: common / w[c] for c in problem.channels}
         kind = AR1LogLikelihood if ar1 else NOISE_CLASSES[noise]
-        self._compose(kind(problem, sigma), LogPrior(problem, priors),
-                      LogCoordinates.for_fit(problem.lower, x_fit), None)
+        self._compose(
+            kind(problem, sigma),
+            LogPrior(problem, priors),
+            LogCoordinates.for_fit(problem.lower, x_fit),
+            None,
+        )
         self.noise = "sampled" if ar1 else noise
         self.z_fit = self.to_z(x_fit)[: self.k]
         if self.noise == "robust":
             self.uncertainty = uncertainty or self._fit_uncertainty(x_fit)
             self.adjustment = CurvatureAdjustment.matching(
-                self.z_fit, self._precision_iid(x_fit), self.target_cov_z(x_fit))
+                self.z_fit, self._precision_iid(x_fit), self.target_cov_z(x_fit)
+            )
 
     # ------------------------------------------------------------ the pieces' words
     @property
@@ -386,7 +445,7 @@ class LogPosterior:
             return cached[1].copy()
         J, _ = self.problem.jacobian(x_fit)
         H = np.zeros((J.shape[1], J.shape[1]))
-        for (c, a, b) in self.segments:
+        for c, a, b in self.segments:
             Js = J[a:b]
             H += (Js.T @ Js) / (self.sigma[c] * self.problem.weights[c]) ** 2
         del J
@@ -474,8 +533,9 @@ class LogPosterior:
         lam, V = np.linalg.eigh(0.5 * (Hz + Hz.T))
         # Directions the data do not determine (an exact symmetry) get a 1 % spread, so
         # the ensemble's stretch moves can travel along them.
-        var = np.where(lam > 1e-10 * max(lam.max(), 1e-300), 1.0 / np.maximum(lam, 1e-300),
-                       1e-4 / scale**2)
+        var = np.where(
+            lam > 1e-10 * max(lam.max(), 1e-300), 1.0 / np.maximum(lam, 1e-300), 1e-4 / scale**2
+        )
         cov_z = (V * var) @ V.T
         z0 = self.to_z(x_fit)
         out = np.empty((n_walkers, self.ndim))
@@ -487,11 +547,12 @@ class LogPosterior:
         while i < n_walkers:
             tries += 1
             if tries > 50 * n_walkers:
-                raise RuntimeError("cannot place the walkers: the posterior is -inf all "
-                                   "around the fit (check the priors and bounds)")
+                raise RuntimeError(
+                    "cannot place the walkers: the posterior is -inf all "
+                    "around the fit (check the priors and bounds)"
+                )
             zz = z0.copy()
-            zz[: self.k] = rng.multivariate_normal(z0[: self.k], scale**2 * cov_z,
-                                                   method="eigh")
+            zz[: self.k] = rng.multivariate_normal(z0[: self.k], scale**2 * cov_z, method="eigh")
             zz[self.k :] = z0[self.k :] + 0.01 * rng.standard_normal(self.ndim - self.k)
             if np.isfinite(self(zz[None, :])[0]):
                 out[i] = zz

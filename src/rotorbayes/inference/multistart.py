@@ -49,8 +49,10 @@ class MultistartResult:
         "as good" (default 5 %).
         """
         if self.ssr.size == 0:
-            return (f"all {len(self.failed)} finished starts failed; the first reason: "
-                    f"{next(iter(self.failed.values()), '')}")
+            return (
+                f"all {len(self.failed)} finished starts failed; the first reason: "
+                f"{next(iter(self.failed.values()), '')}"
+            )
         text = describe_spread(self.names, self.ends, self.ssr, flat=flat)
         ratio = floor_ratio(self.best.problem, self.best.x)
         if ratio > NEAR_FLOOR:
@@ -63,8 +65,10 @@ class MultistartResult:
         else:
             text += f"\nThe best fit is {ratio:.2f}x the encoder floor."
         if self.failed:
-            text += (f"\n{len(self.failed)} start(s) failed and count as no minimum (e.g. "
-                     f"{next(iter(self.failed.values()))}).")
+            text += (
+                f"\n{len(self.failed)} start(s) failed and count as no minimum (e.g. "
+                f"{next(iter(self.failed.values()))})."
+            )
         if self.interrupted:
             text += "\nInterrupted: only the starts finished before Ctrl-C are included."
         best = float(np.min(self.ssr))
@@ -283,19 +287,36 @@ def multistart(
     if resume is not None:
         from .taskstore import TaskStore, fingerprint, problem_fingerprint
 
-        store = TaskStore(resume, fingerprint(
-            "multistart", problem_fingerprint(problem), seed, n_starts, around, spread,
-            {k: v for k, v in sorted(fit_kw.items())}), "start")
+        store = TaskStore(
+            resume,
+            fingerprint(
+                "multistart",
+                problem_fingerprint(problem),
+                seed,
+                n_starts,
+                around,
+                spread,
+                {k: v for k, v in sorted(fit_kw.items())},
+            ),
+            "start",
+        )
         results = kept_fits(store, starts, problem)
         if results and progress:
-            print(f"  {len(results)} of {n_starts} starts had finished in an earlier run: "
-                  f"read from {store.folder}", flush=True)
+            print(
+                f"  {len(results)} of {n_starts} starts had finished in an earlier run: "
+                f"read from {store.folder}",
+                flush=True,
+            )
     todo = [i for i in range(n_starts) if i not in results]
     interrupted = False
     try:
-        for j, (r, why) in run_tasks(_fit_start, [starts[i] for i in todo],
-                                     shared=(problem, fit_kw), executor=executor,
-                                     workers=workers):
+        for j, (r, why) in run_tasks(
+            _fit_start,
+            [starts[i] for i in todo],
+            shared=(problem, fit_kw),
+            executor=executor,
+            workers=workers,
+        ):
             i = todo[j]
             if r is not None:
                 r.problem = problem  # a process or Dask worker sent back its own copy
@@ -315,9 +336,7 @@ def multistart(
         interrupted = True
     idx = sorted(results)
     good = [i for i in idx if results[i][0] is not None and _usable(results[i][0])]
-    failed = {
-        i: (results[i][1] or results[i][0].message) for i in idx if i not in good
-    }
+    failed = {i: (results[i][1] or results[i][0].message) for i in idx if i not in good}
     ok = [results[i][0] for i in good]
     ends = np.array([f.x for f in ok]).reshape(len(ok), len(problem.names))
     ssr = np.array([f.ssr for f in ok])
@@ -338,8 +357,20 @@ def multistart(
 
 
 #: The fields of a FitResult a task store keeps (all but the problem and uncertainty).
-_RECORD_FIELDS = ("names", "x", "x0", "stderr", "jac", "ssr", "n_residuals", "success",
-                  "message", "nfev", "njev", "seconds")
+_RECORD_FIELDS = (
+    "names",
+    "x",
+    "x0",
+    "stderr",
+    "jac",
+    "ssr",
+    "n_residuals",
+    "success",
+    "message",
+    "nfev",
+    "njev",
+    "seconds",
+)
 
 
 def _fit_record(r: FitResult | None, why: str) -> dict:
@@ -350,8 +381,11 @@ def _fit_record(r: FitResult | None, why: str) -> dict:
             v = getattr(r, k)
             if v is None:  # a long-data fit's Jacobian (see _fit_start)
                 continue
-            rec[k] = v if isinstance(v, np.ndarray | list | str | bool) else (
-                float(v) if isinstance(v, float | np.floating) else int(v))
+            rec[k] = (
+                v
+                if isinstance(v, np.ndarray | list | str | bool)
+                else (float(v) if isinstance(v, float | np.floating) else int(v))
+            )
     return rec
 
 

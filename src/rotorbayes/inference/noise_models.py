@@ -84,7 +84,7 @@ class GaussianLogLikelihood:
         """Pointwise log-likelihood rows of the residual rows ``R`` (``nan`` where the
         simulation failed)."""
         L = np.empty_like(R)
-        for (c, a, b) in self.segments:
+        for c, a, b in self.segments:
             j = self.channels.index(c)
             w = self.problem.weights[c]
             e = R[:, a:b] / w
@@ -100,7 +100,7 @@ class GaussianLogLikelihood:
         """The log-likelihood of each residual row, from sums of squares per segment (no
         pointwise array)."""
         ll = np.zeros(R.shape[0])
-        for (c, a, b) in self.segments:
+        for c, a, b in self.segments:
             j = self.channels.index(c)
             e = R[:, a:b] / self.problem.weights[c]
             s = S[:, j]
@@ -116,8 +116,9 @@ class GaussianLogLikelihood:
         log-likelihood's term that does not scale with σ (None: none)."""
         return np.einsum("ij,ij->i", e, e), None
 
-    def loglik(self, X: np.ndarray, S: np.ndarray, P: np.ndarray,
-               rows: int) -> tuple[np.ndarray, np.ndarray]:
+    def loglik(
+        self, X: np.ndarray, S: np.ndarray, P: np.ndarray, rows: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Log-likelihood per row of free vectors ``X`` and a failed mask; the rows are
         simulated ``rows`` at a time and only their sums of squares are kept, so the
         memory does not grow with the number of rows."""
@@ -132,8 +133,9 @@ class GaussianLogLikelihood:
             del R
         return ll, failed
 
-    def pointwise(self, X: np.ndarray, S: np.ndarray,
-                  P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def pointwise(
+        self, X: np.ndarray, S: np.ndarray, P: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Pointwise log-likelihood rows (n, n_residuals) and a failed mask (all rows at
         once: for few rows)."""
         R = self.problem.residuals_batch(X)
@@ -160,8 +162,7 @@ class SampledSigmaLogLikelihood(GaussianLogLikelihood):
         # p(σ) ∝ 1/σ is uniform in log σ (within a wide physical range).
         ls = np.log(S)
         lo, hi = SIGMA_RANGE
-        return np.where(np.all((ls > math.log(lo)) & (ls < math.log(hi)), axis=1), 0.0,
-                        -np.inf)
+        return np.where(np.all((ls > math.log(lo)) & (ls < math.log(hi)), axis=1), 0.0, -np.inf)
 
 
 class AR1LogLikelihood(SampledSigmaLogLikelihood):
@@ -174,8 +175,7 @@ class AR1LogLikelihood(SampledSigmaLogLikelihood):
         return super().noise_names() + [f"phi_{c}" for c in self.channels]
 
     def noise_z(self, sigma: Mapping | None = None, phi: Mapping | None = None) -> list:
-        return super().noise_z(sigma) + [float((phi or {}).get(c, 0.0))
-                                         for c in self.channels]
+        return super().noise_z(sigma) + [float((phi or {}).get(c, 0.0)) for c in self.channels]
 
     def noise_of(self, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         nc = len(self.channels)
@@ -183,7 +183,8 @@ class AR1LogLikelihood(SampledSigmaLogLikelihood):
 
     def noise_log_prior(self, S: np.ndarray, P: np.ndarray) -> np.ndarray:
         return super().noise_log_prior(S, P) + np.where(
-            np.all(np.abs(P) < PHI_LIMIT, axis=1), 0.0, -np.inf)
+            np.all(np.abs(P) < PHI_LIMIT, axis=1), 0.0, -np.inf
+        )
 
     def _pointwise_segment(self, e, s, phi):
         innov = e.copy()

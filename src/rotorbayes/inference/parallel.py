@@ -74,8 +74,9 @@ PROCESSES_FROM_CORES = 4
 PROCESSES_FROM_RESIDUALS = 1_000_000
 
 
-def default_backend(cores: int | None = None, tasks: int | None = None,
-                    residuals: int | None = None) -> str:
+def default_backend(
+    cores: int | None = None, tasks: int | None = None, residuals: int | None = None
+) -> str:
     """The local back-end that pays for ``tasks`` tasks of ``residuals`` residuals each on a
     machine of ``cores`` cores (:func:`default_reason` says why): processes forked from a
     fork server from :data:`PROCESSES_FROM_CORES` cores on, or on fewer for work of
@@ -84,8 +85,9 @@ def default_backend(cores: int | None = None, tasks: int | None = None,
     return _default_choice(cores, tasks, residuals)[0]
 
 
-def default_reason(cores: int | None = None, tasks: int | None = None,
-                   residuals: int | None = None) -> str:
+def default_reason(
+    cores: int | None = None, tasks: int | None = None, residuals: int | None = None
+) -> str:
     """Why :func:`default_backend` picks what it picks, in words for the command's output."""
     return _default_choice(cores, tasks, residuals)[1]
 
@@ -99,18 +101,22 @@ def _default_choice(cores, tasks, residuals) -> tuple[str, str]:
     if "forkserver" not in mp.get_all_start_methods():
         return "threads", f"{where}: no fork server on this platform"
     if cores >= PROCESSES_FROM_CORES:
-        return "processes", (f"{where}: processes are the fastest from "
-                             f"{PROCESSES_FROM_CORES} cores on, {bench}")
+        return "processes", (
+            f"{where}: processes are the fastest from {PROCESSES_FROM_CORES} cores on, {bench}"
+        )
     limit = f"{PROCESSES_FROM_RESIDUALS:,}".replace(",", " ")
     if not tasks or not residuals:
         return "threads", f"{where} where the work's size is not known"
-    work = f"{tasks} task{'s' if tasks != 1 else ''} x {residuals:,} residuals".replace(
-        ",", " ")
+    work = f"{tasks} task{'s' if tasks != 1 else ''} x {residuals:,} residuals".replace(",", " ")
     if tasks * residuals >= PROCESSES_FROM_RESIDUALS:
-        return "processes", (f"{where} for {work}: processes win back their start from "
-                             f"{limit} residuals in all, {bench}")
-    return "threads", (f"{where} for {work}: processes win back their start only from "
-                       f"{limit} residuals in all, {bench}")
+        return "processes", (
+            f"{where} for {work}: processes win back their start from "
+            f"{limit} residuals in all, {bench}"
+        )
+    return "threads", (
+        f"{where} for {work}: processes win back their start only from "
+        f"{limit} residuals in all, {bench}"
+    )
 
 
 #: The default back-end of a command (no option, no variable, no analysis-file entry) for
@@ -130,8 +136,12 @@ TIMEOUT_ENV = "ROTORBAYES_DASK_TIMEOUT"
 CLIENT_GRACE = 10.0
 
 #: Thread counts every worker runs with: one task per worker, each single-threaded.
-WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
-              "MKL_NUM_THREADS": "1"}
+WORKER_ENV = {
+    "NUMBA_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "OMP_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
 
 
 class ClusterError(EnvironmentFailure):
@@ -215,8 +225,11 @@ def warm_kernel() -> None:
     from ..model.simulate import simulate
 
     u = np.linspace(0.0, 1.0, 21)
-    for config, pset in (("upper", "thesis:4.1:P_ref"), ("coupled", "thesis:4.2:P_ref"),
-                         ("brake", "thesis:4.3:P_ref")):
+    for config, pset in (
+        ("upper", "thesis:4.1:P_ref"),
+        ("coupled", "thesis:4.2:P_ref"),
+        ("brake", "thesis:4.3:P_ref"),
+    ):
         with contextlib.suppress(Exception):  # a missing table entry must not stop a worker
             simulate(pset, u, dt=0.005, config=config)
     # Entry points are compiled (or loaded) on first use: load the residuals' too, which
@@ -428,7 +441,8 @@ class ExecutorSpec:
 
 #: The address forms of a Dask scheduler: [PROTOCOL://]HOST[:PORT].
 _ADDRESS = re.compile(
-    r"^(?:(?:tcp|tls|ucx|ws|wss)://)?(\[[0-9a-fA-F:.]+\]|[^\s/:\[\]]+)(?::(\d{1,5}))?$")
+    r"^(?:(?:tcp|tls|ucx|ws|wss)://)?(\[[0-9a-fA-F:.]+\]|[^\s/:\[\]]+)(?::(\d{1,5}))?$"
+)
 
 
 def check_address(address: str, source: str) -> str:
@@ -438,7 +452,8 @@ def check_address(address: str, source: str) -> str:
     if not m or (m.group(2) is not None and not 0 < int(m.group(2)) < 65536):
         raise ValueError(
             f"{address!r} (from {source}) is not a Dask scheduler address; give it as "
-            "tcp://HOST:PORT, as `dask scheduler` prints it (e.g. tcp://10.0.0.5:8786)")
+            "tcp://HOST:PORT, as `dask scheduler` prints it (e.g. tcp://10.0.0.5:8786)"
+        )
     return address.strip()
 
 
@@ -460,28 +475,31 @@ def choose(
     env = os.environ if environ is None else environ
     file = file or {}
     if backend is not None and backend not in BACKENDS:
-        raise ValueError(f"unknown parallel back-end {backend!r}; choose one of "
-                         f"{', '.join(BACKENDS)}")
+        raise ValueError(
+            f"unknown parallel back-end {backend!r}; choose one of {', '.join(BACKENDS)}"
+        )
     if scheduler:
-        return ExecutorSpec("dask", workers, check_address(scheduler, "--scheduler"),
-                            "--scheduler")
+        return ExecutorSpec("dask", workers, check_address(scheduler, "--scheduler"), "--scheduler")
     if backend not in (None, "dask"):
         return ExecutorSpec(backend, workers, None, "--backend")
     if env.get(SCHEDULER_ENV):
-        return ExecutorSpec("dask", workers, check_address(env[SCHEDULER_ENV], SCHEDULER_ENV),
-                            SCHEDULER_ENV)
+        return ExecutorSpec(
+            "dask", workers, check_address(env[SCHEDULER_ENV], SCHEDULER_ENV), SCHEDULER_ENV
+        )
     if backend == "dask":
         return ExecutorSpec("dask", workers, None, "--backend")
     if file.get("scheduler"):
-        return ExecutorSpec("dask", workers or file.get("workers"),
-                            check_address(str(file["scheduler"]),
-                                          "the analysis file's [parallel] scheduler"),
-                            "the analysis file")
+        return ExecutorSpec(
+            "dask",
+            workers or file.get("workers"),
+            check_address(str(file["scheduler"]), "the analysis file's [parallel] scheduler"),
+            "the analysis file",
+        )
     if file.get("backend"):
-        return ExecutorSpec(file["backend"], workers or file.get("workers"), None,
-                            "the analysis file")
-    return ExecutorSpec(DEFAULT_BACKEND, workers or file.get("workers"), None, "default",
-                        auto=True)
+        return ExecutorSpec(
+            file["backend"], workers or file.get("workers"), None, "the analysis file"
+        )
+    return ExecutorSpec(DEFAULT_BACKEND, workers or file.get("workers"), None, "default", auto=True)
 
 
 class _WarmUp:
@@ -514,8 +532,11 @@ def _share_worker_cores(worker) -> None:
     global _POOL_SHARE
     import numba
 
-    nthreads = getattr(getattr(worker, "state", None), "nthreads", None) or getattr(
-        worker, "nthreads", None) or 1
+    nthreads = (
+        getattr(getattr(worker, "state", None), "nthreads", None)
+        or getattr(worker, "nthreads", None)
+        or 1
+    )
     _POOL_SHARE = _Share(min(int(nthreads), int(numba.config.NUMBA_NUM_THREADS)))
 
 
@@ -541,8 +562,12 @@ class DefaultPool(Executor):
     :func:`default_backend` picks for its size; each pool is opened at its first use, kept
     for the command, and said once (``say``).  A task submitted by hand runs in threads."""
 
-    def __init__(self, workers: int | None = None, say: Callable[[str], None] | None = None,
-                 cores: int | None = None):
+    def __init__(
+        self,
+        workers: int | None = None,
+        say: Callable[[str], None] | None = None,
+        cores: int | None = None,
+    ):
         self._workers = workers
         self._max_workers = max(1, int(workers or os.cpu_count() or 1))
         self._cores = cores
@@ -558,8 +583,10 @@ class DefaultPool(Executor):
             spec = ExecutorSpec(backend, self._workers, None, "default")
             self._pools[backend] = self._stack.enter_context(open_executor(spec))
             if self._say is not None:
-                self._say(f"parallel tasks run {spec.describe()} "
-                          f"({default_reason(self._cores, tasks, residuals)})")
+                self._say(
+                    f"parallel tasks run {spec.describe()} "
+                    f"({default_reason(self._cores, tasks, residuals)})"
+                )
         return self._pools[backend]
 
     def submit(self, fn, /, *args, **kwargs) -> Future:
@@ -580,8 +607,9 @@ def _residuals_of(shared: Any) -> int | None:
 
 
 @contextlib.contextmanager
-def open_executor(spec: ExecutorSpec, *, say: Callable[[str], None] | None = None
-                  ) -> Iterator[Executor]:
+def open_executor(
+    spec: ExecutorSpec, *, say: Callable[[str], None] | None = None
+) -> Iterator[Executor]:
     """The executor for ``spec``, shut down (and a cluster it started, stopped) on exit.
     The default of a machine with fewer than :data:`PROCESSES_FROM_CORES` cores is a
     :class:`DefaultPool` (threads or processes by the size of each batch); ``say`` gets the
@@ -611,10 +639,12 @@ def open_executor(spec: ExecutorSpec, *, say: Callable[[str], None] | None = Non
             # one numba thread outside its kernel batches, a share of the cores in them.
             ctx = process_context()
             n = spec.n_workers()
-            pool = _SharingProcessPool(max_workers=n, mp_context=ctx,
-                                       initializer=_process_initializer,
-                                       initargs=(ctx.Value("i", 0),
-                                                 max(n, os.cpu_count() or n)))
+            pool = _SharingProcessPool(
+                max_workers=n,
+                mp_context=ctx,
+                initializer=_process_initializer,
+                initargs=(ctx.Value("i", 0), max(n, os.cpu_count() or n)),
+            )
         try:
             yield pool
         finally:
@@ -635,8 +665,10 @@ def connect_timeout() -> float:
     except ValueError:
         value = math.nan
     if not (math.isfinite(value) and value > 0):
-        raise ClusterError(f"{TIMEOUT_ENV}={raw!r} is not a number of seconds > 0; set it to "
-                           f"e.g. 60, or unset it for the default {CONNECT_TIMEOUT:.0f} s")
+        raise ClusterError(
+            f"{TIMEOUT_ENV}={raw!r} is not a number of seconds > 0; set it to "
+            f"e.g. 60, or unset it for the default {CONNECT_TIMEOUT:.0f} s"
+        )
     return value
 
 
@@ -645,8 +677,9 @@ def _dask_client(spec: ExecutorSpec):
     try:
         from distributed import LocalCluster
     except ImportError as exc:  # pragma: no cover - a declared dependency
-        raise ClusterError("the Dask back-end needs dask[distributed]: pip install "
-                           "'dask[distributed]'") from exc
+        raise ClusterError(
+            "the Dask back-end needs dask[distributed]: pip install 'dask[distributed]'"
+        ) from exc
     cluster = None
     wait = connect_timeout() if spec.scheduler else CONNECT_TIMEOUT
     quiet = _quiet_dask_logs()
@@ -661,12 +694,17 @@ def _dask_client(spec: ExecutorSpec):
                     f"the Dask scheduler at {spec.scheduler} (from {spec.source}) has no "
                     f"workers (none joined within {wait:g} s); start some with "
                     f"`dask worker {spec.scheduler}` (workers end when their scheduler is "
-                    "lost: after restarting a scheduler, restart its workers too)") from None
+                    "lost: after restarting a scheduler, restart its workers too)"
+                ) from None
         else:
             with _children_ignore_ctrl_c():  # the cluster's workers are this command's
-                cluster = LocalCluster(n_workers=spec.n_workers(), threads_per_worker=1,
-                                       processes=True, dashboard_address=None,
-                                       env=WORKER_ENV)
+                cluster = LocalCluster(
+                    n_workers=spec.n_workers(),
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    env=WORKER_ENV,
+                )
             client = _client_class()(cluster, set_as_default=False)
         try:
             client.register_plugin(_worker_plugin(), name=_WarmUp.name)
@@ -689,8 +727,10 @@ _HANDSHAKE_MAX = 1 << 16
 
 
 def _start_help(address: str) -> str:
-    return (f"Start one with `dask scheduler` and workers with `dask worker {address}`, or "
-            "drop the address to run locally")
+    return (
+        f"Start one with `dask scheduler` and workers with `dask worker {address}`, or "
+        "drop the address to run locally"
+    )
 
 
 def probe_scheduler(address: str, source: str, wait: float) -> bool:
@@ -729,12 +769,14 @@ def probe_scheduler(address: str, source: str, wait: float) -> bool:
     while sock is None:
         if left() <= 0:
             why = f": {last}" if last is not None else ""
-            raise ClusterError(f"no Dask scheduler answered at {where} within {wait:g} s"
-                               f"{why}. {_start_help(address)}")
+            raise ClusterError(
+                f"no Dask scheduler answered at {where} within {wait:g} s"
+                f"{why}. {_start_help(address)}"
+            )
         try:
             sock = socket.create_connection((host, port), timeout=max(0.05, left()))
         except OSError as exc:  # refused, unreachable, a name not found: a scheduler may
-            last = exc          # still be starting, as Dask's own connect assumes
+            last = exc  # still be starting, as Dask's own connect assumes
             time.sleep(max(0.0, min(0.25, left())))
     try:
         with sock:
@@ -750,21 +792,25 @@ def probe_scheduler(address: str, source: str, wait: float) -> bool:
     except _NotDask as exc:
         said = exc.args[0].split(b"\r\n")[0].split(b"\n")[0][:72]
         text = said.decode("ascii", "replace")
-        kind = " (a web server: is it the dashboard's address?)" \
-            if said.startswith(b"HTTP/") else ""
+        kind = (
+            " (a web server: is it the dashboard's address?)" if said.startswith(b"HTTP/") else ""
+        )
         raise ClusterError(
             f"{where} answered, but not as a Dask scheduler: it sent {text!r}{kind}. Give "
-            "the address `dask scheduler` prints after \"Scheduler at:\" (tcp://HOST:8786), "
-            "not its dashboard's (http://HOST:8787)") from None
+            'the address `dask scheduler` prints after "Scheduler at:" (tcp://HOST:8786), '
+            "not its dashboard's (http://HOST:8787)"
+        ) from None
     except TimeoutError:
         raise ClusterError(
             f"{where} accepted the connection but did not answer as a Dask scheduler within "
             f"{wait:g} s (another program at that port, or a scheduler that is stopped or "
-            f"overloaded?). {_start_help(address)}") from None
+            f"overloaded?). {_start_help(address)}"
+        ) from None
     except OSError as exc:  # closed or reset by the peer
         raise ClusterError(
             f"{where} accepted the connection and closed it without answering as a Dask "
-            f"scheduler ({exc}). {_start_help(address)}") from None
+            f"scheduler ({exc}). {_start_help(address)}"
+        ) from None
     return True
 
 
@@ -782,8 +828,13 @@ def _handshake_bytes() -> bytes:
 
     import msgpack
 
-    frame = msgpack.dumps({"compression": None, "python": list(sys.version_info[:3]),
-                           "pickle-protocol": pickle.HIGHEST_PROTOCOL})
+    frame = msgpack.dumps(
+        {
+            "compression": None,
+            "python": list(sys.version_info[:3]),
+            "pickle-protocol": pickle.HIGHEST_PROTOCOL,
+        }
+    )
     body = struct.pack("<QQ", 1, len(frame)) + frame
     return struct.pack("<Q", len(body)) + body
 
@@ -803,7 +854,7 @@ def _is_handshake(body: bytes) -> bool:
         if 8 * (1 + k) + sum(lengths) != len(body):
             return False
         start = 8 * (1 + k)
-        info = msgpack.loads(body[start:start + lengths[0]])
+        info = msgpack.loads(body[start : start + lengths[0]])
     except Exception:  # noqa: BLE001 - any malformed content: not Dask
         return False
     return isinstance(info, dict) and "pickle-protocol" in info
@@ -921,17 +972,21 @@ def _connect(address: str, source: str, wait: float):
         raise ClusterError(
             f"{where} speaks Dask's protocol but did not take this client within "
             f"{time.monotonic() - t0:.0f} s{why} (an overloaded scheduler, or another Dask "
-            f"process than a scheduler?). {_start_help(address)}")
+            f"process than a scheduler?). {_start_help(address)}"
+        )
     if isinstance(exc, OSError | TimeoutError):
-        raise ClusterError(f"no Dask scheduler answered at {where} within {wait:g} s: "
-                           f"{exc}. {_start_help(address)}") from None
+        raise ClusterError(
+            f"no Dask scheduler answered at {where} within {wait:g} s: "
+            f"{exc}. {_start_help(address)}"
+        ) from None
     if isinstance(exc, KeyboardInterrupt):
         raise exc
     first = str(exc).splitlines()[0][:160] if str(exc) else ""
     raise ClusterError(
         f"{where} speaks Dask's protocol but is not a scheduler that takes clients "
         f"({type(exc).__name__}: {first}): a worker's address? Give the address `dask "
-        "scheduler` prints after \"Scheduler at:\"") from None
+        'scheduler` prints after "Scheduler at:"'
+    ) from None
 
 
 def _quiet_dask_logs() -> Callable[[], None]:
@@ -940,8 +995,8 @@ def _quiet_dask_logs() -> Callable[[], None]:
     import logging
 
     names = ["distributed", "tornado", "asyncio"] + [
-        n for n in logging.root.manager.loggerDict
-        if n.startswith(("distributed.", "tornado."))]
+        n for n in logging.root.manager.loggerDict if n.startswith(("distributed.", "tornado."))
+    ]
     saved = {n: logging.getLogger(n).level for n in names}
     for n in names:
         logging.getLogger(n).setLevel(logging.CRITICAL + 1)
@@ -965,7 +1020,8 @@ def _worker_plugin():
 # --------------------------------------------------------------------------- the current one
 
 _CURRENT: contextvars.ContextVar[Executor | None] = contextvars.ContextVar(
-    "rotorbayes_executor", default=None)
+    "rotorbayes_executor", default=None
+)
 
 
 def current_executor() -> Executor | None:
@@ -974,8 +1030,9 @@ def current_executor() -> Executor | None:
 
 
 @contextlib.contextmanager
-def use_executor(spec: ExecutorSpec | Executor, *, say: Callable[[str], None] | None = None
-                 ) -> Iterator[Executor]:
+def use_executor(
+    spec: ExecutorSpec | Executor, *, say: Callable[[str], None] | None = None
+) -> Iterator[Executor]:
     """Open ``spec`` (or take an executor as it is) and make it every algorithm's default
     until the block ends (``say``: see :func:`open_executor`)."""
     if isinstance(spec, Executor):
@@ -1000,7 +1057,8 @@ _NOTHING = object()
 
 def _is_dask(executor: Executor) -> bool:
     return hasattr(executor, "_client") and any(
-        c.__module__.startswith("distributed") for c in type(executor).__mro__)
+        c.__module__.startswith("distributed") for c in type(executor).__mro__
+    )
 
 
 def run_tasks(
@@ -1099,8 +1157,9 @@ def client_gone(ex: Executor) -> bool:
     return _is_dask(ex) and _client_gone(ex)
 
 
-def lost_scheduler(ex: Executor, done: int, total: int, *, unit: str = "tasks",
-                   then: str | None = None) -> ClusterError:
+def lost_scheduler(
+    ex: Executor, done: int, total: int, *, unit: str = "tasks", then: str | None = None
+) -> ClusterError:
     """The :class:`ClusterError` for a scheduler lost after ``done`` of ``total`` tasks
     (or other ``unit``); ``then`` says what to do (default: run the command again)."""
     return _lost(ex, done, total, unit=unit, then=then)
@@ -1120,8 +1179,9 @@ def _client_gone(ex: Executor) -> bool:
     return client is not None and client.status not in ("running", "connecting")
 
 
-def _lost(ex: Executor, done: int, total: int, *, unit: str = "tasks",
-          then: str | None = None) -> ClusterError:
+def _lost(
+    ex: Executor, done: int, total: int, *, unit: str = "tasks", then: str | None = None
+) -> ClusterError:
     where = ""
     client = getattr(ex, "_client", None)
     if client is not None:
@@ -1130,11 +1190,19 @@ def _lost(ex: Executor, done: int, total: int, *, unit: str = "tasks",
     return ClusterError(
         f"lost the Dask scheduler{where} after {done} of {total} {unit} had finished (it "
         "stopped, or the network to it failed); "
-        + (then or "restart the scheduler and its workers and run the command again"), done)
+        + (then or "restart the scheduler and its workers and run the command again"),
+        done,
+    )
 
 
-def map_ordered(fn: Callable, items: Iterable, *, shared: Any = _NOTHING,
-                executor: Executor | None = None, workers: int | None = None) -> list:
+def map_ordered(
+    fn: Callable,
+    items: Iterable,
+    *,
+    shared: Any = _NOTHING,
+    executor: Executor | None = None,
+    workers: int | None = None,
+) -> list:
     """``[fn(shared, x) for x in items]`` through :func:`run_tasks`, results in input order."""
     items = list(items)
     out: list = [None] * len(items)

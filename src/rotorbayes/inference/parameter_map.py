@@ -77,8 +77,9 @@ class ParameterMap:
     PER_EXPERIMENT = ("alpha0",)
 
     @classmethod
-    def expand(cls, free: Sequence[str], n_experiments: int,
-               bounds: Callable[[str], tuple[float, float]]) -> ParameterMap:
+    def expand(
+        cls, free: Sequence[str], n_experiments: int, bounds: Callable[[str], tuple[float, float]]
+    ) -> ParameterMap:
         """The map of the free names ``free``: a per-experiment parameter becomes one
         entry per experiment when there are several (``alpha0`` -> ``alpha0[0]``,
         ``alpha0[1]``, ...); ``bounds(base_name)`` gives ``(lower, upper)``.  A name listed
@@ -113,16 +114,18 @@ class ParameterMap:
         try:
             out = np.asarray(x, dtype=float)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"x must hold one number per free parameter ({exc}); make it "
-                             "with problem.x_from(values) or problem.start_vector(values)"
-                             ) from None
+            raise ValueError(
+                f"x must hold one number per free parameter ({exc}); make it "
+                "with problem.x_from(values) or problem.start_vector(values)"
+            ) from None
         k = len(self.names)
         if out.shape != (k,):
-            what = (f"{out.size} value(s)" if out.ndim == 1 else f"shape {out.shape}")
+            what = f"{out.size} value(s)" if out.ndim == 1 else f"shape {out.shape}"
             raise ValueError(
                 f"x has {what}, but this problem has {k} free parameter(s) "
                 f"({', '.join(self.names) or 'none'}); make x with problem.x_from(values) or "
-                "problem.start_vector(values)")
+                "problem.start_vector(values)"
+            )
         return out
 
     def x_from(self, params: Mapping[str, float]) -> np.ndarray:
@@ -157,11 +160,20 @@ class ParameterMap:
 
     def outside(self, x) -> list[tuple[str, float, float, float]]:
         """``(name, value, lower, upper)`` of every value of ``x`` outside its bounds."""
-        return [(n, v, lo, hi) for n, v, lo, hi in zip(self.names, x, self.lower, self.upper,
-                                                       strict=True) if not (lo <= v <= hi)]
+        return [
+            (n, v, lo, hi)
+            for n, v, lo, hi in zip(self.names, x, self.lower, self.upper, strict=True)
+            if not (lo <= v <= hi)
+        ]
 
-    def fill_template(self, i: int, slot: Callable[[str], tuple[int, int] | None],
-                      p0: np.ndarray, q0: np.ndarray, ts_follows: bool) -> FillTemplate | None:
+    def fill_template(
+        self,
+        i: int,
+        slot: Callable[[str], tuple[int, int] | None],
+        p0: np.ndarray,
+        q0: np.ndarray,
+        ts_follows: bool,
+    ) -> FillTemplate | None:
         """The :class:`FillTemplate` of experiment ``i`` from the kernel vectors ``p0``,
         ``q0`` at the fixed values; ``slot(base_name)`` is a parameter's place in them
         (``(0, index)`` in ``p``, ``(1, index)`` in ``q``), ``None`` where it has none (then
@@ -179,6 +191,12 @@ class ParameterMap:
                 return None
             (qa if s[0] else pa).append(s[1])
             (qf if s[0] else pf).append(j)
-        return FillTemplate(p0, q0, np.array(pa, dtype=np.intp), np.array(pf, dtype=np.intp),
-                            np.array(qa, dtype=np.intp), np.array(qf, dtype=np.intp),
-                            ts_follows)
+        return FillTemplate(
+            p0,
+            q0,
+            np.array(pa, dtype=np.intp),
+            np.array(pf, dtype=np.intp),
+            np.array(qa, dtype=np.intp),
+            np.array(qf, dtype=np.intp),
+            ts_follows,
+        )

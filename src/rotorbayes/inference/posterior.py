@@ -55,8 +55,9 @@ def draws(logpost: LogPosterior, runs: list[EnsembleRun], max_draws: int = 100):
     return Z, LP, burn, thin
 
 
-def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws: int = 100,
-                   predictive: bool = True):
+def inference_data(
+    logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws: int = 100, predictive: bool = True
+):
     """The posterior container of the installed arviz line (InferenceData on 0.2x, a
     DataTree on 1.x; see :mod:`.arviz_compat`) with posterior, sample_stats, pointwise
     log_likelihood per experiment and channel, observed_data, constant_data (u) and
@@ -121,25 +122,50 @@ def inference_data(logpost: LogPosterior, runs: list[EnsembleRun], *, max_draws:
         loglik[key] = loglik[key].reshape(C, D, -1)
         if key in pp:
             pp[key] = pp[key].reshape(C, D, -1)
-    dims_loglik = {k: ([f"block_exp{k.rsplit('_exp', 1)[1]}"] if block > 1 else v)
-                   for k, v in dims.items() if k in loglik}
+    dims_loglik = {
+        k: ([f"block_exp{k.rsplit('_exp', 1)[1]}"] if block > 1 else v)
+        for k, v in dims.items()
+        if k in loglik
+    }
     acc = np.stack([np.full(D, float(np.mean(r.acceptance))) for r in runs])
-    stats = {"lp": LP, "acceptance_rate": acc,
-             "failed_simulations": np.full((C, D), logpost.n_failed)}
-    groups = {"posterior": posterior, "sample_stats": stats, "log_likelihood": loglik,
-              "observed_data": observed, "constant_data": constant}
+    stats = {
+        "lp": LP,
+        "acceptance_rate": acc,
+        "failed_simulations": np.full((C, D), logpost.n_failed),
+    }
+    groups = {
+        "posterior": posterior,
+        "sample_stats": stats,
+        "log_likelihood": loglik,
+        "observed_data": observed,
+        "constant_data": constant,
+    }
     if pp:
         groups["posterior_predictive"] = pp
-    group_dims = {"log_likelihood": dims_loglik, "observed_data": dims,
-                  "constant_data": dims, "posterior_predictive": dims_pp}
-    attrs = {"posterior": {"burn_in_steps": burn, "thin": thin, "ensembles": C,
-                           "walkers_steps_note":
-                           "chain = independent ensemble; draw = steps x walkers"},
-             "log_likelihood": {"samples_per_point": block, "note": (
-                 "pointwise: one value per sample" if block == 1 else
-                 f"one value per block of {block} consecutive samples (their sum): the "
-                 f"pointwise values of every sample would exceed {LOGLIK_BYTES // 2**20} MiB; "
-                 "the block_exp coordinates are each block's first time")}}
+    group_dims = {
+        "log_likelihood": dims_loglik,
+        "observed_data": dims,
+        "constant_data": dims,
+        "posterior_predictive": dims_pp,
+    }
+    attrs = {
+        "posterior": {
+            "burn_in_steps": burn,
+            "thin": thin,
+            "ensembles": C,
+            "walkers_steps_note": "chain = independent ensemble; draw = steps x walkers",
+        },
+        "log_likelihood": {
+            "samples_per_point": block,
+            "note": (
+                "pointwise: one value per sample"
+                if block == 1
+                else f"one value per block of {block} consecutive samples (their sum): the "
+                f"pointwise values of every sample would exceed {LOGLIK_BYTES // 2**20} MiB; "
+                "the block_exp coordinates are each block's first time"
+            ),
+        },
+    }
     return arviz_compat.from_groups(groups, dims=group_dims, coords=coords, attrs=attrs)
 
 
@@ -154,8 +180,11 @@ def file_bytes(logpost: LogPosterior, n_rows: int) -> int:
     n_res = prob.n_residuals
     block = loglik_block(n_rows, n_res)
     ll = 4 * n_rows * sum(math.ceil((b - a) / block) for _, a, b in logpost.segments)
-    pp = np.dtype(PREDICTIVE_DTYPE).itemsize * n_rows * sum(
-        min(b - a, PREDICTIVE_POINTS + 1) for _, a, b in logpost.segments)
+    pp = (
+        np.dtype(PREDICTIVE_DTYPE).itemsize
+        * n_rows
+        * sum(min(b - a, PREDICTIVE_POINTS + 1) for _, a, b in logpost.segments)
+    )
     data = 16 * n_res + 32 * sum(ex.n for ex in prob.experiments)
     draws_ = 8 * n_rows * (logpost.ndim + 4)
     return int(1.25 * (ll + pp + data + draws_)) + 1_000_000
@@ -175,8 +204,10 @@ def ess_all_draws(logpost: LogPosterior, runs: list[EnsembleRun]):
     Z, _, _, _ = draws(logpost, runs, max_draws=2**62)
     post = {f"c{j}": Z[:, :, j] for j in range(Z.shape[2])}
     summ = arviz_compat.summary(arviz_compat.from_groups({"posterior": post}))
-    return (np.array([float(summ.loc[f"c{j}", "ess_bulk"]) for j in range(Z.shape[2])]),
-            np.array([float(summ.loc[f"c{j}", "r_hat"]) for j in range(Z.shape[2])]))
+    return (
+        np.array([float(summ.loc[f"c{j}", "ess_bulk"]) for j in range(Z.shape[2])]),
+        np.array([float(summ.loc[f"c{j}", "r_hat"]) for j in range(Z.shape[2])]),
+    )
 
 
 def speed(runs: list[EnsembleRun]) -> dict:
@@ -186,8 +217,12 @@ def speed(runs: list[EnsembleRun]) -> dict:
     wall = float(sum(r.seconds for r in runs))
     cpu = float(sum(r.cpu_seconds for r in runs))
     evals = int(sum(r.chain.shape[0] * r.chain.shape[1] for r in runs))
-    return {"seconds": wall, "cpu_seconds": cpu, "evaluations": evals,
-            "moves": runs[0].moves if runs else ""}
+    return {
+        "seconds": wall,
+        "cpu_seconds": cpu,
+        "evaluations": evals,
+        "moves": runs[0].moves if runs else "",
+    }
 
 
 def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: float = 0.94):
@@ -205,34 +240,50 @@ def summary_table(idata, logpost: LogPosterior, runs: list[EnsembleRun], hdi: fl
     rows = []
     for j, n in enumerate(logpost.coord_names):
         pname = n[4:] if n.startswith("log_") and n[4:] in prob.names else n
-        var = pname if pname in summ.index else (
-            "sigma_" + n[10:] if n.startswith("log_sigma_") else pname)
+        var = (
+            pname
+            if pname in summ.index
+            else ("sigma_" + n[10:] if n.startswith("log_sigma_") else pname)
+        )
         if var not in summ.index:
             continue
         s = summ.loc[var]
         taus = [r.tau[j] for r in runs]
         steps = [r.chain.shape[0] for r in runs]
         walkers = runs[0].chain.shape[1]
-        ess_tau = sum(st * walkers / t for st, t in zip(steps, taus, strict=True)
-                      if np.isfinite(t) and t > 0)
+        ess_tau = sum(
+            st * walkers / t for st, t in zip(steps, taus, strict=True) if np.isfinite(t) and t > 0
+        )
         unit = prob.info(var).unit if var in prob.names else "rad" if "sigma" in var else "-"
-        rows.append({
-            "parameter": var, "mean": float(s["mean"]), "sd": float(s["sd"]),
-            "hdi_low": float(s["hdi_low"]), "hdi_high": float(s["hdi_high"]),
-            "ess_bulk": float(s["ess_bulk"]), "ess_tail": float(s["ess_tail"]),
-            "ess_tau": float(ess_tau),
-            "r_hat": float(rhat_all[j]), "r_hat_kept": float(s["r_hat"]),
-            "tau": float(np.nanmax(taus)) if np.any(
-                np.isfinite(taus)) else math.nan,
-            "unit": unit,
-        })
+        rows.append(
+            {
+                "parameter": var,
+                "mean": float(s["mean"]),
+                "sd": float(s["sd"]),
+                "hdi_low": float(s["hdi_low"]),
+                "hdi_high": float(s["hdi_high"]),
+                "ess_bulk": float(s["ess_bulk"]),
+                "ess_tail": float(s["ess_tail"]),
+                "ess_tau": float(ess_tau),
+                "r_hat": float(rhat_all[j]),
+                "r_hat_kept": float(s["r_hat"]),
+                "tau": float(np.nanmax(taus)) if np.any(np.isfinite(taus)) else math.nan,
+                "unit": unit,
+            }
+        )
         ess = min(float(ess_all[j]), float(ess_tau))
-        rows[-1].update({
-            "ess_bulk_all": float(ess_all[j]), "ess": ess,
-            "ess_per_s": ess / sp["seconds"] if sp["seconds"] > 0 else math.nan,
-            "ess_per_min": 60 * ess / sp["seconds"] if sp["seconds"] > 0 else math.nan,
-            "sampling_s": sp["seconds"], "cpu_s": sp["cpu_seconds"],
-            "evaluations": sp["evaluations"], "moves": sp["moves"]})
+        rows[-1].update(
+            {
+                "ess_bulk_all": float(ess_all[j]),
+                "ess": ess,
+                "ess_per_s": ess / sp["seconds"] if sp["seconds"] > 0 else math.nan,
+                "ess_per_min": 60 * ess / sp["seconds"] if sp["seconds"] > 0 else math.nan,
+                "sampling_s": sp["seconds"],
+                "cpu_s": sp["cpu_seconds"],
+                "evaluations": sp["evaluations"],
+                "moves": sp["moves"],
+            }
+        )
     _add_honesty_columns(rows, logpost)
     return rows
 
@@ -263,15 +314,19 @@ def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -
     honest = any("share_noise" in r for r in rows)
     extra_h = " sd / i.i.d. sd | noise / model error / input hold |" if honest else ""
     extra_s = "---|---|" if honest else ""
-    head = (f"| parameter | mean | sd | {pct} | ESS (arviz bulk) | ESS (walkers × steps / τ) "
-            f"| R-hat | τ [steps] | unit |{extra_h}\n|---|---|---|---|---|---|---|---|---|"
-            + extra_s)
+    head = (
+        f"| parameter | mean | sd | {pct} | ESS (arviz bulk) | ESS (walkers × steps / τ) "
+        f"| R-hat | τ [steps] | unit |{extra_h}\n|---|---|---|---|---|---|---|---|---|" + extra_s
+    )
     lines = [head]
     for r in rows:
         # The sd to two significant digits, the mean and the interval to its last place.
         mean, sd = mean_sd(r["mean"], r["sd"])
-        hdi_text = (fmt_interval_at(r["hdi_low"], r["hdi_high"], r["sd"])
-                    if sd_place(r["sd"]) is not None else _hdi_fmt(r["hdi_low"], r["hdi_high"]))
+        hdi_text = (
+            fmt_interval_at(r["hdi_low"], r["hdi_high"], r["sd"])
+            if sd_place(r["sd"]) is not None
+            else _hdi_fmt(r["hdi_low"], r["hdi_high"])
+        )
         line = (
             f"| {r['parameter']} | {mean} | {sd} | "
             f"[{hdi_text}] | {r['ess_bulk']:.0f} | "
@@ -279,9 +334,11 @@ def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -
         )
         if honest:
             if "share_noise" in r and math.isfinite(r.get("share_noise", math.nan)):
-                line += (f" {r['sd_over_iid']:.2g} | {100 * r['share_noise']:.0f} / "
-                         f"{100 * r['share_model_error']:.0f} / "
-                         f"{100 * r['share_input_hold']:.0f} % |")
+                line += (
+                    f" {r['sd_over_iid']:.2g} | {100 * r['share_noise']:.0f} / "
+                    f"{100 * r['share_model_error']:.0f} / "
+                    f"{100 * r['share_input_hold']:.0f} % |"
+                )
             else:
                 line += " — | — |"
         lines.append(line)
@@ -298,7 +355,8 @@ def table_markdown(rows, hdi: float = 0.94, *, assumptions: str | None = None) -
             "encoder floor would make it (rounding is constant while a disc sticks; model "
             "error lasts as long as the motion that causes it). The last column splits the "
             "fit's variance into noise, model error the residuals show, and the allowance "
-            "for the input between samples.")
+            "for the input between samples."
+        )
         if assumptions:
             lines.append(f"The intervals assume: {assumptions}.")
     return "\n".join(lines)
@@ -311,7 +369,8 @@ ESS_NOTE = (
     "ensemble, thinned), so it can never exceed their number. ESS (walkers × steps / τ) is "
     "emcee's: every post-burn-in step of every walker divided by the integrated "
     "autocorrelation time τ, summed over the ensembles. The second is the one to compare "
-    "with the 50 τ rule; the first says how well posterior.nc alone represents the posterior.")
+    "with the 50 τ rule; the first says how well posterior.nc alone represents the posterior."
+)
 
 
 def speed_line(rows) -> str:
@@ -322,16 +381,20 @@ def speed_line(rows) -> str:
         return ""
     slow = min(rows, key=lambda r: r["ess"])
     secs, cpu, n = slow["sampling_s"], slow["cpu_s"], slow["evaluations"]
-    head = (f"Speed (moves {slow['moves']}): slowest parameter {slow['parameter']}, ESS "
-            f"{slow['ess']:.0f} (the lower of arviz's bulk ESS over all post-burn-in draws, "
-            "thinned -- not only those kept in posterior.nc, as in the table -- "
-            f"{slow['ess_bulk_all']:.0f}, and walkers × steps / τ, {slow['ess_tau']:.0f})")
+    head = (
+        f"Speed (moves {slow['moves']}): slowest parameter {slow['parameter']}, ESS "
+        f"{slow['ess']:.0f} (the lower of arviz's bulk ESS over all post-burn-in draws, "
+        "thinned -- not only those kept in posterior.nc, as in the table -- "
+        f"{slow['ess_bulk_all']:.0f}, and walkers × steps / τ, {slow['ess_tau']:.0f})"
+    )
     if not (math.isfinite(secs) and secs > 0):
         return head + f"; {n} log-posterior evaluations (no sampling time recorded)."
     busy = f", {cpu / secs:.2f} cores busy" if math.isfinite(cpu) else ""
-    return (head + f": {slow['ess_per_s']:.3g} ESS/s, {slow['ess_per_min']:.0f} ESS/min; "
-            f"{n} log-posterior evaluations in {secs:.1f} s of sampling "
-            f"({n / secs:.0f}/s{busy}).")
+    return (
+        head + f": {slow['ess_per_s']:.3g} ESS/s, {slow['ess_per_min']:.0f} ESS/min; "
+        f"{n} log-posterior evaluations in {secs:.1f} s of sampling "
+        f"({n / secs:.0f}/s{busy})."
+    )
 
 
 def _hdi_fmt(lo: float, hi: float) -> str:

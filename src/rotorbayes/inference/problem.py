@@ -61,6 +61,7 @@ class SensitivityFallback(UserWarning):
     """:meth:`Problem.jacobian` was asked for sensitivities and used finite differences
     (the message says why)."""
 
+
 #: How a validation experiment's initial torsion was chosen (:attr:`ValidationTorsion.how`).
 FITTED_ALONE = "fitted on that run alone"
 GIVEN = "given"
@@ -78,8 +79,20 @@ _FAILED = 1e3
 
 
 #: Parameters of the motor and the upper disc's friction: fitted from theta_u.
-UPPER_PARAMETERS = ("k_m", "J_u", "Tc_u", "dTc_u", "b_u", "db_u", "u_offset", "u_deadzone",
-                    "dTs_u", "ws_u", "delta_u", "tau_drive")
+UPPER_PARAMETERS = (
+    "k_m",
+    "J_u",
+    "Tc_u",
+    "dTc_u",
+    "b_u",
+    "db_u",
+    "u_offset",
+    "u_deadzone",
+    "dTs_u",
+    "ws_u",
+    "delta_u",
+    "tau_drive",
+)
 
 
 def checked_experiments(experiments) -> list[Experiment]:
@@ -89,23 +102,31 @@ def checked_experiments(experiments) -> list[Experiment]:
     if isinstance(experiments, Experiment):
         return [experiments]
     if isinstance(experiments, str | Path):
-        raise ValueError(f"experiments is the path {str(experiments)!r}, not an Experiment; "
-                         f"{hint}: [rotorbayes.load_experiment({str(experiments)!r})]")
+        raise ValueError(
+            f"experiments is the path {str(experiments)!r}, not an Experiment; "
+            f"{hint}: [rotorbayes.load_experiment({str(experiments)!r})]"
+        )
     if experiments is None or isinstance(experiments, Mapping):
-        raise ValueError(f"experiments is {experiments!r}; give a list of Experiment "
-                         f"objects ({hint})")
+        raise ValueError(
+            f"experiments is {experiments!r}; give a list of Experiment objects ({hint})"
+        )
     try:
         out = list(experiments)
     except TypeError:
-        raise ValueError(f"experiments is a {type(experiments).__name__}; give a list of "
-                         f"Experiment objects ({hint})") from None
+        raise ValueError(
+            f"experiments is a {type(experiments).__name__}; give a list of "
+            f"Experiment objects ({hint})"
+        ) from None
     for i, ex in enumerate(out):
         if isinstance(ex, str | Path):
-            raise ValueError(f"experiments[{i}] is the path {str(ex)!r}, not an Experiment; "
-                             f"{hint}: rotorbayes.load_experiment({str(ex)!r})")
+            raise ValueError(
+                f"experiments[{i}] is the path {str(ex)!r}, not an Experiment; "
+                f"{hint}: rotorbayes.load_experiment({str(ex)!r})"
+            )
         if not isinstance(ex, Experiment):
-            raise ValueError(f"experiments[{i}] is a {type(ex).__name__}, not an Experiment; "
-                             f"{hint}")
+            raise ValueError(
+                f"experiments[{i}] is a {type(ex).__name__}, not an Experiment; {hint}"
+            )
     return out
 
 
@@ -120,8 +141,9 @@ def default_channels(config: str, prescribed_upper: bool, free: Sequence[str]) -
     return ("theta_l",)
 
 
-def model_of(model: Model | str, effects: Iterable[str], prescribed_upper: bool,
-             n_experiments: int) -> Model:
+def model_of(
+    model: Model | str, effects: Iterable[str], prescribed_upper: bool, n_experiments: int
+) -> Model:
     """The :class:`~rotorbayes.Model` of a problem: ``model`` itself, or the configuration
     named ``model`` with ``effects`` on (and ``initial_torsion`` too for several
     experiments on the lower disc: each starts with its own string torsion, thesis
@@ -141,19 +163,22 @@ def checked_weights(channels: Sequence[str], given) -> dict[str, float]:
     [:data:`MIN_WEIGHT`, :data:`MAX_WEIGHT`]; a weight for a channel that does not exist is
     refused."""
     if given is not None and not isinstance(given, Mapping):
-        raise ValueError(f"weights = {given!r}: give a mapping of channel to weight, "
-                         "e.g. {'theta_u': 0.1, 'theta_l': 1.0}")
+        raise ValueError(
+            f"weights = {given!r}: give a mapping of channel to weight, "
+            "e.g. {'theta_u': 0.1, 'theta_l': 1.0}"
+        )
     given = dict(given or {})
     for c in given:
         if c not in CHANNELS:
-            raise ValueError(f"weights: unknown channel {c!r}; choose from "
-                             f"{', '.join(CHANNELS)}")
+            raise ValueError(f"weights: unknown channel {c!r}; choose from {', '.join(CHANNELS)}")
     out = {}
     for c in channels:
         w = given.get(c, 1.0)
         if isinstance(w, bool) or not isinstance(w, int | float | np.number):
-            raise ValueError(f"the weight of channel {c} is {w!r}, not a number; give a "
-                             f"number between {MIN_WEIGHT:g} and {MAX_WEIGHT:g}")
+            raise ValueError(
+                f"the weight of channel {c} is {w!r}, not a number; give a "
+                f"number between {MIN_WEIGHT:g} and {MAX_WEIGHT:g}"
+            )
         w = float(w)
         if not (w > 0 and math.isfinite(w)):
             raise ValueError(f"the weight of channel {c} is {w}; it must be > 0")
@@ -163,7 +188,8 @@ def checked_weights(channels: Sequence[str], given) -> dict[str, float]:
                 f"{MIN_WEIGHT:g} and {MAX_WEIGHT:g} (weights set how much one channel "
                 "counts against the other; beyond that range a channel is ignored in "
                 "effect or its squared residuals overflow; to leave a channel out, fit "
-                "without it)")
+                "without it)"
+            )
         out[c] = w
     return out
 
@@ -175,16 +201,16 @@ def base_values(m: Model, base) -> dict[str, float]:
     if isinstance(base, Mapping):
         for k, v in base.items():
             if isinstance(v, bool) or not isinstance(v, int | float | np.number):
-                raise ParameterError(f"base: {k} = {v!r} is not a number; give each "
-                                     "value as a number (in the parameter's unit)")
+                raise ParameterError(
+                    f"base: {k} = {v!r} is not a number; give each "
+                    "value as a number (in the parameter's unit)"
+                )
         builtin = {k: v for k, v in base.items() if k in INFO}
         user = {k: float(v) for k, v in base.items() if k not in INFO}
         for k in user:
             if k not in m.info:
                 raise ParameterError(unknown_name_message(k))
-        full = resolve(builtin, config=m.config) if set(builtin) != set(INFO) else dict(
-            builtin
-        )
+        full = resolve(builtin, config=m.config) if set(builtin) != set(INFO) else dict(builtin)
         full.update(user)
         given = set(base)
     else:
@@ -278,32 +304,49 @@ class ValidationTorsion:
     def words(self) -> str:
         """One line a user reads under the fit."""
         if self.how == FITTED_ALONE:
-            return (f"validation {self.experiment}: its initial torsion alpha0 fitted on that "
-                    f"run alone (a nuisance parameter, every other parameter at the fit): "
-                    f"{self.value:.4g} rad")
+            return (
+                f"validation {self.experiment}: its initial torsion alpha0 fitted on that "
+                f"run alone (a nuisance parameter, every other parameter at the fit): "
+                f"{self.value:.4g} rad"
+            )
         if self.how == GIVEN:
-            return (f"validation {self.experiment}: its initial torsion alpha0 = "
-                    f"{self.value:.6g} rad, given")
-        return (f"validation {self.experiment}: alpha0 = {self.value:g} rad, the model's fixed "
-                "value (initial_torsion is off: no pre-wound string)")
+            return (
+                f"validation {self.experiment}: its initial torsion alpha0 = "
+                f"{self.value:.6g} rad, given"
+            )
+        return (
+            f"validation {self.experiment}: alpha0 = {self.value:g} rad, the model's fixed "
+            "value (initial_torsion is off: no pre-wound string)"
+        )
 
     def as_dict(self) -> dict:
-        return {"experiment": self.experiment, "file": self.file, "value": self.value,
-                "how": self.how}
+        return {
+            "experiment": self.experiment,
+            "file": self.file,
+            "value": self.value,
+            "how": self.how,
+        }
 
     @classmethod
-    def from_dict(cls, d: Mapping, *, experiment: str = "validation data",
-                  file: str | None = None) -> ValidationTorsion:
+    def from_dict(
+        cls, d: Mapping, *, experiment: str = "validation data", file: str | None = None
+    ) -> ValidationTorsion:
         """A record as :meth:`as_dict` wrote it (fit.json's ``validation_alpha0``);
         ``ValueError`` naming what is wrong when it is not one."""
         v, how = d.get("value"), d.get("how")
         if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
             raise ValueError(f"validation alpha0 record {dict(d)!r}: value is not a number")
         if how not in (FITTED_ALONE, GIVEN, FIXED):
-            raise ValueError(f"validation alpha0 record {dict(d)!r}: how must be "
-                             f"{FITTED_ALONE!r}, {GIVEN!r} or {FIXED!r}")
-        return cls(str(d.get("experiment") or experiment), float(v), how,
-                   d.get("file") if isinstance(d.get("file"), str) else file)
+            raise ValueError(
+                f"validation alpha0 record {dict(d)!r}: how must be "
+                f"{FITTED_ALONE!r}, {GIVEN!r} or {FIXED!r}"
+            )
+        return cls(
+            str(d.get("experiment") or experiment),
+            float(v),
+            how,
+            d.get("file") if isinstance(d.get("file"), str) else file,
+        )
 
 
 @dataclass(init=False)
@@ -386,8 +429,7 @@ class Problem:
         for name, v in (("free", free), ("fixed", fixed), ("channels", channels)):
             if isinstance(v, str):
                 names = [n.strip() for n in v.split(",") if n.strip()]
-                raise ParameterError(f"{name} = {v!r}: give a list of names, e.g. "
-                                     f"{name}={names!r}")
+                raise ParameterError(f"{name} = {v!r}: give a list of names, e.g. {name}={names!r}")
         self.model = model_of(model, effects, prescribed_upper, len(experiments))
         if not experiments:
             raise ValueError("give at least one experiment")
@@ -408,8 +450,10 @@ class Problem:
         self.fixed = tuple(fixed)
         info = self.model.info
         self.parameters = ParameterMap.expand(
-            free_names(self.model, free, self.fixed), len(self.experiments),
-            lambda n: (info[n].lower, info[n].upper))
+            free_names(self.model, free, self.fixed),
+            len(self.experiments),
+            lambda n: (info[n].lower, info[n].upper),
+        )
         self.run_starts = self._checked_run_starts(run_starts)
         if channels is None:
             channels = default_channels(self.config, self.prescribed_upper, self.names)
@@ -428,8 +472,7 @@ class Problem:
         self.shape = shape
         self.step = step
         for i, ex in enumerate(self.experiments):
-            check_step(self.step, ex.dt, ex.n, where=str(ex.path or ex.name or
-                                                          f"experiment {i}"))
+            check_step(self.step, ex.dt, ex.n, where=str(ex.path or ex.name or f"experiment {i}"))
         self.sims = [self.simulator_for(ex) for ex in self.experiments]
         self._tighten_bounds()
         self.n_residuals = sum(ex.n for ex in self.experiments) * len(self.channels)
@@ -476,7 +519,8 @@ class Problem:
             b, idx = local_name(n)
             if idx is None or b not in self.model.info:
                 raise ParameterError(
-                    f"run_starts: {n!r} is not a per-experiment name such as 'alpha0[1]'")
+                    f"run_starts: {n!r} is not a per-experiment name such as 'alpha0[1]'"
+                )
             if idx < len(self.experiments):
                 out[n] = float(v)
         return out
@@ -523,15 +567,22 @@ class Problem:
             if noise_std is not None:
                 floors[c] = math.hypot(q, noise_std)
                 continue
-            angles = [(ex.theta_u if c == "theta_u" else ex.theta_l, ex.dt)
-                      for ex in self.experiments]
-            broad = [j for y, dt in angles if y is not None
-                     and (j := jitter_evidence(y, dt, c)) is not None and j.broadband]
+            angles = [
+                (ex.theta_u if c == "theta_u" else ex.theta_l, ex.dt) for ex in self.experiments
+            ]
+            broad = [
+                j
+                for y, dt in angles
+                if y is not None and (j := jitter_evidence(y, dt, c)) is not None and j.broadband
+            ]
             if broad:
                 j = max(broad, key=lambda e: e.rms)
                 floors[c] = j.rms
-                where = (f" ({len(broad)} of {len(self.experiments)} experiments; the "
-                         "largest)") if len(self.experiments) > 1 else ""
+                where = (
+                    (f" ({len(broad)} of {len(self.experiments)} experiments; the largest)")
+                    if len(self.experiments) > 1
+                    else ""
+                )
                 notes.append(
                     f"{j.words()}{where}: broad-band noise besides the encoder's rounding, "
                     f"so {j.rms:.2g} rad is used as the floor (give --noise to set it)"
@@ -609,8 +660,9 @@ class Problem:
         """The full parameter set of experiment ``i`` at free vector ``x``."""
         return self.parameters.params_for(x, i, self.base)
 
-    def validation_params(self, x: np.ndarray, ex: Experiment,
-                          given=None) -> tuple[dict[str, float], ValidationTorsion | None]:
+    def validation_params(
+        self, x: np.ndarray, ex: Experiment, given=None
+    ) -> tuple[dict[str, float], ValidationTorsion | None]:
         """The full parameter set at ``x`` for an experiment outside the problem
         (validation data), and how its initial string torsion ``alpha0`` was chosen.
 
@@ -650,18 +702,19 @@ class Problem:
             if not (math.isfinite(v) and info.lower <= v <= info.upper):
                 raise ParameterError(
                     f"validation {name}: alpha0 = {v:g} rad lies outside alpha0's bounds "
-                    f"[{info.lower:g}, {info.upper:g}]; give the run's initial torsion in rad")
+                    f"[{info.lower:g}, {info.upper:g}]; give the run's initial torsion in rad"
+                )
             rec = ValidationTorsion(name, v, GIVEN, file)
         elif "alpha0" in self.model.active:
-            rec = ValidationTorsion(name, self._fit_validation_alpha0(p, ex), FITTED_ALONE,
-                                    file)
+            rec = ValidationTorsion(name, self._fit_validation_alpha0(p, ex), FITTED_ALONE, file)
         else:
             rec = ValidationTorsion(name, float(self.base["alpha0"]), FIXED, file)
         if rec.value != 0.0 and "alpha0" not in self.model.active:
             raise ParameterError(
                 f"validation {name}: alpha0 = {rec.value:g} rad, but this {self.config} model "
                 "has no pre-wound string (initial_torsion is off), so no run can start with "
-                "torsion; add the effect (--add initial_torsion) or leave the value out")
+                "torsion; add the effect (--add initial_torsion) or leave the value out"
+            )
         p["alpha0"] = rec.value
         return p, rec
 
@@ -676,15 +729,18 @@ class Problem:
         # A run that starts at rest holds |k_alpha alpha0| inside the lower disc's static
         # band: scan it finely, half as far again beyond it, and out to the bounds on a
         # geometric grid (a run may start moving: the data decide, not this guess).
-        static = max(p.get("Tc_l", math.nan), p.get("Ts_l", math.nan)) + abs(
-            p.get("dTc_l", 0.0))
+        static = max(p.get("Tc_l", math.nan), p.get("Ts_l", math.nan)) + abs(p.get("dTc_l", 0.0))
         k = p.get("k_alpha", math.nan)
-        reach = 1.5 * static / k if (math.isfinite(static) and math.isfinite(k) and k > 0
-                                     and static > 0) else 1.0
+        reach = (
+            1.5 * static / k
+            if (math.isfinite(static) and math.isfinite(k) and k > 0 and static > 0)
+            else 1.0
+        )
         reach = min(reach, hi, -lo)
         far = np.geomspace(reach, max(hi, -lo), VALIDATION_SCAN // 2)
-        grid = np.unique(np.clip(np.r_[np.linspace(-reach, reach, VALIDATION_SCAN), far, -far,
-                                       0.0], lo, hi))
+        grid = np.unique(
+            np.clip(np.r_[np.linspace(-reach, reach, VALIDATION_SCAN), far, -far, 0.0], lo, hi)
+        )
         R = sub.residuals_batch(grid[:, None], penalty=_FAILED)
         ok = ~np.any(R == _FAILED, axis=1)
         if not ok.any():  # no torsion lets the run be simulated: leave it unwound
@@ -694,9 +750,17 @@ class Problem:
         a, b = grid[max(j - 1, 0)], grid[min(j + 1, grid.size - 1)]
         if a == b:
             return float(grid[j])
-        res = least_squares(lambda z: sub.residuals(z, penalty=_FAILED), [grid[j]],
-                            bounds=([a], [b]), x_scale=[b - a], method="trf",
-                            xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100)
+        res = least_squares(
+            lambda z: sub.residuals(z, penalty=_FAILED),
+            [grid[j]],
+            bounds=([a], [b]),
+            x_scale=[b - a],
+            method="trf",
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+            max_nfev=100,
+        )
         best = float(res.x[0])
         r = sub.residuals(np.array([best]), penalty=_FAILED)
         return best if float(r @ r) <= float(R[j] @ R[j]) else float(grid[j])
@@ -787,8 +851,9 @@ class Problem:
             p0, q0 = sim.kernel_vector(self.base)
         except (ParameterError, KeyError, ValueError):
             return None
-        fill = self.parameters.fill_template(i, self.model.kernel_slot, p0, q0,
-                                             not self.model.stribeck)
+        fill = self.parameters.fill_template(
+            i, self.model.kernel_slot, p0, q0, not self.model.stribeck
+        )
         if fill is None:
             return None
         x = np.asarray(x, dtype=float)
@@ -840,8 +905,10 @@ class Problem:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"X must hold numbers, one row per point ({exc})") from None
         if X.ndim != 2 or X.shape[1] != len(self.names):
-            raise ValueError(f"X has shape {np.shape(X)}, but this problem has "
-                             f"{len(self.names)} free parameter(s): give one row per point")
+            raise ValueError(
+                f"X has shape {np.shape(X)}, but this problem has "
+                f"{len(self.names)} free parameter(s): give one row per point"
+            )
         sets = [[self.params_for(x, i) for i in range(len(self.experiments))] for x in X]
         R, _ = self._residuals_of_sets(sets)
         if penalty is not None:
@@ -853,9 +920,13 @@ class Problem:
         return self.sims[i].simulate(self.params_for(x, i), raise_on_failure=False)
 
     # --------------------------------------------------------------------- Jacobian
-    def sensitivity_support(self, names: Sequence[str] | None = None, *,
-                            values: Mapping[str, float] | None = None,
-                            secant: Mapping[str, float] | None = None) -> str | None:
+    def sensitivity_support(
+        self,
+        names: Sequence[str] | None = None,
+        *,
+        values: Mapping[str, float] | None = None,
+        secant: Mapping[str, float] | None = None,
+    ) -> str | None:
         """Why the kernel's forward sensitivities cannot give the Jacobian by ``names``
         (default: the free parameters) here, in words; ``None`` if they can.
 
@@ -917,15 +988,18 @@ class Problem:
             cols = self._columns[i] if i in self._columns else self._channel_columns(ex, off)
             self._columns[i] = cols
             (mu, wu, cu), (ml, wl, cl) = [
-                (c[0], c[1], c[2]) if c is not None else (np.empty(0), 1.0, -1) for c in cols]
+                (c[0], c[1], c[2]) if c is not None else (np.empty(0), 1.0, -1) for c in cols
+            ]
             st = sensitivities_into(
                 np.ascontiguousarray(p, dtype=float), sim.u, sim.dt, sim.cfg, sim.shape,
                 sim.grid, sim.h0, np.array(idx, dtype=np.int64), tsf, mu, ml, float(wu),
                 float(wl), r, J, np.array(jcol, dtype=np.int64), cu, cl,
             )  # fmt: skip
             if st != _layout.OK:
-                raise SimulationError(f"Jacobian: experiment {i} cannot be simulated at the "
-                                      f"point: {_layout.STATUS_MESSAGES[int(st)]}")
+                raise SimulationError(
+                    f"Jacobian: experiment {i} cannot be simulated at the "
+                    f"point: {_layout.STATUS_MESSAGES[int(st)]}"
+                )
             off += ex.n * len(self.channels)
         return J
 
@@ -995,8 +1069,9 @@ class Problem:
             if why is None:
                 return self._jacobian_sensitivity(x, names), np.zeros(len(names))
             if asked:
-                warnings.warn(f"Jacobian by finite differences: {why}", SensitivityFallback,
-                              stacklevel=2)
+                warnings.warn(
+                    f"Jacobian by finite differences: {why}", SensitivityFallback, stacklevel=2
+                )
         off_effects = []
         for n in names:
             b, _ = local_name(n)
@@ -1042,8 +1117,11 @@ class Problem:
         R, S = prob._residuals_of_sets(sets, model=prob.model if prob is not self else None)
         # A point on a constraint between parameters (viscous friction b >= |db|, static
         # >= Coulomb) has an outward step that is invalid: step inwards instead.
-        flip = [j for j in range(1, len(sets)) if np.all(S[0] == _layout.OK)
-                and np.any(S[j] == _layout.BAD_PARAMETERS)]
+        flip = [
+            j
+            for j in range(1, len(sets))
+            if np.all(S[0] == _layout.OK) and np.any(S[j] == _layout.BAD_PARAMETERS)
+        ]
         if flip:
             for j in flip:
                 b, idx = local_name(names[j - 1])
@@ -1051,8 +1129,9 @@ class Problem:
                 for i in range(n_exp):
                     if idx is None or idx == i:
                         sets[j][i] = {**sets[j][i], b: sets[j][i][b] + 2 * steps[j - 1]}
-            R2, S2 = prob._residuals_of_sets([sets[0]] + [sets[j] for j in flip],
-                                             model=prob.model if prob is not self else None)
+            R2, S2 = prob._residuals_of_sets(
+                [sets[0]] + [sets[j] for j in flip], model=prob.model if prob is not self else None
+            )
             for k, j in enumerate(flip, start=1):
                 R[j], S[j] = R2[k], S2[k]
         if np.any(S != _layout.OK):

@@ -64,11 +64,14 @@ class RefitStart:
     failed: str = ""
 
     def as_dict(self, problem: Problem, names: list[str]) -> dict:
-        return {"start": self.label,
-                "values": {n: float(self.x0[problem.names.index(n)]) for n in names},
-                "rms_over_floor": self.ratio if math.isfinite(self.ratio) else None,
-                "ssr": self.ssr if math.isfinite(self.ssr) else None,
-                "success": self.success, "failed": self.failed or None}
+        return {
+            "start": self.label,
+            "values": {n: float(self.x0[problem.names.index(n)]) for n in names},
+            "rms_over_floor": self.ratio if math.isfinite(self.ratio) else None,
+            "ssr": self.ssr if math.isfinite(self.ssr) else None,
+            "success": self.success,
+            "failed": self.failed or None,
+        }
 
 
 @dataclass
@@ -93,19 +96,29 @@ class Refit:
         """One line per start: where it began (the added parameters) and where it ended."""
         rows = []
         for i, s in enumerate(self.starts):
-            vals = ", ".join(f"{n} {s.x0[self.result.problem.names.index(n)]:.3g}"
-                             for n in self.searched)
-            end = (f"{s.ratio:.3g}x the floor" if math.isfinite(s.ratio)
-                   else f"failed ({s.failed})" if s.failed else "failed")
+            vals = ", ".join(
+                f"{n} {s.x0[self.result.problem.names.index(n)]:.3g}" for n in self.searched
+            )
+            end = (
+                f"{s.ratio:.3g}x the floor"
+                if math.isfinite(s.ratio)
+                else f"failed ({s.failed})"
+                if s.failed
+                else "failed"
+            )
             mark = "  <- kept" if i == self.kept else ""
             rows.append(f"  {s.label:<42} {vals:<44} -> {end}{mark}")
         return "\n".join(rows)
 
     def as_dict(self) -> dict:
         prob = self.result.problem
-        return {"searched": list(self.searched), "kept": self.chose,
-                "disagreed": self.disagreed(), "notes": list(self.notes),
-                "starts": [s.as_dict(prob, self.searched) for s in self.starts]}
+        return {
+            "searched": list(self.searched),
+            "kept": self.chose,
+            "disagreed": self.disagreed(),
+            "notes": list(self.notes),
+            "starts": [s.as_dict(prob, self.searched) for s in self.starts],
+        }
 
 
 def added_names(problem: Problem, effects=None) -> list[str]:
@@ -139,8 +152,14 @@ def _put(problem: Problem, x: np.ndarray, values: Mapping[str, float]) -> np.nda
     return x
 
 
-def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, float],
-                 effects=None, *, data_start: bool = True) -> list[RefitStart]:
+def refit_starts(
+    problem: Problem,
+    x_parent: np.ndarray,
+    diagnosed: Mapping[str, float],
+    effects=None,
+    *,
+    data_start: bool = True,
+) -> list[RefitStart]:
     """The starts of :func:`refit_added`: ``x_parent`` (the parent fit, the added effects'
     parameters at their typical start) with the added parameters varied.
 
@@ -194,22 +213,32 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
                     continue
                 grid = tuple(lo + (hi - lo) * (k + 0.5) / 4 for k in range(4))
             spread = [{**s, p.name: v} for s in spread for v in grid]
-    base = _put(problem, x_parent, {k: v for k, v in diagnosed.items()
-                                     if k not in {p.name for e in new
-                                                  for p in e.parameters if p.nuisance}})
+    base = _put(
+        problem,
+        x_parent,
+        {
+            k: v
+            for k, v in diagnosed.items()
+            if k not in {p.name for e in new for p in e.parameters if p.nuisance}
+        },
+    )
     base = x_parent if base is None else base
     for s in spread:
         if s:
-            add("spread: " + ", ".join(f"{k} {v:.3g}" for k, v in s.items()),
-                _put(problem, base, s))
+            add(
+                "spread: " + ", ".join(f"{k} {v:.3g}" for k, v in s.items()), _put(problem, base, s)
+            )
     if not any(p.nuisance for e in new for p in e.parameters):
         # No shape to spread: the size of the effect itself, a decade either side of
         # the typical start (an effect far from the floor can be larger or smaller); a
         # signed parameter that starts at 0 (an offset, a torsion) both ways, at a tenth
         # and a third of its range's half-width.
         for f in (0.1, 10.0):
-            vals = {n: float(x_parent[problem.names.index(n)]) * f for n in names
-                    if x_parent[problem.names.index(n)] != 0}
+            vals = {
+                n: float(x_parent[problem.names.index(n)]) * f
+                for n in names
+                if x_parent[problem.names.index(n)] != 0
+            }
             if vals:
                 add(f"spread: the added parameters x{f:g}", _put(problem, x_parent, vals))
         for f in (-0.3, -0.1, 0.1, 0.3):
@@ -220,8 +249,10 @@ def refit_starts(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str,
                 if x_parent[j] == 0 and lo < 0 < hi and math.isfinite(hi - lo):
                     vals[n] = f * 0.5 * (hi - lo)
             if vals:
-                add("spread: " + ", ".join(f"{n} {v:+.3g}" for n, v in vals.items()),
-                    _put(problem, x_parent, vals))
+                add(
+                    "spread: " + ", ".join(f"{n} {v:+.3g}" for n, v in vals.items()),
+                    _put(problem, x_parent, vals),
+                )
     if data_start:
         x = _data_start(problem, x_parent, names)
         if x is not None:
@@ -243,14 +274,26 @@ def _data_start(problem: Problem, x_parent: np.ndarray, names: list[str]):
     x = _within_constraints(problem, np.clip(x, problem.lower, problem.upper))
     # Reached: estimated by the regression, or set from what it found (an upper
     # asymmetry beyond its level is a voltage offset, see _within_constraints).
-    reached = [n for n in names if str(ds.source.get(local_name(n)[0], "")).startswith("data")
-               or x[problem.names.index(n)] != x_parent[problem.names.index(n)]]
+    reached = [
+        n
+        for n in names
+        if str(ds.source.get(local_name(n)[0], "")).startswith("data")
+        or x[problem.names.index(n)] != x_parent[problem.names.index(n)]
+    ]
     return x if reached else None
 
 
-def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, float],
-                effects=None, *, workers: int = 2, executor=None, verbose: bool = False,
-                **fit_kw) -> Refit:
+def refit_added(
+    problem: Problem,
+    x_parent: np.ndarray,
+    diagnosed: Mapping[str, float],
+    effects=None,
+    *,
+    workers: int = 2,
+    executor=None,
+    verbose: bool = False,
+    **fit_kw,
+) -> Refit:
     """Fit ``problem`` (a parent fit's model with effects added) from the starts of
     :func:`refit_starts`, keep the smallest estimation SSR, and give it honest standard
     errors.  Starts that cannot be fitted are counted as failures, never as minima."""
@@ -261,11 +304,15 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
     kw = dict(fit_kw)
     kw["uncertainty"] = False
     if verbose:
-        print(f"searching the added parameters ({', '.join(names)}) from {len(starts)} "
-              "starts, every other parameter from the parent fit:", flush=True)
+        print(
+            f"searching the added parameters ({', '.join(names)}) from {len(starts)} "
+            "starts, every other parameter from the parent fit:",
+            flush=True,
+        )
     if 8 * problem.n_residuals * len(problem.names) > LOCAL_PARALLEL_BYTES and isinstance(
-            executor if executor is not None else current_executor(),
-            ThreadPoolExecutor | DefaultPool | type(None)):
+        executor if executor is not None else current_executor(),
+        ThreadPoolExecutor | DefaultPool | type(None),
+    ):
         executor, workers = SerialExecutor(), 1  # long data: one fit's Jacobian at a time
     # Long data: every start screened with a few evaluations, the best one finished
     # (nine full fits of 4 x 600 s would take the better part of an hour).
@@ -273,11 +320,15 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
     if screen:
         kw["max_nfev"] = min(SCREEN_NFEV, int(kw.get("max_nfev", 200)))
         if verbose:
-            print(f"  long data ({problem.n_residuals} residuals): each start screened with "
-                  f"at most {kw['max_nfev']} evaluations, the best one then fitted to the "
-                  "end", flush=True)
-    tasks = run_tasks(_fit_start, [s.x0 for s in starts], shared=(problem, kw),
-                      executor=executor, workers=workers)
+            print(
+                f"  long data ({problem.n_residuals} residuals): each start screened with "
+                f"at most {kw['max_nfev']} evaluations, the best one then fitted to the "
+                "end",
+                flush=True,
+            )
+    tasks = run_tasks(
+        _fit_start, [s.x0 for s in starts], shared=(problem, kw), executor=executor, workers=workers
+    )
     results: dict[int, FitResult] = {}
     for j, (r, why) in progress(tasks, len(starts), "refit starts", enabled=verbose):
         s = starts[j]
@@ -291,8 +342,10 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
     if not results:
         from .least_squares import StartError
 
-        raise StartError("no start of the refit could be fitted: " + "; ".join(
-            f"{s.label}: {s.failed}" for s in starts))
+        raise StartError(
+            "no start of the refit could be fitted: "
+            + "; ".join(f"{s.label}: {s.failed}" for s in starts)
+        )
     # In start order on ties: the choice does not depend on who finished first.
     kept = min(results, key=lambda j: (results[j].ssr, j))
     best = results[kept]
@@ -302,8 +355,11 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
         best = _fit(problem, best.x, **{**fit_kw, "uncertainty": False})
         s = starts[kept]
         best.x0 = s.x0  # where the search began, as the start column says
-        s.ssr, s.success, s.ratio = float(best.ssr), bool(best.success), floor_ratio(
-            problem, best.x)
+        s.ssr, s.success, s.ratio = (
+            float(best.ssr),
+            bool(best.success),
+            floor_ratio(problem, best.x),
+        )
         s.label += " (screened, then fitted to the end)"
     _complete(best, fit_kw)
     out = Refit(best, starts, kept, names)
@@ -312,12 +368,14 @@ def refit_added(problem: Problem, x_parent: np.ndarray, diagnosed: Mapping[str, 
         out.notes.append(
             f"the starts disagreed ({ends[0][0]:.3g}x to {ends[-1][0]:.3g}x the floor): the "
             f"start decides where this fit ends, so the kept one ({out.chose}) is the best "
-            "found, not proven the best there is; `rotorbayes multistart` searches wider")
+            "found, not proven the best there is; `rotorbayes multistart` searches wider"
+        )
     return out
 
 
-def prediction_note(ratio: float, predicted: float | None, effects: list[str],
-                    command: str | None = None) -> str | None:
+def prediction_note(
+    ratio: float, predicted: float | None, effects: list[str], command: str | None = None
+) -> str | None:
     """What to say when a refit ends above the worst RMS/floor the diagnosis predicted for
     adding ``effects`` (None when it does not, or there was no prediction)."""
     if predicted is None or not math.isfinite(predicted) or not math.isfinite(ratio):
@@ -325,12 +383,14 @@ def prediction_note(ratio: float, predicted: float | None, effects: list[str],
     if ratio <= ABOVE_PREDICTION * predicted:
         return None
     what = " and ".join(effects)
-    return (f"the refit ended at {ratio:.3g}x the floor, above the {predicted:.3g}x the "
-            f"diagnosis predicted for adding {what}: no start reached the basin the score "
-            "test saw, or the effect is not what the data lack (its one-step prediction is "
-            "linear in a small change). Distrust this fit; run `rotorbayes diagnose` on the "
-            "parent again with a different candidate, or search wider with `rotorbayes "
-            "multistart`" + (f" ({command})" if command else ""))
+    return (
+        f"the refit ended at {ratio:.3g}x the floor, above the {predicted:.3g}x the "
+        f"diagnosis predicted for adding {what}: no start reached the basin the score "
+        "test saw, or the effect is not what the data lack (its one-step prediction is "
+        "linear in a small change). Distrust this fit; run `rotorbayes diagnose` on the "
+        "parent again with a different candidate, or search wider with `rotorbayes "
+        "multistart`" + (f" ({command})" if command else "")
+    )
 
 
 def diagnosis_prediction(doc: Mapping | None, effects: list[str]) -> float | None:
@@ -350,9 +410,18 @@ def diagnosis_prediction(doc: Mapping | None, effects: list[str]) -> float | Non
 
 def effect_names(problem: Problem) -> list[str]:
     """Names of the added effects as the command line writes them."""
-    return [e.name if e.source == "catalogue" else f"{e.source}:{e.name}"
-            for e in problem.model.added]
+    return [
+        e.name if e.source == "catalogue" else f"{e.source}:{e.name}" for e in problem.model.added
+    ]
 
 
-__all__ = ["Refit", "RefitStart", "added_names", "diagnosis_prediction", "effect_names",
-           "prediction_note", "refit_added", "refit_starts"]
+__all__ = [
+    "Refit",
+    "RefitStart",
+    "added_names",
+    "diagnosis_prediction",
+    "effect_names",
+    "prediction_note",
+    "refit_added",
+    "refit_starts",
+]

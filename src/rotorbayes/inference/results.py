@@ -74,8 +74,9 @@ class LoadedFit:
 
         if not self.validation:
             return []
-        return quality(self.problem, self.x, self.validation,
-                       validation_alpha0=self.validation_alpha0 or None)
+        return quality(
+            self.problem, self.x, self.validation, validation_alpha0=self.validation_alpha0 or None
+        )
 
     def validation_summary(self) -> dict | None:
         """The validation data's headline as ``fit`` gives it -- the worst fitted channel's
@@ -87,32 +88,44 @@ class LoadedFit:
         if not rows:
             return None
         floors, _ = self.problem.noise_floors()
-        ratios = [c["ratio"] for c in channel_rows(self.problem, rows, "validation", floors)
-                  if c["fitted"]]
+        ratios = [
+            c["ratio"]
+            for c in channel_rows(self.problem, rows, "validation", floors)
+            if c["fitted"]
+        ]
         v = max(ratios) if ratios else math.nan
         recs = [r.get("validation_alpha0") for r in rows]
         figure = f"{v:.3g}x" if v < 1000 else f"{v:.0f}x"
-        text = "\n".join([f"validation data: {figure} the floor (worst fitted channel; each "
-                          "run with its own initial torsion)"]
-                         + ["  " + t.words() for t in recs if t is not None])
-        return {"worst_ratio_to_floor": v, "text": text,
-                "alpha0": [None if t is None else t.as_dict() for t in recs]}
+        text = "\n".join(
+            [
+                f"validation data: {figure} the floor (worst fitted channel; each "
+                "run with its own initial torsion)"
+            ]
+            + ["  " + t.words() for t in recs if t is not None]
+        )
+        return {
+            "worst_ratio_to_floor": v,
+            "text": text,
+            "alpha0": [None if t is None else t.as_dict() for t in recs],
+        }
 
     @property
     def parent(self) -> Path | None:
         p = self.doc.get("parent")
         return Path(p) if p else None
 
-    def chain(self, *, trust_effects: bool = False,
-              accept_changed_data: bool = False) -> list[LoadedFit]:
+    def chain(
+        self, *, trust_effects: bool = False, accept_changed_data: bool = False
+    ) -> list[LoadedFit]:
         """This fit and its ancestors (``--p0`` fit folders), oldest first."""
         out, seen, cur = [self], {self.folder.resolve()}, self
         while cur.parent is not None and (cur.parent / "fit.json").exists():
             if cur.parent.resolve() in seen:
                 break
             seen.add(cur.parent.resolve())
-            cur = load_fit(cur.parent, trust_effects=trust_effects,
-                           accept_changed_data=accept_changed_data)
+            cur = load_fit(
+                cur.parent, trust_effects=trust_effects, accept_changed_data=accept_changed_data
+            )
             out.append(cur)
         return out[::-1]
 
@@ -122,8 +135,9 @@ def fit_json_path(spec: str | Path) -> Path:
     if p.is_dir():
         p = p / "fit.json"
     if not p.exists():
-        raise ResultError(f"{p}: not found; give a folder written by `rotorbayes fit` "
-                          "(it holds fit.json)")
+        raise ResultError(
+            f"{p}: not found; give a folder written by `rotorbayes fit` (it holds fit.json)"
+        )
     return p
 
 
@@ -136,8 +150,10 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
-TRUST_HINT = ("effect files are Python code that runs when a result is opened: read the file, "
-              "and only if you trust it pass --trust-effects (or fit again)")
+TRUST_HINT = (
+    "effect files are Python code that runs when a result is opened: read the file, "
+    "and only if you trust it pass --trust-effects (or fit again)"
+)
 
 #: Seconds by which a fit.json's modification time may precede its change time (the time
 #: its inode last changed) for it to count as written here: rotorbayes writes it and
@@ -170,8 +186,7 @@ def foreign_reason(fit_json: Path) -> tuple[str, str] | None:
             owner = f"{pwd.getpwuid(st.st_uid).pw_name}, uid {st.st_uid}"
         except (ImportError, KeyError):
             owner = f"uid {st.st_uid}"
-        return (f"it belongs to another user ({owner})",
-                "pass --trust-effects (or fit again)")
+        return (f"it belongs to another user ({owner})", "pass --trust-effects (or fit again)")
     if st.st_mode & 0o002 or (st.st_mode & 0o020 and st.st_gid != os.getegid()):
         if st.st_mode & 0o002:
             who = "every user"
@@ -182,13 +197,17 @@ def foreign_reason(fit_json: Path) -> tuple[str, str] | None:
                 who = f"the members of group {grp.getgrgid(st.st_gid).gr_name}"
             except (ImportError, KeyError):
                 who = f"the members of group {st.st_gid}"
-        return (f"{who} may change it", f"if the folder is yours, `chmod go-w {fit_json}`; "
-                "else pass --trust-effects")
+        return (
+            f"{who} may change it",
+            f"if the folder is yours, `chmod go-w {fit_json}`; else pass --trust-effects",
+        )
     if st.st_ctime - st.st_mtime > KEPT_TIMES_S:
-        return ("its modification time is older than the file itself (unpacked from an "
-                "archive, or copied with its times kept)",
-                f"if the folder is yours, `touch {fit_json}` makes it count as yours again; "
-                "else pass --trust-effects")
+        return (
+            "its modification time is older than the file itself (unpacked from an "
+            "archive, or copied with its times kept)",
+            f"if the folder is yours, `touch {fit_json}` makes it count as yours again; "
+            "else pass --trust-effects",
+        )
     return None
 
 
@@ -218,18 +237,26 @@ def check_effect_files(doc: dict, where: Path, trust: bool = False) -> list[str]
         if not p.is_absolute() and not p.is_file():
             p = where.parent / p
         if not p.is_file():
-            raise ResultError(f"{where}: its effect file {path_s} is gone; restore it (the fit "
-                              "cannot be rebuilt without it) or fit again")
+            raise ResultError(
+                f"{where}: its effect file {path_s} is gone; restore it (the fit "
+                "cannot be rebuilt without it) or fit again"
+            )
         sha = file_sha256(p)
         then = recorded.get(path_s) or recorded.get(str(p.resolve()))
         if then != sha:
-            what = ("changed since the fit" if then else
-                    "has no SHA-256 recorded with the result (an older rotorbayes, or not "
-                    "written by rotorbayes)")
+            what = (
+                "changed since the fit"
+                if then
+                else "has no SHA-256 recorded with the result (an older rotorbayes, or not "
+                "written by rotorbayes)"
+            )
             if not trust:
                 raise ResultError(f"{where}: the effect file {p} {what}; {TRUST_HINT}")
-            print(f"warning: {where}: the effect file {p} {what}; importing it because of "
-                  "--trust-effects", file=sys.stderr)
+            print(
+                f"warning: {where}: the effect file {p} {what}; importing it because of "
+                "--trust-effects",
+                file=sys.stderr,
+            )
         else:
             foreign = foreign or foreign_reason(Path(where))
             if foreign is not None:
@@ -240,9 +267,13 @@ def check_effect_files(doc: dict, where: Path, trust: bool = False) -> list[str]
                         f"imported), but {Path(where).name} may not be a result you wrote "
                         f"here: {why}. A result folder you did not write can record the "
                         "SHA-256 of any file it brings along: read the effect file, and only "
-                        f"if you trust it and the folder, {fix}")
-                print(f"warning: {where}: {why}; importing its effect file {p} because of "
-                      "--trust-effects", file=sys.stderr)
+                        f"if you trust it and the folder, {fix}"
+                    )
+                print(
+                    f"warning: {where}: {why}; importing its effect file {p} because of "
+                    "--trust-effects",
+                    file=sys.stderr,
+                )
         out.append(f"{p.resolve()}:{name}")
     return out
 
@@ -253,8 +284,11 @@ def data_path(spec: str, doc: dict, index: int, key: str, fit_json: Path) -> Pat
     tried = [Path(spec)]
     rel = None
     with_meta = doc.get(f"{key}_files")
-    if isinstance(with_meta, list) and index < len(with_meta) and isinstance(
-            with_meta[index], dict):
+    if (
+        isinstance(with_meta, list)
+        and index < len(with_meta)
+        and isinstance(with_meta[index], dict)
+    ):
         rel = with_meta[index].get("relative")
     if isinstance(rel, str):
         tried.append(fit_json.parent / rel)
@@ -266,8 +300,9 @@ def data_path(spec: str, doc: dict, index: int, key: str, fit_json: Path) -> Pat
         if os.path.exists(p) and not p.is_dir():
             return p
     places = ", ".join(dict.fromkeys(str(p) for p in tried))
-    raise ResultError(f"{fit_json}: its data file {spec} is gone (looked for {places}); "
-                      "restore it or fit again")
+    raise ResultError(
+        f"{fit_json}: its data file {spec} is gone (looked for {places}); restore it or fit again"
+    )
 
 
 def data_record(paths: list, fit_folder: Path, read=None) -> list[dict]:
@@ -284,8 +319,11 @@ def data_record(paths: list, fit_folder: Path, read=None) -> list[dict]:
     for p in paths:
         sha = getattr(p, "sha256", None)
         ap = Path(getattr(p, "path", p)).absolute()
-        rec = {"path": str(ap), "relative": os.path.relpath(ap, fit_folder.absolute()),
-               "sha256": sha or file_sha256(ap)}
+        rec = {
+            "path": str(ap),
+            "relative": os.path.relpath(ap, fit_folder.absolute()),
+            "sha256": sha or file_sha256(ap),
+        }
         if read is not None and not read.is_default and ap.parent != EXAMPLES.absolute():
             rec["read"] = read.as_dict()
         out.append(rec)
@@ -302,8 +340,9 @@ def recorded_read(doc: dict, key: str, index: int, where: Path):
     try:
         return ReadSpec.from_record(rec.get("read") if isinstance(rec, dict) else None)
     except (FormatProblem, TypeError, AttributeError) as exc:
-        raise ResultError(f"{where}: the way {key} file {index + 1} was read is damaged "
-                          f"({exc}); fit again") from None
+        raise ResultError(
+            f"{where}: the way {key} file {index + 1} was read is damaged ({exc}); fit again"
+        ) from None
 
 
 def _recorded_sha256(doc: dict, key: str, index: int) -> str | None:
@@ -316,21 +355,33 @@ def _recorded_sha256(doc: dict, key: str, index: int) -> str | None:
 
 
 def _changed_words(fit_json: Path, p: Path, recorded: str, now: str) -> str:
-    return (f"{fit_json}: its data file {p} has changed since the fit (SHA-256 recorded "
-            f"{recorded}, now {now}): the fit's estimates and figures describe the file as "
-            "it was")
+    return (
+        f"{fit_json}: its data file {p} has changed since the fit (SHA-256 recorded "
+        f"{recorded}, now {now}): the fit's estimates and figures describe the file as "
+        "it was"
+    )
 
 
-def _load_recorded(doc: dict, key: str, index: int, fit_json: Path, config: str,
-                   keep: bool, accept_changed: bool, changed: list):
+def _load_recorded(
+    doc: dict,
+    key: str,
+    index: int,
+    fit_json: Path,
+    config: str,
+    keep: bool,
+    accept_changed: bool,
+    changed: list,
+):
     """Data file ``index`` of ``key`` of a fit, checked against the SHA-256 the fit
     recorded: a changed file is refused (:class:`ResultError`) unless ``accept_changed``,
     then named on stderr and in ``changed``."""
     spec = doc[key][index]
     p = data_path(spec, doc, index, key, fit_json)
     recorded = _recorded_sha256(doc, key, index)
-    fix = (f"restore the file the fit was made from, fit the changed file again, or pass "
-           f"{CHANGED_DATA_OPTION} to use it with this fit anyway")
+    fix = (
+        f"restore the file the fit was made from, fit the changed file again, or pass "
+        f"{CHANGED_DATA_OPTION} to use it with this fit anyway"
+    )
     try:
         ex = _load(p, config, keep, recorded_read(doc, key, index, fit_json))
     except DataFileError as exc:
@@ -341,22 +392,30 @@ def _load_recorded(doc: dict, key: str, index: int, fit_json: Path, config: str,
             except DataFileError:  # not a file we read: its own message says why
                 now = recorded
             if now != recorded:
-                raise ResultError(f"{_changed_words(fit_json, p, recorded, now)}, and it no "
-                                  f"longer reads as a measurement ({exc.problem}); restore "
-                                  "the file the fit was made from, or fit again") from None
+                raise ResultError(
+                    f"{_changed_words(fit_json, p, recorded, now)}, and it no "
+                    f"longer reads as a measurement ({exc.problem}); restore "
+                    "the file the fit was made from, or fit again"
+                ) from None
         raise ResultError(f"{fit_json}: its data file {exc}") from None
     if recorded and ex.sha256 != recorded:
         if not accept_changed:
-            raise ResultError(f"{_changed_words(fit_json, p, recorded, ex.sha256)}; {fix} "
-                              "(nothing was written)")
-        print(f"warning: {_changed_words(fit_json, p, recorded, ex.sha256)}; using it "
-              f"because of {CHANGED_DATA_OPTION}", file=sys.stderr)
+            raise ResultError(
+                f"{_changed_words(fit_json, p, recorded, ex.sha256)}; {fix} (nothing was written)"
+            )
+        print(
+            f"warning: {_changed_words(fit_json, p, recorded, ex.sha256)}; using it "
+            f"because of {CHANGED_DATA_OPTION}",
+            file=sys.stderr,
+        )
         changed.append({"file": str(p), "recorded": recorded, "now": ex.sha256})
     return ex
 
 
-FIX_OR_REFIT = ("the file was edited or damaged: correct the value in it, or fit again (a "
-                "fit writes only values inside the bounds)")
+FIX_OR_REFIT = (
+    "the file was edited or damaged: correct the value in it, or fit again (a "
+    "fit writes only values inside the bounds)"
+)
 
 
 def read_fit_json(path: str | Path) -> dict:
@@ -374,8 +433,10 @@ def read_fit_json(path: str | Path) -> dict:
         if isinstance(exc, ResultError):
             raise
         what = "a data file" if path.suffix.lower() in (".csv", ".txt", ".mat") else "not JSON"
-        raise ResultError(f"{path}: not a fit ({what}); give the folder `rotorbayes fit --out` "
-                          "wrote, or its fit.json") from None
+        raise ResultError(
+            f"{path}: not a fit ({what}); give the folder `rotorbayes fit --out` "
+            "wrote, or its fit.json"
+        ) from None
     if not isinstance(doc, dict):
         raise ResultError(f"{path}: not a fit written by `rotorbayes fit` (not a JSON object)")
     return doc
@@ -386,24 +447,32 @@ def _checked_value(v, name: str, info, path: Path, where: str) -> float | None:
     None: finite only).  ``None`` (JSON's null) and NaN stand for "no value" and are
     accepted only where the parameter's null value is NaN (``Ts_l``: no Stribeck peak)."""
     unit = f" {info.unit}" if info is not None and info.unit != "-" else ""
-    bounds = (f" ({info.description}: between {info.lower:g} and {info.upper:g}{unit})"
-              if info is not None else "")
+    bounds = (
+        f" ({info.description}: between {info.lower:g} and {info.upper:g}{unit})"
+        if info is not None
+        else ""
+    )
     if v is None or (isinstance(v, float) and math.isnan(v)):
         if info is not None and math.isnan(info.null) and name == "Ts_l":
             return None
         shown = "null" if v is None else "NaN"
-        raise ResultError(f"{path}: {name} = {shown} ({where}) is not a number{bounds}; "
-                          f"{FIX_OR_REFIT}")
+        raise ResultError(
+            f"{path}: {name} = {shown} ({where}) is not a number{bounds}; {FIX_OR_REFIT}"
+        )
     if not isinstance(v, int | float) or isinstance(v, bool):
-        raise ResultError(f"{path}: {name} = {v!r} ({where}) is not a number{bounds}; "
-                          f"{FIX_OR_REFIT}")
+        raise ResultError(
+            f"{path}: {name} = {v!r} ({where}) is not a number{bounds}; {FIX_OR_REFIT}"
+        )
     v = float(v)
     if not math.isfinite(v):
-        raise ResultError(f"{path}: {name} = {v!r} ({where}) is not a finite number{bounds}; "
-                          f"{FIX_OR_REFIT}")
+        raise ResultError(
+            f"{path}: {name} = {v!r} ({where}) is not a finite number{bounds}; {FIX_OR_REFIT}"
+        )
     if info is not None and not info.lower <= v <= info.upper:
-        raise ResultError(f"{path}: {name} = {v:g}{unit} ({where}) lies outside its "
-                          f"bounds{bounds}; {FIX_OR_REFIT}")
+        raise ResultError(
+            f"{path}: {name} = {v:g}{unit} ({where}) lies outside its "
+            f"bounds{bounds}; {FIX_OR_REFIT}"
+        )
     return v
 
 
@@ -418,11 +487,15 @@ def fit_values(doc: dict, path: str | Path, info=None) -> dict[str, float | None
     path = Path(path)
     params = doc.get("params")
     if not isinstance(params, dict):
-        raise ResultError(f"{path}: params is not a table of parameter values: damaged, or "
-                          "not written by `rotorbayes fit`; fit again")
+        raise ResultError(
+            f"{path}: params is not a table of parameter values: damaged, or "
+            "not written by `rotorbayes fit`; fit again"
+        )
     info = INFO if info is None else info
-    return {str(k): _checked_value(v, str(k), info.get(k), path, "its value in params")
-            for k, v in params.items()}
+    return {
+        str(k): _checked_value(v, str(k), info.get(k), path, "its value in params")
+        for k, v in params.items()
+    }
 
 
 def fit_estimates(doc: dict, path: str | Path, names, info=None) -> list[float]:
@@ -437,18 +510,20 @@ def fit_estimates(doc: dict, path: str | Path, names, info=None) -> list[float]:
     for n in names:
         rec = est.get(n) if isinstance(est, dict) else None
         if not isinstance(rec, dict) or "value" not in rec:
-            raise ResultError(f"{path}: estimates lack a value for the free parameter {n}: "
-                              "damaged, or written by another rotorbayes; fit again")
+            raise ResultError(
+                f"{path}: estimates lack a value for the free parameter {n}: "
+                "damaged, or written by another rotorbayes; fit again"
+            )
         v = _checked_value(rec["value"], n, info.get(n.split("[")[0]), path, "its estimate")
         if v is None:
-            raise ResultError(f"{path}: {n} = null (its estimate) is not a number; "
-                              f"{FIX_OR_REFIT}")
+            raise ResultError(f"{path}: {n} = null (its estimate) is not a number; {FIX_OR_REFIT}")
         out.append(v)
     return out
 
 
-def load_fit(spec: str | Path, *, trust_effects: bool = False,
-             accept_changed_data: bool = False) -> LoadedFit:
+def load_fit(
+    spec: str | Path, *, trust_effects: bool = False, accept_changed_data: bool = False
+) -> LoadedFit:
     """Rebuild the problem and the fitted point of a fit folder (or its fit.json).
 
     User effect files are checked first (:func:`check_effect_files`).  Every data file is
@@ -464,38 +539,60 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False,
     need = ("config", "data", "free", "params", "estimates", "channels")
     missing = [k for k in need if k not in doc]
     if missing:
-        raise ResultError(f"{path}: lacks {', '.join(missing)}; it was written by an older "
-                          "rotorbayes: fit again to make a folder this version can read")
-    shapes = {"data": list, "validation": list, "free": list, "channels": list,
-              "params": dict, "estimates": dict, "effects": list, "added_effects": list}
+        raise ResultError(
+            f"{path}: lacks {', '.join(missing)}; it was written by an older "
+            "rotorbayes: fit again to make a folder this version can read"
+        )
+    shapes = {
+        "data": list,
+        "validation": list,
+        "free": list,
+        "channels": list,
+        "params": dict,
+        "estimates": dict,
+        "effects": list,
+        "added_effects": list,
+    }
     bad = [k for k, t in shapes.items() if k in doc and not isinstance(doc[k], t)]
-    bad += [k for k in ("data", "validation", "free", "channels", "added_effects")
-            if isinstance(doc.get(k), list) and not all(isinstance(v, str) for v in doc[k])]
+    bad += [
+        k
+        for k in ("data", "validation", "free", "channels", "added_effects")
+        if isinstance(doc.get(k), list) and not all(isinstance(v, str) for v in doc[k])
+    ]
     if bad:
-        raise ResultError(f"{path}: {', '.join(sorted(set(bad)))} of the wrong type: damaged, or "
-                          "not written by `rotorbayes fit`; fit again")
+        raise ResultError(
+            f"{path}: {', '.join(sorted(set(bad)))} of the wrong type: damaged, or "
+            "not written by `rotorbayes fit`; fit again"
+        )
     config = doc["config"]
     if not isinstance(config, str) or config not in CONFIGURATIONS:
         raise ResultError(f"{path}: config {config!r} is not a configuration of the rig")
     base_on = set(CONFIGURATIONS[config].base_effects)
     without = sorted(base_on - set(doc.get("effects", [])))
     added = check_effect_files(doc, path, trust_effects)
-    model = Model(config, added, without=without,
-                  prescribed_upper=bool(doc.get("prescribed_upper", False)))
+    model = Model(
+        config, added, without=without, prescribed_upper=bool(doc.get("prescribed_upper", False))
+    )
     # Every number is checked before any data are read (a hand-edited NaN, -5 or 1e300
     # is named here, not met later as a simulation that fails).
-    base = {k: (math.nan if v is None else float(v))
-            for k, v in fit_values(doc, path, model.info).items()}
-    estimates = dict(zip(doc["free"], fit_estimates(doc, path, doc["free"], model.info),
-                         strict=True))
+    base = {
+        k: (math.nan if v is None else float(v))
+        for k, v in fit_values(doc, path, model.info).items()
+    }
+    estimates = dict(
+        zip(doc["free"], fit_estimates(doc, path, doc["free"], model.info), strict=True)
+    )
     # A fit made with --keep-glitches is read back with them kept (the same data).
     keep = bool((doc.get("glitches") or {}).get("kept"))
     changed: list[dict] = []
-    exps = [_load_recorded(doc, "data", i, path, config, keep, accept_changed_data, changed)
-            for i in range(len(doc["data"]))]
-    val = [_load_recorded(doc, "validation", i, path, config, keep, accept_changed_data,
-                          changed)
-           for i in range(len(doc.get("validation", [])))]
+    exps = [
+        _load_recorded(doc, "data", i, path, config, keep, accept_changed_data, changed)
+        for i in range(len(doc["data"]))
+    ]
+    val = [
+        _load_recorded(doc, "validation", i, path, config, keep, accept_changed_data, changed)
+        for i in range(len(doc.get("validation", [])))
+    ]
     try:
         names_base: list[str] = []
         for n in doc["free"]:
@@ -503,22 +600,30 @@ def load_fit(spec: str | Path, *, trust_effects: bool = False,
             if b not in names_base:
                 names_base.append(b)
         step = doc.get("step")
-        prob = Problem(model, exps, free=names_base, base=base,
-                       channels=tuple(doc["channels"]), weights=doc.get("weights"),
-                       step=None if step is None else float(step))
+        prob = Problem(
+            model,
+            exps,
+            free=names_base,
+            base=base,
+            channels=tuple(doc["channels"]),
+            weights=doc.get("weights"),
+            step=None if step is None else float(step),
+        )
     except (KeyError, TypeError, AttributeError) as exc:
-        raise ResultError(f"{path}: cannot rebuild the fit from it ({type(exc).__name__}: "
-                          f"{exc}): damaged, or written by another rotorbayes; fit again"
-                          ) from None
+        raise ResultError(
+            f"{path}: cannot rebuild the fit from it ({type(exc).__name__}: "
+            f"{exc}): damaged, or written by another rotorbayes; fit again"
+        ) from None
     except ValueError as exc:  # a value the problem refuses (a step, a weight, a channel)
         raise ResultError(f"{path}: {exc}") from None
     missing = [n for n in prob.names if n not in estimates]
     if missing:
-        raise ResultError(f"{path}: estimates lack a value for the free parameter "
-                          f"{missing[0]}: damaged, or written by another rotorbayes; fit again")
+        raise ResultError(
+            f"{path}: estimates lack a value for the free parameter "
+            f"{missing[0]}: damaged, or written by another rotorbayes; fit again"
+        )
     x = np.array([estimates[n] for n in prob.names])
-    return LoadedFit(path.parent, doc, prob, x, val, _validation_alpha0(doc, path, val),
-                     changed)
+    return LoadedFit(path.parent, doc, prob, x, val, _validation_alpha0(doc, path, val), changed)
 
 
 def _validation_alpha0(doc: dict, path: Path, val: list) -> list:
@@ -530,29 +635,38 @@ def _validation_alpha0(doc: dict, path: Path, val: list) -> list:
     if recs is None or recs == []:
         return []
     if not isinstance(recs, list) or len(recs) != len(val):
-        raise ResultError(f"{path}: validation_alpha0 must hold one record per validation "
-                          f"file ({len(val)}): damaged, or not written by `rotorbayes fit`; "
-                          "fit again")
+        raise ResultError(
+            f"{path}: validation_alpha0 must hold one record per validation "
+            f"file ({len(val)}): damaged, or not written by `rotorbayes fit`; "
+            "fit again"
+        )
     out: list[ValidationTorsion | None] = []
     for r, ex in zip(recs, val, strict=True):
         if r is None:
             out.append(None)
             continue
         if not isinstance(r, dict):
-            raise ResultError(f"{path}: validation_alpha0 holds {r!r}, not a record: damaged, "
-                              "or not written by `rotorbayes fit`; fit again")
+            raise ResultError(
+                f"{path}: validation_alpha0 holds {r!r}, not a record: damaged, "
+                "or not written by `rotorbayes fit`; fit again"
+            )
         try:
-            out.append(ValidationTorsion.from_dict(r, experiment=str(ex.name or ex.path),
-                                                   file=str(ex.path)))
+            out.append(
+                ValidationTorsion.from_dict(
+                    r, experiment=str(ex.name or ex.path), file=str(ex.path)
+                )
+            )
         except ValueError as exc:
-            raise ResultError(f"{path}: {exc}: damaged, or not written by `rotorbayes fit`; "
-                              "fit again") from None
+            raise ResultError(
+                f"{path}: {exc}: damaged, or not written by `rotorbayes fit`; fit again"
+            ) from None
     return out
 
 
 def _load(p: Path, config: str, keep_glitches: bool = False, read=None):
-    return load_experiment(p, expect_lower=config != "upper", keep_glitches=keep_glitches,
-                           read=read)
+    return load_experiment(
+        p, expect_lower=config != "upper", keep_glitches=keep_glitches, read=read
+    )
 
 
 def diagnosis_starts(spec: str | Path | None, effects) -> dict[str, float]:

@@ -142,9 +142,11 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
     # Each further experiment's initial torsion adds a constant string torque
     # c_i = k_alpha * alpha0[i] to both discs' equations (the first experiment's alpha0
     # is its start value: it cannot be told from the friction asymmetries' constants).
-    torsion_offsets = [
-        i for i in range(1, len(problem.experiments)) if f"alpha0[{i}]" in problem.names
-    ] if has_lower else []
+    torsion_offsets = (
+        [i for i in range(1, len(problem.experiments)) if f"alpha0[{i}]" in problem.names]
+        if has_lower
+        else []
+    )
     # The rows of every experiment, as (A columns dict, lhs) per equation.
     Au, yu, Al_parts, yl = [], [], [], []
     lower_feats = []  # (ωl, s_l) of the lower rows, for the Stribeck grid
@@ -225,8 +227,11 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         A_rows, y_rows, group = [], [], []
         for cols, y in zip(Au, yu, strict=True):
             y = y[take]
-            A_rows.append(np.column_stack([cols[nm][take] if nm in cols else
-                                           np.zeros(y.size) for nm in names]))
+            A_rows.append(
+                np.column_stack(
+                    [cols[nm][take] if nm in cols else np.zeros(y.size) for nm in names]
+                )
+            )
             y_rows.append(y)
             group.append(np.zeros(y.size, int))
         for cols, y, (wl, sl) in zip(Al_parts, yl, lower_feats, strict=True):
@@ -277,18 +282,14 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
             if got is not None and (best is None or got[1] < best[1]):
                 best = (*got[:3], ws, delta)
     if best is None:
-        out.notes.append(
-            "too few slip samples for a regression; the start values are used instead"
-        )
+        out.notes.append("too few slip samples for a regression; the start values are used instead")
         return out
     sol, _, counts, ws, delta = best
     out.rows = {"upper": counts[0], "lower": counts[1]}
-    how = {
-        n: "data: equation of the upper disc" for n in UPPER_TERMS
-    } | {n: "data: equation of the lower disc" for n in LOWER_TERMS}
-    how["k_alpha"] = (
-        "data: string torque in both discs' equations" if Au else "data: lower disc"
-    )
+    how = {n: "data: equation of the upper disc" for n in UPPER_TERMS} | {
+        n: "data: equation of the lower disc" for n in LOWER_TERMS
+    }
+    how["k_alpha"] = "data: string torque in both discs' equations" if Au else "data: lower disc"
     est = dict(zip(names, map(float, sol), strict=True))
     k_alpha = est.get("k_alpha", val("k_alpha"))
     for i in torsion_offsets:
@@ -303,6 +304,7 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         est["ws_l"], how["ws_l"] = float(ws), "data: best of a grid (lower disc)"
     if stribeck_on and "delta_l" in free:
         est["delta_l"], how["delta_l"] = float(delta), "data: best of a grid (lower disc)"
+
     def finish(est: dict, how: dict) -> tuple[dict, dict]:
         """Values and their sources from regression estimates, moved inside the bounds."""
         values, source = dict(out.values), dict(out.source)
@@ -332,10 +334,17 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
 
     out.values, out.source = finish(est, how)
     info_j, info_k = (problem.model.info.get(n) for n in ("J_l", "k_alpha"))
-    if (info_j is not None and info_k is not None
-            and {"J_l", "k_alpha"} <= set(names) and not torsion_offsets and Au
-            and (est["J_l"] <= info_j.lower + 1e-3 * (info_j.upper - info_j.lower)
-                 or est["k_alpha"] <= info_k.lower + 1e-3 * (info_k.upper - info_k.lower))):
+    if (
+        info_j is not None
+        and info_k is not None
+        and {"J_l", "k_alpha"} <= set(names)
+        and not torsion_offsets
+        and Au
+        and (
+            est["J_l"] <= info_j.lower + 1e-3 * (info_j.upper - info_j.lower)
+            or est["k_alpha"] <= info_k.lower + 1e-3 * (info_k.upper - info_k.lower)
+        )
+    ):
         # The lower disc's equation is homogeneous: when the string torque is too weak in
         # the upper disc's equation to set its scale, the joint regression drops the lower
         # disc to nothing.  Its ratios still come from its own equation; the scale is then
@@ -403,10 +412,14 @@ def _rescale_lower(problem: Problem, names: list, rows, est: dict, how: dict, fi
     values, source, scale = best[1]
     for n in [names[j] for j in lower] + ["Ts_l"] * ("dS_l" in names):
         if n in source and not source[n].startswith("data: lower disc's ratios"):
-            source[n] = ("data: lower disc's ratios from its equation, scale from a scan "
-                         "of the simulated fit")
-    note = (f"the string torque was too weak in the upper disc's equation to set the lower "
-            f"disc's scale (the joint regression dropped it to nothing); the lower disc's "
-            f"parameters are its own equation's ratios at the scale J_l = {scale:.3g} that fits "
-            "the data best of a scan of 25")
+            source[n] = (
+                "data: lower disc's ratios from its equation, scale from a scan "
+                "of the simulated fit"
+            )
+    note = (
+        f"the string torque was too weak in the upper disc's equation to set the lower "
+        f"disc's scale (the joint regression dropped it to nothing); the lower disc's "
+        f"parameters are its own equation's ratios at the scale J_l = {scale:.3g} that fits "
+        "the data best of a scan of 25"
+    )
     return values, source, note

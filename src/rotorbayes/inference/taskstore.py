@@ -73,15 +73,30 @@ def problem_fingerprint(problem) -> str:
     from ..util import __version__
 
     m = problem.model
-    data = [[ex.t, ex.u, ex.theta_u, ex.theta_l if ex.theta_l is not None else "none"]
-            for ex in problem.experiments]
-    added = [[e.name, e.source, _effects.file_sha256(e.source) if e.source != "catalogue"
-              else ""] for e in m.added]
-    return fingerprint(__version__, data, problem.config, list(m.effect_names), added,
-                       bool(problem.prescribed_upper), list(problem.names),
-                       {k: float(v) for k, v in problem.base.items()}, problem.lower,
-                       problem.upper, list(problem.channels), dict(problem.weights),
-                       problem.shape, "none" if problem.step is None else float(problem.step))
+    data = [
+        [ex.t, ex.u, ex.theta_u, ex.theta_l if ex.theta_l is not None else "none"]
+        for ex in problem.experiments
+    ]
+    added = [
+        [e.name, e.source, _effects.file_sha256(e.source) if e.source != "catalogue" else ""]
+        for e in m.added
+    ]
+    return fingerprint(
+        __version__,
+        data,
+        problem.config,
+        list(m.effect_names),
+        added,
+        bool(problem.prescribed_upper),
+        list(problem.names),
+        {k: float(v) for k, v in problem.base.items()},
+        problem.lower,
+        problem.upper,
+        list(problem.channels),
+        dict(problem.weights),
+        problem.shape,
+        "none" if problem.step is None else float(problem.step),
+    )
 
 
 def store_path(out: str | os.PathLike) -> Path:
@@ -121,8 +136,11 @@ class TaskStore:
             except (OSError, ValueError, AttributeError):
                 old = None
             if old != key:
-                print(f"note: {self.folder} holds {what}s of another problem or other "
-                      "settings (or is damaged): not reused, removed", file=sys.stderr)
+                print(
+                    f"note: {self.folder} holds {what}s of another problem or other "
+                    "settings (or is damaged): not reused, removed",
+                    file=sys.stderr,
+                )
                 shutil.rmtree(self.folder, ignore_errors=True)
         self.folder.mkdir(parents=True, exist_ok=True)
         if not keyfile.exists():
@@ -166,12 +184,14 @@ class TaskStore:
         """Keep the record of task ``index`` (atomically: whole or not at all): arrays and
         plain values (numbers, strings, booleans, None; NaN is kept)."""
         arrays = {k: v for k, v in record.items() if isinstance(v, np.ndarray)}
-        values = {k: (None if isinstance(v, float) and math.isnan(v) else v)
-                  for k, v in record.items() if k not in arrays}
+        values = {
+            k: (None if isinstance(v, float) and math.isnan(v) else v)
+            for k, v in record.items()
+            if k not in arrays
+        }
         buf = io.BytesIO()
         # numpy's stub types **kwds as if they could fill allow_pickle (a bool).
-        np.savez(buf, __meta__=np.array(json.dumps({"task": task_key, "values": values})),
-                 **arrays)  # type: ignore[arg-type]
+        np.savez(buf, __meta__=np.array(json.dumps({"task": task_key, "values": values})), **arrays)  # type: ignore[arg-type]
         self._write(self._file(index), buf.getvalue())
 
     def remove(self) -> None:

@@ -76,6 +76,7 @@ N_BOOT = 200
 #: a few of a long experiment).
 ROUNDING_BYTES = 64 * 2**20
 
+
 @dataclass
 class Uncertainty:
     """Covariances of a fit's estimates and what they assume (see the module docstring)."""
@@ -150,8 +151,7 @@ class Uncertainty:
         sh = self.shares()
         se, sw = self.stderr, self.stderr_white
         return {
-            "method": "rounding simulated + block jackknife (model error) + input-hold "
-                      "allowance",
+            "method": "rounding simulated + block jackknife (model error) + input-hold allowance",
             "assumptions": self.assumptions(),
             "n_blocks": self.n_blocks,
             "block_seconds": self.block_seconds,
@@ -166,9 +166,11 @@ class Uncertainty:
                 n: {
                     "stderr": _num(se[j]),
                     "stderr_white": _num(sw[j]),
-                    "inflation": (_num(se[j] / sw[j])
-                                  if np.isfinite(se[j]) and np.isfinite(sw[j]) and sw[j] > 0
-                                  else None),
+                    "inflation": (
+                        _num(se[j] / sw[j])
+                        if np.isfinite(se[j]) and np.isfinite(sw[j]) and sw[j] > 0
+                        else None
+                    ),
                     "share_noise": _num(sh[n]["noise"]),
                     "share_model_error": _num(sh[n]["model_error"]),
                     "share_input_hold": _num(sh[n]["input_hold"]),
@@ -207,8 +209,15 @@ def _segments(problem):
     return out
 
 
-def block_scores(problem, J: np.ndarray, r: np.ndarray, block_seconds: float | None = None,
-                 *, with_information: bool = False, col_scale: np.ndarray | None = None):
+def block_scores(
+    problem,
+    J: np.ndarray,
+    r: np.ndarray,
+    block_seconds: float | None = None,
+    *,
+    with_information: bool = False,
+    col_scale: np.ndarray | None = None,
+):
     """Scores ``J_bᵀ r_b`` of contiguous time blocks (rows) and the block length used [s].
 
     Both channels of one experiment's time window go into one block.  The block length is
@@ -232,7 +241,7 @@ def block_scores(problem, J: np.ndarray, r: np.ndarray, block_seconds: float | N
             e = ex.n if b == nb - 1 else (b + 1) * L
             g = np.zeros(J.shape[1])
             ab = np.zeros((J.shape[1], J.shape[1]))
-            for (_, _, off, _, _) in mine:
+            for _, _, off, _, _ in mine:
                 Jb = J[off + a : off + e]
                 g += Jb.T @ r[off + a : off + e]
                 if with_information:
@@ -265,8 +274,9 @@ def _sym_sqrt(S: np.ndarray, inverse: bool = False) -> np.ndarray:
     return (V * w) @ V.T
 
 
-def robust_covariances(problem, J: np.ndarray, r: np.ndarray, floors: dict,
-                       *, block_seconds: float | None = None):
+def robust_covariances(
+    problem, J: np.ndarray, r: np.ndarray, floors: dict, *, block_seconds: float | None = None
+):
     """White and block-robust covariances, in the scaled frame where ``JᵀJ`` is singular.
 
     Returns ``(cov_white, cov_robust, n_blocks, block_seconds, singular_mask)``.
@@ -277,7 +287,7 @@ def robust_covariances(problem, J: np.ndarray, r: np.ndarray, floors: dict,
     # segment by segment: no scaled copies of J.
     d2 = np.zeros(k)
     M_white = np.zeros((k, k))
-    for (_, c, off, n, _) in _segments(problem):
+    for _, c, off, n, _ in _segments(problem):
         sig = floors[c] * problem.weights[c]
         Jseg = J[off : off + n]
         Gs = Jseg.T @ Jseg
@@ -291,8 +301,7 @@ def robust_covariances(problem, J: np.ndarray, r: np.ndarray, floors: dict,
     w, V = np.linalg.eigh(A)
     small = w <= 1e-12 * max(w.max(), 1e-300)
     Ainv = (V * np.where(small, 0.0, 1.0 / np.where(small, 1.0, w))) @ V.T
-    G, bsec, Ab = block_scores(problem, J, r, block_seconds, with_information=True,
-                               col_scale=d)
+    G, bsec, Ab = block_scores(problem, J, r, block_seconds, with_information=True, col_scale=d)
     nb = G.shape[0]
     cov_white = Ainv @ M_white @ Ainv
     # Delete-one-block jackknife (one Gauss-Newton step per deleted block): unlike the plain
@@ -316,8 +325,16 @@ def robust_covariances(problem, J: np.ndarray, r: np.ndarray, floors: dict,
     return cov_white * unscale, cov_robust * unscale, nb, bsec, hit, (d, Ainv)
 
 
-def rounding_covariance(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, floors: dict,
-                        *, n_boot: int = N_BOOT, seed: int = 0) -> np.ndarray | None:
+def rounding_covariance(
+    problem,
+    x: np.ndarray,
+    J: np.ndarray,
+    r: np.ndarray,
+    floors: dict,
+    *,
+    n_boot: int = N_BOOT,
+    seed: int = 0,
+) -> np.ndarray | None:
     """Covariance of the estimate that rounding to encoder counts causes, by simulation.
 
     The encoders' error is not white: it is ``round((θ + φ)/q)·q − (θ + φ)``, a function of
@@ -389,8 +406,9 @@ def loewner_max(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return Ph @ ((U * np.maximum(lam, 1.0)) @ U.T) @ Ph
 
 
-def hold_shift(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
-               *, upsample: int = HOLD_UPSAMPLE) -> tuple[np.ndarray, float, float]:
+def hold_shift(
+    problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, *, upsample: int = HOLD_UPSAMPLE
+) -> tuple[np.ndarray, float, float]:
     """Change of the estimate if the input between samples were smooth (cubic spline
     through the same samples) instead of linear, by one Gauss-Newton step ``A⁺ Jᵀ Δr``; and
     the SSR of the linear and of the smooth input model after that step."""
@@ -417,7 +435,8 @@ def hold_shift(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
         st, thu, thl = sim.angles(sim.kernel_vector(problem.params_for(x, i)))
         del sim
         st0, thu0, thl0 = problem.sims[i].angles(
-            problem.sims[i].kernel_vector(problem.params_for(x, i)))
+            problem.sims[i].kernel_vector(problem.params_for(x, i))
+        )
         for c in problem.channels:
             if st != 0 or st0 != 0:
                 return np.full(J.shape[1], np.nan), math.nan, math.nan
@@ -443,10 +462,18 @@ def hold_shift(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
     return (step - step_lin) / d, ssr_lin, ssr_smooth
 
 
-def fit_uncertainty(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray | None = None,
-                    *, floors: dict | None = None, hold: bool = True,
-                    rounding: bool = True, block_seconds: float | None = None,
-                    seed: int = 0) -> Uncertainty:
+def fit_uncertainty(
+    problem,
+    x: np.ndarray,
+    J: np.ndarray,
+    r: np.ndarray | None = None,
+    *,
+    floors: dict | None = None,
+    hold: bool = True,
+    rounding: bool = True,
+    block_seconds: float | None = None,
+    seed: int = 0,
+) -> Uncertainty:
     """The honest covariance of a least-squares estimate (module docstring).
 
     Parameters
@@ -472,7 +499,8 @@ def fit_uncertainty(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray | None 
     k = len(names)
     notes = []
     cov_white, cov_jk, nb, bsec, hit, _ = robust_covariances(
-        problem, J, r, floors, block_seconds=block_seconds)
+        problem, J, r, floors, block_seconds=block_seconds
+    )
     ratios = problem.rms_over_floor(r, floors)
     worst = max(ratios.values()) if ratios else math.nan
     # The floor's share of the residual's mean square (channels pooled, in floor units).
@@ -484,8 +512,10 @@ def fit_uncertainty(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray | None 
     if rounding:
         cov_round = rounding_covariance(problem, x, J, r, floors, seed=seed)
         if cov_round is None:
-            notes.append("the rounding simulation failed for most draws: the noise part "
-                         "rests on the residual blocks alone")
+            notes.append(
+                "the rounding simulation failed for most draws: the noise part "
+                "rests on the residual blocks alone"
+            )
     if cov_round is not None:
         cov_noise = loewner_max(cov_white, cov_round)
         cov_model = (1.0 - noise_share) * cov_jk
@@ -530,6 +560,23 @@ def fit_uncertainty(problem, x: np.ndarray, J: np.ndarray, r: np.ndarray | None 
     if nb < k + 2 and noise_share < 0.9:
         notes.append(
             f"only {nb} time blocks for {k} free parameters: the model-error part is itself "
-            "uncertain (longer or more experiments help)")
-    return Uncertainty(names, x, cov, cov_white, cov_noise, cov_model, cov_hold, nb, bsec, n,
-                       n_eff, worst, noise_share, dof, notes, hold_weight)
+            "uncertain (longer or more experiments help)"
+        )
+    return Uncertainty(
+        names,
+        x,
+        cov,
+        cov_white,
+        cov_noise,
+        cov_model,
+        cov_hold,
+        nb,
+        bsec,
+        n,
+        n_eff,
+        worst,
+        noise_share,
+        dof,
+        notes,
+        hold_weight,
+    )

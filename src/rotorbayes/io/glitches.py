@@ -116,8 +116,10 @@ class Glitch:
 
     def words(self) -> str:
         """``'theta_l at t = 3.217 s (sample 3217): +87 counts'``."""
-        return (f"{self.channel} at t = {self.time:.6g} s (sample {self.index}): "
-                f"{self.counts:+.0f} counts")
+        return (
+            f"{self.channel} at t = {self.time:.6g} s (sample {self.index}): "
+            f"{self.counts:+.0f} counts"
+        )
 
     def as_dict(self) -> dict:
         """The record as plain JSON types."""
@@ -200,8 +202,9 @@ def threshold(theta: np.ndarray, q: float) -> float:
     return max(MIN_COUNTS, NOISE_FACTOR * spread)
 
 
-def find_glitches(t: np.ndarray, theta: np.ndarray, channel: str,
-                  counts_per_rev: float) -> list[Glitch]:
+def find_glitches(
+    t: np.ndarray, theta: np.ndarray, channel: str, counts_per_rev: float
+) -> list[Glitch]:
     """The glitches of one channel (see the module for how they are found).
 
     Parameters
@@ -238,7 +241,7 @@ def find_glitches(t: np.ndarray, theta: np.ndarray, channel: str,
     tried: set = set()
     for c in order:
         a = max(0, c - 4)
-        if abs(_departures(y[a:min(n, c + 5)])[c - a]) <= 0.5 * thr:
+        if abs(_departures(y[a : min(n, c + 5)])[c - a]) <= 0.5 * thr:
             continue  # a glitch already left out made this candidate
         hit = _test(y, int(c), thr, tried)
         if hit is None:
@@ -249,12 +252,13 @@ def find_glitches(t: np.ndarray, theta: np.ndarray, channel: str,
             found[int(i)] = (float(d), v)
             y[i] = v
         tried.clear()  # the data changed: sets near it may be tried again
-    return [Glitch(channel, i, float(t[i]), d, float(theta[i]), v * q + 0.0)
-            for i, (d, v) in sorted(found.items())]
+    return [
+        Glitch(channel, i, float(t[i]), d, float(theta[i]), v * q + 0.0)
+        for i, (d, v) in sorted(found.items())
+    ]
 
 
-def repaired(theta: np.ndarray, glitches: Iterable[Glitch], *, keep: bool = False
-             ) -> np.ndarray:
+def repaired(theta: np.ndarray, glitches: Iterable[Glitch], *, keep: bool = False) -> np.ndarray:
     """A copy of ``theta`` with every glitch's sample replaced by its ``smooth`` value (by
     its ``measured`` value with ``keep``)."""
     out = np.array(theta, float, copy=True)
@@ -265,8 +269,14 @@ def repaired(theta: np.ndarray, glitches: Iterable[Glitch], *, keep: bool = Fals
 
 def _named(experiments) -> list[tuple[str, str, list[Glitch]]]:
     """``(role, name, glitches)`` of ``(role, experiment)`` pairs."""
-    return [(role, str(getattr(ex, "name", "") or getattr(ex, "path", "") or "?"),
-             list(getattr(ex, "glitches", None) or ())) for role, ex in experiments]
+    return [
+        (
+            role,
+            str(getattr(ex, "name", "") or getattr(ex, "path", "") or "?"),
+            list(getattr(ex, "glitches", None) or ()),
+        )
+        for role, ex in experiments
+    ]
 
 
 def glitch_lines(experiments: Sequence[tuple[str, object]]) -> list[str]:
@@ -281,13 +291,19 @@ def glitch_lines(experiments: Sequence[tuple[str, object]]) -> list[str]:
     out = sum(g.left_out for g in found)
     how = []
     if out:
-        how.append(f"{out} left out (each replaced by the cubic through its neighbours, so "
-                   "it carries no weight of its own; `fit --keep-glitches` keeps them)")
+        how.append(
+            f"{out} left out (each replaced by the cubic through its neighbours, so "
+            "it carries no weight of its own; `fit --keep-glitches` keeps them)"
+        )
     if len(found) - out:
-        how.append(f"{len(found) - out} KEPT as measured (--keep-glitches): they count in "
-                   "the fit and its residual RMS")
-    lines = [f"glitches: {len(found)} sample(s) jump against their neighbours by far more "
-             f"than the discs can move (encoder spikes); {' and '.join(how)}:"]
+        how.append(
+            f"{len(found) - out} KEPT as measured (--keep-glitches): they count in "
+            "the fit and its residual RMS"
+        )
+    lines = [
+        f"glitches: {len(found)} sample(s) jump against their neighbours by far more "
+        f"than the discs can move (encoder spikes); {' and '.join(how)}:"
+    ]
     for role, name, gs in named:
         if gs:
             lines.append(f"  {name} ({role} data): " + "; ".join(g.words() for g in gs))
@@ -305,7 +321,9 @@ def glitch_record(experiments: Sequence[tuple[str, object]]) -> dict:
         "left_out": int(sum(g.left_out for g in found)),
         "kept": int(sum(not g.left_out for g in found)),
         "how": "a glitch left out is replaced by the cubic through its neighbours (the "
-               "measured value is in its record); one kept is fitted as measured",
-        "experiments": [{"role": role, "name": name, "glitches": [g.as_dict() for g in gs]}
-                        for role, name, gs in named],
+        "measured value is in its record); one kept is fitted as measured",
+        "experiments": [
+            {"role": role, "name": name, "glitches": [g.as_dict() for g in gs]}
+            for role, name, gs in named
+        ],
     }

@@ -115,7 +115,6 @@ UPPER_COUNTS_PER_REV = 54934.256
 LOWER_COUNTS_PER_REV = 40000.0
 
 
-
 def quantisation_floor(channel: str) -> float:
     """RMS error [rad] that rounding to encoder counts alone leaves in a channel: the step
     ``2π / counts`` over √12 (thesis §2.2).  ``'alpha'`` combines both encoders.
@@ -129,9 +128,7 @@ def quantisation_floor(channel: str) -> float:
     try:
         return q[channel]
     except KeyError:
-        raise ValueError(
-            f"unknown channel {channel!r}; choose theta_u, theta_l or alpha"
-        ) from None
+        raise ValueError(f"unknown channel {channel!r}; choose theta_u, theta_l or alpha") from None
 
 
 def jitter_rms(theta: np.ndarray, window: int = 11) -> float:
@@ -199,22 +196,26 @@ class Jitter:
         rounding: more than half the stretches (so the median) above
         :data:`JITTER_FACTOR` x the quantisation floor.  A few spikes, a short burst of
         vibration or glitches that were kept raise some stretches only."""
-        return bool(math.isfinite(self.rms) and self.rms > JITTER_FACTOR * self.quantisation
-                    and 2 * self.stretches_above > self.stretches)
+        return bool(
+            math.isfinite(self.rms)
+            and self.rms > JITTER_FACTOR * self.quantisation
+            and 2 * self.stretches_above > self.stretches
+        )
 
     def words(self) -> str:
         """The evidence in a sentence."""
         lo, hi = self.band
-        return (f"the measured {self.channel} jitters at {self.rms:.2g} rad RMS from sample "
-                f"to sample ({self.rms / self.quantisation:.2g}x the encoder quantisation, "
-                f"{self.quantisation:.2g} rad) in {self.stretches_above} of {self.stretches} "
-                f"stretches of {self.stretch_seconds:.3g} s, in the band {lo:.3g}-{hi:.3g} "
-                f"Hz; {self.n_beyond} of {self.n_samples} samples lie further from the "
-                f"local cubic than rounding to counts can put them")
+        return (
+            f"the measured {self.channel} jitters at {self.rms:.2g} rad RMS from sample "
+            f"to sample ({self.rms / self.quantisation:.2g}x the encoder quantisation, "
+            f"{self.quantisation:.2g} rad) in {self.stretches_above} of {self.stretches} "
+            f"stretches of {self.stretch_seconds:.3g} s, in the band {lo:.3g}-{hi:.3g} "
+            f"Hz; {self.n_beyond} of {self.n_samples} samples lie further from the "
+            f"local cubic than rounding to counts can put them"
+        )
 
 
-def jitter_evidence(theta: np.ndarray, dt: float, channel: str, window: int = 11
-                    ) -> Jitter | None:
+def jitter_evidence(theta: np.ndarray, dt: float, channel: str, window: int = 11) -> Jitter | None:
     """The jitter of a measured angle, stretch by stretch (see :class:`Jitter`); ``None``
     for records too short to judge (fewer than 3 ``window``-sample stretches' worth).
 
@@ -245,9 +246,17 @@ def jitter_evidence(theta: np.ndarray, dt: float, channel: str, window: int = 11
     freqs = np.linspace(0.0, 0.5, 2001)
     gain = np.abs(np.exp(-2j * np.pi * np.outer(freqs, np.arange(window) - window // 2)) @ h)
     f3 = float(freqs[int(np.argmax(gain >= 1.0 / math.sqrt(2.0)))])
-    return Jitter(channel, float(np.median(per)), q, n, n_beyond, k,
-                  int(np.count_nonzero(per > JITTER_FACTOR * q)), duration / k,
-                  (f3 / dt, 0.5 / dt))
+    return Jitter(
+        channel,
+        float(np.median(per)),
+        q,
+        n,
+        n_beyond,
+        k,
+        int(np.count_nonzero(per > JITTER_FACTOR * q)),
+        duration / k,
+        (f3 / dt, 0.5 / dt),
+    )
 
 
 #: Column names of a file with the lower disc, in the order :func:`save_experiment` writes them.
@@ -510,8 +519,8 @@ def check_time_unit(t: np.ndarray, dt: np.ndarray) -> None:
             f"time step {dt[k]:.6g} (from t = {float(t[k])!r} to {float(t[k + 1])!r}) looks "
             f"like {unit}: {as_seconds}; in {unit} it is a {duration / factor:.6g} s "
             f"experiment at {factor / step:.6g} Hz. The t column must be in seconds -- divide "
-            f"it by {factor:.0f}" + (f", or declare the unit: {TIME_OPTION}" if factor == 1e3
-                                     else ""),
+            f"it by {factor:.0f}"
+            + (f", or declare the unit: {TIME_OPTION}" if factor == 1e3 else ""),
         )
     if duration > MAX_DURATION:
         k = int(np.flatnonzero(t - t[0] > MAX_DURATION)[0])
@@ -552,12 +561,25 @@ def _check_columns(cols: Mapping[str, np.ndarray], read: ReadSpec | None = None)
             )
     # Magnitudes no experiment can have: corrupt values, before any unit guess.
     for key, limit, why in (
-            ("u", MAX_ABS_INPUT, f"no amplifier of the rig gives more than {MAX_ABS_INPUT:g} V "
-             "(the thesis's gives ±5 V)"),
-            ("theta_u", MAX_ABS_ANGLE, f"no experiment reaches it ({MAX_ANGULAR_RATE:g} rad/s "
-             f"for {MAX_DURATION:g} s is {MAX_ABS_ANGLE:g} rad)"),
-            ("theta_l", MAX_ABS_ANGLE, f"no experiment reaches it ({MAX_ANGULAR_RATE:g} rad/s "
-             f"for {MAX_DURATION:g} s is {MAX_ABS_ANGLE:g} rad)")):
+        (
+            "u",
+            MAX_ABS_INPUT,
+            f"no amplifier of the rig gives more than {MAX_ABS_INPUT:g} V "
+            "(the thesis's gives ±5 V)",
+        ),
+        (
+            "theta_u",
+            MAX_ABS_ANGLE,
+            f"no experiment reaches it ({MAX_ANGULAR_RATE:g} rad/s "
+            f"for {MAX_DURATION:g} s is {MAX_ABS_ANGLE:g} rad)",
+        ),
+        (
+            "theta_l",
+            MAX_ABS_ANGLE,
+            f"no experiment reaches it ({MAX_ANGULAR_RATE:g} rad/s "
+            f"for {MAX_DURATION:g} s is {MAX_ABS_ANGLE:g} rad)",
+        ),
+    ):
         if key not in cols:
             continue
         over = np.flatnonzero(np.abs(cols[key]) > limit)
@@ -624,8 +646,10 @@ def _check_columns(cols: Mapping[str, np.ndarray], read: ReadSpec | None = None)
                     f"by counts_per_rev/(2π) = {cpr / (2 * math.pi):.6f} to get rad"
                 )
             else:
-                fix = (f"it looks like degrees; declare them with {DEG_OPTION}, or multiply "
-                       f"by π/180 (= {math.pi / 180:.9f}) to get rad")
+                fix = (
+                    f"it looks like degrees; declare them with {DEG_OPTION}, or multiply "
+                    f"by π/180 (= {math.pi / 180:.9f}) to get rad"
+                )
             raise RowProblem(k + lag, f"{where}; {fix}")
         if abs(theta[0]) > _ZERO_START_TOL:
             raise RowProblem(
@@ -672,9 +696,11 @@ def _parse_header(fields: list[str], path: Path, lineno: int) -> list[str]:
         problems.append(f"unknown column(s) {names}")
     if duplicates:
         problems.append(f"repeated column(s) {', '.join(duplicates)}")
-    hint = (" If the file names its columns otherwise (a logger's or a spreadsheet's names), "
-            "map them: --columns t=NAME,u=NAME,theta_u=NAME,theta_l=NAME (the file's other "
-            "columns are then ignored).")
+    hint = (
+        " If the file names its columns otherwise (a logger's or a spreadsheet's names), "
+        "map them: --columns t=NAME,u=NAME,theta_u=NAME,theta_l=NAME (the file's other "
+        "columns are then ignored)."
+    )
     if len(fields) == 1 and " " in fields[0]:
         hint += " Fields must be separated by commas, semicolons or tabs, not spaces."
     raise DataFileError(
@@ -709,9 +735,13 @@ def _limit(path: Path, given: int | None, env: str, default: int, scale: int, wh
     except ValueError:
         v = math.nan
     if not (math.isfinite(v) and v > 0):
-        raise DataFileError(path, None, f"the environment variable {env}={text!r} is not a "
-                            f"positive number; set it to the {what} to allow (or unset it "
-                            "for the default)")
+        raise DataFileError(
+            path,
+            None,
+            f"the environment variable {env}={text!r} is not a "
+            f"positive number; set it to the {what} to allow (or unset it "
+            "for the default)",
+        )
     return int(v * scale)
 
 
@@ -807,8 +837,9 @@ def check_data_file(path: str | os.PathLike, *, max_bytes: int | None = None) ->
     limit (``max_bytes``, else ``ROTORBAYES_MAX_DATA_MB``, else :data:`MAX_DATA_BYTES`):
     the checks :func:`load_experiment` makes, for readers of other CSV files."""
     path = Path(path)
-    limit = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
-                   "largest file size in MB")
+    limit = _limit(
+        path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000, "largest file size in MB"
+    )
     try:
         st = os.stat(path)
     except FileNotFoundError:
@@ -829,8 +860,9 @@ def measurement_sha256(path: str | os.PathLike, *, max_bytes: int | None = None)
     :func:`load_experiment` makes before reading (a regular file, at most ``max_bytes``);
     :class:`DataFileError` otherwise (a pipe is never opened, a device never read)."""
     path = Path(path)
-    limit = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
-                   "largest file size in MB")
+    limit = _limit(
+        path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000, "largest file size in MB"
+    )
     raw = _HashingReader(_open_measurement(path, limit))
     try:
         with raw:
@@ -967,17 +999,20 @@ def load_experiment(
     if not max_abs_u > 0:
         raise ValueError(f"max_abs_u must be a positive voltage, got {max_abs_u!r}")
     path = Path(path)
-    limit_bytes = _limit(path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000,
-                         "largest file size in MB")
+    limit_bytes = _limit(
+        path, max_bytes, MAX_BYTES_ENV, MAX_DATA_BYTES, 1_000_000, "largest file size in MB"
+    )
     limit_rows = _limit(path, max_rows, MAX_ROWS_ENV, MAX_DATA_ROWS, 1, "most data rows")
     if read is None:
         read = ReadSpec()
     elif isinstance(read, Mapping):  # {"columns": {...}, "angle_unit": "deg"}
         read = ReadSpec.from_record(read)
     elif not isinstance(read, ReadSpec):
-        raise TypeError(f"read must be a rotorbayes.ReadSpec (or a mapping of its fields), "
-                        f"got {type(read).__name__}; e.g. ReadSpec.from_options("
-                        "'t=Time,u=Volt', angle_unit='deg')")
+        raise TypeError(
+            f"read must be a rotorbayes.ReadSpec (or a mapping of its fields), "
+            f"got {type(read).__name__}; e.g. ReadSpec.from_options("
+            "'t=Time,u=Volt', angle_unit='deg')"
+        )
     fd = _open_measurement(path, limit_bytes)
     try:
         head = os.pread(fd, 520, 0)
@@ -991,10 +1026,12 @@ def load_experiment(
         # utf-8-sig drops the byte-order mark that spreadsheet programs put in front of CSVs;
         # universal newlines make CRLF files count lines exactly like LF files. The file is
         # read line by line: the memory taken is the values' (8 bytes each), not the text's.
-        with io.TextIOWrapper(io.BufferedReader(raw, 1 << 16), encoding="utf-8-sig",
-                              newline=None) as fh:
-            names, header_lineno, values = _read_table(fh, path, meta, expect_lower,
-                                                       limit_rows, read)
+        with io.TextIOWrapper(
+            io.BufferedReader(raw, 1 << 16), encoding="utf-8-sig", newline=None
+        ) as fh:
+            names, header_lineno, values = _read_table(
+                fh, path, meta, expect_lower, limit_rows, read
+            )
     except UnicodeDecodeError:
         raise DataFileError(
             path,
@@ -1060,8 +1097,15 @@ def _warn_voltage(path: Path, u: np.ndarray, max_abs_u: float, where) -> None:
         )
 
 
-def _load_mat(path: Path, fd: int, read: ReadSpec, expect_lower: bool | None,
-              max_abs_u: float, keep_glitches: bool, max_rows: int) -> Experiment:
+def _load_mat(
+    path: Path,
+    fd: int,
+    read: ReadSpec,
+    expect_lower: bool | None,
+    max_abs_u: float,
+    keep_glitches: bool,
+    max_rows: int,
+) -> Experiment:
     """A MATLAB file (v5 or v7.3): read whole (its SHA-256 is that of the bytes parsed),
     the signals picked by ``read``, converted and checked as a CSV's columns."""
     raw = _HashingReader(fd)
@@ -1072,29 +1116,41 @@ def _load_mat(path: Path, fd: int, read: ReadSpec, expect_lower: bool | None,
         raise DataFileError(
             path, None, f"cannot be read ({exc.strerror or exc}); check the permissions"
         ) from None
-    wanted = ("t", "u", "theta_u") + (() if expect_lower is False and "theta_l" not in
-                                      read.columns else ("theta_l",))
+    wanted = ("t", "u", "theta_u") + (
+        () if expect_lower is False and "theta_l" not in read.columns else ("theta_l",)
+    )
     try:
         cols, names = _rig.read_mat(data, read, wanted)
     except FormatProblem as exc:
         raise DataFileError(path, None, str(exc)) from None
     if expect_lower is False and "theta_l" in cols:
         raise DataFileError(
-            path, None, f"theta_l is mapped (--columns theta_l={names['theta_l']}), but an "
+            path,
+            None,
+            f"theta_l is mapped (--columns theta_l={names['theta_l']}), but an "
             "upper-configuration record without the lower disc was expected; leave "
-            "theta_l out of --columns, or use --model coupled or brake for this file")
+            "theta_l out of --columns, or use --model coupled or brake for this file",
+        )
     if expect_lower is True and "theta_l" not in cols:
         raise DataFileError(
-            path, None, "no theta_l (the lower disc's angle) in it: map it with --columns "
-            "theta_l=NAME, or use --model upper for an upper-configuration record")
+            path,
+            None,
+            "no theta_l (the lower disc's angle) in it: map it with --columns "
+            "theta_l=NAME, or use --model upper for an upper-configuration record",
+        )
     n = len(cols["t"])
     if n < _MIN_ROWS:
-        raise DataFileError(path, None, f"only {n} sample(s); at least {_MIN_ROWS} are "
-                            "needed to check the sampling")
+        raise DataFileError(
+            path, None, f"only {n} sample(s); at least {_MIN_ROWS} are needed to check the sampling"
+        )
     if n > max_rows:
-        raise DataFileError(path, None, f"{n:,} samples, more than the {max_rows:,} a "
-                            "measurement may have (2 h at 1 kHz are 7.2 million); if it is a "
-                            f"measurement, raise the limit: {MAX_ROWS_ENV}=N (rows)")
+        raise DataFileError(
+            path,
+            None,
+            f"{n:,} samples, more than the {max_rows:,} a "
+            "measurement may have (2 h at 1 kHz are 7.2 million); if it is a "
+            f"measurement, raise the limit: {MAX_ROWS_ENV}=N (rows)",
+        )
     cols = read.to_si(cols)
 
     def where(k: int) -> str:
@@ -1106,21 +1162,51 @@ def _load_mat(path: Path, fd: int, read: ReadSpec, expect_lower: bool | None,
         raise DataFileError(path, None, f"{where(exc.row)}: {exc.problem}") from None
     _warn_voltage(path, cols["u"], max_abs_u, where)
     meta = {"source_format": "MATLAB", **{f"column_{k}": v for k, v in names.items()}}
-    exp = Experiment(t=cols["t"], u=cols["u"], theta_u=cols["theta_u"],
-                     theta_l=cols.get("theta_l"), name=path.stem, path=str(path), meta=meta,
-                     sha256=raw.sha256.hexdigest())
+    exp = Experiment(
+        t=cols["t"],
+        u=cols["u"],
+        theta_u=cols["theta_u"],
+        theta_l=cols.get("theta_l"),
+        name=path.stem,
+        path=str(path),
+        meta=meta,
+        sha256=raw.sha256.hexdigest(),
+    )
     return leave_out_glitches(exp, keep=keep_glitches)
 
 
 #: The units a logger's units row may name, by what they mean.
-_UNIT_WORDS = {"s": "s", "sec": "s", "seconds": "s", "ms": "ms", "msec": "ms", "v": "V",
-               "volt": "V", "rad": "rad", "deg": "deg", "°": "deg", "degree": "deg",
-               "degrees": "deg", "counts": "counts", "count": "counts", "cnt": "counts",
-               "inc": "counts", "increments": "counts"}
+_UNIT_WORDS = {
+    "s": "s",
+    "sec": "s",
+    "seconds": "s",
+    "ms": "ms",
+    "msec": "ms",
+    "v": "V",
+    "volt": "V",
+    "rad": "rad",
+    "deg": "deg",
+    "°": "deg",
+    "degree": "deg",
+    "degrees": "deg",
+    "counts": "counts",
+    "count": "counts",
+    "cnt": "counts",
+    "inc": "counts",
+    "increments": "counts",
+}
 
 
-def _units_row(line: str, sep: str, idx: list[int], names: list[str], ncols: int,
-               read: ReadSpec, path: Path, lineno: int) -> bool:
+def _units_row(
+    line: str,
+    sep: str,
+    idx: list[int],
+    names: list[str],
+    ncols: int,
+    read: ReadSpec,
+    path: Path,
+    lineno: int,
+) -> bool:
     """Whether the line after the header is a logger's units row (``s;V;deg;deg``): no
     number in the signals' columns, and units it knows.  Units that contradict the
     declared ones (``--time-unit``, ``--angle-unit``) are refused."""
@@ -1130,22 +1216,33 @@ def _units_row(line: str, sep: str, idx: list[int], names: list[str], ncols: int
     texts = [fields[j].strip().strip('"').strip() for j in idx]
     if any(_is_number(t.replace(",", ".")) for t in texts):
         return False
-    units = {n: _UNIT_WORDS.get(t.strip("[]() ").lower()) for n, t in zip(names, texts,
-                                                                       strict=True)}
+    units = {
+        n: _UNIT_WORDS.get(t.strip("[]() ").lower()) for n, t in zip(names, texts, strict=True)
+    }
     if not any(units.values()):
         return False
-    declared = {"t": read.time_unit, "u": "V", "theta_u": read.angle_unit,
-                "theta_l": read.angle_unit}
+    declared = {
+        "t": read.time_unit,
+        "u": "V",
+        "theta_u": read.angle_unit,
+        "theta_l": read.angle_unit,
+    }
     for n, unit in units.items():
         if unit is not None and unit != declared[n]:
-            option = (f"--time-unit {unit}" if n == "t" else "" if n == "u"
-                      else f"--angle-unit {unit}")
+            option = (
+                f"--time-unit {unit}" if n == "t" else "" if n == "u" else f"--angle-unit {unit}"
+            )
             raise DataFileError(
-                path, lineno,
+                path,
+                lineno,
                 f"the units row gives {n} in {unit}, but it is read in {declared[n]}"
-                + (f": declare the unit with {option} (analysis file: "
-                   f"{'time_unit' if n == 't' else 'angle_unit'} = \"{unit}\")"
-                   if option else "; give the voltage in V"))
+                + (
+                    f": declare the unit with {option} (analysis file: "
+                    f'{"time_unit" if n == "t" else "angle_unit"} = "{unit}")'
+                    if option
+                    else "; give the voltage in V"
+                ),
+            )
     return True
 
 
@@ -1158,8 +1255,9 @@ def _delimiter(header: str) -> str:
     return ","
 
 
-def _mapped_header(fields: list[str], path: Path, lineno: int, read: ReadSpec
-                   ) -> tuple[list[str], list[int]]:
+def _mapped_header(
+    fields: list[str], path: Path, lineno: int, read: ReadSpec
+) -> tuple[list[str], list[int]]:
     """The signals a mapping (``read.columns``) finds in the header ``fields`` and their
     positions; the file's other columns are ignored."""
     names, idx, missing = [], [], []
@@ -1167,8 +1265,11 @@ def _mapped_header(fields: list[str], path: Path, lineno: int, read: ReadSpec
         name = read.name_of(sig)
         hits = [j for j, f in enumerate(fields) if f == name]
         if len(hits) > 1:
-            raise DataFileError(path, lineno, f"the column {name!r} ({sig}) appears "
-                                f"{len(hits)} times in the header; rename one")
+            raise DataFileError(
+                path,
+                lineno,
+                f"the column {name!r} ({sig}) appears {len(hits)} times in the header; rename one",
+            )
         if hits:
             names.append(sig)
             idx.append(hits[0])
@@ -1176,16 +1277,25 @@ def _mapped_header(fields: list[str], path: Path, lineno: int, read: ReadSpec
             missing.append(f"{sig} = {name!r}" if sig in read.columns else sig)
     if missing:
         shown = ", ".join(repr(f) for f in fields[:20])
-        raise DataFileError(path, lineno, f"no column for {', '.join(missing)} in the header; "
-                            f"the file's columns are {shown}: name them with --columns "
-                            "(e.g. --columns t=Time,u=Volt,theta_u=Enc1,theta_l=Enc2; analysis "
-                            "file: columns = {t = \"Time\", ...})")
+        raise DataFileError(
+            path,
+            lineno,
+            f"no column for {', '.join(missing)} in the header; "
+            f"the file's columns are {shown}: name them with --columns "
+            "(e.g. --columns t=Time,u=Volt,theta_u=Enc1,theta_l=Enc2; analysis "
+            'file: columns = {t = "Time", ...})',
+        )
     return names, idx
 
 
-def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
-                max_rows: int, read: ReadSpec | None = None
-                ) -> tuple[list[str], int, array.array]:
+def _read_table(
+    fh,
+    path: Path,
+    meta: dict[str, str],
+    expect_lower: bool | None,
+    max_rows: int,
+    read: ReadSpec | None = None,
+) -> tuple[list[str], int, array.array]:
     """Read the comment lines (into ``meta``), the header and the data rows of the text
     file ``fh``: the column names (the model's), the header's line number and the values
     row by row (the named columns only)."""
@@ -1280,8 +1390,11 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                 f"comment line {line.strip()!r} after the header; comment lines are "
                 "only allowed before the header -- move it there or delete it",
             )
-        if n_rows == 0 and lineno == header_lineno + 1 and _units_row(
-                line, sep, idx, names, ncols, read, path, lineno):
+        if (
+            n_rows == 0
+            and lineno == header_lineno + 1
+            and _units_row(line, sep, idx, names, ncols, read, path, lineno)
+        ):
             header_lineno = lineno  # a logger's units under the names: part of the header
             continue
         body = line[:-1] if line.endswith("\n") else line
@@ -1292,8 +1405,9 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                 if plain:
                     values_of_row = [float(f) for f in fields]
                 else:
-                    values_of_row = [_rig.parse_number(fields[j].strip().strip('"'),
-                                                       decimal_comma) for j in idx]
+                    values_of_row = [
+                        _rig.parse_number(fields[j].strip().strip('"'), decimal_comma) for j in idx
+                    ]
             except ValueError:
                 pass
         if values_of_row is None:
@@ -1307,9 +1421,11 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                 seps = {",": "commas", ";": "semicolons", "\t": "tabs"}
                 other = [w for c, w in seps.items() if c != sep and c in body]
                 if other and len(fields) == 1 and ncols > 1:
-                    truncated = (f"; the header is separated by {seps[sep]} but this row by "
-                                 f"{other[0]}: use one separator throughout (export the "
-                                 "file again)")
+                    truncated = (
+                        f"; the header is separated by {seps[sep]} but this row by "
+                        f"{other[0]}: use one separator throughout (export the "
+                        "file again)"
+                    )
                 raise DataFileError(
                     path,
                     lineno,
@@ -1326,8 +1442,12 @@ def _read_table(fh, path: Path, meta: dict[str, str], expect_lower: bool | None,
                         path,
                         lineno,
                         f"value {shown} in column {name} is not a number"
-                        + (truncated or "; write plain decimal numbers (e.g. "
-                           + ("0,25 or 0.25" if decimal_comma else "0.25 or 2.5e-1") + ")"),
+                        + (
+                            truncated
+                            or "; write plain decimal numbers (e.g. "
+                            + ("0,25 or 0.25" if decimal_comma else "0.25 or 2.5e-1")
+                            + ")"
+                        ),
                     )
             # float() failed, so one field must be non-numeric
             raise AssertionError(body)  # pragma: no cover
@@ -1405,8 +1525,17 @@ def leave_out_glitches(exp: Experiment, *, keep: bool = False) -> Experiment:
         if theta is not None:
             mine = [g for g in records if g.channel == key]
             angles[key] = _glitches.repaired(theta, mine, keep=keep) if mine else theta
-    return Experiment(exp.t, exp.u, angles["theta_u"], angles.get("theta_l"), name=exp.name,
-                      path=exp.path, meta=exp.meta, glitches=records, sha256=exp.sha256)
+    return Experiment(
+        exp.t,
+        exp.u,
+        angles["theta_u"],
+        angles.get("theta_l"),
+        name=exp.name,
+        path=exp.path,
+        meta=exp.meta,
+        glitches=records,
+        sha256=exp.sha256,
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -1522,9 +1651,8 @@ def save_experiment(
         for a in range(0, n_rows, _WRITE_BLOCK):
             # repr() of a Python float is the shortest string that parses back to the
             # same double.
-            columns = [c[a:a + _WRITE_BLOCK].tolist() for c in cols.values()]
-            yield "".join(",".join(map(repr, row)) + "\n"
-                          for row in zip(*columns, strict=True))
+            columns = [c[a : a + _WRITE_BLOCK].tolist() for c in cols.values()]
+            yield "".join(",".join(map(repr, row)) + "\n" for row in zip(*columns, strict=True))
 
     # A hidden, unique temporary name in the same directory keeps os.replace atomic (same
     # filesystem) and lets concurrent writers not clobber each other's temporary files.

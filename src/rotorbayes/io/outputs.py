@@ -87,12 +87,20 @@ def _missing_parents(path: Path) -> list[Path]:
 #: The file every result folder gets (:func:`output_folder` writes it first): ``--force``
 #: replaces a folder that holds it.
 MARKER = ".rotorbayes"
-MARKER_TEXT = ("A result folder written by rotorbayes: `--force` may replace this folder "
-               "whole.\n")
+MARKER_TEXT = "A result folder written by rotorbayes: `--force` may replace this folder whole.\n"
 #: The documents that mark a result folder from a version that wrote no :data:`MARKER`
 #: (each command's main document, a study's record, a posterior's chain and samples).
-RESULT_FILES = ("fit.json", "multistart.json", "diagnosis.json", "compare.json",
-                "identify.json", "design.json", "run.json", "chain.h5", "posterior.nc")
+RESULT_FILES = (
+    "fit.json",
+    "multistart.json",
+    "diagnosis.json",
+    "compare.json",
+    "identify.json",
+    "design.json",
+    "run.json",
+    "chain.h5",
+    "posterior.nc",
+)
 #: Entries of a folder named in a message (then "... N entries").
 _SHOWN = 4
 
@@ -161,8 +169,9 @@ def _input_paths(inputs) -> list[Path]:
     return out
 
 
-def check_replaceable(out: str | os.PathLike, force: bool, *, flag: str = "--out",
-                      inputs=()) -> None:
+def check_replaceable(
+    out: str | os.PathLike, force: bool, *, flag: str = "--out", inputs=()
+) -> None:
     """Refuse (:class:`OutputError`, exit code 2), before any work, a result folder ``out``
     that must not be written or replaced.
 
@@ -183,7 +192,8 @@ def check_replaceable(out: str | os.PathLike, force: bool, *, flag: str = "--out
         raise OutputError(
             f"{flag} {out}: is {where} ({target}); results go into a folder of their own, "
             f"which --force may later replace whole -- give a new folder name (e.g. {flag} "
-            "results); nothing was changed")
+            "results); nothing was changed"
+        )
     for p in _input_paths(inputs):
         rp = Path(os.path.realpath(p))
         if rp == target or target in rp.parents:
@@ -191,7 +201,8 @@ def check_replaceable(out: str | os.PathLike, force: bool, *, flag: str = "--out
             raise OutputError(
                 f"{flag} {out}: {what} {p}, an input of this command; the results would "
                 f"replace it -- write them into another folder (give another {flag}); "
-                "nothing was changed")
+                "nothing was changed"
+            )
     if not out.is_dir():
         return
     mark = result_mark(out)
@@ -201,11 +212,13 @@ def check_replaceable(out: str | os.PathLike, force: bool, *, flag: str = "--out
         raise OutputError(
             f"{flag} {out}: the folder holds files rotorbayes did not write ("
             f"{_contents(out)}); --force replaces only a result folder rotorbayes wrote (or "
-            f"an empty one) -- give a new folder name for the results; nothing was changed")
+            f"an empty one) -- give a new folder name for the results; nothing was changed"
+        )
     if not force:
         raise OutputError(
             f"{out}/ already holds results ({mark}); choose another {flag} or pass --force "
-            "to replace them")
+            "to replace them"
+        )
 
 
 def follow_link(out: Path, flag: str) -> Path:
@@ -214,9 +227,11 @@ def follow_link(out: Path, flag: str) -> Path:
         return out
     target = Path(os.path.realpath(out))
     if not target.parent.is_dir():
-        raise OutputError(f"{flag} {out}: is a link to {target}, whose folder "
-                          f"{target.parent}/ does not exist; create it, or give another "
-                          f"{flag}")
+        raise OutputError(
+            f"{flag} {out}: is a link to {target}, whose folder "
+            f"{target.parent}/ does not exist; create it, or give another "
+            f"{flag}"
+        )
     return target
 
 
@@ -230,14 +245,16 @@ def _check_folder_target(out: Path, force: bool, flag: str, inputs=()) -> None:
     for p in (out.parent, *out.parents):
         if p.exists():
             if not p.is_dir():
-                raise OutputError(f"{flag} {out}: {p} is a file, not a folder; choose "
-                                  f"another {flag}")
+                raise OutputError(
+                    f"{flag} {out}: {p} is a file, not a folder; choose another {flag}"
+                )
             break
 
 
 @contextlib.contextmanager
-def output_folder(path: str | os.PathLike, force: bool = False, *,
-                  flag: str = "--out", inputs=()) -> Iterator[Path]:
+def output_folder(
+    path: str | os.PathLike, force: bool = False, *, flag: str = "--out", inputs=()
+) -> Iterator[Path]:
     """Build a result folder in a temporary sibling and move it to ``path`` on success.
 
     Parameters
@@ -281,9 +298,10 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _remove_created(created)
-        raise EnvironmentFailure(f"{flag} {out}: cannot create the folder {out.parent} ("
-                                 f"{describe_environment(exc, '')}); choose another {flag}"
-                                 ) from None
+        raise EnvironmentFailure(
+            f"{flag} {out}: cannot create the folder {out.parent} ("
+            f"{describe_environment(exc, '')}); choose another {flag}"
+        ) from None
     try:
         with folder_lock(out, flag=flag, other=flag):
             # Again, under the lock: another run may have finished meanwhile.
@@ -291,12 +309,13 @@ def output_folder(path: str | os.PathLike, force: bool = False, *,
             clean_stale(out)
             check_free_space(out.parent, MIN_FREE_BYTES, what=f"{flag} {out}")
             try:
-                tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL_TAG}",
-                                            dir=out.parent))
+                tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL_TAG}", dir=out.parent))
             except OSError as exc:
-                raise EnvironmentFailure(f"{flag} {out}: cannot write into {out.parent} ("
-                                         f"{describe_environment(exc, '')}); choose another "
-                                         f"{flag}") from None
+                raise EnvironmentFailure(
+                    f"{flag} {out}: cannot write into {out.parent} ("
+                    f"{describe_environment(exc, '')}); choose another "
+                    f"{flag}"
+                ) from None
             # mkdtemp makes the folder private (0700); a result folder gets the usual
             # permissions.
             with contextlib.suppress(OSError):
@@ -333,7 +352,8 @@ def check_free_space(folder: str | os.PathLike, need: int, *, what: str) -> None
         raise EnvironmentFailure(
             f"{what}: the disk of {folder} has {free / 1e6:.2f} MB free, less than the "
             f"{need / 1e6:.2f} MB the results need; free some space or choose a folder on "
-            "another disk (nothing was written)")
+            "another disk (nothing was written)"
+        )
 
 
 #: Locks this process holds (a command that locks a folder twice does not block itself).
@@ -345,8 +365,9 @@ def _lock_path(out: Path) -> Path:
 
 
 @contextlib.contextmanager
-def folder_lock(path: str | os.PathLike, *, flag: str = "--out",
-                other: str | None = "--out") -> Iterator[None]:
+def folder_lock(
+    path: str | os.PathLike, *, flag: str = "--out", other: str | None = "--out"
+) -> Iterator[None]:
     """Hold the one lock of result folder ``path`` (its parent folder must exist).
 
     ``flag`` starts the messages about the folder ("--out"); ``other`` is what the user may
@@ -367,8 +388,9 @@ def folder_lock(path: str | os.PathLike, *, flag: str = "--out",
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
         except OSError as exc:
-            raise EnvironmentFailure(f"{flag} {out}: cannot make the lock file {lock} ("
-                                     f"{describe_environment(exc, '')})") from None
+            raise EnvironmentFailure(
+                f"{flag} {out}: cannot make the lock file {lock} ({describe_environment(exc, '')})"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -378,10 +400,11 @@ def folder_lock(path: str | os.PathLike, *, flag: str = "--out",
                 owner = ""
             os.close(fd)
             who = f" (process {owner})" if owner.isdigit() else ""
-            raise Busy(f"{out}/ is in use by another rotorbayes process{who}; two runs must "
-                       "not write one result folder. Wait for it to finish (or stop it) and "
-                       "run again" + (f", or choose another {other}" if other else "")
-                       ) from None
+            raise Busy(
+                f"{out}/ is in use by another rotorbayes process{who}; two runs must "
+                "not write one result folder. Wait for it to finish (or stop it) and "
+                "run again" + (f", or choose another {other}" if other else "")
+            ) from None
         # The holder before us may have removed the file between our open and our lock.
         try:
             same = os.stat(lock).st_ino == os.fstat(fd).st_ino
@@ -417,12 +440,10 @@ def clean_stale(out: Path) -> list[str]:
     for p in sorted(out.parent.glob(f".{out.name}.old-*")):
         if not out.exists():
             os.rename(p, out)
-            done.append(f"restored {out}/ from {p.name}/ (a run was killed while replacing "
-                        "it)")
+            done.append(f"restored {out}/ from {p.name}/ (a run was killed while replacing it)")
         else:
             shutil.rmtree(p, ignore_errors=True)
-            done.append(f"removed {p.name}/, a replaced result a killed run had not yet "
-                        "deleted")
+            done.append(f"removed {p.name}/, a replaced result a killed run had not yet deleted")
     for msg in done:
         print(f"note: {msg}", file=sys.stderr)
     return done
@@ -468,12 +489,16 @@ def _move_into_place(tmp: Path, out: Path, force: bool, flag: str) -> None:
     if out.is_dir():
         mark = result_mark(out)
         if mark is None:  # files put there while we worked
-            raise OutputError(f"{flag} {out}: the folder now holds files rotorbayes did not "
-                              f"write ({_contents(out)}), put there while this run worked; "
-                              f"they were left as they are -- run again with another {flag}")
+            raise OutputError(
+                f"{flag} {out}: the folder now holds files rotorbayes did not "
+                f"write ({_contents(out)}), put there while this run worked; "
+                f"they were left as they are -- run again with another {flag}"
+            )
         if mark != "empty" and not force:  # appeared while we worked
-            raise OutputError(f"{out}/ already holds results (written while this run "
-                              f"worked); choose another {flag} or pass --force")
+            raise OutputError(
+                f"{out}/ already holds results (written while this run "
+                f"worked); choose another {flag} or pass --force"
+            )
         old = out.with_name(f".{out.name}.old-{secrets.token_hex(4)}")
         os.rename(out, old)
     elif out.exists():
@@ -497,8 +522,9 @@ def _remove_created(created: list[Path]) -> None:
             break
 
 
-def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False,
-                      example: str = "out.csv") -> Path:
+def check_output_file(
+    path: str | os.PathLike, *, flag: str, force: bool = False, example: str = "out.csv"
+) -> Path:
     """Refuse, before any work, an output file whose folder is missing or that exists.
 
     Returns the path. Raises :class:`OutputError` naming the path and the fix.
@@ -506,18 +532,22 @@ def check_output_file(path: str | os.PathLike, *, flag: str, force: bool = False
     p = Path(path)
     folder = p.parent
     if p.is_dir():
-        raise OutputError(f"{flag} {p}: is a folder; give a file name (e.g. {flag} "
-                          f"{p / example})")
+        raise OutputError(f"{flag} {p}: is a folder; give a file name (e.g. {flag} {p / example})")
     if not folder.is_dir():
         what = "is a file, not a folder" if folder.exists() else "does not exist"
-        raise OutputError(f"{flag} {p}: the folder {folder}/ {what}; create it first "
-                          f"(mkdir -p {folder}) or choose another {flag}")
+        raise OutputError(
+            f"{flag} {p}: the folder {folder}/ {what}; create it first "
+            f"(mkdir -p {folder}) or choose another {flag}"
+        )
     if p.exists() and not force:
-        raise OutputError(f"{flag} {p}: the file exists; choose another {flag} or pass "
-                          "--force to overwrite it")
+        raise OutputError(
+            f"{flag} {p}: the file exists; choose another {flag} or pass --force to overwrite it"
+        )
     if not os.access(folder, os.W_OK):
-        raise EnvironmentFailure(f"{flag} {p}: the folder {folder}/ is not writable (permission"
-                                 f" denied); make it writable or choose another {flag}")
+        raise EnvironmentFailure(
+            f"{flag} {p}: the folder {folder}/ is not writable (permission"
+            f" denied); make it writable or choose another {flag}"
+        )
     return p
 
 
@@ -527,7 +557,7 @@ def tmp_name(path: Path) -> Path:
     Temporary files of ``path`` left by a process that no longer runs (a SIGKILL between
     the write and the rename) are removed first."""
     for old in path.parent.glob(f".{glob.escape(path.stem)}.*.tmp{glob.escape(path.suffix)}"):
-        pid = old.name[len(path.stem) + 2:].split(".", 1)[0]
+        pid = old.name[len(path.stem) + 2 :].split(".", 1)[0]
         if pid.isdigit() and not _alive(int(pid)):
             with contextlib.suppress(OSError):
                 old.unlink()
@@ -563,8 +593,7 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     return path
 
 
-def save_figure_atomic(fig, path: str | os.PathLike, *, dpi: int = 100,
-                       close: bool = True) -> Path:
+def save_figure_atomic(fig, path: str | os.PathLike, *, dpi: int = 100, close: bool = True) -> Path:
     """``fig.savefig(path)`` through a temporary file beside it and a rename.
 
     The format comes from ``path``'s suffix (the temporary file keeps it).

@@ -36,8 +36,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ReadSpec", "FormatProblem", "SIGNALS", "TIME_UNITS", "ANGLE_UNITS",
-           "DEFAULT_COUNTS_PER_REV", "is_mat_file", "read_mat", "parse_number"]
+__all__ = [
+    "ReadSpec",
+    "FormatProblem",
+    "SIGNALS",
+    "TIME_UNITS",
+    "ANGLE_UNITS",
+    "DEFAULT_COUNTS_PER_REV",
+    "is_mat_file",
+    "read_mat",
+    "parse_number",
+]
 
 #: The model's signals, as a mapping names them.
 SIGNALS = ("t", "u", "theta_u", "theta_l")
@@ -85,8 +94,10 @@ class ReadSpec:
         cols = dict(self.columns or {})
         bad = [k for k in cols if k not in SIGNALS]
         if bad:
-            raise FormatProblem(f"columns: {bad[0]!r} is not a signal of the model; map "
-                                f"{', '.join(SIGNALS)} (e.g. t=Time,u=Volt)")
+            raise FormatProblem(
+                f"columns: {bad[0]!r} is not a signal of the model; map "
+                f"{', '.join(SIGNALS)} (e.g. t=Time,u=Volt)"
+            )
         for k, v in cols.items():
             if not isinstance(v, str) or not v.strip():
                 raise FormatProblem(f"columns: {k} = {v!r}; give the file's name of {k}")
@@ -98,28 +109,46 @@ class ReadSpec:
         cpr = dict(self.counts_per_rev or {})
         for k, v in cpr.items():
             if k not in DEFAULT_COUNTS_PER_REV:
-                raise FormatProblem(f"counts per revolution: {k!r} is not an angle; give "
-                                    "theta_u=N and/or theta_l=N")
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (
-                    math.isfinite(v) and 1 <= v <= 1e9):
-                raise FormatProblem(f"counts per revolution of {k}: {v!r}; give the encoder's "
-                                    "counts per revolution, a number from 1 to 1e9")
-        object.__setattr__(self, "counts_per_rev", {k: float(cpr[k]) for k in
-                                                    DEFAULT_COUNTS_PER_REV if k in cpr})
+                raise FormatProblem(
+                    f"counts per revolution: {k!r} is not an angle; give theta_u=N and/or theta_l=N"
+                )
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, int | float)
+                or not (math.isfinite(v) and 1 <= v <= 1e9)
+            ):
+                raise FormatProblem(
+                    f"counts per revolution of {k}: {v!r}; give the encoder's "
+                    "counts per revolution, a number from 1 to 1e9"
+                )
+        object.__setattr__(
+            self, "counts_per_rev", {k: float(cpr[k]) for k in DEFAULT_COUNTS_PER_REV if k in cpr}
+        )
         if self.counts_per_rev and self.angle_unit != "counts":
-            raise FormatProblem(f"counts per revolution given, but the angles are read in "
-                                f"{self.angle_unit}; they are for --angle-unit counts "
-                                "(analysis file: angle_unit = \"counts\")")
+            raise FormatProblem(
+                f"counts per revolution given, but the angles are read in "
+                f"{self.angle_unit}; they are for --angle-unit counts "
+                '(analysis file: angle_unit = "counts")'
+            )
 
     # -- construction from the command line, an analysis file, a fit.json ----------------
 
     @classmethod
-    def from_options(cls, columns=None, time_unit: str | None = None,
-                     angle_unit: str | None = None, counts_per_rev=None) -> ReadSpec:
+    def from_options(
+        cls,
+        columns=None,
+        time_unit: str | None = None,
+        angle_unit: str | None = None,
+        counts_per_rev=None,
+    ) -> ReadSpec:
         """From the options' forms: ``columns`` as ``"t=Time,u=data(:,2)"`` or a mapping,
         ``counts_per_rev`` as ``"theta_u=N,theta_l=N"``, one number for both, or a mapping."""
-        return cls(parse_columns(columns), time_unit or "s", angle_unit or "rad",
-                   parse_counts(counts_per_rev))
+        return cls(
+            parse_columns(columns),
+            time_unit or "s",
+            angle_unit or "rad",
+            parse_counts(counts_per_rev),
+        )
 
     @classmethod
     def from_record(cls, rec) -> ReadSpec:
@@ -128,13 +157,21 @@ class ReadSpec:
             return cls()
         if not isinstance(rec, Mapping):
             raise FormatProblem(f"the recorded way of reading, {rec!r}, is not a table")
-        return cls(rec.get("columns") or {}, rec.get("time_unit", "s"),
-                   rec.get("angle_unit", "rad"), rec.get("counts_per_rev") or {})
+        return cls(
+            rec.get("columns") or {},
+            rec.get("time_unit", "s"),
+            rec.get("angle_unit", "rad"),
+            rec.get("counts_per_rev") or {},
+        )
 
     def as_dict(self) -> dict:
         """The spec as JSON (for fit.json)."""
-        return {"columns": dict(self.columns), "time_unit": self.time_unit,
-                "angle_unit": self.angle_unit, "counts_per_rev": dict(self.counts_per_rev)}
+        return {
+            "columns": dict(self.columns),
+            "time_unit": self.time_unit,
+            "angle_unit": self.angle_unit,
+            "counts_per_rev": dict(self.counts_per_rev),
+        }
 
     @property
     def is_default(self) -> bool:
@@ -151,8 +188,9 @@ class ReadSpec:
         if self.angle_unit != "rad":
             out.append(f"--angle-unit {self.angle_unit}")
         if self.counts_per_rev:
-            out.append("--counts-per-rev " + ",".join(
-                f"{k}={v:g}" for k, v in self.counts_per_rev.items()))
+            out.append(
+                "--counts-per-rev " + ",".join(f"{k}={v:g}" for k, v in self.counts_per_rev.items())
+            )
         return " ".join(out)
 
     def name_of(self, signal: str) -> str:
@@ -208,8 +246,10 @@ def parse_columns(spec) -> dict[str, str]:
         key, sep, name = item.partition("=")
         key = key.strip()
         if not sep or not name.strip():
-            raise FormatProblem(f"columns: {item!r} is not SIGNAL=NAME; write e.g. "
-                                "t=Time,u=Volt,theta_u=Enc1,theta_l=Enc2")
+            raise FormatProblem(
+                f"columns: {item!r} is not SIGNAL=NAME; write e.g. "
+                "t=Time,u=Volt,theta_u=Enc1,theta_l=Enc2"
+            )
         if key in out:
             raise FormatProblem(f"columns: {key} is mapped twice; map each signal once")
         out[key] = name.strip()
@@ -239,9 +279,11 @@ def parse_counts(spec) -> dict[str, float]:
                 raise ValueError
             out[key.strip()] = float(num)
         except ValueError:
-            raise FormatProblem(f"counts per revolution: {item!r} is not CHANNEL=NUMBER; "
-                                "write e.g. theta_u=54934.256,theta_l=40000 (or one number "
-                                "for both encoders)") from None
+            raise FormatProblem(
+                f"counts per revolution: {item!r} is not CHANNEL=NUMBER; "
+                "write e.g. theta_u=54934.256,theta_l=40000 (or one number "
+                "for both encoders)"
+            ) from None
     return out
 
 
@@ -260,8 +302,12 @@ def is_mat_file(head: bytes, suffix: str) -> bool:
     """Whether a file starting with ``head`` (its first 520 bytes or more) is a MATLAB
     file: the text header of v5/v7.3, an HDF5 file (at 0, or after the 512-byte header
     of v7.3), or a ``.mat`` name."""
-    return (head.startswith(b"MATLAB") or head.startswith(_HDF5_SIGNATURE)
-            or head[512:520] == _HDF5_SIGNATURE or suffix.lower() == ".mat")
+    return (
+        head.startswith(b"MATLAB")
+        or head.startswith(_HDF5_SIGNATURE)
+        or head[512:520] == _HDF5_SIGNATURE
+        or suffix.lower() == ".mat"
+    )
 
 
 def read_mat(data: bytes, spec: ReadSpec, wanted: tuple[str, ...]) -> tuple[dict, dict]:
@@ -283,8 +329,11 @@ def read_mat(data: bytes, spec: ReadSpec, wanted: tuple[str, ...]) -> tuple[dict
         names[sig] = name
     n = {k: v.size for k, v in cols.items()}
     if len(set(n.values())) > 1:
-        raise FormatProblem("the signals have different lengths (" + ", ".join(
-            f"{k} = {names[k]}: {v}" for k, v in n.items()) + "); map signals of one record")
+        raise FormatProblem(
+            "the signals have different lengths ("
+            + ", ".join(f"{k} = {names[k]}: {v}" for k, v in n.items())
+            + "); map signals of one record"
+        )
     return cols, names
 
 
@@ -296,24 +345,34 @@ def _mat_tree(data: bytes):
     import scipy.io
 
     try:
-        raw = scipy.io.loadmat(io.BytesIO(data), squeeze_me=False, struct_as_record=True,
-                               chars_as_strings=True)
+        raw = scipy.io.loadmat(
+            io.BytesIO(data), squeeze_me=False, struct_as_record=True, chars_as_strings=True
+        )
     except NotImplementedError as exc:  # scipy's answer to a v7.3 file it cannot read
-        raise FormatProblem(f"a MATLAB file scipy cannot read ({exc}); save it again "
-                            "with save -v7 or -v7.3") from None
+        raise FormatProblem(
+            f"a MATLAB file scipy cannot read ({exc}); save it again with save -v7 or -v7.3"
+        ) from None
     except Exception as exc:  # noqa: BLE001 - any parser failure is a damaged file
         head = data[:512]
-        text = bool(head) and not data.startswith(b"MATLAB") and all(
-            32 <= b < 127 or b in b"\t\r\n" for b in head)
-        raise FormatProblem(f"not a readable MATLAB file ({type(exc).__name__}: {exc}); "
-                            + ("it holds text: if it is a CSV file, name it .csv"
-                               if text else "save it again from MATLAB, or export CSV")
-                            ) from None
+        text = (
+            bool(head)
+            and not data.startswith(b"MATLAB")
+            and all(32 <= b < 127 or b in b"\t\r\n" for b in head)
+        )
+        raise FormatProblem(
+            f"not a readable MATLAB file ({type(exc).__name__}: {exc}); "
+            + (
+                "it holds text: if it is a CSV file, name it .csv"
+                if text
+                else "save it again from MATLAB, or export CSV"
+            )
+        ) from None
     try:
         return {k: _v5(v) for k, v in raw.items() if not k.startswith("__")}
     except RecursionError:
-        raise FormatProblem("its structs are nested too deep to read; save the signals "
-                            "as plain variables") from None
+        raise FormatProblem(
+            "its structs are nested too deep to read; save the signals as plain variables"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -351,21 +410,40 @@ def _h5_tree(data: bytes):
     try:
         f = h5py.File(io.BytesIO(data), "r")
     except Exception as exc:  # noqa: BLE001 - any parser failure is a damaged file
-        raise FormatProblem(f"not a readable MATLAB v7.3 (HDF5) file ({exc}); save it again "
-                            "from MATLAB, or export CSV") from None
+        raise FormatProblem(
+            f"not a readable MATLAB v7.3 (HDF5) file ({exc}); save it again "
+            "from MATLAB, or export CSV"
+        ) from None
     with f:
         try:
             return {k: _h5(f, f[k]) for k in f if not k.startswith("#")}
         except FormatProblem:
             raise
         except Exception as exc:  # noqa: BLE001 - a damaged file, or one nested absurdly
-            raise FormatProblem(f"not a readable MATLAB v7.3 file ({type(exc).__name__}: "
-                                f"{exc}); save it again from MATLAB, or export CSV") from None
+            raise FormatProblem(
+                f"not a readable MATLAB v7.3 file ({type(exc).__name__}: "
+                f"{exc}); save it again from MATLAB, or export CSV"
+            ) from None
 
 
 # The MATLAB classes of v7.3 datasets that hold data (others are objects' handles).
-_H5_DATA_CLASSES = {"", "double", "single", "int8", "uint8", "int16", "uint16", "int32",
-                    "uint32", "int64", "uint64", "logical", "char", "cell", "struct"}
+_H5_DATA_CLASSES = {
+    "",
+    "double",
+    "single",
+    "int8",
+    "uint8",
+    "int16",
+    "uint16",
+    "int32",
+    "uint32",
+    "int64",
+    "uint64",
+    "logical",
+    "char",
+    "cell",
+    "struct",
+}
 
 
 def _h5(f, node):
@@ -375,11 +453,16 @@ def _h5(f, node):
     cls = cls.decode() if isinstance(cls, bytes) else str(cls)
     if isinstance(node, h5py.Group):
         fields = {k: node[k] for k in node if not k.startswith("#")}
-        refs = [d for d in fields.values()
-                if isinstance(d, h5py.Dataset) and d.dtype == h5py.ref_dtype]
+        refs = [
+            d for d in fields.values() if isinstance(d, h5py.Dataset) and d.dtype == h5py.ref_dtype
+        ]
         # A struct array: every field a dataset of references of one shape, one per element.
-        if fields and len(refs) == len(fields) and len({d.shape for d in refs}) == 1 \
-                and refs[0].size > 1:
+        if (
+            fields
+            and len(refs) == len(fields)
+            and len({d.shape for d in refs}) == 1
+            and refs[0].size > 1
+        ):
             n = refs[0].size
             flat = {k: np.asarray(d).T.ravel(order="F") for k, d in fields.items()}
             return [{k: _h5(f, f[flat[k][i]]) for k in fields} for i in range(n)]
@@ -404,8 +487,10 @@ def _lookup(tree, name: str):
     for part in name.split("."):
         m = _NAME.match(part)
         if m is None:
-            raise FormatProblem(f"{name!r} is not a MATLAB name; write e.g. Time, "
-                                "ScopeData.time, ScopeData.signals(2).values or data(:,3)")
+            raise FormatProblem(
+                f"{name!r} is not a MATLAB name; write e.g. Time, "
+                "ScopeData.time, ScopeData.signals(2).values or data(:,3)"
+            )
         key, index = m.group(1).strip(), m.group(2)
         if not isinstance(node, dict) or key not in node:
             raise KeyError(name)
@@ -426,9 +511,11 @@ def _index(node, index: str, name: str):
         if isinstance(node, dict) and k == 1:
             return node
         if isinstance(node, np.ndarray) and 1 <= k and node.ndim == 2 and min(node.shape) == 1:
-            return node.ravel()[k - 1:k]
-        raise FormatProblem(f"{name}: ({parts[0]}) picks an element of a struct array; "
-                            "for a matrix write (:,COLUMN) or (ROW,:)")
+            return node.ravel()[k - 1 : k]
+        raise FormatProblem(
+            f"{name}: ({parts[0]}) picks an element of a struct array; "
+            "for a matrix write (:,COLUMN) or (ROW,:)"
+        )
     if len(parts) != 2 or not isinstance(node, np.ndarray) or node.ndim != 2:
         raise FormatProblem(f"{name}: ({index}) indexes a matrix; write (:,COLUMN) or (ROW,:)")
     rows, cols = node.shape
@@ -436,12 +523,12 @@ def _index(node, index: str, name: str):
         j = _one_based(parts[1], name)
         if not 1 <= j <= cols:
             raise FormatProblem(f"{name}: the matrix has {cols} column(s) ({rows}x{cols})")
-        return node[:, j - 1:j]
+        return node[:, j - 1 : j]
     if parts[1] == ":":
         i = _one_based(parts[0], name)
         if not 1 <= i <= rows:
             raise FormatProblem(f"{name}: the matrix has {rows} row(s) ({rows}x{cols})")
-        return node[i - 1:i, :]
+        return node[i - 1 : i, :]
     raise FormatProblem(f"{name}: ({index}) picks one number; write (:,COLUMN) or (ROW,:)")
 
 
@@ -449,8 +536,9 @@ def _one_based(text: str, name: str) -> int:
     try:
         k = int(text)
     except ValueError:
-        raise FormatProblem(f"{name}: index {text!r} is not a whole number (MATLAB's "
-                            "indices start at 1)") from None
+        raise FormatProblem(
+            f"{name}: index {text!r} is not a whole number (MATLAB's indices start at 1)"
+        ) from None
     if k < 1:
         raise FormatProblem(f"{name}: index {k}; MATLAB's indices start at 1")
     return k
@@ -460,20 +548,31 @@ def _vector(node, name: str) -> np.ndarray:
     if isinstance(node, np.ndarray) and node.dtype.kind in "biuf":
         if node.ndim == 2 and min(node.shape) == 1 or node.ndim <= 1:
             return np.ascontiguousarray(node.ravel(), dtype=np.float64)
-        raise FormatProblem(f"{name} is a {node.shape[0]}x{node.shape[1]} matrix, not one "
-                            f"signal; pick a column with {name}(:,K) (or a row with "
-                            f"{name}(K,:))")
+        raise FormatProblem(
+            f"{name} is a {node.shape[0]}x{node.shape[1]} matrix, not one "
+            f"signal; pick a column with {name}(:,K) (or a row with "
+            f"{name}(K,:))"
+        )
     if isinstance(node, _Object):
         raise FormatProblem(
             f"{name} is a MATLAB object of class {node.cls}, whose data only MATLAB can "
             "read; save its arrays in the file instead (for a timeseries ts: "
             "t = ts.Time, u = ts.Data; Simulink's To Workspace block: the formats "
-            "'Structure With Time' or 'Array')")
-    what = ("a struct (fields " + ", ".join(node) + ")" if isinstance(node, dict)
-            else f"a list of {len(node)}" if isinstance(node, list)
-            else "text" if isinstance(node, str) else f"of type {type(node).__name__}")
-    raise FormatProblem(f"{name} is {what}, not a vector of numbers; name the signal "
-                        "itself (e.g. ScopeData.signals(1).values)")
+            "'Structure With Time' or 'Array')"
+        )
+    what = (
+        "a struct (fields " + ", ".join(node) + ")"
+        if isinstance(node, dict)
+        else f"a list of {len(node)}"
+        if isinstance(node, list)
+        else "text"
+        if isinstance(node, str)
+        else f"of type {type(node).__name__}"
+    )
+    raise FormatProblem(
+        f"{name} is {what}, not a vector of numbers; name the signal "
+        "itself (e.g. ScopeData.signals(1).values)"
+    )
 
 
 def _listing(tree, prefix: str = "", out=None, depth: int = 0) -> list[str]:
@@ -498,9 +597,11 @@ def _listing(tree, prefix: str = "", out=None, depth: int = 0) -> list[str]:
 def _missing(tree, sig: str, name: str, spec: ReadSpec) -> str:
     held = ", ".join(_listing(tree)) or "no numeric variables"
     if sig in spec.columns:
-        return (f"no {name!r} for {sig} (--columns {sig}={name}); the file holds {held}")
-    return (f"no variable {sig!r}: name the file's signals with --columns "
-            "t=NAME,u=NAME,theta_u=NAME,theta_l=NAME (analysis file: columns = {t = "
-            "\"NAME\", ...}), each NAME a variable, a struct's field (ScopeData.time, "
-            "ScopeData.signals(2).values) or a matrix's column (Encoder(:,1)); the file "
-            f"holds {held}")
+        return f"no {name!r} for {sig} (--columns {sig}={name}); the file holds {held}"
+    return (
+        f"no variable {sig!r}: name the file's signals with --columns "
+        "t=NAME,u=NAME,theta_u=NAME,theta_l=NAME (analysis file: columns = {t = "
+        '"NAME", ...}), each NAME a variable, a struct\'s field (ScopeData.time, '
+        "ScopeData.signals(2).values) or a matrix's column (Encoder(:,1)); the file "
+        f"holds {held}"
+    )

@@ -39,8 +39,9 @@ _TOML_TOKENS = re.compile(
 _JSON_TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]', re.DOTALL)
 
 
-def nesting_depth(text: str, *, kind: str = "toml", limit: int = MAX_NESTING
-                  ) -> tuple[int, int | None]:
+def nesting_depth(
+    text: str, *, kind: str = "toml", limit: int = MAX_NESTING
+) -> tuple[int, int | None]:
     """The deepest nesting of brackets in ``text`` (a ``kind`` "toml" or "json" document),
     outside strings and comments, and the offset where it first went beyond ``limit``
     (None if it never did; the scan stops there).  Unbalanced brackets are the parser's
@@ -61,8 +62,9 @@ def nesting_depth(text: str, *, kind: str = "toml", limit: int = MAX_NESTING
     return deepest, None
 
 
-def check_nesting(text: str, path: str | Path, error: type[Exception], what: str, *,
-                  kind: str = "toml") -> None:
+def check_nesting(
+    text: str, path: str | Path, error: type[Exception], what: str, *, kind: str = "toml"
+) -> None:
     """``error(message)`` when ``text`` (the contents of ``path``) nests arrays or tables
     deeper than :data:`MAX_NESTING`; the message names the file, the line and the limit."""
     _, where = nesting_depth(text, kind=kind)
@@ -71,13 +73,16 @@ def check_nesting(text: str, path: str | Path, error: type[Exception], what: str
     line = text.count("\n", 0, where) + 1
     inner = "arrays and tables" if kind == "toml" else "arrays and objects"
     a = "an" if what[:1].lower() in "aeiou" else "a"
-    raise error(f"{path}, line {line}: {inner} nested more than {MAX_NESTING} levels deep "
-                f"(the limit); {a} {what} nests a few levels at most, so this file is "
-                f"damaged or not {a} {what}: check it, or give another")
+    raise error(
+        f"{path}, line {line}: {inner} nested more than {MAX_NESTING} levels deep "
+        f"(the limit); {a} {what} nests a few levels at most, so this file is "
+        f"damaged or not {a} {what}: check it, or give another"
+    )
 
 
-def read_toml(path: str | Path, error: type[Exception], what: str,
-              form: str = "write `name = value` lines") -> dict:
+def read_toml(
+    path: str | Path, error: type[Exception], what: str, form: str = "write `name = value` lines"
+) -> dict:
     """The TOML document in ``path``; ``error(message)`` for anything that is not one.
 
     ``what`` names the file's role in messages ("parameter file", "priors file", ...), and

@@ -155,8 +155,9 @@ def _rk5(t, h, y, mu, ml, k1, m, src):
         fma(k * 7.0, g2, fma(k, 7.0 * a2 + 32.0 * (c2 + f2) + 12.0 * e2, wu)),
         fma(k * 7.0, g3, fma(k, 7.0 * a3 + 32.0 * (c3 + f3) + 12.0 * e3, thl)),
         fma(k * 7.0, g4, fma(k, 7.0 * a4 + 32.0 * (c4 + f4) + 12.0 * e4, wl)),
-        state_fma(m[6], k * 7.0, g5,
-                  state_fma(m[6], k, 7.0 * a5 + 32.0 * (c5 + f5) + 12.0 * e5, z)),
+        state_fma(
+            m[6], k * 7.0, g5, state_fma(m[6], k, 7.0 * a5 + 32.0 * (c5 + f5) + 12.0 * e5, z)
+        ),
     ), d_1
 
 
@@ -440,16 +441,31 @@ def _integrate(
     """
     n = u.shape[0]
     bad = violations(p, cfg)
-    if (bad.any() or grid.shape[0] < 2 or not grid[0] == 0.0 or not grid[-1] >= n - 1.0
-            or not h0 > 0.0 or not dt > 0.0):
+    if (
+        bad.any()
+        or grid.shape[0] < 2
+        or not grid[0] == 0.0
+        or not grid[-1] >= n - 1.0
+        or not h0 > 0.0
+        or not dt > 0.0
+    ):
         if full:
             _fail_outputs(out_thu, out_wu, out_thl, out_wl, 0)
         else:
             _fail_residuals(r, row, col_u, col_l, n)
         return BAD_PARAMETERS, 0
     c = derived(p, dt)
-    m = (c, cfg, shape, hook_array(hook_torque, p), hook_array(hook_torque, q), use_hooks,
-         hook_torque, hook_shift, hook_rate)
+    m = (
+        c,
+        cfg,
+        shape,
+        hook_array(hook_torque, p),
+        hook_array(hook_torque, q),
+        use_hooks,
+        hook_torque,
+        hook_shift,
+        hook_rate,
+    )
     if needs_full_kernel(c) and not is_full_kernel(hook_torque):
         # The plain kernel has no code for the lag (terms.full_kernel_only): refuse, never
         # simulate without it.  rotorbayes.model.simulate picks the full kernel for it.

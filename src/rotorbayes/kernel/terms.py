@@ -569,8 +569,9 @@ def _state_step_impl(hook, reset, t, t_end, y, f, src, m):
     if isinstance(hook, (types.NoneType, types.Integer)):
         return lambda hook, reset, t, t_end, y, f, src, m: t_end
 
-    return lambda hook, reset, t, t_end, y, f, src, m: _state_limit(hook, reset, t, t_end,
-                                                                    y, f, src, m)
+    return lambda hook, reset, t, t_end, y, f, src, m: _state_limit(
+        hook, reset, t, t_end, y, f, src, m
+    )
 
 
 @njit(cache=True, error_model="numpy")
@@ -622,8 +623,7 @@ def _state_limit(hook, reset, t, t_end, y, f, src, m):
     if lam * h > STATE_STEP_FACTOR:
         h = STATE_STEP_FACTOR / lam
     for _ in range(3):  # the slope where this step would end (z held: it is what is fast)
-        ye = (fma(h, f[0], y[0]), fma(h, f[1], y[1]), fma(h, f[2], y[2]),
-              fma(h, f[3], y[3]), y[4])
+        ye = (fma(h, f[0], y[0]), fma(h, f[1], y[1]), fma(h, f[2], y[2]), fma(h, f[3], y[3]), y[4])
         lam_e = _state_slope(hook, t + h, ye, src, m)
         if not lam_e * h > STATE_STEP_FACTOR:
             break
@@ -734,8 +734,17 @@ def rhs(thu, wu, thl, wl, z, mu, ml, d, m):
     dwu = 0.0
     if mu != 0 and cfg != CFG_PRESCRIBED:
         f = slip_torque(
-            wu, mu, c[_TCU] + su, c[_DTCU], c[_BU], c[_DBU], upper_excess(m[6], c), c[_IWSU],
-            c[_DU], shape, c[_XCUTU],
+            wu,
+            mu,
+            c[_TCU] + su,
+            c[_DTCU],
+            c[_BU],
+            c[_DBU],
+            upper_excess(m[6], c),
+            c[_IWSU],
+            c[_DU],
+            shape,
+            c[_XCUTU],
         )
         dthu = wu
         dwu = (te_u - f) * c[_IJU]
@@ -743,7 +752,16 @@ def rhs(thu, wu, thl, wl, z, mu, ml, d, m):
     dwl = 0.0
     if ml != 0 and cfg != CFG_UPPER:
         f = slip_torque(
-            wl, ml, c[_TCL] + sl, c[_DTCL], c[_BL], c[_DBL], c[_DSL], c[_IWSL], c[_DL], shape,
+            wl,
+            ml,
+            c[_TCL] + sl,
+            c[_DTCL],
+            c[_BL],
+            c[_DBL],
+            c[_DSL],
+            c[_IWSL],
+            c[_DL],
+            shape,
             c[_XCUT],
         )
         dthl = wl
@@ -751,8 +769,9 @@ def rhs(thu, wu, thl, wl, z, mu, ml, d, m):
     dz = 0.0
     if m[5]:
         presc = cfg == CFG_PRESCRIBED
-        dz = call_hook(m[8], d[0], d[2] if presc else thu, d[3] if presc else wu, thl, wl,
-                       d[1], z, m[3], m[4])[0]
+        dz = call_hook(
+            m[8], d[0], d[2] if presc else thu, d[3] if presc else wu, thl, wl, d[1], z, m[3], m[4]
+        )[0]
     return dthu, dwu, dthl, dwl, dz
 
 

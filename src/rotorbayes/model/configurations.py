@@ -179,7 +179,8 @@ class Model:
         if len(stateful) > 1:
             raise EffectError(
                 f"effects {', '.join(stateful)} each carry a state; a model holds at most one "
-                "stateful effect (the kernel integrates one effect state)")
+                "stateful effect (the kernel integrates one effect state)"
+            )
         names = [e.name for e in self.effects]
         if len(set(names)) != len(names):
             raise EffectError(f"an effect is listed twice: {names}")
@@ -188,22 +189,22 @@ class Model:
         for e in self.user_effects:
             for p in e.parameters:
                 if p.name in self.info:
-                    raise EffectError(
-                        f"effect {e.name!r}: parameter {p.name!r} is already defined"
-                    )
+                    raise EffectError(f"effect {e.name!r}: parameter {p.name!r} is already defined")
                 self.info[p.name] = p
         self.user_names = tuple(p.name for e in self.user_effects for p in e.parameters)
         replacing = [e for e in self.effects if e.replaces]
         if len(replacing) > 1:
             raise EffectError(
                 f"effects {', '.join(e.name for e in replacing)} each replace the lower "
-                "disc's friction; switch on one of them")
+                "disc's friction; switch on one of them"
+            )
         #: The effect that carries the lower disc's dry friction (``Effect.replaces``).
         self.replacing = replacing[0] if replacing else None
         #: The kernel's ``q``: the user effects' parameters, the replacing effect's followed
         #: by the levels it carries (:data:`BORROWED`).
         self.q_names = tuple(
-            n for e in self.user_effects
+            n
+            for e in self.user_effects
             for n in (*e.names, *(BORROWED if e is self.replacing else ()))
         )
         on = set(self.configuration.parameters)
@@ -214,9 +215,7 @@ class Model:
         #: Parameters that act in this model.
         self.active = tuple(n for n in self.info if n in on)
         #: Parameters of catalogue effects that are off (held at their null values).
-        self.off = tuple(
-            n for n in INFO if _effects.effect_of(n) is not None and n not in on
-        )
+        self.off = tuple(n for n in INFO if _effects.effect_of(n) is not None and n not in on)
         self.kernel_cfg = (
             _layout.CFG_PRESCRIBED
             if self.prescribed_upper
@@ -301,10 +300,12 @@ class Model:
                 p[_layout.INDEX[n]] = INFO[n].null
         if not self.stribeck or math.isnan(p[_layout.TS_L]):
             p[_layout.TS_L] = p[_layout.TC_L]
-        q = np.array([
-            p[_layout.INDEX[n]] if n in BORROWED else float(values.get(n, self.info[n].null))
-            for n in self.q_names
-        ])
+        q = np.array(
+            [
+                p[_layout.INDEX[n]] if n in BORROWED else float(values.get(n, self.info[n].null))
+                for n in self.q_names
+            ]
+        )
         return p, q
 
     def kernel_slot(self, name: str) -> tuple[int, int] | None:
@@ -335,7 +336,8 @@ class Model:
                 out.append(
                     f"Tc_l = {tc:g} and Ts_l = {ts:g} must exceed |dTc_l| = {abs(dtc):g} with "
                     f"{self.replacing.name!r} (its bristles relax towards that level, which "
-                    "must be positive)")
+                    "must be positive)"
+                )
         return out
 
     # ------------------------------------------------------------------------ hooks

@@ -162,24 +162,32 @@ class Effect:
         if bad:
             raise ValueError(f"effect {self.name!r}: unknown configuration(s) {bad}")
         if bool(self.state) != (self.state_rate is not None):
-            raise ValueError(f"effect {self.name!r}: a state needs its state_rate, and a "
-                             "state_rate its state's name")
+            raise ValueError(
+                f"effect {self.name!r}: a state needs its state_rate, and a "
+                "state_rate its state's name"
+            )
         if self.state_reset not in ("", "u", "l"):
             raise ValueError(f"effect {self.name!r}: state_reset must be '', 'u' or 'l'")
         if self.replaces not in ("", "l"):
-            raise ValueError(f"effect {self.name!r}: replaces must be '' or 'l' (the lower "
-                             "disc's friction)")
+            raise ValueError(
+                f"effect {self.name!r}: replaces must be '' or 'l' (the lower disc's friction)"
+            )
         if self.replaces and any(c not in LOWER for c in self.configs):
-            raise ValueError(f"effect {self.name!r} replaces the lower disc's friction, so "
-                             f"its configs must be among {LOWER}")
+            raise ValueError(
+                f"effect {self.name!r} replaces the lower disc's friction, so "
+                f"its configs must be among {LOWER}"
+            )
         object.__setattr__(self, "parameters", tuple(self.parameters))
         object.__setattr__(self, "configs", tuple(self.configs))
 
     @property
     def is_user(self) -> bool:
         """A user-defined effect (brings its own compiled physics)."""
-        return (self.torque is not None or self.friction_shift is not None
-                or self.state_rate is not None)
+        return (
+            self.torque is not None
+            or self.friction_shift is not None
+            or self.state_rate is not None
+        )
 
     def __reduce_ex__(self, protocol):
         # A user effect loaded from a file travels with the file's code and its SHA-256:
@@ -210,19 +218,26 @@ class Effect:
                 f"null {null}{extra}: {p.description}"
             )
         if self.replaces:
-            rows.append("    replaces the lower disc's dry friction (Tc_l, dTc_l, Ts_l act "
-                        "through it; the disc never sticks)")
+            rows.append(
+                "    replaces the lower disc's dry friction (Tc_l, dTc_l, Ts_l act "
+                "through it; the disc never sticks)"
+            )
         if self.state:
-            reset = {"u": ", reset when the upper disc sticks",
-                     "l": ", reset when the lower disc sticks"}.get(self.state_reset, "")
+            reset = {
+                "u": ", reset when the upper disc sticks",
+                "l": ", reset when the lower disc sticks",
+            }.get(self.state_reset, "")
             rows.append(f"    state: {self.state} (starts at 0{reset})")
         rows.append(f"    missing when: {self.signature}")
         for eq in self.equivalences:
             rows.append(f"    equivalence: {eq}")
         if self.resolution is not None:
             r = self.resolution
-            what = (f"{r.factor:g} sample interval(s)" if r.kind == "sample" else
-                    f"{r.factor:g}x the robust standard error of Tc_{r.disc}")
+            what = (
+                f"{r.factor:g} sample interval(s)"
+                if r.kind == "sample"
+                else f"{r.factor:g}x the robust standard error of Tc_{r.disc}"
+            )
             rows.append(f"    claimed only from {what}: {r.words}")
         return "\n".join(rows)
 
@@ -258,9 +273,17 @@ class Equivalence(str):
     input_can_break: bool
     procedure: str
 
-    def __new__(cls, words: str, *, effects=(), also_free=(), scope: str = "",
-                max_experiments: int = 0, input_can_break: bool = True,
-                procedure: str = ""):
+    def __new__(
+        cls,
+        words: str,
+        *,
+        effects=(),
+        also_free=(),
+        scope: str = "",
+        max_experiments: int = 0,
+        input_can_break: bool = True,
+        procedure: str = "",
+    ):
         obj = super().__new__(cls, words)
         obj.effects = tuple(effects)
         obj.also_free = tuple(also_free)
@@ -275,15 +298,30 @@ class Equivalence(str):
         return self.max_experiments <= 0 or n_experiments <= self.max_experiments
 
     def __reduce__(self):  # pickled with its attributes (process and Dask workers)
-        return (_equivalence, (str(self), self.effects, self.also_free, self.scope,
-                               self.max_experiments, self.input_can_break, self.procedure))
+        return (
+            _equivalence,
+            (
+                str(self),
+                self.effects,
+                self.also_free,
+                self.scope,
+                self.max_experiments,
+                self.input_can_break,
+                self.procedure,
+            ),
+        )
 
 
-def _equivalence(words, effects, also_free, scope, max_experiments, input_can_break,
-                 procedure):
-    return Equivalence(words, effects=effects, also_free=also_free, scope=scope,
-                       max_experiments=max_experiments, input_can_break=input_can_break,
-                       procedure=procedure)
+def _equivalence(words, effects, also_free, scope, max_experiments, input_can_break, procedure):
+    return Equivalence(
+        words,
+        effects=effects,
+        also_free=also_free,
+        scope=scope,
+        max_experiments=max_experiments,
+        input_can_break=input_can_break,
+        procedure=procedure,
+    )
 
 
 #: A pre-wound string against a lower friction asymmetry (DESIGN.md, "one exact tie").
@@ -304,7 +342,8 @@ _TORSION_TIE = Equivalence(
         "experiments get alpha0[0], alpha0[1]). A friction asymmetry is the same in both "
         "experiments, a pre-wound string's torque is not: alpha0s that differ by the "
         "unwinding say the string was wound; the part common to both stays tied to dTc_l "
-        "unless one torsion is known (an unwound string's is 0)"),
+        "unless one torsion is known (an unwound string's is 0)"
+    ),
 )
 
 
@@ -326,7 +365,10 @@ _CATALOGUE: tuple[Effect, ...] = (
             "both slip levels alike)",
         ),
         resolution=Resolution(
-            "torque", 1.0, "u", "",
+            "torque",
+            1.0,
+            "u",
+            "",
             "an asymmetry below the upper friction level's uncertainty",
         ),
         explains=("direction", "velocity"),
@@ -339,7 +381,10 @@ _CATALOGUE: tuple[Effect, ...] = (
         motor=True,
         kernel_term="friction.slip_torque (db)",
         resolution=Resolution(
-            "torque", 1.0, "u", "omega_u",
+            "torque",
+            1.0,
+            "u",
+            "omega_u",
             "an asymmetry whose torque at the RMS speed is below the upper friction"
             " level's uncertainty",
         ),
@@ -360,7 +405,10 @@ _CATALOGUE: tuple[Effect, ...] = (
             _TORSION_TIE,
         ),
         resolution=Resolution(
-            "torque", 1.0, "l", "",
+            "torque",
+            1.0,
+            "l",
+            "",
             "an asymmetry below the lower friction level's uncertainty",
         ),
         explains=("direction", "velocity"),
@@ -373,7 +421,10 @@ _CATALOGUE: tuple[Effect, ...] = (
         configs=LOWER,
         kernel_term="friction.slip_torque (db)",
         resolution=Resolution(
-            "torque", 1.0, "l", "omega_l",
+            "torque",
+            1.0,
+            "l",
+            "omega_l",
             "an asymmetry whose torque at the RMS speed is below the lower friction"
             " level's uncertainty",
         ),
@@ -392,9 +443,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         configs=LOWER,
         kernel_term="friction.stribeck, terms.bands (static band from Ts_l)",
         resolution=Resolution(
-            "torque", 1.0, "l", "",
-            "a static level above the Coulomb level by less than that level's "
-            "uncertainty",
+            "torque",
+            1.0,
+            "l",
+            "",
+            "a static level above the Coulomb level by less than that level's uncertainty",
         ),
         explains=("velocity", "direction"),
     ),
@@ -404,8 +457,15 @@ _CATALOGUE: tuple[Effect, ...] = (
         "the lower disc's Stribeck law (eqs. 4.11-4.14) on the upper disc, its static "
         "level Tc_u + dTs_u.",
         (
-            _p("dTs_u", "N m", 0.0, 3.0, 0.0,
-               "upper static friction above the Coulomb level (Stribeck excess)", 0.1),
+            _p(
+                "dTs_u",
+                "N m",
+                0.0,
+                3.0,
+                0.0,
+                "upper static friction above the Coulomb level (Stribeck excess)",
+                0.1,
+            ),
             _p("ws_u", "rad/s", 1e-3, 50.0, 1.0, "upper Stribeck velocity", 1.0, True),
             _p("delta_u", "-", 0.2, 5.0, 2.0, "upper Stribeck shape exponent", 2.0, True),
         ),
@@ -415,9 +475,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         kernel_term="friction.slip_torque (Stribeck part), terms.bands (static band from "
         "Tc_u + dTs_u), terms.stribeck_step",
         resolution=Resolution(
-            "torque", 1.0, "u", "",
-            "a static level above the upper Coulomb level by less than that level's "
-            "uncertainty",
+            "torque",
+            1.0,
+            "u",
+            "",
+            "a static level above the upper Coulomb level by less than that level's uncertainty",
         ),
         explains=("velocity", "direction"),
         full_kernel=True,
@@ -437,9 +499,11 @@ _CATALOGUE: tuple[Effect, ...] = (
             _TORSION_TIE,
         ),
         resolution=Resolution(
-            "torque", 1.0, "l", "k_alpha",
-            "a pre-wound torque k_alpha*alpha0 below the lower friction level's "
-            "uncertainty",
+            "torque",
+            1.0,
+            "l",
+            "k_alpha",
+            "a pre-wound torque k_alpha*alpha0 below the lower friction level's uncertainty",
         ),
         explains=("torsion", "direction", "velocity"),
     ),
@@ -452,9 +516,11 @@ _CATALOGUE: tuple[Effect, ...] = (
         configs=LOWER,
         kernel_term="terms.torques (c_alpha * (omega_l - omega_u))",
         resolution=Resolution(
-            "torque", 1.0, "l", "dalpha",
-            "a damping torque at the RMS twist rate below the lower friction "
-            "level's uncertainty",
+            "torque",
+            1.0,
+            "l",
+            "dalpha",
+            "a damping torque at the RMS twist rate below the lower friction level's uncertainty",
         ),
         explains=("torsion_rate", "torsion", "velocity"),
     ),
@@ -470,9 +536,11 @@ _CATALOGUE: tuple[Effect, ...] = (
             "-k_m*u_offset (without a dead zone)",
         ),
         resolution=Resolution(
-            "torque", 1.0, "u", "k_m",
-            "a motor torque k_m*u_offset below the upper friction level's "
-            "uncertainty",
+            "torque",
+            1.0,
+            "u",
+            "k_m",
+            "a motor torque k_m*u_offset below the upper friction level's uncertainty",
         ),
         explains=("input", "direction"),
     ),
@@ -485,7 +553,10 @@ _CATALOGUE: tuple[Effect, ...] = (
         motor=True,
         kernel_term="terms.drive, terms.delay_samples (the step grid follows the delay)",
         resolution=Resolution(
-            "sample", 0.1, "", "",
+            "sample",
+            0.1,
+            "",
+            "",
             "a delay below a tenth of a sample cannot be told from how the input "
             "behaves between samples",
         ),
@@ -499,7 +570,10 @@ _CATALOGUE: tuple[Effect, ...] = (
         motor=True,
         kernel_term="terms.drive, terms.next_kink (dead-zone edges)",
         resolution=Resolution(
-            "torque", 1.0, "u", "k_m",
+            "torque",
+            1.0,
+            "u",
+            "k_m",
             "a dead zone whose motor torque k_m*u_deadzone is below the upper "
             "friction level's uncertainty",
         ),
@@ -518,7 +592,10 @@ _CATALOGUE: tuple[Effect, ...] = (
         kernel_term="terms.lagged, terms.input_source (the lag's exact solution for the "
         "interpolated input: no state, no stiffness)",
         resolution=Resolution(
-            "sample", 0.1, "", "",
+            "sample",
+            0.1,
+            "",
+            "",
             "a lag below a tenth of a sample cannot be told from how the input behaves "
             "between samples",
         ),
@@ -540,10 +617,16 @@ LUGRE = Effect(
     "the velocity (frictional memory); steady sliding follows the switch model's "
     "Stribeck curve.",
     parameters=(
-        Parameter("sigma0_l", "N m/rad", 5.0, 700.0, 700.0,
-                  "bristle stiffness (pre-sliding displacement Ts_l/sigma0_l)", start=300.0),
-        Parameter("sigma1_l", "N m s/rad", 0.0, 10.0, 0.0,
-                  "bristle damping", start=0.5),
+        Parameter(
+            "sigma0_l",
+            "N m/rad",
+            5.0,
+            700.0,
+            700.0,
+            "bristle stiffness (pre-sliding displacement Ts_l/sigma0_l)",
+            start=300.0,
+        ),
+        Parameter("sigma1_l", "N m s/rad", 0.0, 10.0, 0.0, "bristle damping", start=0.5),
     ),
     signature="theta_l residual at every lower stop and break-away (the disc creeps by "
     "about Ts_l/sigma0_l where the model holds it still), with the residual's sign "
@@ -622,13 +705,16 @@ def _shipped_effect(path: str, name: str, code: bytes, sha: str) -> Effect:
     the sending process recorded, run under the file's path (the file itself need not
     exist here)."""
     if hashlib.sha256(code).hexdigest() != sha:
-        raise EffectError(f"{path}: the effect file's code arrived altered (its SHA-256 "
-                          f"differs from the recorded {sha[:12]}...); run the command again")
+        raise EffectError(
+            f"{path}: the effect file's code arrived altered (its SHA-256 "
+            f"differs from the recorded {sha[:12]}...); run the command again"
+        )
     old = _FILE_SHA.get(str(Path(path)))
     if old is not None and old != sha:
         raise EffectError(
             f"{path}: this worker already runs another version of the effect file (SHA-256 "
-            f"{old[:12]}..., the task's is {sha[:12]}...); restart the workers")
+            f"{old[:12]}..., the task's is {sha[:12]}...); restart the workers"
+        )
     return load_user_effect(f"{path}:{name}", code=code)
 
 
@@ -665,8 +751,7 @@ def load_user_effect(spec: str, *, code: bytes | None = None) -> Effect:
         try:
             code_bytes = path.read_bytes() if code is None else bytes(code)
         except OSError as exc:
-            raise EffectError(f"{path_s}: cannot read the effect file ({exc.strerror})"
-                              ) from None
+            raise EffectError(f"{path_s}: cannot read the effect file ({exc.strerror})") from None
         spec_obj = importlib.util.spec_from_file_location(mod_name, path)
         module = importlib.util.module_from_spec(spec_obj)
         sys.modules[mod_name] = module
@@ -726,4 +811,3 @@ def resolve(specs: Iterable[str | Effect]) -> tuple[Effect, ...]:
             continue
         out.append(e)
     return tuple(out)
-

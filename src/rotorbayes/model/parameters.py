@@ -221,44 +221,63 @@ def load_toml(path: str | Path, _chain: tuple[str, ...] = ()) -> dict[str, float
     path = Path(path)
     here = str(path.resolve())
     if here in _chain:
-        loop = " -> ".join([*_chain[_chain.index(here):], here])
-        raise ParameterError(f"{path}: its base files name each other in a loop ({loop}); "
-                             "end the chain with a named set such as base = \"thesis:4.2:P0\"")
+        loop = " -> ".join([*_chain[_chain.index(here) :], here])
+        raise ParameterError(
+            f"{path}: its base files name each other in a loop ({loop}); "
+            'end the chain with a named set such as base = "thesis:4.2:P0"'
+        )
     raw = read_toml(path, ParameterError, "parameter file")
     base = raw.pop("base", None)
     table = raw.pop("parameters", {})
     if not isinstance(table, dict):
-        raise ParameterError(f"{path}: parameters = {table!r} must be a table: write "
-                             "[parameters] on its own line, then `name = value` lines")
+        raise ParameterError(
+            f"{path}: parameters = {table!r} must be a table: write "
+            "[parameters] on its own line, then `name = value` lines"
+        )
     clash = sorted(set(raw) & set(table))
     if clash:
-        raise ParameterError(f"{path}: {', '.join(clash)} given both at the top and in "
-                             "[parameters]; give each value once")
+        raise ParameterError(
+            f"{path}: {', '.join(clash)} given both at the top and in "
+            "[parameters]; give each value once"
+        )
     values = {**raw, **table}
     if base is not None and not isinstance(base, str):
-        raise ParameterError(f"{path}: base = {base!r} must be a string naming a set "
-                             "(\"thesis:4.2:P0\") or another parameter file")
+        raise ParameterError(
+            f"{path}: base = {base!r} must be a string naming a set "
+            '("thesis:4.2:P0") or another parameter file'
+        )
     if base is not None and not base.startswith("thesis:"):
         named = base
         b = Path(base)
         base = b if b.is_absolute() or b.exists() else path.parent / b
         if not named.strip() or not base.is_file():
-            why = ("is empty" if not named.strip() else
-                   "is a folder, not a parameter file" if base.is_dir() else
-                   f"is not a file (looked for {base.absolute()})")
-            raise ParameterError(f"{path}: base = {named!r} {why}; name a set such as "
-                                 "base = \"thesis:4.2:P0\" or another parameter file "
-                                 "(a path relative to this file)")
+            why = (
+                "is empty"
+                if not named.strip()
+                else "is a folder, not a parameter file"
+                if base.is_dir()
+                else f"is not a file (looked for {base.absolute()})"
+            )
+            raise ParameterError(
+                f"{path}: base = {named!r} {why}; name a set such as "
+                'base = "thesis:4.2:P0" or another parameter file '
+                "(a path relative to this file)"
+            )
     out: dict[str, float] = {}
     if base is not None:
-        out = (resolve(base) if isinstance(base, str)
-               else {**resolve(None), **load_toml(base, (*_chain, here))})
+        out = (
+            resolve(base)
+            if isinstance(base, str)
+            else {**resolve(None), **load_toml(base, (*_chain, here))}
+        )
     for name, val in values.items():
         if name not in INFO:
             raise ParameterError(f"{path}: {unknown_name_message(name)}")
         if not isinstance(val, int | float) or isinstance(val, bool):
-            raise ParameterError(f"{path}: {name} = {val!r} is not a number; write a plain "
-                                 f"number, e.g. {name} = {INFO[name].lower:g}")
+            raise ParameterError(
+                f"{path}: {name} = {val!r} is not a number; write a plain "
+                f"number, e.g. {name} = {INFO[name].lower:g}"
+            )
         info = INFO[name]
         val = float(val)
         if math.isnan(val) and math.isnan(info.null) and name == "Ts_l":

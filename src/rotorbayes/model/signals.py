@@ -67,7 +67,6 @@ def smooth_step(x: np.ndarray) -> np.ndarray:
     return x - np.sin(2.0 * np.pi * x) / (2.0 * np.pi)
 
 
-
 def _as_float(name: str, value: object) -> float:
     """``value`` as a Python float (so messages show ``30.0``, not ``np.float64(30.0)``)."""
     try:

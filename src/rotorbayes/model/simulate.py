@@ -91,13 +91,17 @@ def check_step(step, dt: float, n: int, *, what: str = "step", where: str = "") 
     if step is None:
         return
     if isinstance(step, bool) or not isinstance(step, numbers.Real):
-        raise ParameterError(f"{what} = {step!r}: give the largest Runge-Kutta step in "
-                             "seconds (a number), or None for the default")
+        raise ParameterError(
+            f"{what} = {step!r}: give the largest Runge-Kutta step in "
+            "seconds (a number), or None for the default"
+        )
     lo, hi = step_range(dt, n)
     of = f" of {where}" if where else ""
-    allowed = (f"give a step between {lo:.3g} s and {hi:.4g} s{' for ' + where if where else ''}"
-               f" (or leave it out: the default, {1e3 * default_step(dt):.3g} ms there, suits "
-               "most data)")
+    allowed = (
+        f"give a step between {lo:.3g} s and {hi:.4g} s{' for ' + where if where else ''}"
+        f" (or leave it out: the default, {1e3 * default_step(dt):.3g} ms there, suits "
+        "most data)"
+    )
     if not math.isfinite(step) or step <= 0:
         raise ParameterError(f"{what} {step:g} s: not a positive number of seconds; {allowed}")
     if step < lo:
@@ -105,10 +109,12 @@ def check_step(step, dt: float, n: int, *, what: str = "step", where: str = "") 
         raise ParameterError(
             f"{what} {step:g} s is shorter than a hundredth of the sample interval "
             f"({dt:g} s){of}: the simulation would take {points:.3g} Runge-Kutta steps "
-            f"({8 * points / 2**30:.3g} GiB for the step grid alone); {allowed}")
+            f"({8 * points / 2**30:.3g} GiB for the step grid alone); {allowed}"
+        )
     if step > hi:
-        raise ParameterError(f"{what} {step:g} s is longer than the record{of} ({hi:.4g} s); "
-                             f"{allowed}")
+        raise ParameterError(
+            f"{what} {step:g} s is longer than the record{of} ({hi:.4g} s); {allowed}"
+        )
 
 
 def stride_of(step: float, dt: float) -> tuple[int, int]:
@@ -214,13 +220,16 @@ def samples(a, name: str, what: str) -> np.ndarray:
     is a :class:`ValueError` that names the argument ``name`` and says ``what`` it holds.
     """
     if isinstance(a, str | bytes):
-        raise ValueError(f"{name} is the text {a[:40]!r}; give {what} at each sample as an "
-                         "array of numbers")
+        raise ValueError(
+            f"{name} is the text {a[:40]!r}; give {what} at each sample as an array of numbers"
+        )
     try:
         out = np.ascontiguousarray(a, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must hold {what} at each sample as numbers ({exc}); "
-                         "convert it first, e.g. with np.asarray(..., dtype=float)") from None
+        raise ValueError(
+            f"{name} must hold {what} at each sample as numbers ({exc}); "
+            "convert it first, e.g. with np.asarray(..., dtype=float)"
+        ) from None
     if out.ndim != 1:
         raise ValueError(f"{name} must be a 1-D array of samples, got shape {out.shape}")
     if not out.flags.writeable:
@@ -294,10 +303,14 @@ class Simulator:
         if not np.all(np.isfinite(self.u)):
             i = int(np.flatnonzero(~np.isfinite(self.u))[0])
             raise ValueError(f"u[{i}] = {self.u[i]} is not finite; the input must be finite")
-        if isinstance(dt, bool) or not isinstance(dt, numbers.Real) or not (
-                dt > 0 and math.isfinite(dt)):
-            raise ValueError(f"dt = {dt!r} must be a positive sample interval in seconds "
-                             "(a number)")
+        if (
+            isinstance(dt, bool)
+            or not isinstance(dt, numbers.Real)
+            or not (dt > 0 and math.isfinite(dt))
+        ):
+            raise ValueError(
+                f"dt = {dt!r} must be a positive sample interval in seconds (a number)"
+            )
         self.dt = float(dt)
         self.n = self.u.size
         self.prescribed = theta_u is not None
@@ -311,8 +324,11 @@ class Simulator:
         self.shape = shape_code(shape)
         if step is None:
             step = default_step(self.dt)
-        if isinstance(step, bool) or not isinstance(step, numbers.Real) or not (
-                step > 0 and math.isfinite(step)):
+        if (
+            isinstance(step, bool)
+            or not isinstance(step, numbers.Real)
+            or not (step > 0 and math.isfinite(step))
+        ):
             raise ValueError(f"step = {step!r} must be a positive number of seconds")
         self.step = float(step)
         self.stride, self.substeps = stride_of(step, self.dt)
@@ -322,13 +338,15 @@ class Simulator:
                 f"step = {step:g} s divides each of the {self.n} samples into "
                 f"{self.substeps:.3g} Runge-Kutta steps: a grid beyond {MAX_GRID_POINTS:.0e} "
                 f"points, more memory than a simulation may take; give a step between "
-                f"{lo:.3g} s and {hi:.4g} s")
+                f"{lo:.3g} s and {hi:.4g} s"
+            )
         if self.substeps > 1:  # steps shorter than a sample: every sample alike
             k = np.arange((self.n - 1) * self.substeps + 1, dtype=float)
             self.grid = k / self.substeps
         elif self.prescribed:  # the motion is the input; its steps stay uniform
-            self.grid = np.minimum(np.arange(0, self.n - 1 + self.stride, self.stride,
-                                             dtype=float), self.n - 1.0)
+            self.grid = np.minimum(
+                np.arange(0, self.n - 1 + self.stride, self.stride, dtype=float), self.n - 1.0
+            )
         else:
             self.grid = _solver.step_grid(self.u, self.stride, INPUT_TOLERANCE / self.dt)
         self.h0 = self.stride / self.substeps
@@ -585,8 +603,10 @@ def simulate(
     if isinstance(effects, str):
         effects = [effects]  # one name, not its letters
     effects = list(effects)
-    for v, name, what in ((alpha0, "alpha0", "the initial string torsion [rad]"),
-                          (noise_std, "noise_std", "a standard deviation [rad], >= 0")):
+    for v, name, what in (
+        (alpha0, "alpha0", "the initial string torsion [rad]"),
+        (noise_std, "noise_std", "a standard deviation [rad], >= 0"),
+    ):
         if v is not None:
             _check_number(v, name, what)
     if noise_std is not None and not noise_std >= 0:

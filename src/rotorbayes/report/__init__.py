@@ -10,5 +10,12 @@ are absent and how to make them.
 from .discover import ReportError, discover
 from .html import SECTIONS, Report, build_report, render_report, write_report
 
-__all__ = ["SECTIONS", "Report", "ReportError", "build_report", "discover", "render_report",
-           "write_report"]
+__all__ = [
+    "SECTIONS",
+    "Report",
+    "ReportError",
+    "build_report",
+    "discover",
+    "render_report",
+    "write_report",
+]

@@ -18,8 +18,12 @@ class ReportError(ValueError):
 
 
 #: The file that marks each kind of result folder.
-MARKERS = {"fit": "fit.json", "compare": "compare.json", "sample": "settings.json",
-           "identify": "identify.json"}
+MARKERS = {
+    "fit": "fit.json",
+    "compare": "compare.json",
+    "sample": "settings.json",
+    "identify": "identify.json",
+}
 
 
 def read_json(path: Path) -> dict | None:
@@ -44,7 +48,8 @@ def kind_of(folder: Path) -> str | None:
     if (folder / "identify.json").exists():
         return "identify"
     if (folder / "settings.json").exists() and any(
-            (folder / n).exists() for n in ("summary.md", "posterior.nc", "chain.h5")):
+        (folder / n).exists() for n in ("summary.md", "posterior.nc", "chain.h5")
+    ):
         return "sample"
     return None
 
@@ -122,16 +127,18 @@ def discover(folder: str | Path) -> Found:
     folder; raises :class:`ReportError` if it is missing or holds no results."""
     root = Path(folder)
     if not root.exists():
-        raise ReportError(f"{root}: no such folder; give a folder written by rotorbayes "
-                          "(run, demo, fit, compare, sample or identify)")
+        raise ReportError(
+            f"{root}: no such folder; give a folder written by rotorbayes "
+            "(run, demo, fit, compare, sample or identify)"
+        )
     if not root.is_dir():
-        raise ReportError(f"{root}: is a file, not a folder; give the result folder that "
-                          "holds it")
+        raise ReportError(f"{root}: is a file, not a folder; give the result folder that holds it")
     kind = kind_of(root)
     if kind == "fit":
         comp = root / "compare"
-        return Found(root, "fit", chain=fit_chain(root),
-                     compare=comp if kind_of(comp) == "compare" else None)
+        return Found(
+            root, "fit", chain=fit_chain(root), compare=comp if kind_of(comp) == "compare" else None
+        )
     if kind == "compare":
         return Found(root, "compare", compare=root)
     if kind == "sample":
@@ -151,10 +158,12 @@ def discover(folder: str | Path) -> Found:
     run = read_json(root / "run.json")
     subs = [d for d in root.iterdir() if d.is_dir() and kind_of(d)]
     if run is None and not subs:
-        raise ReportError(f"{root}: nothing to report: it holds no run.json and no result "
-                          "folders (fit.json, compare.json, identify.json or a sample's "
-                          "settings.json); run `rotorbayes fit`, `rotorbayes run "
-                          "analysis.toml` or `rotorbayes demo` first")
+        raise ReportError(
+            f"{root}: nothing to report: it holds no run.json and no result "
+            "folders (fit.json, compare.json, identify.json or a sample's "
+            "settings.json); run `rotorbayes fit`, `rotorbayes run "
+            "analysis.toml` or `rotorbayes demo` first"
+        )
     found = Found(root, "study", run=run)
     final = None
     if run and run.get("final_fit"):
@@ -163,8 +172,9 @@ def discover(folder: str | Path) -> Found:
     if final is None:
         fits = [d for d in subs if kind_of(d) == "fit"]
         # The final fit is the end of the longest chain (ties: the last by name).
-        chains = sorted(((len(fit_chain(d)), _natural(d), d) for d in fits),
-                        key=lambda t: (t[0], t[1]))
+        chains = sorted(
+            ((len(fit_chain(d)), _natural(d), d) for d in fits), key=lambda t: (t[0], t[1])
+        )
         final = chains[-1][2] if chains else None
     if final is not None:
         found.chain = fit_chain(final)

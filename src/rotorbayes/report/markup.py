@@ -81,25 +81,29 @@ def cell(v) -> str:
     return esc(v)
 
 
-def table(headers, rows, *, cls: str = "", numeric: tuple[int, ...] = (), caption: str = "",
-          row_cls=None) -> Raw:
+def table(
+    headers, rows, *, cls: str = "", numeric: tuple[int, ...] = (), caption: str = "", row_cls=None
+) -> Raw:
     """An HTML table; ``numeric`` column indices are right-aligned; ``row_cls(i)`` may give a
     class per row."""
     nc, nw = ' class="n"', ' class="nw"'
     # A unit column never breaks a unit ("N m s/rad") over lines.
     nowrap = {i for i, h in enumerate(headers) if str(h).strip().lower() == "unit"}
-    head = "".join(f"<th{nc if i in numeric else ''}>{cell(h)}</th>"
-                   for i, h in enumerate(headers))
+    head = "".join(f"<th{nc if i in numeric else ''}>{cell(h)}</th>" for i, h in enumerate(headers))
     body = []
     for k, r in enumerate(rows):
         rc = row_cls(k) if row_cls else ""
-        tds = "".join(f"<td{nc if i in numeric else nw if i in nowrap else ''}>{cell(v)}</td>"
-                      for i, v in enumerate(r))
+        tds = "".join(
+            f"<td{nc if i in numeric else nw if i in nowrap else ''}>{cell(v)}</td>"
+            for i, v in enumerate(r)
+        )
         rattr = f' class="{esc(rc)}"' if rc else ""
         body.append(f"<tr{rattr}>{tds}</tr>")
     cap = f"<caption>{esc(caption)}</caption>" if caption else ""
-    return Raw(f'<div class="tw"><table class="{esc(cls)}">{cap}<thead><tr>{head}</tr></thead>'
-               f'<tbody>{"".join(body)}</tbody></table></div>')
+    return Raw(
+        f'<div class="tw"><table class="{esc(cls)}">{cap}<thead><tr>{head}</tr></thead>'
+        f"<tbody>{''.join(body)}</tbody></table></div>"
+    )
 
 
 def kv(pairs) -> Raw:
@@ -119,8 +123,14 @@ def pre(text: str) -> Raw:
     return Raw(f"<pre>{esc(text)}</pre>")
 
 
-MIME = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".svg": "image/svg+xml",
-        ".gif": "image/gif", ".webp": "image/webp"}
+MIME = {
+    ".png": "image/png",
+    ".jpg": "image/jpeg",
+    ".jpeg": "image/jpeg",
+    ".svg": "image/svg+xml",
+    ".gif": "image/gif",
+    ".webp": "image/webp",
+}
 
 
 def compact_png(data: bytes) -> bytes:
@@ -138,8 +148,9 @@ def compact_png(data: bytes) -> bytes:
                 rgba = im.convert("RGBA")
                 im = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
                 im.alpha_composite(rgba)
-            q = im.convert("RGB").quantize(256, method=Image.Quantize.FASTOCTREE,
-                                           dither=Image.Dither.NONE)
+            q = im.convert("RGB").quantize(
+                256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE
+            )
             buf = io.BytesIO()
             q.save(buf, "PNG", optimize=True)
     except Exception:  # noqa: BLE001 - an odd image is embedded as it is
@@ -183,8 +194,10 @@ def figure(path: Path, caption: str) -> Raw:
     key = hashlib.sha256(data).hexdigest()
     if key in store.seen:
         anchor, first = store.seen[key]
-        return Raw(f'<p class="note">{esc(caption)} ({esc(path.name)}): the same figure as '
-                   f'<a href="#{anchor}">{esc(first)}</a> above.</p>')
+        return Raw(
+            f'<p class="note">{esc(caption)} ({esc(path.name)}): the same figure as '
+            f'<a href="#{anchor}">{esc(first)}</a> above.</p>'
+        )
     store.count += 1
     anchor = f"fig-{store.count}"
     size = png_size(data)
@@ -197,9 +210,11 @@ def figure(path: Path, caption: str) -> Raw:
     b64 = base64.b64encode(data).decode("ascii")
     dims = f' width="{size[0]}" height="{size[1]}"' if size else ""
     wide = ' class="wide"' if size is None or size[0] >= WIDE_PX else ""
-    return Raw(f'<figure id="{anchor}"{wide}><img src="data:{mime};base64,{b64}"{dims} '
-               f'alt="{esc(caption)}" title="{esc(path.name)}"><figcaption>{esc(caption)} '
-               f'<span class="file">({esc(path.name)})</span></figcaption></figure>')
+    return Raw(
+        f'<figure id="{anchor}"{wide}><img src="data:{mime};base64,{b64}"{dims} '
+        f'alt="{esc(caption)}" title="{esc(path.name)}"><figcaption>{esc(caption)} '
+        f'<span class="file">({esc(path.name)})</span></figcaption></figure>'
+    )
 
 
 #: Figures at least this wide (pixels) take the whole width of the page; narrower ones may
@@ -226,8 +241,9 @@ def markdown_table(text: str) -> Raw | None:
 
     head = cells(lines[0])
     body = [cells(ln) for ln in lines[1:] if not set(ln.replace("|", "").strip()) <= set("-: ")]
-    numeric = tuple(i for i in range(len(head)) if body and all(
-        _numberish(r[i]) for r in body if i < len(r)))
+    numeric = tuple(
+        i for i in range(len(head)) if body and all(_numberish(r[i]) for r in body if i < len(r))
+    )
     return table(head, body, numeric=numeric, cls="md")
 
 

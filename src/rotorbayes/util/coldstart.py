@@ -159,8 +159,12 @@ def _compile_entry(name: str, stream):
             what += f", {flavour} kernel"
         else:
             what += ", kernel with user effects"
-        print(f"{MESSAGE} ({what}), once: numba caches it for later runs ...", end="",
-              file=stream, flush=True)
+        print(
+            f"{MESSAGE} ({what}), once: numba caches it for later runs ...",
+            end="",
+            file=stream,
+            flush=True,
+        )
     t0, c0 = time.perf_counter(), time.process_time()
     fn = solver.entry(name)
     dt = time.perf_counter() - t0

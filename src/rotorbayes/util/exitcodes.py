@@ -37,8 +37,11 @@ TABLE = (
     (NOT_CONVERGED, "ran, but the fit did not converge (results written)"),
     (REFUSED, "refused input; nothing written or changed"),
     (ENVIRONMENT, "environment or I/O failure (disk full, folder not writable)"),
-    (BUSY, "another rotorbayes process works on the same result folder, or another "
-           "program holds chain.h5 open"),
+    (
+        BUSY,
+        "another rotorbayes process works on the same result folder, or another "
+        "program holds chain.h5 open",
+    ),
     (INTERRUPTED, "interrupted; the message says what was kept"),
     (BROKEN_PIPE, "the output's reader went away"),
 )
@@ -67,10 +70,21 @@ class Busy(Exception):
 
 
 #: errno values that are the environment's fault, not the user's input.
-ENVIRONMENT_ERRNOS = frozenset({
-    errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO,
-    errno.EMFILE, errno.ENFILE, errno.ENOMEM, errno.EFBIG, errno.ESTALE,
-})
+ENVIRONMENT_ERRNOS = frozenset(
+    {
+        errno.ENOSPC,
+        errno.EDQUOT,
+        errno.EROFS,
+        errno.EACCES,
+        errno.EPERM,
+        errno.EIO,
+        errno.EMFILE,
+        errno.ENFILE,
+        errno.ENOMEM,
+        errno.EFBIG,
+        errno.ESTALE,
+    }
+)
 
 
 def is_disk_full(exc: BaseException) -> bool:
@@ -86,11 +100,15 @@ def describe_environment(exc: BaseException, path=None) -> str:
     where = path if path is not None else getattr(exc, "filename", None)
     where = f"{where}: " if where else ""
     if is_disk_full(exc):
-        return (f"{where}the disk is full (no space left on the device); free some space (or "
-                "choose an output folder on another disk) and run again")
+        return (
+            f"{where}the disk is full (no space left on the device); free some space (or "
+            "choose an output folder on another disk) and run again"
+        )
     if isinstance(exc, OSError) and exc.errno in (errno.EACCES, errno.EPERM):
-        return (f"{where}permission denied; check the permissions of the file and its "
-                "folder (or choose another path) and run again")
+        return (
+            f"{where}permission denied; check the permissions of the file and its "
+            "folder (or choose another path) and run again"
+        )
     if isinstance(exc, OSError) and exc.errno == errno.EROFS:
         return f"{where}the file system is read-only; choose an output folder elsewhere"
     what = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__

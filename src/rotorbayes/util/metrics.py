@@ -363,8 +363,10 @@ _HEADERS = ("channel", "R²", "fit %", "max |e| [rad]", "RMSE [rad]", "SSR [rad�
 
 #: What the table prints for R² and fit % of a constant measurement (and the note under it).
 NO_SCALE = "n/a"
-NO_SCALE_NOTE = (f"{NO_SCALE}: the measured signal is constant, so R² and fit % have no "
-                 "reference scale (judge the fit by its errors in rad)")
+NO_SCALE_NOTE = (
+    f"{NO_SCALE}: the measured signal is constant, so R² and fit % have no "
+    "reference scale (judge the fit by its errors in rad)"
+)
 
 
 def _row(f: ChannelFit) -> tuple[str, ...]:

@@ -11,8 +11,7 @@ from __future__ import annotations
 import math
 
 
-def significant_digits(value: float, spread: float, *, extra: int = 2,
-                       default: int = 6) -> int:
+def significant_digits(value: float, spread: float, *, extra: int = 2, default: int = 6) -> int:
     """Significant digits that show ``value`` to about ``extra`` digits of ``spread``."""
     if not (math.isfinite(value) and math.isfinite(spread)) or spread <= 0:
         return default

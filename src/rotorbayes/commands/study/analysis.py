@@ -36,22 +36,59 @@ from ...model.parameters import INFO, ParameterError
 
 #: Tables and keys the analysis file may hold (key -> expected type(s)).
 SCHEMA: dict[str, dict[str, tuple]] = {
-    "analysis": {"name": (str,), "out": (str,), "config": (str,), "data": (list,),
-                 "validate": (list,), "validate_alpha0": (list,), "seed": (int,),
-                 "columns": (dict,), "time_unit": (str,), "angle_unit": (str,),
-                 "counts_per_rev": (int, float, dict)},
-    "fit": {"p0": (str,), "free": (list,), "fixed": (list,), "effects": (list,),
-            "channels": (list,), "max_nfev": (int,), "step": (int, float),
-            "keep_glitches": (bool,), "search": (bool,)},
-    "diagnose": {"add_effects": (bool,), "max_steps": (int,), "noise_std": (int, float),
-                 "trials": (bool,), "proposal": (bool,)},
-    "sample": {"walkers": (int,), "steps": (int,), "ensembles": (int,), "noise": (str,),
-               "ar1": (bool,), "moves": (str,)},
+    "analysis": {
+        "name": (str,),
+        "out": (str,),
+        "config": (str,),
+        "data": (list,),
+        "validate": (list,),
+        "validate_alpha0": (list,),
+        "seed": (int,),
+        "columns": (dict,),
+        "time_unit": (str,),
+        "angle_unit": (str,),
+        "counts_per_rev": (int, float, dict),
+    },
+    "fit": {
+        "p0": (str,),
+        "free": (list,),
+        "fixed": (list,),
+        "effects": (list,),
+        "channels": (list,),
+        "max_nfev": (int,),
+        "step": (int, float),
+        "keep_glitches": (bool,),
+        "search": (bool,),
+    },
+    "diagnose": {
+        "add_effects": (bool,),
+        "max_steps": (int,),
+        "noise_std": (int, float),
+        "trials": (bool,),
+        "proposal": (bool,),
+    },
+    "sample": {
+        "walkers": (int,),
+        "steps": (int,),
+        "ensembles": (int,),
+        "noise": (str,),
+        "ar1": (bool,),
+        "moves": (str,),
+    },
     "priors": {},
     "identify": {"profiles": (list,), "points": (int,)},
-    "design": {"params": (list,), "separate": (list,), "duration": (int, float),
-               "rate": (int, float), "max_volts": (int, float), "band_hz": (int, float),
-               "family": (str,), "starts": (int,), "max_evals": (int,), "check": (bool,)},
+    "design": {
+        "params": (list,),
+        "separate": (list,),
+        "duration": (int, float),
+        "rate": (int, float),
+        "max_volts": (int, float),
+        "band_hz": (int, float),
+        "family": (str,),
+        "starts": (int,),
+        "max_evals": (int,),
+        "check": (bool,),
+    },
     "report": {"html": (bool,)},
     "parallel": {"backend": (str,), "workers": (int,), "scheduler": (str,)},
 }
@@ -65,20 +102,23 @@ LIMITS: dict[str, dict[str, tuple[float, float]]] = {
     "diagnose": {"max_steps": (0, 20), "noise_std": (0.0, 1.0)},
     "sample": {"walkers": (4, 10_000), "steps": (10, 10_000_000), "ensembles": (1, 64)},
     "identify": {"points": (3, 1001)},
-    "design": {"starts": (1, 256), "max_evals": (1, 1_000_000),
-               "duration": (0.0, 86_400.0), "rate": (0.0, 100_000.0)},
+    "design": {
+        "starts": (1, 256),
+        "max_evals": (1, 1_000_000),
+        "duration": (0.0, 86_400.0),
+        "rate": (0.0, 100_000.0),
+    },
     "parallel": {"workers": (1, 256)},
 }
 
 #: Keys that must not be empty, and what to write instead.
 NON_EMPTY = {
-    "out": "name the output folder (relative to the analysis file), e.g. out = \"results\"",
+    "out": 'name the output folder (relative to the analysis file), e.g. out = "results"',
     "name": "give the study a name or leave the key out",
     "config": "choose upper, coupled or brake",
     "data": "list at least one measurement file",
     "validate": "list validation files or leave the key out",
-    "validate_alpha0": "give one torsion [rad] or \"fit\" per validation file, or leave the "
-    "key out",
+    "validate_alpha0": 'give one torsion [rad] or "fit" per validation file, or leave the key out',
     "free": "list parameters or leave the key out (the configuration's default)",
     "fixed": "list parameters or leave the key out",
     "effects": "list effects or leave the key out",
@@ -131,8 +171,9 @@ def read_spec(a: Analysis):
 
     an = a.table("analysis")
     try:
-        return ReadSpec.from_options(an.get("columns"), an.get("time_unit"),
-                                     an.get("angle_unit"), an.get("counts_per_rev"))
+        return ReadSpec.from_options(
+            an.get("columns"), an.get("time_unit"), an.get("angle_unit"), an.get("counts_per_rev")
+        )
     except FormatProblem as exc:
         raise _err(a.path, "analysis", str(exc)) from None
 
@@ -148,16 +189,28 @@ def _check_validate_alpha0(p, an: dict) -> None:
         return
     n = len(an.get("validate", []))
     if len(given) != n:
-        raise _err(p, "analysis", f"validate_alpha0 has {len(given)} entries for {n} "
-                   "validation files; give one per file in the order of validate (a torsion "
-                   "in rad, or \"fit\" to fit it on that run alone)")
+        raise _err(
+            p,
+            "analysis",
+            f"validate_alpha0 has {len(given)} entries for {n} "
+            "validation files; give one per file in the order of validate (a torsion "
+            'in rad, or "fit" to fit it on that run alone)',
+        )
     lo, hi = INFO["alpha0"].lower, INFO["alpha0"].upper
     for v in given:
-        ok = v == "fit" or (isinstance(v, int | float) and not isinstance(v, bool)
-                            and math.isfinite(v) and lo <= v <= hi)
+        ok = v == "fit" or (
+            isinstance(v, int | float)
+            and not isinstance(v, bool)
+            and math.isfinite(v)
+            and lo <= v <= hi
+        )
         if not ok:
-            raise _err(p, "analysis", f"validate_alpha0: {v!r} is neither a torsion in rad "
-                       f"within [{lo:g}, {hi:g}] nor \"fit\"")
+            raise _err(
+                p,
+                "analysis",
+                f"validate_alpha0: {v!r} is neither a torsion in rad "
+                f'within [{lo:g}, {hi:g}] nor "fit"',
+            )
 
 
 def load_analysis(path: str | Path) -> Analysis:
@@ -166,13 +219,15 @@ def load_analysis(path: str | Path) -> Analysis:
     from ...io.tomlfile import read_toml, read_toml_text
 
     p = Path(path)
-    doc = read_toml(p, AnalysisError, "analysis file",
-                    "see docs/analysis_file.md for the tables and keys")
+    doc = read_toml(
+        p, AnalysisError, "analysis file", "see docs/analysis_file.md for the tables and keys"
+    )
     text = read_toml_text(p, AnalysisError, "analysis file")
     for t, v in doc.items():
         if t not in SCHEMA:
-            raise AnalysisError(f"{p}: unknown table [{t}]; the tables are "
-                                f"{', '.join(f'[{s}]' for s in SCHEMA)}")
+            raise AnalysisError(
+                f"{p}: unknown table [{t}]; the tables are {', '.join(f'[{s}]' for s in SCHEMA)}"
+            )
         if not isinstance(v, dict):
             raise AnalysisError(f"{p}: {t} must be a table ([{t}]), not a value")
         if t == "priors":
@@ -180,25 +235,34 @@ def load_analysis(path: str | Path) -> Analysis:
         for k, val in v.items():
             if k not in SCHEMA[t]:
                 raise _err(p, t, f"unknown key {k!r}; valid keys: {', '.join(SCHEMA[t])}")
-            if not isinstance(val, SCHEMA[t][k]) or (isinstance(val, bool) and bool not in
-                                                     SCHEMA[t][k]):
+            if not isinstance(val, SCHEMA[t][k]) or (
+                isinstance(val, bool) and bool not in SCHEMA[t][k]
+            ):
                 want = " or ".join(x.__name__ for x in SCHEMA[t][k])
                 raise _err(p, t, f"{k} = {val!r} must be a {want}")
-            if isinstance(val, list) and k != "validate_alpha0" and not all(
-                    isinstance(x, str) for x in val):
+            if (
+                isinstance(val, list)
+                and k != "validate_alpha0"
+                and not all(isinstance(x, str) for x in val)
+            ):
                 raise _err(p, t, f"{k} = {val!r} must be a list of strings (names in quotes)")
             if k in LIMITS.get(t, {}):
                 lo, hi = LIMITS[t][k]
                 if isinstance(val, float) and not math.isfinite(val) or not lo <= val <= hi:
                     raise _err(p, t, f"{k} = {val!r} must lie between {lo:g} and {hi:g}")
-            if isinstance(val, (str, list)) and k in NON_EMPTY and not (
-                    val.strip() if isinstance(val, str) else val):
+            if (
+                isinstance(val, (str, list))
+                and k in NON_EMPTY
+                and not (val.strip() if isinstance(val, str) else val)
+            ):
                 raise _err(p, t, f"{k} is empty; {NON_EMPTY[k]}")
     a = Analysis(p, text, doc)
     an = doc.get("analysis")
     if not an:
-        raise AnalysisError(f"{p}: the [analysis] table is missing (it names the data, the "
-                            "configuration and the output folder)")
+        raise AnalysisError(
+            f"{p}: the [analysis] table is missing (it names the data, the "
+            "configuration and the output folder)"
+        )
     for k in ("out", "config", "data"):
         if k not in an:
             raise _err(p, "analysis", f"{k} is missing")
@@ -216,8 +280,11 @@ def load_analysis(path: str | Path) -> Analysis:
                 except Exception as exc:  # noqa: BLE001 - reported with the key
                     raise _err(p, "analysis", f"{key}: {exc}") from None
             elif not Path(a.resolve(f)).exists():
-                raise _err(p, "analysis", f"{key}: file {f!r} not found (relative paths are "
-                           f"relative to {a.base_dir})")
+                raise _err(
+                    p,
+                    "analysis",
+                    f"{key}: file {f!r} not found (relative paths are relative to {a.base_dir})",
+                )
     _check_validate_alpha0(p, an)
     read_spec(a)
     fit = a.table("fit")
@@ -225,16 +292,21 @@ def load_analysis(path: str | Path) -> Analysis:
         for n in fit.get(key, []):
             b = str(n).split("[")[0]
             if b not in INFO:
-                raise _err(p, "fit", f"{key}: unknown parameter {n!r}; valid names are: "
-                           f"{', '.join(INFO)}")
+                raise _err(
+                    p, "fit", f"{key}: unknown parameter {n!r}; valid names are: {', '.join(INFO)}"
+                )
     for e in fit.get("effects", []):
         if ".py:" in e:
             # A user effect file is code: validation only checks it is there (it runs when
             # the study's fit imports it).
             f = Path(a.resolve(e).rpartition(":")[0])
             if not f.is_file():
-                raise _err(p, "fit", f"effects: effect file {f} not found (relative paths "
-                           f"are relative to {a.base_dir})")
+                raise _err(
+                    p,
+                    "fit",
+                    f"effects: effect file {f} not found (relative paths "
+                    f"are relative to {a.base_dir})",
+                )
             continue
         try:
             _effects.resolve([e])
@@ -250,18 +322,19 @@ def load_analysis(path: str | Path) -> Analysis:
         from ...inference.sampling import MOVES
 
         if s["moves"] not in MOVES:
-            raise _err(p, "sample", f"moves = {s['moves']!r}; choose one of "
-                       f"{', '.join(MOVES)}")
+            raise _err(p, "sample", f"moves = {s['moves']!r}; choose one of {', '.join(MOVES)}")
     for k in ("walkers", "steps", "ensembles"):
         if k in s and s[k] < 1:
             raise _err(p, "sample", f"{k} = {s[k]} must be >= 1")
     for n, spec in a.table("priors").items():
         if n not in INFO:
-            raise _err(p, "priors", f"unknown parameter {n!r}; valid names are: "
-                       f"{', '.join(INFO)}")
+            raise _err(p, "priors", f"unknown parameter {n!r}; valid names are: {', '.join(INFO)}")
         if not isinstance(spec, dict):
-            raise _err(p, "priors", f"{n} must be a table like {{ dist = \"normal\", "
-                       "mean = 0.08, sd = 0.004 }")
+            raise _err(
+                p,
+                "priors",
+                f'{n} must be a table like {{ dist = "normal", mean = 0.08, sd = 0.004 }}',
+            )
         from ...inference.likelihood import check_prior_spec
 
         try:
@@ -269,8 +342,9 @@ def load_analysis(path: str | Path) -> Analysis:
         except ParameterError as exc:
             raise _err(p, "priors", str(exc)) from None
         if spec.get("dist", "uniform") not in ("uniform", "loguniform", "normal"):
-            raise _err(p, "priors", f"{n}: dist {spec['dist']!r}; choose uniform, "
-                       "loguniform or normal")
+            raise _err(
+                p, "priors", f"{n}: dist {spec['dist']!r}; choose uniform, loguniform or normal"
+            )
         lo, hi = spec.get("lower", INFO[n].lower), spec.get("upper", INFO[n].upper)
         if not lo < hi:
             raise _err(p, "priors", f"{n}: lower {lo} must be below upper {hi}")
@@ -293,43 +367,66 @@ def _check_design(p: Path, d: dict, config: str) -> None:
     from ...model.signals import MAX_VOLTAGE
 
     if d.get("params") and d.get("separate"):
-        raise _err(p, "design", "give either params or separate, not both (neither: the "
-                   "fit's sloppiest direction)")
+        raise _err(
+            p,
+            "design",
+            "give either params or separate, not both (neither: the fit's sloppiest direction)",
+        )
     for n in d.get("params", []):
         if n.split("[")[0] not in INFO:
-            raise _err(p, "design", f"params: unknown parameter {n!r}; valid names are: "
-                       f"{', '.join(INFO)}")
+            raise _err(
+                p, "design", f"params: unknown parameter {n!r}; valid names are: {', '.join(INFO)}"
+            )
     sep = d.get("separate")
     if sep is not None:
         repeated = sorted({e for e in sep if sep.count(e) > 1})
         if len(sep) < 2 or repeated:
             why = f" ({', '.join(repeated)} given twice)" if repeated else ""
-            raise _err(p, "design", f"separate = {sep!r}: give two or more different "
-                       f"effects{why}, e.g. separate = [\"lower_asymmetric_coulomb\", "
-                       "\"string_damping\"]")
+            raise _err(
+                p,
+                "design",
+                f"separate = {sep!r}: give two or more different "
+                f'effects{why}, e.g. separate = ["lower_asymmetric_coulomb", '
+                '"string_damping"]',
+            )
         for e in sep:
             if ".py:" in e:  # validation runs no code
-                raise _err(p, "design", f"separate: {e!r}: name catalogue effects (`rotorbayes "
-                           "effects` lists them); an effect file's effect is designed for with "
-                           "`rotorbayes design FIT --separate ...`")
+                raise _err(
+                    p,
+                    "design",
+                    f"separate: {e!r}: name catalogue effects (`rotorbayes "
+                    "effects` lists them); an effect file's effect is designed for with "
+                    "`rotorbayes design FIT --separate ...`",
+                )
             try:
                 eff = _effects.get(e)
             except Exception as exc:  # noqa: BLE001 - the effect registry explains
                 raise _err(p, "design", f"separate: {exc}") from None
             if config not in eff.configs:
-                raise _err(p, "design", f"separate: effect {e!r} does not apply to the "
-                           f"{config} configuration (it applies to {', '.join(eff.configs)})")
+                raise _err(
+                    p,
+                    "design",
+                    f"separate: effect {e!r} does not apply to the "
+                    f"{config} configuration (it applies to {', '.join(eff.configs)})",
+                )
     if "family" in d and d["family"] not in FAMILIES:
         raise _err(p, "design", f"family = {d['family']!r}; choose {' or '.join(FAMILIES)}")
-    for k, hi, why in (("max_volts", MAX_VOLTAGE, " V, the amplifier's limit"),
-                       ("band_hz", MAX_BAND_HZ, " Hz, the rig's band"),
-                       ("duration", None, ""), ("rate", None, "")):
+    for k, hi, why in (
+        ("max_volts", MAX_VOLTAGE, " V, the amplifier's limit"),
+        ("band_hz", MAX_BAND_HZ, " Hz, the rig's band"),
+        ("duration", None, ""),
+        ("rate", None, ""),
+    ):
         if k in d:
             v = d[k]
             if not (math.isfinite(v) and v > 0) or (hi is not None and v > hi):
-                raise _err(p, "design", f"{k} = {v!r} must be positive" + (
-                    f" and at most {hi:g}{why}" if hi is not None else "")
-                    + "; leave it out for the default")
+                raise _err(
+                    p,
+                    "design",
+                    f"{k} = {v!r} must be positive"
+                    + (f" and at most {hi:g}{why}" if hi is not None else "")
+                    + "; leave it out for the default",
+                )
 
 
 def _sha(data: bytes) -> str:
@@ -351,8 +448,7 @@ def _versions() -> dict:
     from ...util import __version__
 
     out = {"python": sys.version.split()[0], "rotorbayes": __version__}
-    for pkg in ("numpy", "scipy", "numba", "emcee", "arviz", "corner", "h5py",
-                "matplotlib"):
+    for pkg in ("numpy", "scipy", "numba", "emcee", "arviz", "corner", "h5py", "matplotlib"):
         try:
             out[pkg] = md.version(pkg)
         except md.PackageNotFoundError:
@@ -378,8 +474,9 @@ class _Tee(io.TextIOBase):
                 stream.flush()
 
 
-def run(path: str | Path, *, quiet: bool = False, force: bool = False,
-        out: str | Path | None = None) -> dict:
+def run(
+    path: str | Path, *, quiet: bool = False, force: bool = False, out: str | Path | None = None
+) -> dict:
     """Run the study an analysis file describes; returns the run record (run.json).
 
     ``out`` overrides the file's output folder (the demo writes into the current folder);
@@ -395,10 +492,11 @@ def run(path: str | Path, *, quiet: bool = False, force: bool = False,
     except OSError as exc:
         from ...util.exitcodes import EnvironmentFailure, describe_environment
 
-        raise EnvironmentFailure(f"{a.path}: [analysis] out: cannot create {out.parent} ("
-                                 f"{describe_environment(exc, '')})") from None
-    with folder_lock(out, flag=f"{a.path}: [analysis] out =",
-                     other=f"[analysis] out in {a.path}"):
+        raise EnvironmentFailure(
+            f"{a.path}: [analysis] out: cannot create {out.parent} ("
+            f"{describe_environment(exc, '')})"
+        ) from None
+    with folder_lock(out, flag=f"{a.path}: [analysis] out =", other=f"[analysis] out in {a.path}"):
         _check_out(a, out, force)  # again, under the lock
         clean_stale(out)
         return _run_locked(a, path, out, quiet=quiet, force=force)
@@ -422,20 +520,23 @@ def _check_out(a: Analysis, out: Path, force: bool) -> None:
     """Refuse an output folder that holds anything but this analysis's own earlier run
     (recognised by its run.json), unless ``force``."""
     if out.exists() and not out.is_dir():
-        raise AnalysisError(f"{a.path}: [analysis] out = {str(out)!r} is a file, not a "
-                            "folder; name a new folder")
+        raise AnalysisError(
+            f"{a.path}: [analysis] out = {str(out)!r} is a file, not a folder; name a new folder"
+        )
     if force or not out.is_dir() or not any(out.iterdir()):
         return
     if not (out / "run.json").exists():
         raise AnalysisError(
             f"{a.path}: [analysis] out: {out}/ already holds files that no study wrote (no "
             "run.json); choose another out, or pass --force to write the study into it "
-            "(its fit0/, posterior/, ... folders would be replaced)")
+            "(its fit0/, posterior/, ... folders would be replaced)"
+        )
     ok, who = _owner_matches(a, out)
     if not ok:
         raise AnalysisError(
             f"{a.path}: [analysis] out: {out}/ holds the results of another analysis "
-            f"({who}); choose another out, or pass --force to replace them")
+            f"({who}); choose another out, or pass --force to replace them"
+        )
 
 
 def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool) -> dict:
@@ -454,16 +555,32 @@ def _run_locked(a: Analysis, path, out: Path, *, quiet: bool, force: bool) -> di
             old = {}
     seed = an.get("seed", 0)
     record = {
-        "analysis_file": str(Path(path).resolve()), "analysis_text": a.text,
-        "versions": _versions(), "seeds": {"analysis": seed, "sample": seed},
-        "data": data_hashes, "stages": [],
+        "analysis_file": str(Path(path).resolve()),
+        "analysis_text": a.text,
+        "versions": _versions(),
+        "seeds": {"analysis": seed, "sample": seed},
+        "data": data_hashes,
+        "stages": [],
         "started": datetime.datetime.now().isoformat(timespec="seconds"),
     }
     log = (out / "log.txt").open("a", encoding="utf-8")
     try:
-        return _stages(StudyRun(analysis=a, path=path, out=out, record=record,
-                                record_path=record_path, old=old, log=log, quiet=quiet,
-                                data=data, validate=val, data_hashes=data_hashes, seed=seed))
+        return _stages(
+            StudyRun(
+                analysis=a,
+                path=path,
+                out=out,
+                record=record,
+                record_path=record_path,
+                old=old,
+                log=log,
+                quiet=quiet,
+                data=data,
+                validate=val,
+                data_hashes=data_hashes,
+                seed=seed,
+            )
+        )
     finally:
         log.close()
 
@@ -533,34 +650,34 @@ def _stage_functions() -> dict:
     def typed(module, cls):
         return lambda **options: module.execute(config.from_keywords(cls, **options))
 
-    return {"fit": typed(fit_command, config.FitOptions),
-            "sample": typed(sample_command, config.SampleOptions),
-            "identify": typed(identify_command, config.IdentifyOptions),
-            "diagnose": diagnose_command, "compare": compare_command,
-            "design": design_command}
+    return {
+        "fit": typed(fit_command, config.FitOptions),
+        "sample": typed(sample_command, config.SampleOptions),
+        "identify": typed(identify_command, config.IdentifyOptions),
+        "diagnose": diagnose_command,
+        "compare": compare_command,
+        "design": design_command,
+    }
 
 
 def _stages(run: StudyRun) -> dict:  # noqa: C901
     from ...util.exitcodes import Interrupted
 
-    a, path, out, record, old, log = (run.analysis, run.path, run.out, run.record, run.old,
-                                      run.log)
+    a, path, out, record, old, log = (run.analysis, run.path, run.out, run.record, run.old, run.log)
     data, val, seed, an = run.data, run.validate, run.seed, run.analysis.table("analysis")
     functions = _stage_functions()
 
     tee = _Tee(log, None if run.quiet else sys.stdout)
     print(f"\n==== rotorbayes run {path} ({record['started']})", file=tee)
 
-    def stage(name: str, folder: Path, inputs: str, command: str, options: dict,
-              done_file: str):
+    def stage(name: str, folder: Path, inputs: str, command: str, options: dict, done_file: str):
         h = _sha(inputs.encode())
         prev = old.get(name)
         if prev and prev.get("input_hash") == h and (folder / done_file).exists():
             print(f"\n---- {name}: inputs unchanged, kept {folder}/", file=tee)
             record["stages"].append({**prev, "skipped": True})
             return True
-        print(f"\n---- {name}: rotorbayes {_command_line(command, options)}", file=tee,
-              flush=True)
+        print(f"\n---- {name}: rotorbayes {_command_line(command, options)}", file=tee, flush=True)
         t0 = time.perf_counter()
         try:
             with contextlib.redirect_stdout(tee):
@@ -572,10 +689,19 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
                 f"interrupted (Ctrl-C) in stage {name}{said}. The stages finished before it "
                 f"are kept in {out}/ ({', '.join(kept) or 'none'}; run.json records them); "
                 f"run the same command again to go on: unchanged finished stages are "
-                "skipped") from None
+                "skipped"
+            ) from None
         sec = time.perf_counter() - t0
-        record["stages"].append({"name": name, "folder": str(folder), "seconds": sec,
-                                 "input_hash": h, "skipped": False, "exit_code": code})
+        record["stages"].append(
+            {
+                "name": name,
+                "folder": str(folder),
+                "seconds": sec,
+                "input_hash": h,
+                "skipped": False,
+                "exit_code": code,
+            }
+        )
         _write_record(run.record_path, record)
         if code not in (0, 1):
             raise AnalysisError(f"stage {name} failed (exit code {code}); see {out}/log.txt")
@@ -587,8 +713,9 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
     base = "\n".join(json.dumps(a.table(t), sort_keys=True) for t in ("analysis", "fit"))
     base += json.dumps(run.data_hashes)
     # A user effect file is part of the model: a changed file reruns the fits.
-    effect_files = sorted({a.resolve(e).rpartition(":")[0] for e in
-                           a.table("fit").get("effects", []) if ".py:" in e})
+    effect_files = sorted(
+        {a.resolve(e).rpartition(":")[0] for e in a.table("fit").get("effects", []) if ".py:" in e}
+    )
     record["effect_files"] = {f: _file_sha(f) for f in effect_files}
     base += json.dumps(record["effect_files"], sort_keys=True)
     fit_t = a.table("fit")
@@ -611,16 +738,21 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
         # In the options' own forms, so the stage's command line reads as one to type.
         fit_args.update(
             columns=",".join(f"{k}={v}" for k, v in read.columns.items()) or None,
-            time_unit=read.time_unit, angle_unit=read.angle_unit,
-            counts_per_rev=",".join(f"{k}={v!r}" for k, v in read.counts_per_rev.items())
-            or None)
+            time_unit=read.time_unit,
+            angle_unit=read.angle_unit,
+            counts_per_rev=",".join(f"{k}={v!r}" for k, v in read.counts_per_rev.items()) or None,
+        )
     if fit_t.get("effects"):
         fit_args["add"] = [a.resolve(e) if ".py:" in e else e for e in fit_t["effects"]]
     first = out / "fit0"
-    p0 = {"p0": a.resolve(fit_t["p0"]) if not fit_t["p0"].startswith("thesis:") else
-          fit_t["p0"]} if fit_t.get("p0") else {}
-    stage("fit0", first, base, "fit", {**fit_args, **p0, "out": str(first), "force": True},
-          "fit.json")
+    p0 = (
+        {"p0": a.resolve(fit_t["p0"]) if not fit_t["p0"].startswith("thesis:") else fit_t["p0"]}
+        if fit_t.get("p0")
+        else {}
+    )
+    stage(
+        "fit0", first, base, "fit", {**fit_args, **p0, "out": str(first), "force": True}, "fit.json"
+    )
     fit = first
     dg = a.table("diagnose")
     added: list[str] = []
@@ -631,12 +763,19 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
         noise = {"noise": float(dg["noise_std"])} if dg.get("noise_std") else {}
         tried = None  # (effect, worst RMS/floor before it, the fit before it): a candidate
         for k in range(1, dg.get("max_steps", 3) + 2):
-            stage(f"diagnose{k - 1}", fit, digest(fit, "fit.json") + json.dumps(dg),
-                  "diagnose", {"fit": str(fit), **noise,
-                               **({"trials": False} if dg.get("trials") is False else {}),
-                               **({"proposal": False} if dg.get("proposal") is False
-                                  else {})},
-                  "diagnosis.json")
+            stage(
+                f"diagnose{k - 1}",
+                fit,
+                digest(fit, "fit.json") + json.dumps(dg),
+                "diagnose",
+                {
+                    "fit": str(fit),
+                    **noise,
+                    **({"trials": False} if dg.get("trials") is False else {}),
+                    **({"proposal": False} if dg.get("proposal") is False else {}),
+                },
+                "diagnosis.json",
+            )
             d = json.loads((fit / "diagnosis.json").read_text())
             worst = max(d["rms_over_floor"].values())
             if tried is not None:
@@ -645,11 +784,15 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
                 eff0, before, prev = tried
                 tried = None
                 if not is_material(before, worst):
-                    print(f"\n{eff0} was worth trying but did not lower the worst RMS/floor "
-                          f"materially ({before:.3g}x -> {worst:.3g}x): dropped; the study "
-                          f"goes on from {prev.name}/", file=tee)
-                    rejected.append({"effect": eff0, "before": before, "after": worst,
-                                     "fit": str(fit)})
+                    print(
+                        f"\n{eff0} was worth trying but did not lower the worst RMS/floor "
+                        f"materially ({before:.3g}x -> {worst:.3g}x): dropped; the study "
+                        f"goes on from {prev.name}/",
+                        file=tee,
+                    )
+                    rejected.append(
+                        {"effect": eff0, "before": before, "after": worst, "fit": str(fit)}
+                    )
                     added.pop()
                     fit = prev
                     break
@@ -658,73 +801,130 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
             if d["adequate"] or not eff or not dg.get("add_effects", True):
                 break
             if k > dg.get("max_steps", 3):
-                print(f"\nmax_steps = {dg.get('max_steps', 3)} reached; the model is still "
-                      "inadequate", file=tee)
+                print(
+                    f"\nmax_steps = {dg.get('max_steps', 3)} reached; the model is still "
+                    "inadequate",
+                    file=tee,
+                )
                 break
             if eff != d.get("claimed_effect"):
                 tried = (eff, worst, fit)
-                why = ("its trial refit lowered the worst RMS/floor most" if
-                       eff == d.get("refit_choice") else
-                       "predicted to lower the worst RMS/floor materially")
-                lead = ("no effect claimed" if not d.get("claimed_effect")
-                        else "the trial refits overrule the claim")
+                why = (
+                    "its trial refit lowered the worst RMS/floor most"
+                    if eff == d.get("refit_choice")
+                    else "predicted to lower the worst RMS/floor materially"
+                )
+                lead = (
+                    "no effect claimed"
+                    if not d.get("claimed_effect")
+                    else "the trial refits overrule the claim"
+                )
                 print(f"\n{lead}; trying {eff}, {why} (kept only if it does)", file=tee)
             added.append(eff)
             nxt = out / f"fit{k}"
-            stage(f"fit{k}", nxt, digest(fit, "fit.json", "diagnosis.json") + base, "fit",
-                  {**fit_args, "p0": str(fit), "add": [*fit_args.get("add", []), eff],
-                   **({"search": False} if fit_t.get("search") is False else {}),
-                   "out": str(nxt), "force": True}, "fit.json")
+            stage(
+                f"fit{k}",
+                nxt,
+                digest(fit, "fit.json", "diagnosis.json") + base,
+                "fit",
+                {
+                    **fit_args,
+                    "p0": str(fit),
+                    "add": [*fit_args.get("add", []), eff],
+                    **({"search": False} if fit_t.get("search") is False else {}),
+                    "out": str(nxt),
+                    "force": True,
+                },
+                "fit.json",
+            )
             fit = nxt
-        stage("compare", out / "compare", digest(fit, "fit.json"), "compare",
-              {"fits": [str(fit)], "out": str(out / "compare"), "force": True}, "compare.json")
+        stage(
+            "compare",
+            out / "compare",
+            digest(fit, "fit.json"),
+            "compare",
+            {"fits": [str(fit)], "out": str(out / "compare"), "force": True},
+            "compare.json",
+        )
     if "sample" in a.doc:
         s = a.table("sample")
-        opts = {"source": str(fit), "out": str(out / "posterior"), "force": True,
-                "walkers": s.get("walkers", 32), "steps": s.get("steps", 2000),
-                "ensembles": s.get("ensembles", 2), "seed": seed,
-                "noise": s.get("noise", "robust")}
+        opts = {
+            "source": str(fit),
+            "out": str(out / "posterior"),
+            "force": True,
+            "walkers": s.get("walkers", 32),
+            "steps": s.get("steps", 2000),
+            "ensembles": s.get("ensembles", 2),
+            "seed": seed,
+            "noise": s.get("noise", "robust"),
+        }
         if s.get("ar1"):
             opts["ar1"] = True
         if "moves" in s:
             opts["moves"] = s["moves"]
         if a.table("priors"):
             pri = out / "priors.toml"
-            write_text_atomic(pri, "[priors]\n" + "".join(
-                f"{n} = {{ {', '.join(f'{k} = {json.dumps(v)}' for k, v in spec.items())} }}\n"
-                for n, spec in a.table("priors").items()))
+            write_text_atomic(
+                pri,
+                "[priors]\n"
+                + "".join(
+                    f"{n} = {{ {', '.join(f'{k} = {json.dumps(v)}' for k, v in spec.items())} }}\n"
+                    for n, spec in a.table("priors").items()
+                ),
+            )
             opts["priors"] = str(pri)
         if run.quiet:
             opts["quiet"] = True
-        stage("sample", out / "posterior", digest(fit, "fit.json") + json.dumps(s)
-              + json.dumps(a.table("priors"), sort_keys=True), "sample", opts, "posterior.nc")
+        stage(
+            "sample",
+            out / "posterior",
+            digest(fit, "fit.json") + json.dumps(s) + json.dumps(a.table("priors"), sort_keys=True),
+            "sample",
+            opts,
+            "posterior.nc",
+        )
     if "identify" in a.doc:
         i = a.table("identify")
-        opts = {"fit": str(fit), "out": str(out / "identify"), "force": True,
-                "points": i.get("points", 11)}
+        opts = {
+            "fit": str(fit),
+            "out": str(out / "identify"),
+            "force": True,
+            "points": i.get("points", 11),
+        }
         if i.get("profiles"):
             opts["profiles"] = ",".join(i["profiles"])
         post = ""
         if "sample" in a.doc and (out / "posterior" / "posterior.nc").exists():
             opts["posterior"] = str(out / "posterior")
             post = digest(out / "posterior", "summary.csv")
-        stage("identify", out / "identify", digest(fit, "fit.json") + json.dumps(i) + post,
-              "identify", opts, "identify.json")
+        stage(
+            "identify",
+            out / "identify",
+            digest(fit, "fit.json") + json.dumps(i) + post,
+            "identify",
+            opts,
+            "identify.json",
+        )
     if "design" in a.doc:
         d = a.table("design")
         opts = {"fit": str(fit), "out": str(out / "design"), "force": True, "seed": seed}
         for k in ("params", "separate"):
             if d.get(k):
                 opts[k] = ",".join(d[k])
-        for k in ("duration", "rate", "max_volts", "band_hz", "family", "starts",
-                  "max_evals"):
+        for k in ("duration", "rate", "max_volts", "band_hz", "family", "starts", "max_evals"):
             if k in d:
                 opts[k] = d[k]
         if not d.get("check", True):
             opts["no_check"] = True
         record["seeds"]["design"] = seed
-        stage("design", out / "design", digest(fit, "fit.json") + json.dumps(d, sort_keys=True)
-              + json.dumps({"seed": seed}), "design", opts, "design.json")
+        stage(
+            "design",
+            out / "design",
+            digest(fit, "fit.json") + json.dumps(d, sort_keys=True) + json.dumps({"seed": seed}),
+            "design",
+            opts,
+            "design.json",
+        )
     record["added_effects"] = added
     record["rejected_effects"] = rejected
     record["final_fit"] = str(fit)
@@ -734,8 +934,7 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
         try:
             from ...report.html import build_report
         except ImportError:
-            print("\n(report: the HTML report module is not available in this version)",
-                  file=tee)
+            print("\n(report: the HTML report module is not available in this version)", file=tee)
         else:
             with contextlib.redirect_stdout(tee):
                 rp = build_report(out)

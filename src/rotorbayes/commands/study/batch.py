@@ -61,23 +61,47 @@ def run_one(task: StudyTask) -> dict:
     host = socket.gethostname()
     p = Path(task.file)
     row = {"file": task.file, "host": host, "seconds": 0.0, "stdout": "", "stderr": ""}
-    shared_fs = ("studies of several analysis files on a cluster need the files, their "
-                 "data and the output folders on a filesystem every worker shares")
+    shared_fs = (
+        "studies of several analysis files on a cluster need the files, their "
+        "data and the output folders on a filesystem every worker shares"
+    )
     try:
         text = p.read_bytes()
     except OSError as exc:
-        return {**row, "code": 2, "message": f"{p}: the worker on {host} cannot read it "
-                f"({exc.strerror or type(exc).__name__}); {shared_fs}"}
+        return {
+            **row,
+            "code": 2,
+            "message": f"{p}: the worker on {host} cannot read it "
+            f"({exc.strerror or type(exc).__name__}); {shared_fs}",
+        }
     if hashlib.sha256(text).hexdigest() != task.sha256:
-        return {**row, "code": 2, "message": f"{p}: the worker on {host} sees another "
-                f"version of the file than the command read; {shared_fs}"}
-    env = {**os.environ, "NUMBA_NUM_THREADS": str(task.numba_threads),
-           "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-           "PYTHONUNBUFFERED": "1"}
+        return {
+            **row,
+            "code": 2,
+            "message": f"{p}: the worker on {host} sees another "
+            f"version of the file than the command read; {shared_fs}",
+        }
+    env = {
+        **os.environ,
+        "NUMBA_NUM_THREADS": str(task.numba_threads),
+        "OPENBLAS_NUM_THREADS": "1",
+        "OMP_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "PYTHONUNBUFFERED": "1",
+    }
     env.pop("DASK_SCHEDULER_ADDRESS", None)  # the study's own tasks run in its process
     env[PARENT_ENV] = str(os.getpid())  # the child ends when this process is gone
-    cmd = [sys.executable, "-m", "rotorbayes.cli", "run", str(p), "--quiet",
-           "--backend", "serial", *(["--force"] if task.force else [])]
+    cmd = [
+        sys.executable,
+        "-m",
+        "rotorbayes.cli",
+        "run",
+        str(p),
+        "--quiet",
+        "--backend",
+        "serial",
+        *(["--force"] if task.force else []),
+    ]
     t0 = time.perf_counter()
     for attempt in range(BUSY_RETRIES + 1):
         code, out, err = _child(cmd, p.parent, env)
@@ -86,17 +110,26 @@ def run_one(task: StudyTask) -> dict:
         time.sleep(BUSY_WAIT)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     if code < 0:
-        message = (f"its process was killed by signal {-code} (out of memory?); rerun the "
-                   "same command: the stages it finished are kept")
+        message = (
+            f"its process was killed by signal {-code} (out of memory?); rerun the "
+            "same command: the stages it finished are kept"
+        )
     else:
         message = lines[-1] if code and lines else ""
-    return {**row, "code": code, "seconds": time.perf_counter() - t0, "stdout": out,
-            "stderr": err, "message": message}
+    return {
+        **row,
+        "code": code,
+        "seconds": time.perf_counter() - t0,
+        "stdout": out,
+        "stderr": err,
+        "message": message,
+    }
 
 
 def _child(cmd: list[str], cwd: Path, env: dict) -> tuple[int, str, str]:
-    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cmd, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     with _RUNNING_LOCK:
         _RUNNING.add(proc)
     try:
@@ -132,9 +165,15 @@ def _headline(out: Path) -> str:
     return f"final fit {r:.3g}x the floor; {out}/"
 
 
-def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
-                backend: str | None = None, workers: int | None = None,
-                scheduler: str | None = None) -> Outcome:
+def run_studies(
+    files: list[str],
+    *,
+    force: bool = False,
+    quiet: bool = False,
+    backend: str | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+) -> Outcome:
     """Run the studies of several analysis files, several at a time (module docstring).
 
     Every file is checked before any work (a bad one is refused, exit code 2, nothing
@@ -150,22 +189,37 @@ def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
     for a in analyses:
         out = a.out.resolve()
         if out in seen:
-            what = ("is given twice" if seen[out] == a.path.resolve() else
-                    f"and {seen[out]} both write [analysis] out = {out}/")
+            what = (
+                "is given twice"
+                if seen[out] == a.path.resolve()
+                else f"and {seen[out]} both write [analysis] out = {out}/"
+            )
             raise Refused(f"{a.path} {what}; each study needs its own output folder")
         seen[out] = a.path.resolve()
     n = len(analyses)
     with executor(backend, workers, scheduler) as ex:
-        at_once = 1 if isinstance(ex, parallel.SerialExecutor) else min(
-            n, getattr(ex, "_max_workers", None) or n)
+        at_once = (
+            1
+            if isinstance(ex, parallel.SerialExecutor)
+            else min(n, getattr(ex, "_max_workers", None) or n)
+        )
         local = not parallel.is_dask(ex)
         threads = max(1, (os.cpu_count() or 1) // at_once) if local else 1
-        tasks = [StudyTask(str(a.path.resolve()),
-                           hashlib.sha256(a.path.read_bytes()).hexdigest(), force, threads)
-                 for a in analyses]
+        tasks = [
+            StudyTask(
+                str(a.path.resolve()),
+                hashlib.sha256(a.path.read_bytes()).hexdigest(),
+                force,
+                threads,
+            )
+            for a in analyses
+        ]
         each = f", {threads} numba thread{'s' if threads > 1 else ''} each" if local else ""
-        print(f"{n} studies, {at_once if local else 'as many as the cluster runs'} at a "
-              f"time{each}; each study's output in its log.txt", flush=True)
+        print(
+            f"{n} studies, {at_once if local else 'as many as the cluster runs'} at a "
+            f"time{each}; each study's output in its log.txt",
+            flush=True,
+        )
         rows: list[dict | None] = [None] * n
         t0 = time.perf_counter()
         try:
@@ -182,13 +236,19 @@ def run_studies(files: list[str], *, force: bool = False, quiet: bool = False,
             ) from None
     codes = [r["code"] if r["code"] >= 0 else ENVIRONMENT for r in rows]
     failed = [(a, r) for a, r in zip(analyses, rows, strict=True) if r["code"] != 0]
-    print(f"\n{n - len(failed)} of {n} studies done in {time.perf_counter() - t0:.0f} s"
-          + (f"; {len(failed)} did not end with exit code 0:" if failed else ""))
+    print(
+        f"\n{n - len(failed)} of {n} studies done in {time.perf_counter() - t0:.0f} s"
+        + (f"; {len(failed)} did not end with exit code 0:" if failed else "")
+    )
     for a, r in failed:
         print(f"  {a.path}: exit code {r['code']}: {r['message']}")
     code = INTERRUPTED if INTERRUPTED in codes else max(codes)
-    return Outcome(exit_code=code, doc={"studies": [
-        {k: v for k, v in r.items() if k not in ("stdout", "stderr")} for r in rows]})
+    return Outcome(
+        exit_code=code,
+        doc={
+            "studies": [{k: v for k, v in r.items() if k not in ("stdout", "stderr")} for r in rows]
+        },
+    )
 
 
 def _say(k: int, n: int, a, row: dict, quiet: bool) -> None:

@@ -28,8 +28,7 @@ class CheckpointDamaged(CheckpointError):
     """The checkpoint cannot be read or holds what no finished step leaves."""
 
 
-def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
-                     n_ensembles: int) -> dict[str, int]:
+def check_checkpoint(path: Path, *, n_walkers: int, ndim: int, n_ensembles: int) -> dict[str, int]:
     """The steps each ensemble of ``path`` holds, after checking it can be continued.
 
     A missing file holds nothing (a run killed before its first step). Raises
@@ -39,10 +38,12 @@ def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
     path = Path(path)
     if not path.exists():
         return {}
-    fix = (f"--resume cannot continue it (its finished steps cannot be trusted). Keep it for "
-           f"inspection by moving it away; to start the sampling again from step 0, delete "
-           f"{path} and run --resume again, or run `rotorbayes sample FIT --out "
-           f"{path.parent} --force`")
+    fix = (
+        f"--resume cannot continue it (its finished steps cannot be trusted). Keep it for "
+        f"inspection by moving it away; to start the sampling again from step 0, delete "
+        f"{path} and run --resume again, or run `rotorbayes sample FIT --out "
+        f"{path.parent} --force`"
+    )
     size = path.stat().st_size
     if size == 0:
         raise CheckpointDamaged(f"{path}: the checkpoint is empty (0 bytes): damaged; {fix}")
@@ -60,10 +61,12 @@ def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
                     raise CheckpointError(
                         f"{path}: {name} holds {g.attrs['nwalkers']} walkers x "
                         f"{g.attrs['ndim']} coordinates, but this run has {n_walkers} x "
-                        f"{ndim} (settings.json or the fit changed); {fix}")
+                        f"{ndim} (settings.json or the fit changed); {fix}"
+                    )
                 if not 0 <= it <= chain.shape[0] or logp.shape[0] < it:
-                    raise CheckpointDamaged(f"{path}: {name} says {it} steps but holds "
-                                          f"{chain.shape[0]}: damaged; {fix}")
+                    raise CheckpointDamaged(
+                        f"{path}: {name} says {it} steps but holds {chain.shape[0]}: damaged; {fix}"
+                    )
                 for k in g.attrs:  # the random state: a write cut short shows here
                     np.asarray(g.attrs[k])
                 np.asarray(g["accepted"][:])
@@ -72,18 +75,22 @@ def check_checkpoint(path: Path, *, n_walkers: int, ndim: int,
                     lp = np.asarray(logp[:it])
                     np.asarray(chain[:it])
                     if not np.all(np.isfinite(c)) or np.isnan(lp).any():
-                        raise CheckpointDamaged(f"{path}: {name} holds non-numbers in its "
-                                              f"last step: damaged; {fix}")
+                        raise CheckpointDamaged(
+                            f"{path}: {name} holds non-numbers in its last step: damaged; {fix}"
+                        )
                     if not any(k.startswith("random_state_") for k in g.attrs):
-                        raise CheckpointDamaged(f"{path}: {name} lacks the random state: "
-                                              f"damaged; {fix}")
+                        raise CheckpointDamaged(
+                            f"{path}: {name} lacks the random state: damaged; {fix}"
+                        )
                 steps[name] = it
     except CheckpointError:
         raise
     except Exception as exc:  # noqa: BLE001 - h5py raises OSError, KeyError, ValueError...
         first = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
-        raise CheckpointDamaged(f"{path}: cannot be read as a checkpoint ({first}): damaged "
-                              f"(truncated or overwritten?); {fix}") from None
+        raise CheckpointDamaged(
+            f"{path}: cannot be read as a checkpoint ({first}): damaged "
+            f"(truncated or overwritten?); {fix}"
+        ) from None
     return steps
 
 
@@ -148,8 +155,9 @@ class Snapshot:
         unlink(self.copy)
 
 
-def recover_checkpoint(path: Path, *, n_walkers: int, ndim: int,
-                       n_ensembles: int) -> tuple[dict[str, int], str | None]:
+def recover_checkpoint(
+    path: Path, *, n_walkers: int, ndim: int, n_ensembles: int
+) -> tuple[dict[str, int], str | None]:
     """:func:`check_checkpoint`, and when ``path`` is damaged but the :class:`Snapshot`
     beside it is whole, that copy put in its place: ``(steps held, what was done)``.
 
@@ -161,18 +169,18 @@ def recover_checkpoint(path: Path, *, n_walkers: int, ndim: int,
     path = Path(path)
     copy = path.with_name(Snapshot.NAME)
     try:
-        return check_checkpoint(path, n_walkers=n_walkers, ndim=ndim,
-                                n_ensembles=n_ensembles), None
+        return check_checkpoint(path, n_walkers=n_walkers, ndim=ndim, n_ensembles=n_ensembles), None
     except CheckpointDamaged as exc:
         if not copy.exists():
             raise
         damage = str(exc).split(";")[0]
         try:
-            held = check_checkpoint(copy, n_walkers=n_walkers, ndim=ndim,
-                                    n_ensembles=n_ensembles)
+            held = check_checkpoint(copy, n_walkers=n_walkers, ndim=ndim, n_ensembles=n_ensembles)
         except CheckpointError as other:
-            raise CheckpointDamaged(f"{exc} (the copy {copy.name} beside it cannot serve "
-                                    f"either: {str(other).split(';')[0]})") from None
+            raise CheckpointDamaged(
+                f"{exc} (the copy {copy.name} beside it cannot serve "
+                f"either: {str(other).split(';')[0]})"
+            ) from None
     kept = path.with_name(path.name + ".damaged")
     k = 1
     while kept.exists():
@@ -181,10 +189,12 @@ def recover_checkpoint(path: Path, *, n_walkers: int, ndim: int,
     os.replace(path, kept)
     os.replace(copy, path)
     steps = ", ".join(f"{n} {v}" for n, v in sorted(held.items())) or "no step yet"
-    note = (f"{damage}; it was killed while it wrote. Restored the copy kept beside it "
-            f"(steps held: {steps}); the damaged file is kept as {kept.name} (delete it "
-            "when you no longer need it). The steps after the copy are sampled again, the "
-            "same steps with the same seed")
+    note = (
+        f"{damage}; it was killed while it wrote. Restored the copy kept beside it "
+        f"(steps held: {steps}); the damaged file is kept as {kept.name} (delete it "
+        "when you no longer need it). The steps after the copy are sampled again, the "
+        "same steps with the same seed"
+    )
     return held, note
 
 
@@ -197,8 +207,11 @@ def stored_moves(path: Path) -> dict[str, str]:
         return {}
     try:
         with h5py.File(path, "r") as f:
-            return {k: str(g.attrs.get("moves", LEGACY_MOVES)) for k, g in f.items()
-                    if int(g.attrs.get("iteration", 0)) > 0}
+            return {
+                k: str(g.attrs.get("moves", LEGACY_MOVES))
+                for k, g in f.items()
+                if int(g.attrs.get("iteration", 0)) > 0
+            }
     except Exception:  # noqa: BLE001 - check_checkpoint says what is wrong with the file
         return {}
 

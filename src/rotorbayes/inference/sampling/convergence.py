@@ -29,15 +29,21 @@ def convergence(runs: list[EnsembleRun], names: list[str]) -> list[str]:
     out = []
     for r in runs:
         n = r.chain.shape[0]
-        bad = [f"{nm} (τ {t:.0f})" for nm, t in zip(names, r.tau, strict=True)
-               if not (np.isfinite(t) and n > 50 * t)]
+        bad = [
+            f"{nm} (τ {t:.0f})"
+            for nm, t in zip(names, r.tau, strict=True)
+            if not (np.isfinite(t) and n > 50 * t)
+        ]
         if bad:
-            out.append(f"{r.name}: {n} steps are not more than 50 τ for "
-                       f"{', '.join(bad)}: run longer (--resume --steps N) before trusting "
-                       "the intervals")
+            out.append(
+                f"{r.name}: {n} steps are not more than 50 τ for "
+                f"{', '.join(bad)}: run longer (--resume --steps N) before trusting "
+                "the intervals"
+            )
         acc = float(np.mean(r.acceptance))
         lo, hi, expected = ACCEPTANCE.get(r.moves, ACCEPTANCE["stretch"])
         if not lo <= acc <= hi:
-            out.append(f"{r.name}: acceptance {acc:.2f} (expected {expected} with "
-                       f"--moves {r.moves})")
+            out.append(
+                f"{r.name}: acceptance {acc:.2f} (expected {expected} with --moves {r.moves})"
+            )
     return out

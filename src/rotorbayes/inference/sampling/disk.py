@@ -167,4 +167,5 @@ def disk_full(path: Path, name: str, done: int, n_steps: int) -> EnvironmentFail
     return EnvironmentFailure(
         f"{path.parent}: the disk is nearly full; sampling stopped after step {done} of "
         f"{n_steps} of {name} and every finished step is kept in {path}. Free some space "
-        f"and continue with `rotorbayes sample {path.parent} --resume`")
+        f"and continue with `rotorbayes sample {path.parent} --resume`"
+    )

@@ -43,9 +43,10 @@ def _waiting(opener: Callable, path, wait: float):
                 raise
             if time.monotonic() - t0 >= wait:
                 raise CheckpointBusy(
-                    errno.EAGAIN, f"{path}: another program has held the file open for "
+                    errno.EAGAIN,
+                    f"{path}: another program has held the file open for "
                     f"{wait:.0f} s (reading the chains while they are written?); every "
-                    "finished step is kept. Close it there, then continue with --resume"
+                    "finished step is kept. Close it there, then continue with --resume",
                 ) from None
         time.sleep(pause)
         pause = min(2 * pause, 0.5)
@@ -55,5 +56,6 @@ class WaitingBackend(emcee.backends.HDFBackend):
     """emcee's HDF5 backend whose every opening waits out another reader's lock."""
 
     def open(self, mode="r"):
-        return _waiting(lambda: emcee.backends.HDFBackend.open(self, mode), self.filename,
-                        LOCK_WAIT)
+        return _waiting(
+            lambda: emcee.backends.HDFBackend.open(self, mode), self.filename, LOCK_WAIT
+        )

@@ -22,26 +22,37 @@ from ..likelihood import LogPosterior
 #: Every one is affine-invariant except the snooker move; all keep detailed balance, so
 #: they differ only in how fast the walkers forget where they were.
 MOVES = {
-    "stretch": ((("stretch", 1.0),),
-                "emcee's stretch move alone (a = 2; rotorbayes's default before the mixed moves)"),
+    "stretch": (
+        (("stretch", 1.0),),
+        "emcee's stretch move alone (a = 2; rotorbayes's default before the mixed moves)",
+    ),
     "de": ((("de", 1.0),), "differential evolution alone (emcee's DEMove, γ = 2.38/√(2d))"),
-    "de-mix": ((("de", 0.8), ("snooker", 0.2)),
-               "differential evolution 80 % and DE snooker 20 % (emcee's DEMove, "
-               "DESnookerMove)"),
-    "de-stretch": ((("de", 0.6), ("snooker", 0.2), ("stretch", 0.2)),
-                   "differential evolution 60 %, DE snooker 20 %, stretch 20 %"),
-    "fit-de": ((("fit", 0.5), ("de", 0.5)),
-               "independence proposals from the fit's covariance (a Student t, 5 degrees "
-               "of freedom, 1.2 x its width; re-centred once on the ensemble's draws after "
-               "150 steps) 50 %, differential evolution 50 %"),
+    "de-mix": (
+        (("de", 0.8), ("snooker", 0.2)),
+        "differential evolution 80 % and DE snooker 20 % (emcee's DEMove, DESnookerMove)",
+    ),
+    "de-stretch": (
+        (("de", 0.6), ("snooker", 0.2), ("stretch", 0.2)),
+        "differential evolution 60 %, DE snooker 20 %, stretch 20 %",
+    ),
+    "fit-de": (
+        (("fit", 0.5), ("de", 0.5)),
+        "independence proposals from the fit's covariance (a Student t, 5 degrees "
+        "of freedom, 1.2 x its width; re-centred once on the ensemble's draws after "
+        "150 steps) 50 %, differential evolution 50 %",
+    ),
 }
 #: Mean acceptance outside (low, high) is warned about, per moves (with the range expected).
 #: Independence proposals are accepted less often than local moves without mixing worse:
 #: each accepted one moves a walker across the posterior (measured on the 1 kHz brake
 #: posterior: 0.19-0.24 with τ 19-32 steps, where de-mix had 0.39 and τ 42-49).
-ACCEPTANCE = {"stretch": (0.15, 0.7, "0.2-0.5"), "de": (0.15, 0.7, "0.2-0.5"),
-              "de-mix": (0.15, 0.7, "0.2-0.5"), "de-stretch": (0.15, 0.7, "0.2-0.5"),
-              "fit-de": (0.05, 0.9, "0.1-0.6")}
+ACCEPTANCE = {
+    "stretch": (0.15, 0.7, "0.2-0.5"),
+    "de": (0.15, 0.7, "0.2-0.5"),
+    "de-mix": (0.15, 0.7, "0.2-0.5"),
+    "de-stretch": (0.15, 0.7, "0.2-0.5"),
+    "fit-de": (0.05, 0.9, "0.1-0.6"),
+}
 #: Step after which the fit proposal (``fit-de``) is re-centred, once, on the mean and
 #: covariance of the ensemble's draws of the steps since ADAPT_AT/2, and then kept fixed: the
 #: least-squares point is not exactly the posterior's centre, nor its curvature the
@@ -100,13 +111,18 @@ def emcee_moves(name: str, proposal: tuple[np.ndarray, np.ndarray] | None = None
     mean and covariance of :class:`FitProposalMove`, for moves that use it)."""
     if name not in MOVES:
         raise ValueError(f"moves {name!r}: choose one of {', '.join(MOVES)}")
+
     def fit_move():
         if proposal is None:
             raise ValueError(f"moves {name!r}: the fit proposal needs a mean and covariance")
         return FitProposalMove(*proposal)
 
-    make = {"stretch": emcee.moves.StretchMove, "de": emcee.moves.DEMove,
-            "snooker": emcee.moves.DESnookerMove, "fit": fit_move}
+    make = {
+        "stretch": emcee.moves.StretchMove,
+        "de": emcee.moves.DEMove,
+        "snooker": emcee.moves.DESnookerMove,
+        "fit": fit_move,
+    }
     return [(make[kind](), weight) for kind, weight in MOVES[name][0]]
 
 
@@ -121,7 +137,7 @@ def fit_proposal(logpost: LogPosterior, x_fit) -> tuple[np.ndarray, np.ndarray]:
     mean = np.concatenate([logpost.to_z(np.asarray(x_fit, float))[: logpost.k], nc])
     cov = np.zeros((logpost.ndim, logpost.ndim))
     cov[: logpost.k, : logpost.k] = fit_covariance(logpost, x_fit)
-    cov[logpost.k:, logpost.k:] = np.diag(ns**2)
+    cov[logpost.k :, logpost.k :] = np.diag(ns**2)
     return mean, cov
 
 
@@ -134,7 +150,7 @@ def noise_start(logpost: LogPosterior, x_fit) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros(0), np.zeros(0)
     r = np.asarray(logpost.problem.residuals(np.asarray(x_fit, float)), float)
     parts: dict[str, list[np.ndarray]] = {}
-    for (c, a, b) in logpost.segments:  # several experiments: pooled per channel
+    for c, a, b in logpost.segments:  # several experiments: pooled per channel
         parts.setdefault(c, []).append(r[a:b] / logpost.problem.weights[c])
     logs, phis, sd_s, sd_p = {}, {}, {}, {}
     for c, pieces in parts.items():
@@ -169,7 +185,7 @@ def fit_covariance(logpost: LogPosterior, x_fit) -> np.ndarray:
         sig = {c: math.exp(v) for c, v in zip(logpost.channels, nc, strict=False)}
         J, _ = logpost.problem.jacobian(x_fit)
         w = np.empty(J.shape[0])
-        for (c, a, b) in logpost.segments:
+        for c, a, b in logpost.segments:
             w[a:b] = 1.0 / (sig[c] * logpost.problem.weights[c])
         Jz = J * w[:, None] * np.where(logpost.log, x_fit, 1.0)[None, :]
         Hz = Jz.T @ Jz
@@ -178,8 +194,7 @@ def fit_covariance(logpost: LogPosterior, x_fit) -> np.ndarray:
     if logpost.adjust is not None:
         Hz = logpost.adjust.T @ Hz @ logpost.adjust
     lam, V = np.linalg.eigh(0.5 * (Hz + Hz.T))
-    var = np.where(lam > 1e-10 * max(lam.max(), 1e-300), 1.0 / np.maximum(lam, 1e-300),
-                   1e-4)
+    var = np.where(lam > 1e-10 * max(lam.max(), 1e-300), 1.0 / np.maximum(lam, 1e-300), 1e-4)
     cov = (V * var) @ V.T
     evals = np.linalg.eigvalsh(cov)
     if not np.all(np.isfinite(evals)) or evals.max() <= 0:

@@ -44,8 +44,7 @@ CLOCK_EVERY = 10.0
 class SamplingStopped(Exception):
     """A run ended between two steps on request; every finished step is saved."""
 
-    def __init__(self, ensemble: str, step: int, total: int,
-                 others: dict[str, int] | None = None):
+    def __init__(self, ensemble: str, step: int, total: int, others: dict[str, int] | None = None):
         others = {k: v for k, v in (others or {}).items() if k != ensemble}
         more = "".join(f", {k} after step {v}" for k, v in others.items())
         super().__init__(f"{ensemble} stopped after step {step} of {total}{more}")
@@ -99,26 +98,40 @@ def sample(
     if folder is None:
         memory = MemoryStore()
         jobs = [_Job(e, name, ensemble_seed(seed, e), 0) for e, name in enumerate(names)]
-        _run_ensembles(memory, logpost, x_fit, jobs, n_walkers=n_walkers, n_steps=n_steps,
-                       moves=moves or DEFAULT_MOVES, start=start, progress=progress)
+        _run_ensembles(
+            memory,
+            logpost,
+            x_fit,
+            jobs,
+            n_walkers=n_walkers,
+            n_steps=n_steps,
+            moves=moves or DEFAULT_MOVES,
+            start=start,
+            progress=progress,
+        )
         return [memory.run(name) for name in names]
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "chain.h5"
-    held, restored = recover_checkpoint(path, n_walkers=n_walkers, ndim=logpost.ndim,
-                                        n_ensembles=n_ensembles)
+    held, restored = recover_checkpoint(
+        path, n_walkers=n_walkers, ndim=logpost.ndim, n_ensembles=n_ensembles
+    )
     if restored:
         warnings.warn(restored, RuntimeWarning, stacklevel=2)
     stored = stored_moves(path)
     kinds = set(stored.values())
     if len(kinds) > 1:
-        raise CheckpointError(f"{path}: its ensembles were sampled with different moves "
-                              f"({', '.join(sorted(kinds))}); it cannot be continued as one run")
+        raise CheckpointError(
+            f"{path}: its ensembles were sampled with different moves "
+            f"({', '.join(sorted(kinds))}); it cannot be continued as one run"
+        )
     if kinds and moves is not None and moves not in kinds:
-        raise CheckpointError(f"{path}: its chains were sampled with --moves "
-                              f"{next(iter(kinds))}, not {moves}; a resumed run continues "
-                              "with the moves it began with (leave --moves out, or start a "
-                              "new run with --out)")
+        raise CheckpointError(
+            f"{path}: its chains were sampled with --moves "
+            f"{next(iter(kinds))}, not {moves}; a resumed run continues "
+            "with the moves it began with (leave --moves out, or start a "
+            "new run with --out)"
+        )
     moves = next(iter(kinds)) if kinds else (moves or DEFAULT_MOVES)
     left = sum(max(0, n_steps - held.get(name, 0)) for name in names)
     owned = False
@@ -133,12 +146,25 @@ def sample(
     if not held:
         snapshot.discard()  # a copy from an earlier run whose chain.h5 was removed
     try:
-        jobs = [_Job(e, name, ensemble_seed(seed, e), held.get(name, 0))
-                for e, name in enumerate(names)]
-        _run_ensembles(H5Store(path), logpost, x_fit, jobs, n_walkers=n_walkers,
-                       n_steps=n_steps, moves=moves, start=start, progress=progress,
-                       announce=progress, should_stop=should_stop, owned=owned,
-                       snapshot=snapshot if left else None, executor=executor)
+        jobs = [
+            _Job(e, name, ensemble_seed(seed, e), held.get(name, 0)) for e, name in enumerate(names)
+        ]
+        _run_ensembles(
+            H5Store(path),
+            logpost,
+            x_fit,
+            jobs,
+            n_walkers=n_walkers,
+            n_steps=n_steps,
+            moves=moves,
+            start=start,
+            progress=progress,
+            announce=progress,
+            should_stop=should_stop,
+            owned=owned,
+            snapshot=snapshot if left else None,
+            executor=executor,
+        )
     except (SamplingStopped, EnvironmentFailure):
         snapshot.discard()  # stopped between two steps: chain.h5 is whole
         raise
@@ -186,9 +212,20 @@ def run_ensemble(
     """
     store: _Store = MemoryStore() if path is None else H5Store(path)
     done = 0 if path is None else done
-    _run_ensembles(store, logpost, x_fit, [_Job(0, name, seed, done)], n_walkers=n_walkers,
-                   n_steps=n_steps, moves=moves, start=start, progress=progress,
-                   should_stop=should_stop, owned=owned, snapshot=snapshot)
+    _run_ensembles(
+        store,
+        logpost,
+        x_fit,
+        [_Job(0, name, seed, done)],
+        n_walkers=n_walkers,
+        n_steps=n_steps,
+        moves=moves,
+        start=start,
+        progress=progress,
+        should_stop=should_stop,
+        owned=owned,
+        snapshot=snapshot,
+    )
     if path is None:
         return store.run(name)
     return max(0, n_steps - done)
@@ -220,11 +257,23 @@ class _Ensemble:
     keep: dict = field(default_factory=dict)  # the emcee sampler, in this process
 
 
-def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job], *,
-                   n_walkers: int, n_steps: int, moves: str, start: str, progress: bool,
-                   announce: bool = False, should_stop: Callable[[], bool] | None = None,
-                   owned: bool = True, snapshot: Snapshot | None = None,
-                   executor=None) -> None:
+def _run_ensembles(
+    store: _Store,
+    logpost: LogPosterior,
+    x_fit,
+    jobs: list[_Job],
+    *,
+    n_walkers: int,
+    n_steps: int,
+    moves: str,
+    start: str,
+    progress: bool,
+    announce: bool = False,
+    should_stop: Callable[[], bool] | None = None,
+    owned: bool = True,
+    snapshot: Snapshot | None = None,
+    executor=None,
+) -> None:
     """Run ``jobs`` until every group of ``store`` holds ``n_steps`` steps.
 
     Each ensemble is a chain of tasks: the executor runs a segment of steps from the state
@@ -263,15 +312,19 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
     active: dict[str, _Ensemble] = {}
 
     def begin(job: _Job) -> None:
-        proposal, adapted = _begin_group(store, job.name, job.done, n_walkers, logpost.ndim,
-                                         moves, the_fit_proposal)
+        proposal, adapted = _begin_group(
+            store, job.name, job.done, n_walkers, logpost.ndim, moves, the_fit_proposal
+        )
         seg = _Segment(job.name, 0, moves, proposal, origin=os.getpid())
         if job.done == 0:
             seg.seed, seg.x_fit, seg.n_walkers, seg.start = job.seed, x_fit, n_walkers, start
         else:
             last = store.last_state(job.name)
-            seg.coords, seg.log_prob, seg.random_state = (last.coords, last.log_prob,
-                                                          last.random_state)
+            seg.coords, seg.log_prob, seg.random_state = (
+                last.coords,
+                last.log_prob,
+                last.random_state,
+            )
         store.grow(job.name, n_steps - job.done)
         active[job.name] = _Ensemble(job.e, job.done, seg, adapted)
 
@@ -317,17 +370,20 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
     def lost():
         """The error for a Dask scheduler lost while the ensembles ran on it."""
         return parallel.lost_scheduler(
-            executor, sum(a.taken for a in active.values()), total, unit="steps",
+            executor,
+            sum(a.taken for a in active.values()),
+            total,
+            unit="steps",
             then=f"every finished step is kept in {path}. Continue with `rotorbayes sample "
             f"{path.parent} --resume` (on this machine; or with --scheduler once the "
-            "scheduler and its workers run again)")
+            "scheduler and its workers run again)",
+        )
 
     try:
         for name in list(active):
             submit(name)
         while futures:
-            if (should_stop is not None and not all(f.done() for f in futures)
-                    and should_stop()):
+            if should_stop is not None and not all(f.done() for f in futures) and should_stop():
                 raise _stopped(active, n_steps)
             ready, _ = _wait(list(futures), timeout=0.2, return_when=FIRST_COMPLETED)
             for f in sorted(ready, key=lambda f: active[futures[f]].e):
@@ -342,8 +398,11 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
                         raise lost() from exc
                     raise
                 n = chunk.chain.shape[0]
-                if (path is not None and not owned
-                        and disk.free_bytes(path.parent) < step_bytes * n + 100_000):
+                if (
+                    path is not None
+                    and not owned
+                    and disk.free_bytes(path.parent) < step_bytes * n + 100_000
+                ):
                     raise disk.disk_full(path, name, a.done, n_steps)
                 _save(store, name, chunk)
                 if chunk.pid != me:  # counted in another process's copy
@@ -361,8 +420,12 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
                     # The fit's proposal re-centred once on the ensemble's own draws.
                     seg.proposal = proposal_moves.adapted(store.chain(name), seg.proposal)
                     a.adapted = True
-                    store.set_attrs(name, proposal_mean=seg.proposal[0],
-                                    proposal_cov=seg.proposal[1], proposal_adapted=adapt_at)
+                    store.set_attrs(
+                        name,
+                        proposal_mean=seg.proposal[0],
+                        proposal_cov=seg.proposal[1],
+                        proposal_adapted=adapt_at,
+                    )
                 if time.perf_counter() - clock > CLOCK_EVERY:
                     add_seconds(active)
                     clock = time.perf_counter()
@@ -379,9 +442,11 @@ def _run_ensembles(store: _Store, logpost: LogPosterior, x_fit, jobs: list[_Job]
                 add_seconds([name])
                 if announce:
                     dt = time.perf_counter() - a.t0
-                    msg = (f"ensemble {a.e}: {a.taken} steps in {dt:.1f} s "
-                           f"({a.taken * n_walkers / max(dt, 1e-9):.0f} log-posterior "
-                           "evaluations/s)")
+                    msg = (
+                        f"ensemble {a.e}: {a.taken} steps in {dt:.1f} s "
+                        f"({a.taken * n_walkers / max(dt, 1e-9):.0f} log-posterior "
+                        "evaluations/s)"
+                    )
                     (bar.write(msg) if bar is not None else print(msg, flush=True))
                 following = next(queue, None)
                 if following is not None:
@@ -405,8 +470,15 @@ def _save(store: _Store, name: str, chunk: _Chunk) -> None:
     store.save(name, chunk.chain, chunk.log_prob, chunk.accepted, chunk.random_states)
 
 
-def _begin_group(store: _Store, name: str, done: int, n_walkers: int, ndim: int, moves: str,
-                 fit_prop: Callable[[], tuple]) -> tuple:
+def _begin_group(
+    store: _Store,
+    name: str,
+    done: int,
+    n_walkers: int,
+    ndim: int,
+    moves: str,
+    fit_prop: Callable[[], tuple],
+) -> tuple:
     """``(proposal, adapted)`` for an ensemble that holds ``done`` steps, with its group
     made ready: a new group (``done`` 0) is reset and records its moves, clocks and
     proposal; a group stopped between step ADAPT_AT and its record of the re-centred
@@ -419,12 +491,14 @@ def _begin_group(store: _Store, name: str, done: int, n_walkers: int, ndim: int,
         proposal, adapted = stored if stored is not None else (fit_prop(), False)
         if done >= adapt_at and not adapted:  # stopped between the step and its record
             proposal, adapted = proposal_moves.adapted(store.chain(name), proposal), True
-            store.set_attrs(name, proposal_mean=proposal[0], proposal_cov=proposal[1],
-                            proposal_adapted=adapt_at)
+            store.set_attrs(
+                name, proposal_mean=proposal[0], proposal_cov=proposal[1], proposal_adapted=adapt_at
+            )
     if done == 0:
         store.reset(name, n_walkers, ndim)
-        extra = {} if proposal is None else {"proposal_mean": proposal[0],
-                                             "proposal_cov": proposal[1]}
+        extra = (
+            {} if proposal is None else {"proposal_mean": proposal[0], "proposal_cov": proposal[1]}
+        )
         store.set_attrs(name, moves=moves, sampling_seconds=0.0, cpu_seconds=0.0, **extra)
     return proposal, adapted
 
@@ -439,4 +513,3 @@ def _stopped(active: dict[str, _Ensemble], n_steps: int) -> SamplingStopped:
     under_way = {name: a.done for name, a in active.items() if a.done < n_steps}
     first = next(iter(under_way))
     return SamplingStopped(first, under_way[first], n_steps, under_way)
-

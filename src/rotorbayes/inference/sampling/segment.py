@@ -92,8 +92,13 @@ def _run_segment(logpost: LogPosterior, seg: _Segment, keep: dict | None = None)
         sampler = keep["sampler"]
         sampler.reset()
     else:
-        sampler = emcee.EnsembleSampler(n_walkers, logpost.ndim, logpost, vectorize=True,
-                                        moves=emcee_moves(seg.moves, seg.proposal))
+        sampler = emcee.EnsembleSampler(
+            n_walkers,
+            logpost.ndim,
+            logpost,
+            vectorize=True,
+            moves=emcee_moves(seg.moves, seg.proposal),
+        )
         if keep is not None:
             keep.update(kind=kind, sampler=sampler, proposal=seg.proposal)
     backend = sampler.backend
@@ -103,13 +108,28 @@ def _run_segment(logpost: LogPosterior, seg: _Segment, keep: dict | None = None)
     states = []
     before = np.zeros(n_walkers, int)
     # A continued state was checked when its ensemble began (as in one uninterrupted run).
-    for k, st in enumerate(sampler.sample(state, iterations=seg.n, progress=False,
-                                          store=True,
-                                          skip_initial_state_check=seg.coords is not None)):
+    for k, st in enumerate(
+        sampler.sample(
+            state,
+            iterations=seg.n,
+            progress=False,
+            store=True,
+            skip_initial_state_check=seg.coords is not None,
+        )
+    ):
         chain[k], logp[k] = st.coords, st.log_prob
         acc[k] = backend.accepted > before
         before = backend.accepted.copy()
         states.append(st.random_state)
-    return _Chunk(seg.name, chain, logp, acc, states, time.perf_counter() - t0,
-                  time.process_time() - c0, os.getpid(), logpost.n_calls - calls0,
-                  logpost.n_failed - failed0)
+    return _Chunk(
+        seg.name,
+        chain,
+        logp,
+        acc,
+        states,
+        time.perf_counter() - t0,
+        time.process_time() - c0,
+        os.getpid(),
+        logpost.n_calls - calls0,
+        logpost.n_failed - failed0,
+    )

@@ -56,8 +56,10 @@ class _Store:
         a = self.attrs(name)
         if "proposal_mean" not in a:
             return None
-        return ((np.asarray(a["proposal_mean"], float), np.asarray(a["proposal_cov"], float)),
-                "proposal_adapted" in a)
+        return (
+            (np.asarray(a["proposal_mean"], float), np.asarray(a["proposal_cov"], float)),
+            "proposal_adapted" in a,
+        )
 
     def last_state(self, name: str) -> emcee.State:
         return self.backend(name).get_last_sample()
@@ -75,8 +77,10 @@ class _Store:
         between two writes leaves a checkpoint that continues exactly."""
         backend = self.backend(name)
         for k in range(chain.shape[0]):
-            backend.save_step(emcee.State(chain[k], log_prob=log_prob[k],
-                                          random_state=random_states[k]), accepted[k])
+            backend.save_step(
+                emcee.State(chain[k], log_prob=log_prob[k], random_state=random_states[k]),
+                accepted[k],
+            )
 
     def add_seconds(self, name: str, wall: float, cpu: float) -> None:
         """Add wall and CPU time of the sampling to the group's totals."""
@@ -157,8 +161,13 @@ def _run_of(backend, name: str) -> EnsembleRun:
             tau = emcee.autocorr.integrated_time(chain, tol=0)
         except Exception:  # noqa: BLE001 - too short: τ stays unknown
             pass
-    run = EnsembleRun(name, chain, backend.get_log_prob(),
-                      backend.accepted / max(backend.iteration, 1), np.asarray(tau, float))
+    run = EnsembleRun(
+        name,
+        chain,
+        backend.get_log_prob(),
+        backend.accepted / max(backend.iteration, 1),
+        np.asarray(tau, float),
+    )
     if isinstance(backend, emcee.backends.HDFBackend):
         with backend.open() as f:
             a = f[name].attrs

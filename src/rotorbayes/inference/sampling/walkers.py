@@ -15,8 +15,9 @@ from .moves import fit_covariance, noise_start
 STARTS = ("fit", "ball")
 
 
-def start_walkers(logpost: LogPosterior, x_fit, n_walkers: int, rng, *,
-                  start: str = "fit") -> np.ndarray:
+def start_walkers(
+    logpost: LogPosterior, x_fit, n_walkers: int, rng, *, start: str = "fit"
+) -> np.ndarray:
     """Starting positions of ``n_walkers``, each with a finite log-posterior.
 
     ``fit``: drawn from :func:`fit_covariance` at full width around the fit, the noise
@@ -37,11 +38,13 @@ def start_walkers(logpost: LogPosterior, x_fit, n_walkers: int, rng, *,
     while i < n_walkers:
         tries += 1
         if tries > 50 * n_walkers:
-            raise RuntimeError("cannot place the walkers: the posterior is -inf all around "
-                               "the fit (check the priors and bounds)")
+            raise RuntimeError(
+                "cannot place the walkers: the posterior is -inf all around "
+                "the fit (check the priors and bounds)"
+            )
         zz = np.empty(logpost.ndim)
         zz[: logpost.k] = rng.multivariate_normal(z0, cov, method="eigh")
-        zz[logpost.k:] = nc + ns * rng.standard_normal(nc.size)
+        zz[logpost.k :] = nc + ns * rng.standard_normal(nc.size)
         if np.isfinite(logpost(zz[None, :])[0]):
             out[i] = zz
             i += 1
