@@ -209,6 +209,6 @@ def adapted(chain: np.ndarray, proposal):
     if z.shape[0] < 10 * z.shape[1]:
         return proposal
     cov = np.cov(z.T)
-    if not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov).min() <= 0:
+    if not np.all(np.isfinite(cov)) or float(np.min(np.linalg.eigvalsh(cov))) <= 0:
         return proposal
     return z.mean(axis=0), cov
