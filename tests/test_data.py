@@ -693,3 +693,71 @@ def test_add_noise():
         add_noise(theta, -1.0, np.random.default_rng(0))
     with pytest.raises(TypeError, match="default_rng"):
         add_noise(theta, 1e-3, 42)
+
+
+# ------------------------------------------------------------- long files, read in blocks
+def _long_rows(n: int, seed: int = 3) -> list[str]:
+    """``n`` data rows (1 kHz) written in the forms loggers use: shortest repr, fixed and
+    exponent notation, integers, a '+' sign, spaces around the numbers; angles that start
+    at zero and move by a few encoder counts a sample."""
+    rng = np.random.default_rng(seed)
+    forms = [repr, "{:.6e}".format, "{:.9f}".format, lambda v: f" {v!r} ", "{:+.17g}".format]
+    u = np.clip(rng.normal(0.0, 1.0, n), -4.0, 4.0)
+    walk = np.cumsum(rng.normal(0.0, 2e-4, (n, 2)), axis=0)
+    walk -= walk[0]
+    rows = []
+    for k in range(n):
+        cells = [repr(k * 1e-3)]
+        cells += [forms[(k + j) % len(forms)](float(v)) for j, v in enumerate((u[k], *walk[k]))]
+        if k % 97 == 0:
+            cells[1] = str(int(k % 5) - 2)  # an integer voltage
+        rows.append(",".join(cells))
+    return rows
+
+
+def test_a_long_file_reads_the_same_numbers_as_float_does(tmp_path):
+    # More rows than one block (4096): the blocks after the first are parsed by NumPy; every
+    # value must be the double Python's float() gives for its text, bit for bit.
+    rows = _long_rows(10_000)
+    path = tmp_path / "long.csv"
+    path.write_text("t,u,theta_u,theta_l\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    exp = load_experiment(path, keep_glitches=True)
+    want = np.array([[float(c) for c in r.split(",")] for r in rows])
+    got = np.column_stack([exp.t, exp.u, exp.theta_u, exp.theta_l])
+    assert got.shape == want.shape
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ("", r"line 7002: empty line inside the data"),
+        ("# note", r"line 7002: comment line"),
+        ("0.1,0.2,0.3", r"line 7002: 3 field\(s\)"),
+        ("7.0,0.1,x,0.3", r"line 7002: value 'x' in column theta_u is not a number"),
+        ("1_0e-1", None),  # a voltage Python's float reads: so does the file
+    ],
+)
+def test_a_bad_row_deep_in_a_long_file_is_named_by_its_line(tmp_path, bad, message):
+    rows = _long_rows(9_000)
+    if message is None:
+        cells = rows[7000].split(",")
+        rows[7000] = ",".join([cells[0], bad, *cells[2:]])
+    else:
+        rows[7000] = bad
+    path = tmp_path / "bad.csv"
+    path.write_text("t,u,theta_u,theta_l\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    if message is None:
+        exp = load_experiment(path, keep_glitches=True)
+        assert exp.u[7000] == 1.0
+        return
+    with pytest.raises(DataFileError, match=message):
+        load_experiment(path)
+
+
+def test_the_row_limit_holds_inside_a_block(tmp_path):
+    rows = _long_rows(6_000)
+    path = tmp_path / "many.csv"
+    path.write_text("t,u,theta_u,theta_l\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    with pytest.raises(DataFileError, match=r"line 5002: more than 5,000 data rows"):
+        load_experiment(path, max_rows=5_000)

@@ -62,6 +62,7 @@ import array
 import codecs
 import hashlib
 import io
+import itertools
 import math
 import os
 import secrets
@@ -1288,6 +1289,169 @@ def _mapped_header(
     return names, idx
 
 
+#: Data rows read at once: a block of plain rows (commas, no quotes, every column used) is
+#: parsed by NumPy in one call (the same string-to-double conversion as ``float``: the same
+#: bits); a block with anything else is read line by line, where every refusal is worded.
+_BLOCK_ROWS = 4096
+
+
+def _plain_block(block: list, sep: str, ncols: int) -> np.ndarray | None:
+    """The values of ``block`` (``(line number, line)`` pairs) as a ``(rows, ncols)`` array
+    when every line is a complete row of ``ncols`` numbers; else None (read it line by line:
+    a blank or comment line, a short row, a cut last line, a field NumPy does not read)."""
+    lines = [line for _, line in block]
+    if not all(line.endswith("\n") and line.strip() for line in lines):
+        return None
+    if any("#" in line for line in lines):
+        return None
+    try:
+        rows = np.loadtxt(lines, delimiter=sep, dtype=np.float64, ndmin=2, comments=None)
+    except ValueError:
+        return None
+    return rows if rows.shape == (len(lines), ncols) else None
+
+
+@dataclass
+class _Rows:
+    """The data rows of a text file, read after its header: blocks of plain rows by NumPy,
+    anything else line by line, where every refusal is worded."""
+
+    path: Path
+    sep: str
+    idx: list[int]
+    names: list[str]
+    file_fields: list[str]
+    file_names: list[str]
+    read: ReadSpec
+    plain: bool
+    decimal_comma: bool
+    max_rows: int
+    header_lineno: int
+    #: The values, row after row, as packed doubles (8 bytes each): a list of row lists
+    #: would cost about 190 bytes a row, 1.9 GB for 10 million rows.
+    values: array.array = field(default_factory=lambda: array.array("d"))
+    n_rows: int = 0
+    #: The first blank line met: harmless after the data (an editor's final newline), an
+    #: error when a line that is not blank follows it (two files pasted together).
+    blank: int | None = None
+    #: The last data line read, with its line break (or without: truncated).
+    last: tuple[int, str] | None = None
+
+    @property
+    def ncols(self) -> int:
+        return len(self.file_fields)
+
+    def read_all(self, lines) -> None:
+        """Read every ``(line number, line)`` of ``lines``."""
+        while block := list(itertools.islice(lines, _BLOCK_ROWS)):
+            if self.plain and self.n_rows > 0 and self.blank is None:
+                rows = _plain_block(block, self.sep, self.ncols)
+                if rows is not None and self.n_rows + rows.shape[0] <= self.max_rows:
+                    self.values.frombytes(rows.tobytes())
+                    self.n_rows += rows.shape[0]
+                    self.last = block[-1]
+                    continue
+            pending = iter(block)
+            for lineno, line in pending:
+                self.row(lineno, line, itertools.chain(pending, lines))
+
+    def row(self, lineno: int, line: str, rest) -> None:
+        """One line, read on its own; ``rest``: the lines after it (to tell a truncated
+        last line)."""
+        if not line.strip():
+            self.blank = self.blank or lineno
+            return
+        if self.blank is not None:
+            raise DataFileError(
+                self.path,
+                self.blank,
+                "empty line inside the data; delete it (only comment lines may "
+                "precede the header, and data rows must be contiguous)",
+            )
+        if line.lstrip().startswith("#"):
+            raise DataFileError(
+                self.path,
+                lineno,
+                f"comment line {line.strip()!r} after the header; comment lines are "
+                "only allowed before the header -- move it there or delete it",
+            )
+        if (
+            self.n_rows == 0
+            and lineno == self.header_lineno + 1
+            and _units_row(
+                line, self.sep, self.idx, self.names, self.ncols, self.read, self.path, lineno
+            )
+        ):
+            self.header_lineno = lineno  # a logger's units under the names: part of the header
+            return
+        body = line[:-1] if line.endswith("\n") else line
+        fields = body.split(self.sep)
+        values_of_row = None
+        if len(fields) == self.ncols:
+            try:
+                if self.plain:
+                    values_of_row = [float(f) for f in fields]
+                else:
+                    values_of_row = [
+                        _rig.parse_number(fields[j].strip().strip('"'), self.decimal_comma)
+                        for j in self.idx
+                    ]
+            except ValueError:
+                pass
+        if values_of_row is None:
+            truncated = (
+                " -- it is the last line, so the file looks truncated (cut while being "
+                "written or copied); re-export it or delete the incomplete line"
+                if _rest_is_blank(rest)
+                else ""
+            )
+            if len(fields) != self.ncols:
+                seps = {",": "commas", ";": "semicolons", "\t": "tabs"}
+                other = [w for c, w in seps.items() if c != self.sep and c in body]
+                if other and len(fields) == 1 and self.ncols > 1:
+                    truncated = (
+                        f"; the header is separated by {seps[self.sep]} but this row by "
+                        f"{other[0]}: use one separator throughout (export the "
+                        "file again)"
+                    )
+                raise DataFileError(
+                    self.path,
+                    lineno,
+                    f"{len(fields)} field(s) {body.strip()!r} but the header "
+                    f"{self.sep.join(self.file_fields)!r} has {self.ncols}"
+                    f"{truncated or '; fix or delete this row'}",
+                )
+            for name, j in zip(self.file_names, self.idx, strict=True):
+                text = fields[j]
+                clean = text.strip().strip('"')
+                if not _is_number(clean.replace(",", ".") if self.decimal_comma else clean):
+                    shown = repr(text.strip()) if text.strip() else "empty"
+                    raise DataFileError(
+                        self.path,
+                        lineno,
+                        f"value {shown} in column {name} is not a number"
+                        + (
+                            truncated
+                            or "; write plain decimal numbers (e.g. "
+                            + ("0,25 or 0.25" if self.decimal_comma else "0.25 or 2.5e-1")
+                            + ")"
+                        ),
+                    )
+            # float() failed, so one field must be non-numeric
+            raise AssertionError(body)  # pragma: no cover
+        self.n_rows += 1
+        if self.n_rows > self.max_rows:
+            raise DataFileError(
+                self.path,
+                lineno,
+                f"more than {self.max_rows:,} data rows, the most a measurement file may have (2 h "
+                "at 1 kHz, the rig's longest record, are 7.2 million); reading stopped here. "
+                f"If it is a measurement, raise the limit: {MAX_ROWS_ENV}=N (rows)",
+            )
+        self.values.extend(values_of_row)
+        self.last = (lineno, line)
+
+
 def _read_table(
     fh,
     path: Path,
@@ -1360,108 +1524,23 @@ def _read_table(
         )
 
     ncols = len(file_fields)
-    plain = idx == list(range(ncols)) and not decimal_comma and not quoted
-    # The values, row after row, as packed doubles (8 bytes each): a list of row lists
-    # would cost about 190 bytes a row, 1.9 GB for 10 million rows.  Data rows are
-    # contiguous (a gap or comment inside them is refused), so row k is on line
-    # header_lineno + 1 + k.
-    values = array.array("d")
-    n_rows = 0
-    # Blank lines after the data (an editor's final newline) are harmless; a blank line
-    # *inside* the data usually means two files were pasted together: it is reported when
-    # a line that is not blank follows it.
-    blank = None
-    last = None  # the last data line read, with its line break (or without: truncated)
-    for lineno, line in lines:
-        if not line.strip():
-            blank = blank or lineno
-            continue
-        if blank is not None:
-            raise DataFileError(
-                path,
-                blank,
-                "empty line inside the data; delete it (only comment lines may "
-                "precede the header, and data rows must be contiguous)",
-            )
-        if line.lstrip().startswith("#"):
-            raise DataFileError(
-                path,
-                lineno,
-                f"comment line {line.strip()!r} after the header; comment lines are "
-                "only allowed before the header -- move it there or delete it",
-            )
-        if (
-            n_rows == 0
-            and lineno == header_lineno + 1
-            and _units_row(line, sep, idx, names, ncols, read, path, lineno)
-        ):
-            header_lineno = lineno  # a logger's units under the names: part of the header
-            continue
-        body = line[:-1] if line.endswith("\n") else line
-        fields = body.split(sep)
-        values_of_row = None
-        if len(fields) == ncols:
-            try:
-                if plain:
-                    values_of_row = [float(f) for f in fields]
-                else:
-                    values_of_row = [
-                        _rig.parse_number(fields[j].strip().strip('"'), decimal_comma) for j in idx
-                    ]
-            except ValueError:
-                pass
-        if values_of_row is None:
-            truncated = (
-                " -- it is the last line, so the file looks truncated (cut while being "
-                "written or copied); re-export it or delete the incomplete line"
-                if _rest_is_blank(lines)
-                else ""
-            )
-            if len(fields) != ncols:
-                seps = {",": "commas", ";": "semicolons", "\t": "tabs"}
-                other = [w for c, w in seps.items() if c != sep and c in body]
-                if other and len(fields) == 1 and ncols > 1:
-                    truncated = (
-                        f"; the header is separated by {seps[sep]} but this row by "
-                        f"{other[0]}: use one separator throughout (export the "
-                        "file again)"
-                    )
-                raise DataFileError(
-                    path,
-                    lineno,
-                    f"{len(fields)} field(s) {body.strip()!r} but the header "
-                    f"{sep.join(file_fields)!r} has {ncols}"
-                    f"{truncated or '; fix or delete this row'}",
-                )
-            for name, j in zip(file_names, idx, strict=True):
-                text = fields[j]
-                clean = text.strip().strip('"')
-                if not _is_number(clean.replace(",", ".") if decimal_comma else clean):
-                    shown = repr(text.strip()) if text.strip() else "empty"
-                    raise DataFileError(
-                        path,
-                        lineno,
-                        f"value {shown} in column {name} is not a number"
-                        + (
-                            truncated
-                            or "; write plain decimal numbers (e.g. "
-                            + ("0,25 or 0.25" if decimal_comma else "0.25 or 2.5e-1")
-                            + ")"
-                        ),
-                    )
-            # float() failed, so one field must be non-numeric
-            raise AssertionError(body)  # pragma: no cover
-        n_rows += 1
-        if n_rows > max_rows:
-            raise DataFileError(
-                path,
-                lineno,
-                f"more than {max_rows:,} data rows, the most a measurement file may have (2 h "
-                "at 1 kHz, the rig's longest record, are 7.2 million); reading stopped here. "
-                f"If it is a measurement, raise the limit: {MAX_ROWS_ENV}=N (rows)",
-            )
-        values.extend(values_of_row)
-        last = (lineno, line)
+    # Data rows are contiguous (a gap or comment inside them is refused), so row k is on
+    # line header_lineno + 1 + k (a units row under the header moves the header's line).
+    rows = _Rows(
+        path=path,
+        sep=sep,
+        idx=idx,
+        names=names,
+        file_fields=file_fields,
+        file_names=file_names,
+        read=read,
+        plain=idx == list(range(ncols)) and not decimal_comma and not quoted,
+        decimal_comma=decimal_comma,
+        max_rows=max_rows,
+        header_lineno=header_lineno,
+    )
+    rows.read_all(lines)
+    header_lineno, values, last = rows.header_lineno, rows.values, rows.last
 
     # A complete file ends with a line break (every writer, save_experiment included, ends each
     # row with one). Without it the last row was probably cut while the file was written or
