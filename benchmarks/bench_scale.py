@@ -92,7 +92,7 @@ class KernelClock:
         problem.Problem.residuals, problem.Problem.jacobian = self._res, self._jac
 
 
-def one_fit(prob, x0, threads: int, repeat: int, blas: int = 1) -> dict:
+def one_fit(prob, x0, threads: int, repeat: int, blas: int = 1, compressed: bool = True) -> dict:
     from threadpoolctl import threadpool_limits
 
     numba.set_num_threads(threads)
@@ -100,7 +100,7 @@ def one_fit(prob, x0, threads: int, repeat: int, blas: int = 1) -> dict:
     for _ in range(repeat):
         with threadpool_limits(blas), KernelClock() as clock:
             s = time.perf_counter()
-            r = inference.fit(prob, x0, uncertainty=False)
+            r = inference.fit(prob, x0, uncertainty=False, compressed=compressed)
             w = time.perf_counter() - s
         if best is None or w < best["wall"]:
             best = {
@@ -135,10 +135,20 @@ def old_process_pool(n: int):
     )
 
 
-def run_multistart(prob, starts: int, executor) -> tuple[float, object]:
+def run_multistart(prob, starts: int, executor, **fit_kw) -> tuple[float, object]:
     s = time.perf_counter()
-    res = multistart(prob, starts, seed=0, executor=executor, progress=False)
+    res = multistart(prob, starts, seed=0, executor=executor, progress=False, **fit_kw)
     return time.perf_counter() - s, res
+
+
+@contextlib.contextmanager
+def _one_thread(executor):
+    """``executor`` with numba on one thread while it is open."""
+    numba.set_num_threads(1)
+    try:
+        yield executor
+    finally:
+        numba.set_num_threads(int(numba.config.NUMBA_NUM_THREADS))
 
 
 def same(a, b) -> bool:
@@ -247,18 +257,25 @@ def _main() -> None:
 
     # 1. one fit
     fits = {}
+    th_n = min(n, maxth)
     kinds = [
-        ("1 thread", 1, 1),
-        (f"{min(n, maxth)} threads", min(n, maxth), 1),
-        (f"{min(n, maxth)} threads + {n} BLAS", min(n, maxth), n),
+        ("1 thread", 1, 1, True),
+        (f"{th_n} threads", th_n, 1, True),
+        ("1 thread, whole J (before)", 1, 1, False),
+        (f"{th_n} threads, whole J (before)", th_n, 1, False),
+        (f"{th_n} threads + {n} BLAS, whole J", th_n, n, False),
     ]
-    for label, th, blas in kinds[:2] if a.quick else kinds:
-        fits[label] = f = one_fit(prob, x0, th, a.repeat, blas)
+    for label, th, blas, comp in kinds:
+        if (a.quick and "before" in label) or any(k in label for k in skip):
+            continue
+        fits[label] = f = one_fit(prob, x0, th, a.repeat, blas, comp)
+        ref_label = "1 thread" if comp else "1 thread, whole J (before)"
+        ref_fit = fits.get(ref_label, f)
         print(
-            f"one fit, {label:>22}: {f['wall']:.3f} s (kernel {f['kernel']:.3f} s, "
+            f"one fit, {label:>32}: {f['wall']:.3f} s (kernel {f['kernel']:.3f} s, "
             f"optimiser and the rest {f['rest']:.3f} s; nfev {f['nfev']}, njev "
-            f"{f['njev']}) x{fits['1 thread']['wall'] / f['wall']:.2f}; same end point "
-            f"as on 1 thread: {f['x'] == fits['1 thread']['x']}",
+            f"{f['njev']}; SSR {f['ssr']:.6g}) x{ref_fit['wall'] / f['wall']:.2f} over "
+            f"{ref_label}; same end point: {f['x'] == ref_fit['x']}",
             flush=True,
         )
     out["one_fit"] = fits
@@ -307,18 +324,36 @@ def _main() -> None:
         flush=True,
     )
     rows.append(("serial, 1 numba thread", 1, wall, True))
+    refs = {True: ref}
 
-    def backend(label, cores, make):
+    def reached(r) -> str:
+        best = min(float(np.min(ref.ssr)), float(np.min(r.ssr)))
+        at = int(np.sum(r.ssr <= best * (1 + 1e-6) + 1e-300))
+        return f"{at} of {len(r.ssr)} starts at the best SSR {best:.6g}"
+
+    print(f"reference: {reached(ref)}", flush=True)
+
+    def backend(label, cores, make, **fit_kw):
         if any(k in label for k in skip):
             return
         try:
             with make() as ex:
-                w, r = run_multistart(prob, a.starts, ex)
+                w, r = run_multistart(prob, a.starts, ex, **fit_kw)
         except Exception as exc:  # noqa: BLE001 - a back-end that fails is reported
             print(f"{label}: failed: {type(exc).__name__}: {exc}", flush=True)
             return
-        rows.append((label, cores, w, same(r, ref)))
-        print(f"{label}: {w:.2f} s", flush=True)
+        comp = fit_kw.get("compressed", True)
+        refs.setdefault(comp, r)
+        rows.append((label, cores, w, same(r, refs[comp])))
+        print(f"{label}: {w:.2f} s; {reached(r)}", flush=True)
+
+    if not a.quick:
+        backend(
+            "serial, 1 numba thread, whole J (before)",
+            1,
+            lambda: _one_thread(parallel.SerialExecutor()),
+            compressed=False,
+        )
 
     backend(
         f"serial, {maxth} numba threads",
@@ -336,6 +371,13 @@ def _main() -> None:
         n,
         lambda: parallel.open_executor(parallel.ExecutorSpec("processes", n)),
     )
+    if not a.quick:
+        backend(
+            f"processes, {n}, fork server + shared cores, whole J (before)",
+            n,
+            lambda: parallel.open_executor(parallel.ExecutorSpec("processes", n)),
+            compressed=False,
+        )
     if a.dask:
         backend(
             f"dask LocalCluster, {n} workers",

@@ -11,6 +11,7 @@ number) and the result says so; the likelihood uses the status instead.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -19,9 +20,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..io.measurements import Experiment
+from ..kernel.triangle import triangle
 from ..model.parameters import ParameterError
 from ..model.simulate import SimulationError, Simulator
 from ..util import metrics as _metrics
+from .parallel import claim_kernel_threads
 from .problem import Problem
 from .uncertainty import Uncertainty, col_norms, fit_uncertainty
 
@@ -152,12 +155,10 @@ class FitResult:
         return w, V
 
 
-#: Jacobians larger than this [bytes] are not handed to the optimiser: it gets the problem
-#: compressed to k + 1 rows (:func:`compress`), the same quadratic model in far less memory
-#: (scipy's trust-region solver keeps four copies of the Jacobian it is given; a 4 x 600 s
-#: coupled fit at 1 kHz has a 576 MB Jacobian).
+#: Jacobians larger than this [bytes] are not kept with the starts of a multistart (a
+#: 4 x 600 s coupled fit at 1 kHz has a 576 MB Jacobian).
 COMPRESS_BYTES = 64 * 2**20
-#: Rows of ``[J | r]`` factorised at a time by :func:`compress` [bytes].
+#: Rows of ``[J | r]`` factorised at a time by :func:`tsqr` [bytes].
 _QR_CHUNK_BYTES = 16 * 2**20
 
 
@@ -185,17 +186,29 @@ def tsqr(*parts: np.ndarray) -> np.ndarray:
     return T
 
 
+def _triangle(J: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The triangle of ``[J | r]`` (:func:`tsqr`'s), on the kernel's threads in fixed row
+    blocks (:func:`rotorbayes.kernel.triangle.triangle`: the same bits on any number of
+    threads) where the data are long enough, else by NumPy."""
+    n, k = J.shape
+    if n < 2 * (k + 1):
+        return tsqr(J, r)
+    D = np.asfortranarray(J).T  # (k, n), each row one column of J: no copy for ours
+    claim_kernel_threads()  # inside a pool's task: its share of the cores
+    return triangle(np.ascontiguousarray(D), np.ascontiguousarray(r, dtype=float))
+
+
 def compress(J: np.ndarray, r: np.ndarray) -> np.ndarray:
     """A ``(k + 1) x k`` matrix ``C`` with ``Cᵀ C = Jᵀ J`` and ``Cᵀ f = Jᵀ r`` for
     ``f = (|r|, 0, ..., 0)``: least squares on ``(f, C)`` has the same cost and the same
     Gauss-Newton model ``|J p + r|²`` as on ``(r, J)``.
 
-    ``[J | r] = Q [[R, q], [0, ρ]]`` (:func:`tsqr`: no copy of ``J``); with
+    ``[J | r] = Q [[R, q], [0, ρ]]`` (:func:`_triangle`: no copy of ``J``); with
     ``u = q / |r|``, ``C = [uᵀ R; (I − α u uᵀ) R]``, ``α = 1 / (1 + √(1 − |u|²))``, the
     square root of ``I − u uᵀ`` (stable, no ``JᵀJ`` formed).
     """
     k = J.shape[1]
-    T = tsqr(J, r)
+    T = _triangle(J, r)
     R, q = T[:k, :k], T[:k, k]
     rho = math.sqrt(float(r @ r))
     u = q / rho if rho > 0 else np.zeros(k)
@@ -206,6 +219,42 @@ def compress(J: np.ndarray, r: np.ndarray) -> np.ndarray:
     C[0] = uR
     C[1:] = R - alpha * np.outer(u, uR)
     return C
+
+
+class _Rows(threading.local):
+    """The number of residuals of the fit running on this thread, or None."""
+
+    n: int | None = None
+
+
+_ROWS = _Rows()
+
+
+def _count_true_rows() -> bool:
+    """Make scipy's trust-region step on a compressed problem decide the Jacobian's rank as
+    on the whole one.  scipy calls ``J`` rank-deficient where its smallest singular value is
+    under ``eps * rows * largest``; handed the ``k + 1`` rows of :func:`compress` it would
+    take Gauss-Newton steps along directions it treats as flat on the ``n`` rows.  The
+    step routine of scipy's solver is wrapped once to see the fit's own row count (set per
+    thread while a compressed fit runs; other calls pass through unchanged).  False where
+    this scipy has no such routine: the fit then hands the optimiser the whole problem."""
+    try:
+        from scipy.optimize._lsq import trf as _trf
+    except ImportError:  # pragma: no cover - another scipy layout
+        return False
+    inner = getattr(_trf, "solve_lsq_trust_region", None)
+    if inner is None:  # pragma: no cover - another scipy layout
+        return False
+    if getattr(inner, "_counts_rows", False):
+        return True
+
+    def solve_lsq_trust_region(n, m, *args, **kwargs):
+        rows = _ROWS.n
+        return inner(n, m if rows is None else rows, *args, **kwargs)
+
+    solve_lsq_trust_region._counts_rows = True  # type: ignore[attr-defined]
+    _trf.solve_lsq_trust_region = solve_lsq_trust_region
+    return True
 
 
 #: Fewest samples an experiment must have to be fitted.  Fewer cannot hold a stick and a
@@ -280,9 +329,11 @@ def fit(
         extra simulations); ``False`` keeps the i.i.d. Gauss-Newton ones (multistart's
         many starts; :func:`attach_uncertainty` adds them later).
     compressed : bool, optional
-        Hand the optimiser the problem compressed to k + 1 rows (:func:`compress`; the
-        same steps up to rounding, far less memory).  Default: when the Jacobian exceeds
-        :data:`COMPRESS_BYTES` (long data).
+        Hand the optimiser the problem compressed to k + 1 rows (:func:`compress`: the
+        same Gauss-Newton model and rank decisions, so the same steps up to rounding; its
+        QR on the kernel's threads instead of an SVD of the whole Jacobian on one, and
+        far less memory).  Default: True (False hands scipy the whole Jacobian, as
+        before; so does a scipy whose step routine :func:`_count_true_rows` cannot see).
 
     Returns
     -------
@@ -309,7 +360,9 @@ def fit(
     counter = {"n": 0, "best": math.inf}
     best_x: dict = {}  # the best point so far, reported if the fit is interrupted
     if compressed is None:
-        compressed = 8 * problem.n_residuals * x0.size > COMPRESS_BYTES
+        compressed = True
+    if compressed and not _count_true_rows():
+        compressed = False
 
     last: dict = {}
 
@@ -363,6 +416,7 @@ def fit(
         return J
 
     t0 = time.perf_counter()
+    outer_rows, _ROWS.n = _ROWS.n, (problem.n_residuals if compressed else None)
     try:
         res = least_squares(
             fun,
@@ -382,6 +436,8 @@ def fit(
         raise FitInterrupted(
             list(problem.names), best_x["x"], counter["best"], int(counter["n"])
         ) from None
+    finally:
+        _ROWS.n = outer_rows
     seconds = time.perf_counter() - t0
     x = res.x * scale
     J = full_jac(res.x)

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..io.measurements import Experiment
 from ..kernel import layout as _layout
+from ..kernel.triangle import difference_quotients
 from ..model import effects as _effects
 from ..model.configurations import Model
 from ..model.parameters import INFO, ParameterError, resolve, unknown_name_message
@@ -1145,6 +1146,5 @@ class Problem:
         # In place: long data make R the largest array of a fit (k + 1 residual vectors);
         # no second and third copy for the difference and the quotient.
         D = R[1:]
-        D -= base_r[None, :]
-        D /= steps[:, None]
+        difference_quotients(D, np.ascontiguousarray(base_r, dtype=float), steps)
         return D.T, steps
