@@ -371,6 +371,15 @@ def _main() -> None:
         n,
         lambda: parallel.open_executor(parallel.ExecutorSpec("processes", n)),
     )
+    for split in (2, 4):
+        if n // split >= 2:
+            backend(
+                f"processes, {n // split} x {split} threads, fork server + shared cores",
+                n,
+                lambda split=split: parallel.open_executor(
+                    parallel.ExecutorSpec("processes", n // split)
+                ),
+            )
     if not a.quick:
         backend(
             f"processes, {n}, fork server + shared cores, whole J (before)",

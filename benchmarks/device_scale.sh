@@ -24,6 +24,22 @@ prob = inference.Problem("brake", [sim.to_experiment("b")], base=p)
 r = inference.fit(prob, uncertainty=False, max_nfev=3)
 print(f"import + simulate + 3-evaluation fit: {time.perf_counter() - t:.1f} s")
 PY
+  echo "== where one fit on all threads spends its time (cProfile, second of two fits)"
+  python3 - <<'PY'
+import cProfile, pstats, sys
+import numpy as np
+sys.path.insert(0, "benchmarks")
+from threadpoolctl import threadpool_limits
+from bench_scale import brake_problem
+from rotorbayes import inference
+from rotorbayes.inference.multistart import latin_hypercube
+prob = brake_problem(30.0)
+x0 = latin_hypercube(prob, 4, np.random.default_rng(0))[1]
+with threadpool_limits(1):
+    inference.fit(prob, x0, uncertainty=False)
+    cProfile.run("inference.fit(prob, x0, uncertainty=False)", "/tmp/fit.prof")
+pstats.Stats("/tmp/fit.prof").sort_stats("tottime").print_stats(22)
+PY
   echo "== bench_scale"
   python3 benchmarks/bench_scale.py --json "$out/scale.json" "$@"
 } 2>&1 | tee "$out/scale.log"

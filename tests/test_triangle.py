@@ -36,7 +36,7 @@ def _norms(A: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("n", [2 * 14, BLOCK_ROWS - 1, 3 * BLOCK_ROWS + 17, 60_002])
 def test_triangle_holds_the_gram_matrix_of_lapacks_qr(n):
     D, r = _matrix(n, 13, seed=n)
-    T = triangle(D, r)
+    T = triangle(D, r, np.ones(13))
     A = np.column_stack([D.T, r])
     R = np.linalg.qr(A, mode="r")
     assert np.all(np.isfinite(T))
@@ -66,7 +66,7 @@ def test_triangle_and_quotients_give_the_same_bits_on_any_thread_count():
             numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
             Q = R[1:].copy()
             difference_quotients(Q, R[0], steps)
-            out.append((triangle(D, r), Q))
+            out.append((triangle(D, r, np.ones(13)), Q))
     finally:
         numba.set_num_threads(before)
     assert np.array_equal(out[0][0], out[1][0])
@@ -76,6 +76,12 @@ def test_triangle_and_quotients_give_the_same_bits_on_any_thread_count():
     Q -= R[0][None, :]
     Q /= steps[:, None]
     assert np.array_equal(out[0][1], Q)
+
+
+def test_columns_scaled_on_the_way_in_are_the_scaled_copys_bits():
+    D, r = _matrix(20_000, 13, seed=11)
+    scale = np.geomspace(1e-3, 10.0, 13)
+    assert np.array_equal(triangle(D, r, scale), triangle(D * scale[:, None], r, np.ones(13)))
 
 
 def test_compress_keeps_the_gauss_newton_model():

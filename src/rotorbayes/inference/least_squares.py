@@ -186,29 +186,33 @@ def tsqr(*parts: np.ndarray) -> np.ndarray:
     return T
 
 
-def _triangle(J: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """The triangle of ``[J | r]`` (:func:`tsqr`'s), on the kernel's threads in fixed row
-    blocks (:func:`rotorbayes.kernel.triangle.triangle`: the same bits on any number of
-    threads) where the data are long enough, else by NumPy."""
+def _triangle(J: np.ndarray, r: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
+    """The triangle of ``[J diag(scale) | r]`` (:func:`tsqr`'s), on the kernel's threads in
+    fixed row blocks (:func:`rotorbayes.kernel.triangle.triangle`: the same bits on any
+    number of threads) where the data are long enough, else by NumPy."""
     n, k = J.shape
+    scale = np.ones(k) if scale is None else np.asarray(scale, dtype=float)
     if n < 2 * (k + 1):
-        return tsqr(J, r)
+        return tsqr(J * scale[None, :], r)
     D = np.asfortranarray(J).T  # (k, n), each row one column of J: no copy for ours
     claim_kernel_threads()  # inside a pool's task: its share of the cores
-    return triangle(np.ascontiguousarray(D), np.ascontiguousarray(r, dtype=float))
+    return triangle(
+        np.ascontiguousarray(D), np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(scale)
+    )
 
 
-def compress(J: np.ndarray, r: np.ndarray) -> np.ndarray:
+def compress(J: np.ndarray, r: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
     """A ``(k + 1) x k`` matrix ``C`` with ``Cᵀ C = Jᵀ J`` and ``Cᵀ f = Jᵀ r`` for
     ``f = (|r|, 0, ..., 0)``: least squares on ``(f, C)`` has the same cost and the same
-    Gauss-Newton model ``|J p + r|²`` as on ``(r, J)``.
+    Gauss-Newton model ``|J p + r|²`` as on ``(r, J)``.  ``scale`` (optional) multiplies
+    the columns of ``J`` on the way (the optimiser's variables), without a scaled copy.
 
     ``[J | r] = Q [[R, q], [0, ρ]]`` (:func:`_triangle`: no copy of ``J``); with
     ``u = q / |r|``, ``C = [uᵀ R; (I − α u uᵀ) R]``, ``α = 1 / (1 + √(1 − |u|²))``, the
     square root of ``I − u uᵀ`` (stable, no ``JᵀJ`` formed).
     """
     k = J.shape[1]
-    T = _triangle(J, r)
+    T = _triangle(J, r, scale)
     R, q = T[:k, :k], T[:k, k]
     rho = math.sqrt(float(r @ r))
     u = q / rho if rho > 0 else np.zeros(k)
@@ -392,13 +396,18 @@ def fit(
         return r
 
     def jac(z):
-        J = full_jac(z)
         if not compressed:
-            return J
+            return full_jac(z)
+        J = unscaled_jac(z)
         r = last["r"] if "z" in last and np.array_equal(z, last["z"]) else full_fun(z)
-        return compress(J, r)
+        return compress(J, r, scale)  # the columns scaled on the way: no pass over J
 
     def full_jac(z):
+        J = unscaled_jac(z)
+        J *= scale[None, :]  # in place: J is ours (long data: no second copy)
+        return J
+
+    def unscaled_jac(z):
         r0 = last["r"] if "z" in last and np.array_equal(z, last["z"]) else None
         try:
             J, _ = problem.jacobian(z * scale, rel_step=fd_step, r0=r0)
@@ -411,8 +420,7 @@ def fit(
             steps = np.where(z + fd_step <= hi, fd_step, -fd_step)
             Z[np.arange(k), np.arange(k)] += steps
             R = problem.residuals_batch(Z * scale, penalty=FAIL_RESIDUAL)
-            return ((R - r0[None, :]) / steps[:, None]).T
-        J *= scale[None, :]  # in place: J is ours (long data: no second copy)
+            return ((R - r0[None, :]) / (steps * scale)[:, None]).T
         return J
 
     t0 = time.perf_counter()
@@ -440,8 +448,7 @@ def fit(
         _ROWS.n = outer_rows
     seconds = time.perf_counter() - t0
     x = res.x * scale
-    J = full_jac(res.x)
-    J /= scale[None, :]
+    J = unscaled_jac(res.x)
     ev = problem.evaluate(x)
     r = np.where(np.isnan(ev.residuals), FAIL_RESIDUAL, ev.residuals)
     ssr_val = float(r @ r)

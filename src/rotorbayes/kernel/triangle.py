@@ -62,10 +62,11 @@ def _householder(W, nb):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def triangle(D, r):  # pragma: no cover - compiled
+def triangle(D, r, scale):  # pragma: no cover - compiled
     """``T`` (``(k + 1) x (k + 1)``, upper triangular) with ``Tᵀ T = Aᵀ A`` for
-    ``A = [Dᵀ | r]``: ``D`` is ``(k, n)`` (row j is column j of the Jacobian), ``r`` the
-    ``n`` residuals.  Needs ``n >= 2 (k + 1)``."""
+    ``A = [Dᵀ diag(scale) | r]``: ``D`` is ``(k, n)`` (row j is column j of the Jacobian,
+    multiplied by ``scale[j]`` on the way in), ``r`` the ``n`` residuals.  Needs
+    ``n >= 2 (k + 1)``."""
     k, n = D.shape
     nc = k + 1
     nblocks = max(1, n // BLOCK_ROWS)
@@ -76,7 +77,7 @@ def triangle(D, r):  # pragma: no cover - compiled
         nb = e - a
         W = np.empty((nc, nb))
         for j in range(k):
-            W[j, :] = D[j, a:e]
+            W[j, :] = D[j, a:e] * scale[j]
         W[k, :] = r[a:e]
         _householder(W, nb)
         for j in range(nc):
