@@ -3,8 +3,9 @@
 the compiled kernel are loaded here, so that every worker forked from the server starts
 with them (milliseconds, instead of seconds of imports and cache loading per worker).
 
-Only serial kernel entry points run here: no numba parallel batch, so no OpenMP thread team
-exists in the server when it forks (GNU OpenMP's does not survive a fork)."""
+Only serial kernel entry points are loaded here: no numba parallel function, so no thread
+team exists in the server when it forks (GNU OpenMP's does not survive a fork); each worker
+loads the parallel ones after its fork."""
 
 import contextlib
 
@@ -14,4 +15,4 @@ with contextlib.suppress(Exception):  # a failed warm-up leaves the workers to l
     from . import least_squares, multistart  # noqa: F401 - the tasks' modules
     from .parallel import warm_kernel
 
-    warm_kernel()
+    warm_kernel(parallel_entries=False)

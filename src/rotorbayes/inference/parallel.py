@@ -218,8 +218,12 @@ def one_blas_thread() -> None:
         threadpool_limits(limits=1, user_api="blas")
 
 
-def warm_kernel() -> None:
-    """Run the kernel once per configuration on a tiny input (loads numba's cache)."""
+def warm_kernel(parallel_entries: bool = True) -> None:
+    """Run the kernel once per configuration on a tiny input (loads numba's cache).
+    ``parallel_entries=False`` (a process pool's fork server) loads the serial entry
+    points alone: loading a parallel one launches numba's threads, which must not exist in
+    a process that forks (GNU OpenMP does not survive a fork); each worker loads them after
+    its fork, from the cache, on its first batch."""
     import numpy as np
 
     from ..model.simulate import simulate
@@ -236,7 +240,8 @@ def warm_kernel() -> None:
     # a worker's fits call, so that no task pays for it.
     from ..util.coldstart import kernel_entry
 
-    for name in ("residuals_into_plain", "residuals_batch_into_plain"):
+    names = ["residuals_into_plain"] + (["residuals_batch_into_plain"] if parallel_entries else [])
+    for name in names:
         with contextlib.suppress(Exception):
             kernel_entry(name)
 
@@ -350,13 +355,6 @@ class _SharingProcessPool(ProcessPoolExecutor):
 FORKSERVER_PRELOAD = "rotorbayes.inference._forkserver"
 
 
-#: numba's threading layer in the fork server and so in its workers: ``workqueue`` is
-#: fork-safe (GNU OpenMP is not: numba ends a forked child of a process that loaded a
-#: parallel function under it, "fork() called from a process already using GNU OpenMP");
-#: that it is not thread-safe does not matter in a worker, whose tasks run one at a time.
-FORKSERVER_THREADING_LAYER = "workqueue"
-
-
 def process_context():
     """The multiprocessing context of local process pools: a fork server that has loaded
     rotorbayes and the kernel (POSIX), else spawn.  Plain fork of the command's process is
@@ -369,16 +367,11 @@ def process_context():
 
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload([FORKSERVER_PRELOAD])
-    # The server takes this process's environment when it starts (once per process).
-    saved = os.environ.get("NUMBA_THREADING_LAYER")
-    os.environ["NUMBA_THREADING_LAYER"] = FORKSERVER_THREADING_LAYER
-    try:
-        forkserver.ensure_running()
-    finally:
-        if saved is None:
-            os.environ.pop("NUMBA_THREADING_LAYER", None)
-        else:
-            os.environ["NUMBA_THREADING_LAYER"] = saved
+    # The server loads the serial entry points alone (no numba thread exists when it
+    # forks); each worker launches numba's usual threading layer after its fork.  (The
+    # fork-safe ``workqueue`` layer, used here before, made a fit 1.6x slower on one
+    # thread and 1.9x on 16: measured on 16 cores, benchmarks/README.md.)
+    forkserver.ensure_running()
     return ctx
 
 
