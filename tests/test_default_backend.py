@@ -117,3 +117,33 @@ def test_a_command_says_the_default_it_took_and_why(tmp_path, capsys):
     assert f"(the default on {cores} core" in said[0] and "bench_scale.py" in said[0]
     if cores < parallel.PROCESSES_FROM_CORES:
         assert " for 2 tasks x " in said[0]  # weighed by the work
+
+
+@pytest.mark.parametrize(
+    "cores, ensembles, pool",
+    [(16, 4, FORKSERVER), (16, 1, False), (4, 2, FORKSERVER), (2, 4, False)],
+)
+def test_sample_runs_its_ensembles_in_the_default_pool_where_it_pays(
+    monkeypatch, cores, ensembles, pool
+):
+    import contextlib
+
+    from rotorbayes.commands import sample as sample_command
+    from rotorbayes.commands.config import ExecutorOptions
+
+    opened = []
+
+    @contextlib.contextmanager
+    def fake_open(self, file=None):
+        opened.append(self)
+        yield "the default pool"
+
+    monkeypatch.setattr(ExecutorOptions, "open", fake_open)
+    monkeypatch.setattr(sample_command.os, "cpu_count", lambda: cores)
+    monkeypatch.delenv(parallel.SCHEDULER_ENV, raising=False)
+    with sample_command._ensemble_executor(ExecutorOptions(), ensembles) as ex:
+        assert ex == ("the default pool" if pool else None)
+    assert len(opened) == (1 if pool else 0)
+    # An option given always opens what it names.
+    with sample_command._ensemble_executor(ExecutorOptions(backend="threads"), 1) as ex:
+        assert ex == "the default pool"

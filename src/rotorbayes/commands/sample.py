@@ -380,7 +380,7 @@ def _sample_locked(a: SampleOptions, src: Path, out: Path) -> int:
     try:
         reserve = sampling.SummaryReserve(out, sizes)
         try:
-            with _ensemble_executor(a.executor) as ex:
+            with _ensemble_executor(a.executor, int(settings["ensembles"])) as ex:
                 runs = sampling.sample(
                     lp,
                     fit.x,
@@ -454,12 +454,16 @@ def summary_sizes(lp, walkers: int, steps: int, ensembles: int, max_draws: int) 
 
 
 @contextlib.contextmanager
-def _ensemble_executor(options: ExecutorOptions):
+def _ensemble_executor(options: ExecutorOptions, n_ensembles: int = 1):
     """The executor the ensembles run on, or None (one after the other in this process, as
     before the executor layer): an executor when ``--backend``, ``--workers`` or
     ``--scheduler`` is given, ``DASK_SCHEDULER_ADDRESS`` is set, or a study runs on a Dask
-    cluster. On one machine the serial loop already keeps every core busy (the walkers of
-    an ensemble are one parallel kernel batch), so it stays the default there."""
+    cluster; with none of these, the default pool where it pays: several ensembles on a
+    machine of :data:`~rotorbayes.inference.parallel.PROCESSES_FROM_CORES` cores or more
+    (16 cores, 4 ensembles of 32 walkers on 30 s at 1 kHz: processes 1.54 s, the serial
+    loop on 16 numba threads 2.33 s; benchmarks/README.md).  On a smaller machine the
+    serial loop (the walkers of an ensemble are one parallel kernel batch) was as fast as
+    any pool (2 cores: serial 1.48 s, threads 1.37 s, processes 1.96 s), so it stays."""
     from ..inference import parallel
 
     if (
@@ -467,8 +471,14 @@ def _ensemble_executor(options: ExecutorOptions):
         and not os.environ.get(parallel.SCHEDULER_ENV)
         and not parallel.is_dask(parallel.current_executor())
     ):
-        yield None
-        return
+        cores = os.cpu_count() or 1
+        if not (
+            n_ensembles >= 2
+            and cores >= parallel.PROCESSES_FROM_CORES
+            and parallel.default_backend(cores) == "processes"
+        ):
+            yield None
+            return
     with options.open() as ex:
         yield ex
 
