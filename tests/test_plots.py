@@ -65,6 +65,39 @@ def assert_no_overlap(fig):
                 raise AssertionError(f"texts of {a!r} and {b!r} overlap: {ba} vs {bb}")
 
 
+def assert_inside(fig):
+    """Every text and legend lies within the figure (nothing cut off at its edges)."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    page = fig.bbox
+    items = [("suptitle", fig._suptitle)] if fig._suptitle is not None else []
+    for k, ax in enumerate(fig.axes):
+        items += [(k, t) for t in (ax.title, ax._left_title, ax.xaxis.label, ax.yaxis.label)]
+        items += [(k, ax.yaxis.get_offset_text())]
+        if ax.get_legend() is not None:
+            items.append((k, ax.get_legend()))
+        # tick labels that are drawn: those of ticks inside the view limits
+        box = ax.get_window_extent(r)
+        for t in ax.get_xticklabels():
+            e = t.get_window_extent(r)
+            if box.x0 - 1 <= (e.x0 + e.x1) / 2 <= box.x1 + 1:
+                items.append((k, t))
+        for t in ax.get_yticklabels():
+            e = t.get_window_extent(r)
+            if box.y0 - 1 <= (e.y0 + e.y1) / 2 <= box.y1 + 1:
+                items.append((k, t))
+    for who, a in items:
+        if not a.get_visible() or (hasattr(a, "get_text") and not a.get_text()):
+            continue
+        e = a.get_window_extent(r)
+        assert (
+            e.x0 >= page.x0 - 0.5
+            and e.x1 <= page.x1 + 0.5
+            and e.y0 >= page.y0 - 0.5
+            and e.y1 <= page.y1 + 0.5
+        ), f"{who!r}: {a} at {e} is not inside the figure {page}"
+
+
 # ---------------------------------------------------------------------- parameter spread
 def test_parameter_spread_has_units_and_no_overlap():
     names = ["k_m", "Tc_u", "b_u", "dTc_u", "db_u", "alpha0[1]", "my_gain"]
@@ -206,6 +239,39 @@ def test_fit_legends_list_stick_shading_on_each_shaded_axis():
     for ax in axes:
         assert ax.get_legend().get_window_extent(r).x0 >= ax.get_window_extent(r).x1
     assert_no_overlap(fig)
+    assert_inside(fig)
+
+
+def test_long_fit_lines_keep_every_pixel_columns_extremes():
+    """600 s at 1 kHz of noisy error: in every pixel column of the drawn figure, the
+    highest and lowest sample are drawn (within a pixel), and the line ends where the
+    record does."""
+    rng = np.random.default_rng(4)
+    t = np.arange(600_001) * 1e-3
+    meas = {"theta_u": np.sin(t / 30) + 1e-4 * rng.standard_normal(t.size)}
+    sim = {"theta_u": np.sin(t / 30)}
+    fig, axes = plots.plot_fit(t, meas, sim, title="long")
+    fig.canvas.draw()
+    err_line = axes[1].get_lines()[0]
+    xd, yd = err_line.get_xdata(), err_line.get_ydata()
+    assert xd.size <= plots.MAX_LINE_POINTS
+    assert xd[0] == t[0] and xd[-1] == t[-1]
+    y = meas["theta_u"] - sim["theta_u"]
+    px = axes[1].transData.transform(np.c_[t, np.zeros_like(t)])[:, 0]
+    col = np.floor(px - px.min()).astype(int)
+    dcol = np.floor(axes[1].transData.transform(np.c_[xd, 0 * xd])[:, 0] - px.min()).astype(int)
+    ncol = col.max() + 1
+    smax, smin = np.full(ncol, -np.inf), np.full(ncol, np.inf)
+    np.maximum.at(smax, col, y)
+    np.minimum.at(smin, col, y)
+    dmax, dmin = np.full(ncol + 2, -np.inf), np.full(ncol + 2, np.inf)
+    np.maximum.at(dmax, dcol + 1, yd)
+    np.minimum.at(dmin, dcol + 1, yd)
+    # the drawn extremes within one pixel column either side
+    near_max = np.maximum(np.maximum(dmax[:-2], dmax[1:-1]), dmax[2:])
+    near_min = np.minimum(np.minimum(dmin[:-2], dmin[1:-1]), dmin[2:])
+    assert ncol > 500
+    assert np.all(near_max >= smax) and np.all(near_min <= smin)
 
 
 def test_no_stick_no_shading_entry():
@@ -231,6 +297,7 @@ def test_simulation_legends_list_stick_shading(brake_sim):
         assert "lower disc sticks" in legend_texts(ax)
     assert axes[3].get_ylabel() == r"$\omega$ [rad/s]"
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 # ----------------------------------------------------------------------------- friction
@@ -251,6 +318,7 @@ def test_friction_title_and_legend_agree():
     assert fig._suptitle.get_text() == "estimated friction"
     assert legend_texts(axes[0, 0]) == ["upper disc, estimated"]
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 def test_friction_draws_asymmetry_and_stribeck():
