@@ -51,7 +51,6 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
-from scipy import stats
 
 #: Length of one block of the block sandwich [s]: long enough to hold a typical stick phase
 #: or a slow-turning stretch whose rounding error repeats, short enough for ≥ 30 blocks
@@ -115,6 +114,8 @@ class Uncertainty:
     def quantile(self, level: float) -> np.ndarray:
         """Half-width of the central ``level`` interval in standard errors, per parameter
         (Student's t with the Welch–Satterthwaite degrees of freedom)."""
+        from scipy import stats  # here: scipy.stats takes a quarter second to import
+
         return stats.t.ppf(0.5 + level / 2, np.maximum(self.dof, 1.0))
 
     def shares(self) -> dict[str, dict[str, float]]:
