@@ -224,7 +224,8 @@ def compare_trees(a, work: Path, log, brake: Path, longs: list[Path]) -> None:
             for t in order:
                 args, _ = args_of(case, t)
                 w, c, rc = _run_tree(trees[t], args, log)
-                if rc != 0:
+                # 1: did not converge (the long case's few evaluations), results written
+                if rc not in (0, 1):
                     raise SystemExit(f"{case} on {trees[t]} exited {rc}; see --log")
                 if rnd > 0:  # the first round fills the numba caches and the file caches
                     times[t].append((w, c))

@@ -346,3 +346,40 @@ def test_friction_accepts_base_parameters_only():
     y = axes[1, 1].get_lines()[1].get_ydata()
     assert np.all(np.isfinite(y)) and y[0] == pytest.approx(0.02, rel=1e-6)
     assert not math.isnan(axes[0, 0].get_lines()[0].get_ydata()[0])
+
+
+# ---------------------------------------------------------------------------- diagnosis
+def test_diagnosis_figures_keep_their_samples_and_fit_the_page(brake_sim):
+    """The residual with the candidates' corrections (thinned like every long line, the
+    marked samples kept) and the missing-torque map: texts and legends inside the figure,
+    none over another."""
+    from rotorbayes import inference
+    from rotorbayes.diagnosis import diagnose
+    from rotorbayes.diagnosis.figures import plot_candidates, plot_torque_map
+    from rotorbayes.model.parameters import resolve
+
+    p = resolve("thesis:4.3:P_ref", config="brake")
+    ex = brake_sim.to_experiment("b")
+    prob = inference.Problem("brake", [ex], base=p)
+    x = prob.x_from(p)
+    d = diagnose(prob, x)
+    fig, axes = plot_candidates(prob, x, d)
+    shown = [s for s in d.ranking if s.correction is not None and not s.equivalent_to_free][:3]
+    assert shown
+    every = max(1, ex.n // 10)
+    for k, ax in enumerate(axes[:, 0]):
+        lines = ax.get_lines()
+        assert lines[0].get_xdata().size <= plots.MAX_LINE_POINTS  # the residual
+        seg = slice(k * ex.n, (k + 1) * ex.n)
+        for i, (s, line) in enumerate(zip(shown, lines[1:], strict=True)):
+            marks = np.asarray(line.get_markevery())
+            want = np.arange(i * every // 3, ex.n, every)
+            np.testing.assert_array_equal(line.get_xdata()[marks], ex.t[want])
+            np.testing.assert_array_equal(line.get_ydata()[marks], -s.correction[seg][want])
+            y = -s.correction[seg]
+            assert line.get_ydata().max() == y.max() and line.get_ydata().min() == y.min()
+    assert_no_overlap(fig)
+    assert_inside(fig)
+    fig, _ = plot_torque_map(d)
+    assert_no_overlap(fig)
+    assert_inside(fig)

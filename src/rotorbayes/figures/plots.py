@@ -79,11 +79,18 @@ def envelope(t, y, max_points: int | None = None):
     the first and the last sample and each time bucket's minimum and maximum, in time order
     (unchanged when already short)."""
     t, y = np.asarray(t), np.asarray(y)
+    idx = envelope_index(y, max_points)
+    return (t, y) if idx is None else (t[idx], y[idx])
+
+
+def envelope_index(y, max_points: int | None = None) -> np.ndarray | None:
+    """The samples :func:`envelope` keeps, ascending; ``None`` when it keeps them all."""
+    y = np.asarray(y)
     if max_points is None:
         max_points = MAX_LINE_POINTS
     n = y.size
     if n <= max_points:
-        return t, y
+        return None
     bucket = -(-n // ((max_points - 2) // 2))  # samples per bucket, rounded up
     nb = -(-n // bucket)
     yy = np.empty(nb * bucket, y.dtype)
@@ -97,8 +104,7 @@ def envelope(t, y, max_points: int | None = None):
     idx[0], idx[-1] = 0, n - 1
     idx[1:-1:2] = np.minimum(i_lo, i_hi)
     idx[2:-1:2] = np.maximum(i_lo, i_hi)
-    idx = np.minimum(idx, n - 1)
-    return t[idx], y[idx]
+    return np.minimum(idx, n - 1)
 
 
 def _margins(fig, *, left, right, top, bottom, hspace=0.0, wspace=0.0):
