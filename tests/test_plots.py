@@ -71,6 +71,7 @@ def assert_inside(fig):
     r = fig.canvas.get_renderer()
     page = fig.bbox
     items = [("suptitle", fig._suptitle)] if fig._suptitle is not None else []
+    items += [("figure legend", leg) for leg in fig.legends]
     for k, ax in enumerate(fig.axes):
         items += [(k, t) for t in (ax.title, ax._left_title, ax.xaxis.label, ax.yaxis.label)]
         items += [(k, ax.yaxis.get_offset_text())]
@@ -129,11 +130,11 @@ def test_parameter_spread_has_units_and_no_overlap():
     # the y data are the absolute SSRs
     np.testing.assert_allclose(axes[0, 0].collections[0].get_offsets()[:, 1], ssr)
     assert fig._suptitle.get_text() == "multistart, upper: end points"
-    assert fig.get_layout_engine() is not None  # constrained layout
     leg = [t.get_text() for t in fig.legends[0].get_texts()]
     assert any("reference" in t for t in leg)
     assert any("encoder quantisation floor" in t for t in leg)
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 def test_parameter_spread_units_from_registry_for_every_name():
@@ -181,6 +182,7 @@ def test_waterfall_absolute_ssr_floor_and_failed_starts():
     crosses = [c for c in ax.collections if "failed" in (c.get_label() or "")]
     assert len(crosses) == 1 and crosses[0].get_offsets().shape[0] == 4
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 def test_waterfall_all_failed_and_no_floor():
@@ -189,6 +191,14 @@ def test_waterfall_all_failed_and_no_floor():
     fig, ax = plots.plot_waterfall([5.0])
     assert not [ln for ln in ax.get_lines() if "floor" in ln.get_label()]
     assert legend_texts(ax) == ["1 of 1 starts within 1 % of the best (5 rad²)"]
+    # the longest legend line a multistart writes still fits the page
+    fig, ax = plots.plot_waterfall(
+        np.r_[1.23456e-5 * (1 + 1e-4 * np.arange(480)), np.geomspace(1.0, 1e3, 520)],
+        n_failed=1000,
+        noise_floor_ssr=9.87654e-5,
+        near=0.001,
+    )
+    assert_inside(fig)
 
 
 def test_quantisation_floor_ssr():

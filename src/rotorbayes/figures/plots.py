@@ -422,7 +422,7 @@ def plot_waterfall(
     lab = None if lab is None else lab[order]
     nfail = int(bad.sum()) + int(n_failed)
     total = ok.size + nfail
-    fig, ax = plt.subplots(figsize=(9.5, 4.2), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(9.5, 4.2))
     x = np.arange(1, ok.size + 1)
     if ok.size:
         best = ok[0]
@@ -479,7 +479,16 @@ def plot_waterfall(
     ax.set_xlabel("start, sorted by final SSR")
     ax.set_ylabel("final SSR [rad²]")
     ax.set_title(title, fontsize=10)
-    legend_outside(ax)
+    leg = legend_outside(ax)
+    # Room on the right for the legend as wide as its lines are (measured: a few texts, not
+    # every tick label as a layout engine would).
+    wide = leg.get_window_extent(fig.canvas.get_renderer()).width / fig.dpi
+    fig.subplots_adjust(
+        left=0.75 / 9.5,
+        right=max(1 - (wide + 0.2) / 9.5, 0.4),
+        top=1 - 0.35 / 4.2,
+        bottom=0.5 / 4.2,
+    )
     return fig, ax
 
 
@@ -528,13 +537,11 @@ def plot_parameter_spread(
     rows = int(np.ceil(k / 4))
     cols = int(np.ceil(k / rows))
     fig, axes = plt.subplots(
-        rows,
-        cols,
-        figsize=(2.9 * cols + 0.4, 2.3 * rows + 1.0),
-        squeeze=False,
-        sharey=True,
-        constrained_layout=True,
+        rows, cols, figsize=(2.9 * cols + 0.4, 2.3 * rows + 1.0), squeeze=False, sharey=True
     )
+    # The shared SSR axis labelled on the left; each panel's parameter below it; the legend
+    # in one row at the bottom.
+    _margins(fig, left=0.75, right=0.15, top=0.4, bottom=0.85, hspace=0.6, wspace=0.2)
     colors = np.array(_cluster_colors(clusters, costs.size), dtype=object)
     v, y, col = values[fin], costs[fin], list(colors[fin])
     floor_ok = noise_floor_ssr is not None and np.isfinite(noise_floor_ssr) and noise_floor_ssr > 0
@@ -582,7 +589,12 @@ def plot_parameter_spread(
             )
         )
     fig.legend(
-        handles=handles, loc="outside lower center", ncol=len(handles), fontsize=8, frameon=False
+        handles=handles,
+        loc="lower center",
+        bbox_to_anchor=(0.5, 0.05 / fig.get_size_inches()[1]),
+        ncol=len(handles),
+        fontsize=8,
+        frameon=False,
     )
     fig.suptitle(title or "multistart end points", fontsize=11)
     return fig, axes
