@@ -126,6 +126,19 @@ def _margins(fig, *, left, right, top, bottom, hspace=0.0, wspace=0.0):
     )
 
 
+def margins_for_legends(fig, *, left, top, bottom, hspace=0.0, wspace=0.0):
+    """:func:`_margins` with the right margin as wide as the widest legend of the axes
+    (drawn by :func:`legend_outside`), measured: a few texts, not every tick label as a
+    layout engine would."""
+    r = fig.canvas.get_renderer()
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    wide = max((leg.get_window_extent(r).width / fig.dpi for leg in legends), default=0.0)
+    # the legend starts 1 % of the axes' width right of them
+    w = fig.get_size_inches()[0]
+    right = min(wide + 0.02 * (w - left - wide) + 0.15, 0.6 * w)
+    _margins(fig, left=left, right=right, top=top, bottom=bottom, hspace=hspace, wspace=wspace)
+
+
 def _shade_stick(ax, t, mode, color=STICK_COLOR, label="lower disc sticks"):
     """Shade the time intervals in which a disc sticks (``mode == 0``).
 
