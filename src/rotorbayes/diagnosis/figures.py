@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..figures.plots import _margins, envelope, envelope_index, pyplot
+from ..figures.plots import envelope, envelope_index, margins_inches, pyplot
 from .diagnose import LEVEL
 
 _LABEL = {
@@ -50,7 +50,7 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     fig, axes = plt.subplots(
         len(chans), 1, figsize=(10, 2.8 * len(chans) + below), sharex=True, squeeze=False
     )
-    _margins(fig, left=1.15, right=0.1, top=0.6, bottom=below, hspace=0.3)
+    margins_inches(fig, left=1.15, right=0.1, top=0.6, bottom=below, hspace=0.3)
     for k, c in enumerate(chans):
         ax = axes[k, 0]
         seg = slice(k * ex.n, (k + 1) * ex.n)
@@ -126,7 +126,7 @@ def plot_torque_map(diagnosis, *, top: int = 3):
         len(maps), top, figsize=(4 * top, 3.2 * len(maps) + 0.6), squeeze=False
     )
     # Each panel's own tick and axis labels, and its title above it.
-    _margins(fig, left=0.85, right=0.1, top=0.62, bottom=0.55, hspace=0.9, wspace=0.9)
+    margins_inches(fig, left=0.85, right=0.1, top=0.62, bottom=0.55, hspace=0.9, wspace=0.9)
     for i, m in enumerate(maps):
         disc = "upper" if m.disc == "u" else "lower"
         for j in range(top):

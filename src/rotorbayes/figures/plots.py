@@ -107,7 +107,7 @@ def envelope_index(y, max_points: int | None = None) -> np.ndarray | None:
     return np.minimum(idx, n - 1)
 
 
-def _margins(fig, *, left, right, top, bottom, hspace=0.0, wspace=0.0):
+def margins_inches(fig, *, left, right, top, bottom, hspace=0.0, wspace=0.0):
     """Place the subplot grid by margins and gaps given in inches (a fixed layout: the
     figures whose texts are known ahead need no layout engine, which measures every text
     several times per figure)."""
@@ -127,7 +127,7 @@ def _margins(fig, *, left, right, top, bottom, hspace=0.0, wspace=0.0):
 
 
 def margins_for_legends(fig, *, left, top, bottom, hspace=0.0, wspace=0.0):
-    """:func:`_margins` with the right margin as wide as the widest legend of the axes
+    """:func:`margins_inches` with the right margin as wide as the widest legend of the axes
     (drawn by :func:`legend_outside`), measured: a few texts, not every tick label as a
     layout engine would."""
     r = fig.canvas.get_renderer()
@@ -136,7 +136,9 @@ def margins_for_legends(fig, *, left, top, bottom, hspace=0.0, wspace=0.0):
     # the legend starts 1 % of the axes' width right of them
     w = fig.get_size_inches()[0]
     right = min(wide + 0.02 * (w - left - wide) + 0.15, 0.6 * w)
-    _margins(fig, left=left, right=right, top=top, bottom=bottom, hspace=hspace, wspace=wspace)
+    margins_inches(
+        fig, left=left, right=right, top=top, bottom=bottom, hspace=hspace, wspace=wspace
+    )
 
 
 def _shade_stick(ax, t, mode, color=STICK_COLOR, label="lower disc sticks"):
@@ -245,7 +247,7 @@ def plot_fit(
     axes = np.atleast_1d(axes)
     # Room for the tick labels and axis labels on the left, the legends on the right, the
     # panel titles between the pairs.
-    _margins(fig, left=0.95, right=1.85, top=0.62 if title else 0.32, bottom=0.5, hspace=0.34)
+    margins_inches(fig, left=0.95, right=1.85, top=0.62 if title else 0.32, bottom=0.5, hspace=0.34)
     for i, c in enumerate(chans):
         a, b = axes[2 * i], axes[2 * i + 1]
         sym = CHANNEL_LABELS.get(c, c)
@@ -341,7 +343,7 @@ def plot_friction(
         sets.append((reference_label, _friction_params(reference), "--", "tab:orange"))
     fig, axes = plt.subplots(len(discs), 2, figsize=(10, 3.0 * len(discs) + 0.6), squeeze=False)
     # Room for the tick labels and axis labels of every panel and its title.
-    _margins(fig, left=0.8, right=0.1, top=0.55, bottom=0.55, hspace=0.85, wspace=0.9)
+    margins_inches(fig, left=0.8, right=0.1, top=0.55, bottom=0.55, hspace=0.85, wspace=0.9)
     for i, d in enumerate(discs):
         if d not in DISC_NAMES:
             raise ValueError(f"disc must be 'u' or 'l', not {d!r}")
@@ -554,7 +556,7 @@ def plot_parameter_spread(
     )
     # The shared SSR axis labelled on the left; each panel's parameter below it; the legend
     # in one row at the bottom.
-    _margins(fig, left=0.75, right=0.15, top=0.4, bottom=0.85, hspace=0.6, wspace=0.2)
+    margins_inches(fig, left=0.75, right=0.15, top=0.4, bottom=0.85, hspace=0.6, wspace=0.2)
     colors = np.array(_cluster_colors(clusters, costs.size), dtype=object)
     v, y, col = values[fin], costs[fin], list(colors[fin])
     floor_ok = noise_floor_ssr is not None and np.isfinite(noise_floor_ssr) and noise_floor_ssr > 0
