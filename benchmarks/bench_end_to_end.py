@@ -30,6 +30,18 @@ Usage::
 
 (the cases run in the order given; ``design`` and ``diagnose`` use the ``fit`` case's
 folders, so ``fit`` comes first).
+
+``--against OTHER_SRC`` compares two source trees instead (e.g. main's ``src`` exported
+with ``git archive main src | tar -x -C /tmp/main``, against this tree's): every command
+runs in a process of its own, as a user runs it (``python -m`` the CLI with
+``PYTHONPATH`` set to the tree), the two trees alternating which goes first from round to
+round, ``--rounds`` rounds after one untimed round that fills each tree's numba cache.
+Per command it prints the medians of wall time and of the process's CPU time (user + system
+of the child, every thread) for both trees and their ratios, and compares the results of
+the last round (estimates and standard errors, verdicts) number by number::
+
+    python benchmarks/bench_end_to_end.py --against /tmp/main/src [--rounds 3]
+        [--cases fit,multistart,diagnose,design,long]
 """
 
 from __future__ import annotations
@@ -38,6 +50,10 @@ import argparse
 import contextlib
 import json
 import os
+import resource
+import shutil
+import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -107,6 +123,131 @@ def _design_agreement(a: Path, b: Path) -> str:
     return f"design.json: best objective {va:.6g} vs {vb:.6g}"
 
 
+def _run_tree(src: str, args: list[str], log) -> tuple[float, float, int]:
+    """``rotorbayes ARGS`` in a process of its own on the source tree ``src``: wall and CPU
+    seconds (user + system of the child) and the exit status."""
+    env = dict(os.environ, PYTHONPATH=src)
+    code = "import sys; from rotorbayes.cli import main; sys.exit(main(sys.argv[1:]))"
+    print(f"\n$ [{src}] rotorbayes {' '.join(args)}", file=log, flush=True)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    w0 = time.perf_counter()
+    rc = subprocess.call([sys.executable, "-c", code, *args], env=env, stdout=log, stderr=log)
+    wall = time.perf_counter() - w0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return wall, cpu, rc
+
+
+def _numbers_agreement(a: Path, b: Path, name: str) -> str:
+    """Every estimate and standard error of two fit.json (or the diagnosis' verdict, the
+    multistart's SSRs, the design's objectives): equal bit for bit, or how far apart."""
+    da, db = (json.loads((f / name).read_text()) for f in (a, b))
+    if name == "fit.json":
+        worst, what, same = 0.0, "", True
+        for n, v in da["estimates"].items():
+            w = db["estimates"][n]
+            for key in ("value", "stderr"):
+                same &= v[key] == w[key]
+                se = max(v["stderr"], w["stderr"])
+                dd = abs(v[key] - w[key]) / se if se > 0 else 0.0
+                if dd > worst:
+                    worst, what = dd, f"{n} {key}"
+        verdict = da["assessment"].get("verdict") == db["assessment"].get("verdict")
+        return (
+            ("estimates and standard errors bit-identical" if same else "")
+            + (f"largest |difference| {worst:.2g} stderr ({what})" if not same else "")
+            + f"; verdict {'same' if verdict else 'DIFFERS'}; SSR {da['ssr']!r} vs {db['ssr']!r}"
+        )
+    if name == "multistart.json":
+        return "SSRs " + ("bit-identical" if da["ssr"] == db["ssr"] else "DIFFER")
+    if name == "design.json":
+        va, vb = ([st["value"] for st in d["starts"]] for d in (da, db))
+        return "objectives " + ("bit-identical" if va == vb else f"{va} vs {vb}")
+    keys = [k for k in ("verdict", "missing", "best") if k in da or k in db]
+    return "diagnosis.json " + ", ".join(
+        f"{k} {'same' if da.get(k) == db.get(k) else 'DIFFERS'}" for k in keys
+    )
+
+
+def compare_trees(a, work: Path, log, brake: Path, longs: list[Path]) -> None:
+    """Each case on both source trees, alternating, medians of ``a.rounds`` rounds."""
+    trees = {
+        "other": str(Path(a.against).resolve()),
+        "this": str(Path(__file__).parents[1] / "src"),
+    }
+    cases = a.cases.split(",")
+
+    def fit_out(tree):
+        return work / f"fit-{tree}"
+
+    def args_of(case: str, tree: str) -> tuple[list[str], str]:
+        out = work / f"{case}-{tree}"
+        if case == "fit":
+            return ["fit", str(brake), "--model", "brake", "--out", str(out), "--force"], "fit.json"
+        if case == "multistart":
+            return [
+                "multistart", str(brake), "--model", "brake", "--starts", str(a.starts),
+                "--around", str(fit_out(tree)), "--spread", "0.2", "--backend", "serial",
+                "--out", str(out), "--force",
+            ], "multistart.json"  # fmt: skip
+        if case == "diagnose":
+            shutil.rmtree(out, ignore_errors=True)
+            shutil.copytree(fit_out(tree), out)  # diagnose writes into the fit folder
+            return ["diagnose", str(out), "--no-trials"], "diagnosis.json"
+        if case == "design":
+            return [
+                "design", str(fit_out(tree)), "--separate", a.separate, "--starts", "1",
+                "--max-evals", "20", "--no-check", "--backend", "serial",
+                "--out", str(out), "--force",
+            ], "design.json"  # fmt: skip
+        return [
+            "fit", *map(str, longs), "--model", "coupled", "--p0", "thesis:4.2:P0",
+            "--max-nfev", str(a.nfev), "--out", str(out), "--force",
+        ], "fit.json"  # fmt: skip
+
+    labels = {
+        "fit": "fit 30 s brake from the data",
+        "multistart": f"multistart 30 s brake, {a.starts} starts, serial",
+        "diagnose": "diagnose the 30 s brake fit (no trials)",
+        "design": "design --separate (3 candidates, 1 start)",
+        "long": f"fit 4 x {a.long:g} s coupled (--max-nfev {a.nfev})",
+    }
+    print(f"trees: other {trees['other']}, this {trees['this']}; {a.rounds} rounds, medians")
+    print(
+        f"{'case':44s} {'other wall/CPU':>17s} {'this wall/CPU':>17s}  ratio wall, CPU  "
+        "(wall and CPU of each round: other | this)"
+    )
+    for case in (c for c in cases if c in labels):
+        times = {t: [] for t in trees}
+        for rnd in range(a.rounds + 1):
+            order = list(trees) if rnd % 2 == 0 else list(trees)[::-1]
+            for t in order:
+                args, _ = args_of(case, t)
+                w, c, rc = _run_tree(trees[t], args, log)
+                # 1: did not converge (the long case's few evaluations), results written
+                if rc not in (0, 1):
+                    raise SystemExit(f"{case} on {trees[t]} exited {rc}; see --log")
+                if rnd > 0:  # the first round fills the numba caches and the file caches
+                    times[t].append((w, c))
+        med = {t: (statistics.median(x[0] for x in v), statistics.median(x[1] for x in v))
+               for t, v in times.items()}  # fmt: skip
+        (wo, co), (wt, ct) = med["other"], med["this"]
+        rounds = " | ".join(
+            " ".join(f"{w:.2f}/{c:.2f}" for w, c in times[t]) for t in ("other", "this")
+        )
+        print(
+            f"{labels[case]:44s} {wo:7.2f} /{co:7.2f} {wt:7.2f} /{ct:7.2f}  "
+            f"{wo / wt:5.2f}x {co / ct:5.2f}x  ({rounds})",
+            flush=True,
+        )
+        _, name = args_of(case, "this") if case != "diagnose" else (None, "diagnosis.json")
+        try:
+            verdict = _numbers_agreement(work / f"{case}-other", work / f"{case}-this", name)
+        except Exception as e:  # a result file the comparison does not know
+            verdict = f"(results not compared: {type(e).__name__}: {e})"
+        print(f"{'':44s} {verdict}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=4)
@@ -121,6 +262,8 @@ def main() -> None:
     ap.add_argument("--warm", action="store_true", help="run every case once untimed first")
     ap.add_argument("--keep", help="work in this folder (kept) instead of a temporary one")
     ap.add_argument("--log", default=os.devnull, help="where the commands' output goes")
+    ap.add_argument("--against", help="another source tree (its src folder) to compare with")
+    ap.add_argument("--rounds", type=int, default=3, help="timed rounds of --against")
     a = ap.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     import numpy as np
@@ -160,12 +303,14 @@ def main() -> None:
                 log,
             )
         # The kernels' first compilations, outside every figure.
-        p = rb.parameters.thesis_set("4.3", "P_ref")
-        t, u = rb.signals.estimation_signal(3.0, seed=1)
-        ex = rb.simulate(p, u, dt=float(t[1] - t[0]), config="brake", quantize_angles=True)
-        prob = inference.Problem("brake", [ex.to_experiment("warm")], base=p)
-        for m in METHODS:
-            prob.jacobian(prob.x_from(p), method=m)
+        # (Two trees compared: each command's own process, after an untimed round.)
+        if not a.against:
+            p = rb.parameters.thesis_set("4.3", "P_ref")
+            t, u = rb.signals.estimation_signal(3.0, seed=1)
+            ex = rb.simulate(p, u, dt=float(t[1] - t[0]), config="brake", quantize_angles=True)
+            prob = inference.Problem("brake", [ex.to_experiment("warm")], base=p)
+            for m in METHODS:
+                prob.jacobian(prob.x_from(p), method=m)
         longs = [work / f"long{k}.csv" for k in range(1, 5)]
         if "long" in cases:
             for k, f in enumerate(longs, start=1):
@@ -190,6 +335,10 @@ def main() -> None:
                         ],
                         log,
                     )
+
+        if a.against:
+            compare_trees(a, work, log, brake, longs)
+            return
 
         def fit_args(out):
             return ["fit", str(brake), "--model", "brake", "--out", str(out), "--force"]

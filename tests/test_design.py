@@ -291,6 +291,17 @@ def test_separate_three_effects_raises_the_worst_pair(asymmetric_fit, tmp_path):
     doc = json.loads((out / "design.json").read_text())
     assert len(doc["achieved"]["pairs"]) == 3 and len(doc["predicted"]["pairs"]) == 3
     assert (out / "design.png").stat().st_size > 0
+    # The figure: its legends right of the panels, inside the page, the lines thinned.
+    from rotorbayes.design.output import plot_design
+    from rotorbayes.figures.plots import MAX_LINE_POINTS
+
+    fig, axes = plot_design(res)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    for ax in axes:
+        box, leg = ax.get_window_extent(r), ax.get_legend().get_window_extent(r)
+        assert box.x1 <= leg.x0 and leg.x1 <= fig.bbox.x1 and leg.y0 >= 0
+        assert all(np.size(line.get_xdata()) <= MAX_LINE_POINTS for line in ax.get_lines())
 
 
 def test_separate_with_a_tied_pair_designs_for_the_rest(asymmetric_fit):

@@ -111,6 +111,36 @@ def test_data_start_lands_near_the_truth(data):
             assert ds.source[n].startswith("data:")
 
 
+def test_data_start_grid_chooses_as_solving_every_point(data, monkeypatch):
+    """The Stribeck grid's costs by projection pick the grid point, and so the start, that
+    solving the regression at every grid point picks, bit for bit; and the projection's
+    cost is the regression's."""
+    from rotorbayes.inference import starts
+
+    for config in ("coupled", "brake"):
+        _, (est, val) = data[config]
+        prob = inference.Problem(config, [rb.load_experiment(est), rb.load_experiment(val)])
+        fast = inference.data_start(prob)
+        solved = []
+
+        def recording(c, solved=solved, real=starts._near_best):
+            solved.append(c)
+            return real(c)
+
+        monkeypatch.setattr(starts, "_near_best", recording)
+        inference.data_start(prob)
+        monkeypatch.setattr(starts, "GRID_NEAR", math.inf)  # solve at every grid point
+        every = inference.data_start(prob)
+        monkeypatch.undo()
+        assert repr(sorted(fast.values.items())) == repr(sorted(every.values.items()))
+        assert fast.source == every.source
+        if config == "brake":  # Stribeck free: a grid of ws_l and delta_l
+            costs = solved[0]
+            assert costs.size >= 16 and np.all(np.isfinite(costs))
+            # only a few points near the least were solved
+            assert starts._near_best(costs).sum() < costs.size / 4
+
+
 def test_chained_upper_fit_fixes_the_upper_disc(data, tmp_path):
     truth, _ = data["coupled"]
     t, u = rb.signals.make_signal("est", 30.0, rate=200.0, seed=3)

@@ -65,6 +65,40 @@ def assert_no_overlap(fig):
                 raise AssertionError(f"texts of {a!r} and {b!r} overlap: {ba} vs {bb}")
 
 
+def assert_inside(fig):
+    """Every text and legend lies within the figure (nothing cut off at its edges)."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    page = fig.bbox
+    items = [("suptitle", fig._suptitle)] if fig._suptitle is not None else []
+    items += [("figure legend", leg) for leg in fig.legends]
+    for k, ax in enumerate(fig.axes):
+        items += [(k, t) for t in (ax.title, ax._left_title, ax.xaxis.label, ax.yaxis.label)]
+        items += [(k, ax.yaxis.get_offset_text())]
+        if ax.get_legend() is not None:
+            items.append((k, ax.get_legend()))
+        # tick labels that are drawn: those of ticks inside the view limits
+        box = ax.get_window_extent(r)
+        for t in ax.get_xticklabels():
+            e = t.get_window_extent(r)
+            if box.x0 - 1 <= (e.x0 + e.x1) / 2 <= box.x1 + 1:
+                items.append((k, t))
+        for t in ax.get_yticklabels():
+            e = t.get_window_extent(r)
+            if box.y0 - 1 <= (e.y0 + e.y1) / 2 <= box.y1 + 1:
+                items.append((k, t))
+    for who, a in items:
+        if not a.get_visible() or (hasattr(a, "get_text") and not a.get_text()):
+            continue
+        e = a.get_window_extent(r)
+        assert (
+            e.x0 >= page.x0 - 0.5
+            and e.x1 <= page.x1 + 0.5
+            and e.y0 >= page.y0 - 0.5
+            and e.y1 <= page.y1 + 0.5
+        ), f"{who!r}: {a} at {e} is not inside the figure {page}"
+
+
 # ---------------------------------------------------------------------- parameter spread
 def test_parameter_spread_has_units_and_no_overlap():
     names = ["k_m", "Tc_u", "b_u", "dTc_u", "db_u", "alpha0[1]", "my_gain"]
@@ -96,11 +130,11 @@ def test_parameter_spread_has_units_and_no_overlap():
     # the y data are the absolute SSRs
     np.testing.assert_allclose(axes[0, 0].collections[0].get_offsets()[:, 1], ssr)
     assert fig._suptitle.get_text() == "multistart, upper: end points"
-    assert fig.get_layout_engine() is not None  # constrained layout
     leg = [t.get_text() for t in fig.legends[0].get_texts()]
     assert any("reference" in t for t in leg)
     assert any("encoder quantisation floor" in t for t in leg)
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 def test_parameter_spread_units_from_registry_for_every_name():
@@ -148,6 +182,7 @@ def test_waterfall_absolute_ssr_floor_and_failed_starts():
     crosses = [c for c in ax.collections if "failed" in (c.get_label() or "")]
     assert len(crosses) == 1 and crosses[0].get_offsets().shape[0] == 4
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 def test_waterfall_all_failed_and_no_floor():
@@ -156,6 +191,14 @@ def test_waterfall_all_failed_and_no_floor():
     fig, ax = plots.plot_waterfall([5.0])
     assert not [ln for ln in ax.get_lines() if "floor" in ln.get_label()]
     assert legend_texts(ax) == ["1 of 1 starts within 1 % of the best (5 rad²)"]
+    # the longest legend line a multistart writes still fits the page
+    fig, ax = plots.plot_waterfall(
+        np.r_[1.23456e-5 * (1 + 1e-4 * np.arange(480)), np.geomspace(1.0, 1e3, 520)],
+        n_failed=1000,
+        noise_floor_ssr=9.87654e-5,
+        near=0.001,
+    )
+    assert_inside(fig)
 
 
 def test_quantisation_floor_ssr():
@@ -206,6 +249,39 @@ def test_fit_legends_list_stick_shading_on_each_shaded_axis():
     for ax in axes:
         assert ax.get_legend().get_window_extent(r).x0 >= ax.get_window_extent(r).x1
     assert_no_overlap(fig)
+    assert_inside(fig)
+
+
+def test_long_fit_lines_keep_every_pixel_columns_extremes():
+    """600 s at 1 kHz of noisy error: in every pixel column of the drawn figure, the
+    highest and lowest sample are drawn (within a pixel), and the line ends where the
+    record does."""
+    rng = np.random.default_rng(4)
+    t = np.arange(600_001) * 1e-3
+    meas = {"theta_u": np.sin(t / 30) + 1e-4 * rng.standard_normal(t.size)}
+    sim = {"theta_u": np.sin(t / 30)}
+    fig, axes = plots.plot_fit(t, meas, sim, title="long")
+    fig.canvas.draw()
+    err_line = axes[1].get_lines()[0]
+    xd, yd = err_line.get_xdata(), err_line.get_ydata()
+    assert xd.size <= plots.MAX_LINE_POINTS
+    assert xd[0] == t[0] and xd[-1] == t[-1]
+    y = meas["theta_u"] - sim["theta_u"]
+    px = axes[1].transData.transform(np.c_[t, np.zeros_like(t)])[:, 0]
+    col = np.floor(px - px.min()).astype(int)
+    dcol = np.floor(axes[1].transData.transform(np.c_[xd, 0 * xd])[:, 0] - px.min()).astype(int)
+    ncol = col.max() + 1
+    smax, smin = np.full(ncol, -np.inf), np.full(ncol, np.inf)
+    np.maximum.at(smax, col, y)
+    np.minimum.at(smin, col, y)
+    dmax, dmin = np.full(ncol + 2, -np.inf), np.full(ncol + 2, np.inf)
+    np.maximum.at(dmax, dcol + 1, yd)
+    np.minimum.at(dmin, dcol + 1, yd)
+    # the drawn extremes within one pixel column either side
+    near_max = np.maximum(np.maximum(dmax[:-2], dmax[1:-1]), dmax[2:])
+    near_min = np.minimum(np.minimum(dmin[:-2], dmin[1:-1]), dmin[2:])
+    assert ncol > 500
+    assert np.all(near_max >= smax) and np.all(near_min <= smin)
 
 
 def test_no_stick_no_shading_entry():
@@ -231,6 +307,7 @@ def test_simulation_legends_list_stick_shading(brake_sim):
         assert "lower disc sticks" in legend_texts(ax)
     assert axes[3].get_ylabel() == r"$\omega$ [rad/s]"
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 # ----------------------------------------------------------------------------- friction
@@ -251,6 +328,7 @@ def test_friction_title_and_legend_agree():
     assert fig._suptitle.get_text() == "estimated friction"
     assert legend_texts(axes[0, 0]) == ["upper disc, estimated"]
     assert_no_overlap(fig)
+    assert_inside(fig)
 
 
 def test_friction_draws_asymmetry_and_stribeck():
@@ -278,3 +356,40 @@ def test_friction_accepts_base_parameters_only():
     y = axes[1, 1].get_lines()[1].get_ydata()
     assert np.all(np.isfinite(y)) and y[0] == pytest.approx(0.02, rel=1e-6)
     assert not math.isnan(axes[0, 0].get_lines()[0].get_ydata()[0])
+
+
+# ---------------------------------------------------------------------------- diagnosis
+def test_diagnosis_figures_keep_their_samples_and_fit_the_page(brake_sim):
+    """The residual with the candidates' corrections (thinned like every long line, the
+    marked samples kept) and the missing-torque map: texts and legends inside the figure,
+    none over another."""
+    from rotorbayes import inference
+    from rotorbayes.diagnosis import diagnose
+    from rotorbayes.diagnosis.figures import plot_candidates, plot_torque_map
+    from rotorbayes.model.parameters import resolve
+
+    p = resolve("thesis:4.3:P_ref", config="brake")
+    ex = brake_sim.to_experiment("b")
+    prob = inference.Problem("brake", [ex], base=p)
+    x = prob.x_from(p)
+    d = diagnose(prob, x)
+    fig, axes = plot_candidates(prob, x, d)
+    shown = [s for s in d.ranking if s.correction is not None and not s.equivalent_to_free][:3]
+    assert shown
+    every = max(1, ex.n // 10)
+    for k, ax in enumerate(axes[:, 0]):
+        lines = ax.get_lines()
+        assert lines[0].get_xdata().size <= plots.MAX_LINE_POINTS  # the residual
+        seg = slice(k * ex.n, (k + 1) * ex.n)
+        for i, (s, line) in enumerate(zip(shown, lines[1:], strict=True)):
+            marks = np.asarray(line.get_markevery())
+            want = np.arange(i * every // 3, ex.n, every)
+            np.testing.assert_array_equal(line.get_xdata()[marks], ex.t[want])
+            np.testing.assert_array_equal(line.get_ydata()[marks], -s.correction[seg][want])
+            y = -s.correction[seg]
+            assert line.get_ydata().max() == y.max() and line.get_ydata().min() == y.min()
+    assert_no_overlap(fig)
+    assert_inside(fig)
+    fig, _ = plot_torque_map(d)
+    assert_no_overlap(fig)
+    assert_inside(fig)

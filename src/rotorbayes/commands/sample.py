@@ -69,7 +69,7 @@ def add_arguments(sp) -> None:
         "stick-slip data; to compare); sampled: σ sampled (prior 1/σ)",
     )
     sp.add_argument("--ar1", action="store_true", help="AR(1) errors per channel")
-    from ..inference.sampling import DEFAULT_MOVES, MOVES
+    from ..inference.move_names import DEFAULT_MOVES, MOVES
 
     sp.add_argument(
         "--moves",

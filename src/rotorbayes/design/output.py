@@ -43,25 +43,26 @@ def input_csv(t: np.ndarray, u: np.ndarray) -> str:
 def plot_design(res: DesignResult):
     """Input (designed and the estimation input), predicted angles, and what the new
     experiment would see of the target, in floor units.  Returns ``(fig, axes)``."""
+    from ..figures.plots import envelope, margins_for_legends, pyplot
     from ..figures.plots import legend_outside as _legend_outside
-    from ..figures.plots import pyplot
 
     plt = pyplot()
     resp = {k: v for k, v in res.responses.items() if k not in ("difference", "channels")}
     diff = res.responses.get("difference")
     n = 1 + (1 if resp else 0) + (1 if diff is not None else 0)
-    fig, axes = plt.subplots(
-        n, 1, figsize=(10, 2.2 * n + 0.6), sharex=True, constrained_layout=True, squeeze=False
-    )
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.2 * n + 0.6), sharex=True, squeeze=False)
     axes = axes[:, 0]
     ax = axes[0]
     if res.baseline is not None:
         ax.plot(
-            res.t, res.baseline, color="0.6", lw=0.8, ls="--", label="standard estimation input"
+            *envelope(res.t, res.baseline),
+            color="0.6",
+            lw=0.8,
+            ls="--",
+            label="standard estimation input",
         )
     ax.plot(
-        res.t,
-        res.u,
+        *envelope(res.t, res.u),
         color="k",
         lw=1.0,
         label="designed input" if res.status != "no input can help" else "input to repeat",
@@ -72,11 +73,10 @@ def plot_design(res: DesignResult):
     if resp:
         ax = axes[k]
         for label, r in resp.items():
-            ax.plot(res.t, r["theta_u"], lw=1.0, label=rf"$\theta_u$ ({label})")
+            ax.plot(*envelope(res.t, r["theta_u"]), lw=1.0, label=rf"$\theta_u$ ({label})")
             if r.get("theta_l") is not None:
                 ax.plot(
-                    res.t,
-                    r["theta_l"],
+                    *envelope(res.t, r["theta_l"]),
                     lw=1.0,
                     ls="-" if label == "fit" else "--",
                     label=rf"$\theta_l$ ({label})",
@@ -90,7 +90,7 @@ def plot_design(res: DesignResult):
         channels = res.responses.get("channels", ("theta_l",))
         m = len(res.t)
         for j, c in enumerate(channels):  # the prediction is laid out channel by channel
-            ax.plot(res.t, y[j * m : (j + 1) * m], lw=0.9, label=c)
+            ax.plot(*envelope(res.t, y[j * m : (j + 1) * m]), lw=0.9, label=c)
         ax.axhline(1.0, color="0.5", lw=0.6, ls=":")
         ax.axhline(-1.0, color="0.5", lw=0.6, ls=":", label="one floor")
         ax.set_ylabel("[floor units]")
@@ -98,6 +98,7 @@ def plot_design(res: DesignResult):
         _legend_outside(ax)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(f"next experiment: {res.target.get('words', '')} — {res.status}", fontsize=10)
+    margins_for_legends(fig, left=0.8, top=0.35, bottom=0.5, hspace=0.35)
     return fig, axes
 
 

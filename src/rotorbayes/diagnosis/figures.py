@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..figures.plots import pyplot
+from ..figures.plots import envelope, envelope_index, margins_inches, pyplot
 from .diagnose import LEVEL
 
 _LABEL = {
@@ -42,24 +42,26 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     ex = problem.experiments[0]
     r = problem.residuals(x)
     chans = list(problem.channels)
-    fig, axes = plt.subplots(
-        len(chans),
-        1,
-        figsize=(10, 2.8 * len(chans) + 0.6),
-        sharex=True,
-        squeeze=False,
-        constrained_layout=True,
-    )
     shown = [s for s in diagnosis.ranking if s.correction is not None and not s.equivalent_to_free][
         :top
     ]
+    # Below the panels: the time axis, then the legend (one line per curve).
+    below = 0.5 + 0.18 * (len(shown) + 1) + 0.2
+    fig, axes = plt.subplots(
+        len(chans), 1, figsize=(10, 2.8 * len(chans) + below), sharex=True, squeeze=False
+    )
+    margins_inches(fig, left=1.15, right=0.1, top=0.6, bottom=below, hspace=0.3)
     for k, c in enumerate(chans):
         ax = axes[k, 0]
         seg = slice(k * ex.n, (k + 1) * ex.n)
         # The residual is drawn last, thin and dark, so that a candidate that explains it
         # (a thick curve on the same path) does not hide it.
         ax.plot(
-            ex.t, r[seg], color="0.15", lw=0.6, zorder=3, label="residual (measured − simulated)"
+            *envelope(ex.t, r[seg]),
+            color="0.15",
+            lw=0.6,
+            zorder=3,
+            label="residual (measured − simulated)",
         )
         # Candidates' corrections can coincide (an exact tie such as initial_torsion and
         # lower_asymmetric_coulomb): wide to narrow lines, own dashes and markers at shifted
@@ -74,16 +76,20 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
                     -o.correction[seg], y, rtol=0.02, atol=0.02 * float(np.max(np.abs(y))) + 1e-300
                 )
             ]
+            # A long record drawn as its envelope, with the marked samples kept.
+            marked = np.arange(i * every // 3, ex.n, every)
+            keep = envelope_index(y)
+            keep = np.arange(ex.n) if keep is None else np.union1d(keep, marked)
             ax.plot(
-                ex.t,
-                y,
+                ex.t[keep],
+                y[keep],
                 color=_CAND_COLORS[i % 3],
                 lw=(3.2, 2.0, 1.0)[i % 3],
                 alpha=0.8,
                 ls=("-", "--", ":")[i % 3],
                 marker=("o", "s", "^")[i % 3],
                 ms=5,
-                markevery=(i * every // 3, every),
+                markevery=list(np.searchsorted(keep, marked)),
                 label=f"{s.effect}: its one-step correction (p adj. {s.p_adjusted:.2g}"
                 + ("; not significant" if s.p_adjusted >= LEVEL else "")
                 + ")"
@@ -92,7 +98,14 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
         ax.set_ylabel(f"{c} error [rad]")
     axes[-1, 0].set_xlabel("time [s]")
     # One legend for all panels, below them: inside, it would cover the curves.
-    axes[-1, 0].legend(loc="upper left", bbox_to_anchor=(0.0, -0.22), ncol=1, fontsize=8)
+    axes[-1, 0].legend(
+        loc="lower left",
+        bbox_to_anchor=(axes[-1, 0].get_position().x0, 0.1 / fig.get_size_inches()[1]),
+        bbox_transform=fig.transFigure,
+        borderaxespad=0.0,
+        ncol=1,
+        fontsize=8,
+    )
     fig.suptitle(
         "residual and the predicted corrections of the top-ranked effects "
         f"(experiment {ex.name or 0})"
@@ -110,12 +123,10 @@ def plot_torque_map(diagnosis, *, top: int = 3):
         ax.axis("off")
         return fig, np.array([[ax]])
     fig, axes = plt.subplots(
-        len(maps),
-        top,
-        figsize=(4 * top, 3.2 * len(maps) + 0.6),
-        squeeze=False,
-        constrained_layout=True,
+        len(maps), top, figsize=(4 * top, 3.2 * len(maps) + 0.6), squeeze=False
     )
+    # Each panel's own tick and axis labels, and its title above it.
+    margins_inches(fig, left=0.85, right=0.1, top=0.62, bottom=0.55, hspace=0.9, wspace=0.9)
     for i, m in enumerate(maps):
         disc = "upper" if m.disc == "u" else "lower"
         for j in range(top):

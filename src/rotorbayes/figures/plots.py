@@ -65,20 +65,33 @@ def legend_outside(ax, **kw):
     )
 
 
-#: Points drawn per line at most: a figure is about 1000 pixels wide, so a long record is
-#: drawn as the minimum and maximum of each of MAX_LINE_POINTS / 2 time buckets (the same
-#: picture; 600 s at 1 kHz drawn whole took hundreds of MB in matplotlib).
-MAX_LINE_POINTS = 20_000
+#: Points drawn per line at most.  A long record is drawn as the minimum and maximum of
+#: each of ``(MAX_LINE_POINTS - 2) / 2`` time buckets, and its first and last sample.  The
+#: figures are 10 inches wide at 100 dpi and their axes narrower, so a bucket is at most
+#: about a third of a pixel column: every pixel column's lowest and highest sample is
+#: drawn, the picture is the one of every sample (600 s at 1 kHz drawn whole took hundreds
+#: of MB in matplotlib; 30 s drawn as 20 000 points cost a tenth of a second per figure).
+MAX_LINE_POINTS = 4_002
 
 
-def envelope(t, y, max_points: int = MAX_LINE_POINTS):
-    """``(t, y)`` thinned to at most ``max_points`` points that keep each time bucket's
-    minimum and maximum in time order (unchanged when already short)."""
+def envelope(t, y, max_points: int | None = None):
+    """``(t, y)`` thinned to at most ``max_points`` (default :data:`MAX_LINE_POINTS`) points:
+    the first and the last sample and each time bucket's minimum and maximum, in time order
+    (unchanged when already short)."""
     t, y = np.asarray(t), np.asarray(y)
+    idx = envelope_index(y, max_points)
+    return (t, y) if idx is None else (t[idx], y[idx])
+
+
+def envelope_index(y, max_points: int | None = None) -> np.ndarray | None:
+    """The samples :func:`envelope` keeps, ascending; ``None`` when it keeps them all."""
+    y = np.asarray(y)
+    if max_points is None:
+        max_points = MAX_LINE_POINTS
     n = y.size
     if n <= max_points:
-        return t, y
-    bucket = -(-n // (max_points // 2))  # samples per bucket, rounded up
+        return None
+    bucket = -(-n // ((max_points - 2) // 2))  # samples per bucket, rounded up
     nb = -(-n // bucket)
     yy = np.empty(nb * bucket, y.dtype)
     yy[:n] = y
@@ -87,11 +100,45 @@ def envelope(t, y, max_points: int = MAX_LINE_POINTS):
     base = np.arange(nb) * bucket
     i_lo = base + np.argmin(yy, axis=1)
     i_hi = base + np.argmax(yy, axis=1)
-    idx = np.empty(2 * nb, int)
-    idx[0::2] = np.minimum(i_lo, i_hi)
-    idx[1::2] = np.maximum(i_lo, i_hi)
-    idx = np.minimum(idx, n - 1)
-    return t[idx], y[idx]
+    idx = np.empty(2 * nb + 2, int)
+    idx[0], idx[-1] = 0, n - 1
+    idx[1:-1:2] = np.minimum(i_lo, i_hi)
+    idx[2:-1:2] = np.maximum(i_lo, i_hi)
+    return np.minimum(idx, n - 1)
+
+
+def margins_inches(fig, *, left, right, top, bottom, hspace=0.0, wspace=0.0):
+    """Place the subplot grid by margins and gaps given in inches (a fixed layout: the
+    figures whose texts are known ahead need no layout engine, which measures every text
+    several times per figure)."""
+    w, h = fig.get_size_inches()
+    gs = fig.axes[0].get_subplotspec().get_gridspec()
+    nrows, ncols = gs.get_geometry()
+    ah = (h - top - bottom - hspace * (nrows - 1)) / nrows
+    aw = (w - left - right - wspace * (ncols - 1)) / ncols
+    fig.subplots_adjust(
+        left=left / w,
+        right=1 - right / w,
+        top=1 - top / h,
+        bottom=bottom / h,
+        hspace=hspace / ah,
+        wspace=wspace / aw,
+    )
+
+
+def margins_for_legends(fig, *, left, top, bottom, hspace=0.0, wspace=0.0):
+    """:func:`margins_inches` with the right margin as wide as the widest legend of the axes
+    (drawn by :func:`legend_outside`), measured: a few texts, not every tick label as a
+    layout engine would."""
+    r = fig.canvas.get_renderer()
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None]
+    wide = max((leg.get_window_extent(r).width / fig.dpi for leg in legends), default=0.0)
+    # the legend starts 1 % of the axes' width right of them
+    w = fig.get_size_inches()[0]
+    right = min(wide + 0.02 * (w - left - wide) + 0.15, 0.6 * w)
+    margins_inches(
+        fig, left=left, right=right, top=top, bottom=bottom, hspace=hspace, wspace=wspace
+    )
 
 
 def _shade_stick(ax, t, mode, color=STICK_COLOR, label="lower disc sticks"):
@@ -133,20 +180,20 @@ def plot_simulation(sim, *, title: str | None = None):
         n, 1, figsize=(10, 2.0 * n + 0.6), sharex=True, constrained_layout=True
     )
     t = sim.t
-    axes[0].plot(t, sim.u, color="k", lw=1)
+    axes[0].plot(*envelope(t, sim.u), color="k", lw=1)
     axes[0].set_ylabel("u [V]")
-    axes[1].plot(t, sim.theta_u, label=r"$\theta_u$ upper disc")
+    axes[1].plot(*envelope(t, sim.theta_u), label=r"$\theta_u$ upper disc")
     if lower:
-        axes[1].plot(t, sim.theta_l, label=r"$\theta_l$ lower disc")
+        axes[1].plot(*envelope(t, sim.theta_l), label=r"$\theta_l$ lower disc")
     axes[1].set_ylabel("angle [rad]")
     k = 2
     if lower:
-        axes[2].plot(t, sim.alpha, color="tab:purple", label=r"$\alpha$ string torsion")
+        axes[2].plot(*envelope(t, sim.alpha), color="tab:purple", label=r"$\alpha$ string torsion")
         axes[2].set_ylabel(r"$\alpha$ [rad]")
         k = 3
-    axes[k].plot(t, sim.omega_u, label=r"$\omega_u$ upper disc")
+    axes[k].plot(*envelope(t, sim.omega_u), label=r"$\omega_u$ upper disc")
     if lower:
-        axes[k].plot(t, sim.omega_l, label=r"$\omega_l$ lower disc")
+        axes[k].plot(*envelope(t, sim.omega_l), label=r"$\omega_l$ lower disc")
     axes[k].set_ylabel(r"$\omega$ [rad/s]")
     disc = "lower disc" if lower else "upper disc"
     for ax in axes[1:]:
@@ -196,9 +243,11 @@ def plot_fit(
         figsize=(10, 3.0 * len(chans) + 0.8),
         sharex=True,
         gridspec_kw={"height_ratios": [2, 1] * len(chans)},
-        constrained_layout=True,
     )
     axes = np.atleast_1d(axes)
+    # Room for the tick labels and axis labels on the left, the legends on the right, the
+    # panel titles between the pairs.
+    margins_inches(fig, left=0.95, right=1.85, top=0.62 if title else 0.32, bottom=0.5, hspace=0.34)
     for i, c in enumerate(chans):
         a, b = axes[2 * i], axes[2 * i + 1]
         sym = CHANNEL_LABELS.get(c, c)
@@ -292,9 +341,9 @@ def plot_friction(
     sets = [(label, _friction_params(params), "-", "tab:blue")]
     if reference is not None:
         sets.append((reference_label, _friction_params(reference), "--", "tab:orange"))
-    fig, axes = plt.subplots(
-        len(discs), 2, figsize=(10, 3.0 * len(discs) + 0.6), squeeze=False, constrained_layout=True
-    )
+    fig, axes = plt.subplots(len(discs), 2, figsize=(10, 3.0 * len(discs) + 0.6), squeeze=False)
+    # Room for the tick labels and axis labels of every panel and its title.
+    margins_inches(fig, left=0.8, right=0.1, top=0.55, bottom=0.55, hspace=0.85, wspace=0.9)
     for i, d in enumerate(discs):
         if d not in DISC_NAMES:
             raise ValueError(f"disc must be 'u' or 'l', not {d!r}")
@@ -388,7 +437,7 @@ def plot_waterfall(
     lab = None if lab is None else lab[order]
     nfail = int(bad.sum()) + int(n_failed)
     total = ok.size + nfail
-    fig, ax = plt.subplots(figsize=(9.5, 4.2), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(9.5, 4.2))
     x = np.arange(1, ok.size + 1)
     if ok.size:
         best = ok[0]
@@ -445,7 +494,16 @@ def plot_waterfall(
     ax.set_xlabel("start, sorted by final SSR")
     ax.set_ylabel("final SSR [rad²]")
     ax.set_title(title, fontsize=10)
-    legend_outside(ax)
+    leg = legend_outside(ax)
+    # Room on the right for the legend as wide as its lines are (measured: a few texts, not
+    # every tick label as a layout engine would).
+    wide = leg.get_window_extent(fig.canvas.get_renderer()).width / fig.dpi
+    fig.subplots_adjust(
+        left=0.75 / 9.5,
+        right=max(1 - (wide + 0.2) / 9.5, 0.4),
+        top=1 - 0.35 / 4.2,
+        bottom=0.5 / 4.2,
+    )
     return fig, ax
 
 
@@ -494,13 +552,11 @@ def plot_parameter_spread(
     rows = int(np.ceil(k / 4))
     cols = int(np.ceil(k / rows))
     fig, axes = plt.subplots(
-        rows,
-        cols,
-        figsize=(2.9 * cols + 0.4, 2.3 * rows + 1.0),
-        squeeze=False,
-        sharey=True,
-        constrained_layout=True,
+        rows, cols, figsize=(2.9 * cols + 0.4, 2.3 * rows + 1.0), squeeze=False, sharey=True
     )
+    # The shared SSR axis labelled on the left; each panel's parameter below it; the legend
+    # in one row at the bottom.
+    margins_inches(fig, left=0.75, right=0.15, top=0.4, bottom=0.85, hspace=0.6, wspace=0.2)
     colors = np.array(_cluster_colors(clusters, costs.size), dtype=object)
     v, y, col = values[fin], costs[fin], list(colors[fin])
     floor_ok = noise_floor_ssr is not None and np.isfinite(noise_floor_ssr) and noise_floor_ssr > 0
@@ -548,7 +604,12 @@ def plot_parameter_spread(
             )
         )
     fig.legend(
-        handles=handles, loc="outside lower center", ncol=len(handles), fontsize=8, frameon=False
+        handles=handles,
+        loc="lower center",
+        bbox_to_anchor=(0.5, 0.05 / fig.get_size_inches()[1]),
+        ncol=len(handles),
+        fontsize=8,
+        frameon=False,
     )
     fig.suptitle(title or "multistart end points", fontsize=11)
     return fig, axes

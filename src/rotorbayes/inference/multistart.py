@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import qmc
 
 from ..model.parameters import ParameterError
 from .assess import NEAR_FLOOR, floor_ratio
@@ -174,6 +173,8 @@ def latin_hypercube(
 ) -> np.ndarray:
     """Start points: a Latin hypercube within the bounds, or (``around`` given) a
     Latin hypercube of log-normal factors ``exp(spread * N(0,1))`` around a point."""
+    from scipy.stats import qmc  # here: scipy.stats takes a quarter second to import
+
     k = len(problem.names)
     U = qmc.LatinHypercube(d=k, seed=rng).random(n)
     if around is None:

@@ -27,7 +27,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from .problem import Problem, local_name
 
@@ -68,6 +67,10 @@ def derivatives(theta: np.ndarray, dt: float, window: float = 0.15):
     n = min(n, (theta.size - 1) | 1 if theta.size % 2 == 0 else theta.size)
     if n < 5:
         raise ValueError("the experiment is too short for derivatives of its angles")
+    # here: scipy.signal brings scipy.stats, a third of a second, that a fit from a start
+    # given never needs
+    from scipy.signal import savgol_filter
+
     th = savgol_filter(theta, n, 3)
     w = savgol_filter(theta, n, 3, deriv=1, delta=dt)
     a = savgol_filter(theta, n, 3, deriv=2, delta=dt)
@@ -92,6 +95,19 @@ def _stribeck(x, delta, shape):
     if shape == "rational":
         return 1.0 / (1.0 + x**delta)
     return np.exp(-(x**delta))
+
+
+#: Relative margin above the least projected cost within which a Stribeck grid point is
+#: solved as a regression (the projection agrees with the regression's cost to ~1e-12).
+GRID_NEAR = 1e-3
+
+
+def _near_best(costs: np.ndarray) -> np.ndarray:
+    """Grid points to solve: within :data:`GRID_NEAR` of the least cost, or not known."""
+    ok = np.isfinite(costs)
+    if not ok.any():
+        return np.ones(costs.size, bool)
+    return ~ok | (costs <= costs[ok].min() * (1 + GRID_NEAR) + 1e-300)
 
 
 def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataStart:
@@ -223,31 +239,41 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
     stride = max(1, math.ceil(n_rows / REGRESSION_ROWS))
     take = slice(None, None, stride)
 
+    # The rows and columns that do not depend on the Stribeck grid point, once: every grid
+    # point then only writes its Stribeck column (or right-hand side) into a copy.
+    A_rows, y_rows, group, lower_at = [], [], [], []
+    row = 0
+    for cols, y in zip(Au, yu, strict=True):
+        y = y[take]
+        A_rows.append(
+            np.column_stack([cols[nm][take] if nm in cols else np.zeros(y.size) for nm in names])
+        )
+        y_rows.append(y)
+        group.append(np.zeros(y.size, int))
+        row += y.size
+    for cols, y, (wl, sl) in zip(Al_parts, yl, lower_feats, strict=True):
+        cols = {k: v[take] for k, v in cols.items()}
+        y = y[take]
+        A_rows.append(np.column_stack([cols.get(nm, np.zeros(y.size)) for nm in names]))
+        y_rows.append(y)
+        group.append(np.ones(y.size, int))
+        lower_at.append((row, row + y.size, np.abs(wl[take]), sl[take]))
+        row += y.size
+    A_fixed, y_fixed, g_fixed = np.vstack(A_rows), np.concatenate(y_rows), np.concatenate(group)
+    del A_rows, y_rows, group
+    j_ds = names.index("dS_l") if "dS_l" in names else None
+
     def assemble(ws, delta):
-        A_rows, y_rows, group = [], [], []
-        for cols, y in zip(Au, yu, strict=True):
-            y = y[take]
-            A_rows.append(
-                np.column_stack(
-                    [cols[nm][take] if nm in cols else np.zeros(y.size) for nm in names]
-                )
-            )
-            y_rows.append(y)
-            group.append(np.zeros(y.size, int))
-        for cols, y, (wl, sl) in zip(Al_parts, yl, lower_feats, strict=True):
-            cols = {k: v[take] for k, v in cols.items()}
-            y, wl, sl = y[take], wl[take], sl[take]
-            yy = y
-            if stribeck_on:
-                S = sl * _stribeck(np.abs(wl) / ws, delta, problem.shape)
-                if "dS_l" in names:
-                    cols["dS_l"] = S
+        A, y = A_fixed, y_fixed
+        if stribeck_on:
+            A, y = (A.copy(), y) if j_ds is not None else (A, y.copy())
+            for a, b, awl, sl in lower_at:
+                S = sl * _stribeck(awl / ws, delta, problem.shape)
+                if j_ds is not None:
+                    A[a:b, j_ds] = S
                 else:
-                    yy = y - (val("Ts_l") - val("Tc_l")) * S
-            A_rows.append(np.column_stack([cols.get(nm, np.zeros(y.size)) for nm in names]))
-            y_rows.append(yy)
-            group.append(np.ones(y.size, int))
-        return np.vstack(A_rows), np.concatenate(y_rows), np.concatenate(group)
+                    y[a:b] = y[a:b] - (val("Ts_l") - val("Tc_l")) * S
+        return A, y, g_fixed
 
     def solve(ws, delta, w=None):
         """Weighted linear least squares; the weights (one per disc's equation, the
@@ -270,6 +296,31 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
         cost = float(np.sum((w * (y - A @ sol)) ** 2))
         return sol, cost, {k: int(np.sum(g == k)) for k in (0, 1)}, w
 
+    def grid_costs(grid, w) -> np.ndarray:
+        """Weighted cost of the regression at every grid point ``(ws, delta)`` with the
+        weights ``w``: the right-hand side and the Stribeck column projected out of the
+        span of the other columns (``nan``: not computed, solve there)."""
+        if A_fixed.shape[0] < 3 * len(names) or len(grid) < 2:
+            return np.full(len(grid), np.nan)
+        keep = [j for j in range(len(names)) if j != j_ds]
+        B = A_fixed[:, keep] * w[:, None]
+        U, sv, _ = np.linalg.svd(B, full_matrices=False)
+        # lstsq's rank rule (rcond=None)
+        Q = U[:, sv > np.finfo(float).eps * max(B.shape) * (sv[0] if sv.size else 0.0)]
+        out = np.empty(len(grid))
+        for k, (ws, delta) in enumerate(grid):
+            A, y, _ = assemble(ws, delta)
+            r = y * w
+            r = r - Q @ (Q.T @ r)
+            if j_ds is not None:
+                c = A[:, j_ds] * w
+                c = c - Q @ (Q.T @ c)
+                cc = float(c @ c)
+                if cc > 1e-24 * max(float(np.dot(A[:, j_ds], A[:, j_ds])), 1e-300):
+                    r = r - (float(c @ r) / cc) * c
+            out[k] = float(r @ r)
+        return out
+
     grid_ws = WS_GRID if ("ws_l" in free and stribeck_on) else (val("ws_l"),)
     grid_delta = DELTA_GRID if ("delta_l" in free and stribeck_on) else (val("delta_l"),)
     if not stribeck_on:
@@ -277,7 +328,14 @@ def data_start(problem: Problem, base: dict[str, float] | None = None) -> DataSt
     ref = solve(grid_ws[len(grid_ws) // 2], grid_delta[len(grid_delta) // 2])
     best = None
     if ref is not None:
-        for ws, delta in itertools.product(grid_ws, grid_delta):
+        grid = list(itertools.product(grid_ws, grid_delta))
+        # Every grid point's cost by projection (one SVD of the columns they share); the
+        # regression itself only at those within GRID_NEAR of the least: the same choice
+        # as solving at every point (the projection's error is far below GRID_NEAR).
+        near = _near_best(grid_costs(grid, ref[3]))
+        for (ws, delta), ok in zip(grid, near, strict=True):
+            if not ok:
+                continue
             got = solve(ws, delta, ref[3])
             if got is not None and (best is None or got[1] < best[1]):
                 best = (*got[:3], ws, delta)

@@ -51,7 +51,6 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
-from scipy import stats
 
 #: Length of one block of the block sandwich [s]: long enough to hold a typical stick phase
 #: or a slow-turning stretch whose rounding error repeats, short enough for ≥ 30 blocks
@@ -115,6 +114,8 @@ class Uncertainty:
     def quantile(self, level: float) -> np.ndarray:
         """Half-width of the central ``level`` interval in standard errors, per parameter
         (Student's t with the Welch–Satterthwaite degrees of freedom)."""
+        from scipy import stats  # here: scipy.stats takes a quarter second to import
+
         return stats.t.ppf(0.5 + level / 2, np.maximum(self.dof, 1.0))
 
     def shares(self) -> dict[str, dict[str, float]]:
@@ -345,7 +346,7 @@ def rounding_covariance(
     ``A⁺ Jᵀ e`` is applied to each error.  Returns the covariance of those estimates
     (parameter units), or ``None`` when the fit cannot be simulated.
     """
-    from ..io.measurements import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV, quantize
+    from ..io.measurements import LOWER_COUNTS_PER_REV, UPPER_COUNTS_PER_REV
 
     counts = {"theta_u": UPPER_COUNTS_PER_REV, "theta_l": LOWER_COUNTS_PER_REV}
     rng = np.random.default_rng(seed)
@@ -371,29 +372,83 @@ def rounding_covariance(
             first = int(np.argmax(moved)) if moved.any() else ex.n
             segs.append((c, off, ex.n, wt, sim, first))
             off += ex.n
-    D = np.empty((n_boot, J.shape[1]))
-    # Errors of up to 50 draws at a time: one matrix product instead of 50 (memory-bound);
-    # fewer for long data, so the draws' errors stay within ROUNDING_BYTES.
-    chunk = int(min(50, max(1, ROUNDING_BYTES // (8 * r.size))))
+    # The scores Jᵀe of every draw.  The rounding error of a draw is a sawtooth of the
+    # fitted angle shifted by the draw's phase, so its scores are sums of J over the rows
+    # whose sub-count position lies beyond the phase: one pass over each segment for all
+    # draws (rounding_scores) instead of one pass over J per draw.  The random numbers are
+    # drawn in the order of a draw-by-draw simulation: per draw and segment the phase, then
+    # the Gaussian noise where the floor asks for it.
+    k = J.shape[1]
+    scores = np.zeros((n_boot, k))
+    phase = np.empty((n_boot, len(segs)))
+    qs = [2 * math.pi / counts[c] for c, *_ in segs]
+    extra = [floors[c] ** 2 - q * q / 12 for (c, *_), q in zip(segs, qs, strict=True)]
+    noisy = [i for i, e in enumerate(extra) if e > 0]
+    held = sum(segs[i][2] for i in noisy)
+    # The noise of up to `chunk` draws held at once (within ROUNDING_BYTES), then one
+    # matrix product per segment; one draw at a time where fewer than 8 fit (a product of
+    # 2-7 rows cost more than as many of one row: 9.5 vs 2.7 ms per 3 rows of 600 000).
+    chunk = int(min(n_boot, max(1, ROUNDING_BYTES // (8 * max(held, 1)))))
+    chunk = chunk if chunk >= 8 else 1
     for b0 in range(0, n_boot, chunk):
         m = min(chunk, n_boot - b0)
-        E = np.empty((m, r.size))
+        Z = {i: np.empty((m, segs[i][2])) for i in noisy}
         for b in range(m):
-            for c, o, n, wt, sim, first in segs:
-                cpr = counts[c]
-                q = 2 * math.pi / cpr
-                phi = rng.uniform(-q / 2, q / 2)
-                # The phase moves the rounding pattern; the constant it would add is left
-                # out (simulated data have none; a real rig's is at most half a count).
-                err = quantize(sim + phi, cpr) - sim - phi
-                err[:first] = -sim[:first]
-                extra = floors[c] ** 2 - q * q / 12
-                if extra > 0:
-                    err = err + math.sqrt(extra) * rng.standard_normal(n)
-                E[b, o : o + n] = wt * err
-        D[b0 : b0 + m] = ((E @ J) / d) @ Apinv
-        del E
-    return np.cov(D.T).reshape(J.shape[1], J.shape[1]) / np.outer(d, d)
+            for i, (c, _, n, _, _, _) in enumerate(segs):
+                q = 2 * math.pi / counts[c]
+                phase[b0 + b, i] = rng.uniform(-q / 2, q / 2)
+                if extra[i] > 0:
+                    rng.standard_normal(n, out=Z[i][b])
+        for i in noisy:
+            _, o, n, wt, _, _ = segs[i]
+            scores[b0 : b0 + m] += (wt * math.sqrt(extra[i])) * (Z[i] @ J[o : o + n])
+        del Z
+    for i, (c, o, n, wt, sim, first) in enumerate(segs):
+        q = 2 * math.pi / counts[c]
+        scores += wt * rounding_scores(sim, J[o : o + n], q, first, phase[:, i])
+    D = (scores / d) @ Apinv
+    return np.cov(D.T).reshape(k, k) / np.outer(d, d)
+
+
+def rounding_scores(
+    sim: np.ndarray, J: np.ndarray, q: float, first: int, phase: np.ndarray
+) -> np.ndarray:
+    """``Jᵀ e`` for the rounding error ``e = round((sim + φ)/q)·q − sim − φ`` of every phase
+    ``φ`` in ``phase`` (``|φ| ≤ q/2``), with ``e = −sim`` on the rows before ``first`` (the
+    encoder still reads 0 there); one row per phase.
+
+    With ``s = sim/q`` and its sub-count part ``f = s − round(s)`` (in ``[−½, ½]``), the
+    error is ``q (r − f − φ/q)`` where ``r`` is +1 for ``f > ½ − φ/q``, −1 for
+    ``f < −½ − φ/q`` and 0 otherwise (exact ties, where rounding to even would decide,
+    have measure zero).  The sums of ``J`` over those rows come from one histogram of
+    ``f`` over the ``2 × len(phase)`` thresholds, so ``J`` is read once for all phases.
+    """
+    J = np.asarray(J, float)
+    n, k = J.shape
+    out = np.zeros((phase.size, k))
+    if first > 0:
+        out -= sim[:first] @ J[:first]
+    if first >= n:
+        return out
+    s = sim[first:] / q
+    f = s - np.round(s)
+    Jr = J[first:]
+    u = np.asarray(phase, float) / q
+    edges = np.concatenate([0.5 - u, -0.5 - u])
+    order = np.argsort(edges, kind="stable")
+    # bin[i]: how many thresholds lie below f[i]; rows above threshold j are bin > pos[j].
+    where = np.searchsorted(edges[order], f, side="left")
+    pos = np.empty(edges.size, np.int64)
+    pos[order] = np.arange(edges.size)
+    hist = np.empty((edges.size + 1, k))
+    for j in range(k):
+        hist[:, j] = np.bincount(where, weights=Jr[:, j], minlength=edges.size + 1)
+    below = np.cumsum(hist, axis=0)  # below[m]: sum of the rows in bins 0..m
+    total = below[-1]
+    up, down = pos[: u.size], pos[u.size :]
+    saw = (total - below[up]) - below[down] - f @ Jr - u[:, None] * total
+    out += q * saw
+    return out
 
 
 def loewner_max(P: np.ndarray, Q: np.ndarray) -> np.ndarray:

@@ -319,7 +319,7 @@ def load_analysis(path: str | Path) -> Analysis:
     if "noise" in s and s["noise"] not in ("robust", "floor", "sampled"):
         raise _err(p, "sample", f"noise = {s['noise']!r}; choose robust, floor or sampled")
     if "moves" in s:
-        from ...inference.sampling import MOVES
+        from ...inference.move_names import MOVES
 
         if s["moves"] not in MOVES:
             raise _err(p, "sample", f"moves = {s['moves']!r}; choose one of {', '.join(MOVES)}")
