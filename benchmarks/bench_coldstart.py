@@ -39,7 +39,8 @@ from pathlib import Path
 #: The child: the command line's ``main`` with the command's arguments, then the seconds
 #: each entry point took to compile (``coldstart.COMPILE_SECONDS``) to the file named first.
 CHILD = """import json, sys
-from rotorbayes import cli, coldstart
+from rotorbayes import cli
+from rotorbayes.util import coldstart
 out = sys.argv.pop(1)
 try:
     rc = cli.main(sys.argv[1:]) if len(sys.argv) > 1 else 0
