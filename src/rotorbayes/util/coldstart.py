@@ -1,20 +1,19 @@
-"""The first run compiles the integrator; say so, with the real wall time.
+"""The first run compiles the integrator; say so, in one line, with the real wall time.
 
 Nothing is compiled when rotorbayes is imported.  Each of the solver's entry points
 (:data:`rotorbayes.kernel.solver.SIGNATURES`: a simulation, the residuals, their parallel
 batches; each plain, full or with user hooks) is compiled by numba when a command first
 uses it (:func:`kernel_entry`) and kept in numba's on-disk cache, so a command compiles
-only what it uses.  With a cold cache (a fresh install, a new Python, an edited kernel)
-:func:`kernel_entry` says what is happening before and how long it took after, on stderr;
-with a warm one it says nothing.  Measured with an empty cache
-(``benchmarks/bench_coldstart.py``; CPU seconds of the compiling process, one core's time,
-2 cores shared with other work): the first ``rotorbayes simulate`` compiles for 17 s (the
-plain simulation), the first ``rotorbayes fit`` for 20-21 s (the plain residuals, their
-batch, the simulation; one compilation of the solver serves all three); 25-28 s and
-31-33 s before the Runge-Kutta step was compiled as a function of its own.  Before, every
-entry point was compiled at import: 121 s (69 s before the effect state).
+only what it uses: a simulation alone, or the residuals with what a fit uses with them
+(their batch for the Jacobian's columns, the simulation of the result; :data:`GROUPS`).
+With a cold cache (a fresh install, a new Python, an edited kernel) :func:`kernel_entry`
+says what is happening before and how long it took after, on stderr, in one line; with a
+warm one it says nothing.  Measured with an empty cache (``benchmarks/bench_coldstart.py``;
+CPU seconds of the compiling process, one core's time, 2 cores shared with other work):
+the first ``rotorbayes simulate`` compiles for FIGSIM s, the first ``rotorbayes fit`` for
+FIGFIT s (FIGFITMAIN s before a batch called its row by address and the collector paused,
+in three lines).  Before, every entry point was compiled at import: 121 s.
 """
-
 from __future__ import annotations
 
 import importlib.util
@@ -31,8 +30,8 @@ from pathlib import Path
 PARENT_ENV = "ROTORBAYES_PARENT_PID"
 
 #: The notice's first part (tests look for it); the whole line reads "rotorbayes: compiling
-#: the integrator (the residuals, plain kernel), once: numba caches it for later runs ...
-#: took 14 s".
+#: the integrator (the residuals, their parallel batches and the simulation, plain kernel),
+#: once: numba caches it for later runs ... took 17 s".
 MESSAGE = "rotorbayes: compiling the integrator"
 
 
