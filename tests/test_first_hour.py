@@ -108,10 +108,25 @@ def test_compile_notice_is_one_line_for_what_a_fit_compiles(monkeypatch):
     monkeypatch.setattr(coldstart, "_READY", {})
     monkeypatch.setattr(coldstart, "COMPILE_SECONDS", {})
     monkeypatch.setattr(coldstart, "COMPILE_CPU_SECONDS", {})
-    monkeypatch.setattr(coldstart, "cache_is_cold", lambda name="*": True)
+    monkeypatch.setattr(coldstart, "cache_is_cold", lambda name="*", module="solver": True)
     monkeypatch.setattr(solver, "is_ready", lambda name: False)
     asked = []
     monkeypatch.setattr(solver, "entry", lambda name: asked.append(name) or "compiled " + name)
+    helpers = []  # the least squares' compiled helpers, compiled with the residuals
+
+    class Helper:
+        def compile(self, args):
+            helpers.append(args)
+
+    monkeypatch.setattr(
+        coldstart,
+        "_helpers",
+        lambda name, parallel: (
+            [("triangle", "triangle", Helper(), ("D", "r", "scale"))]
+            if parallel and "residuals" in name
+            else []
+        ),
+    )
     buf = io.StringIO()
     assert coldstart.kernel_entry("residuals_into_plain", buf) == "compiled residuals_into_plain"
     line = buf.getvalue()
@@ -121,7 +136,8 @@ def test_compile_notice_is_one_line_for_what_a_fit_compiles(monkeypatch):
     ) and line.rstrip().endswith(" s")
     assert line.count("\n") == 1 and line.count("took") == 1
     group = {"residuals_into_plain", "residuals_batch_into_plain", "simulate_into_plain"}
-    assert set(asked) == set(coldstart.COMPILE_SECONDS) == group
+    assert set(asked) == group and helpers == [("D", "r", "scale")]
+    assert set(coldstart.COMPILE_SECONDS) == group | {"triangle.triangle"}
     buf = io.StringIO()  # ready now, the batch too: nothing said, nothing asked of the solver
     assert coldstart.kernel_entry("residuals_batch_into_plain", buf).startswith("compiled")
     assert buf.getvalue() == "" and len(asked) == 3
@@ -130,3 +146,8 @@ def test_compile_notice_is_one_line_for_what_a_fit_compiles(monkeypatch):
     assert coldstart.kernel_entry("simulate_into_full", buf) == "compiled simulate_into_full"
     assert buf.getvalue().startswith(coldstart.MESSAGE + " (the simulation, full kernel), once")
     assert asked[3:] == ["simulate_into_full"]
+    # A process that forks (a pool's fork server) loads no parallel batch or helper.
+    buf = io.StringIO()
+    coldstart.kernel_entry("residuals_into_full", buf, parallel=False)
+    assert asked[4:] == ["residuals_into_full"] and len(helpers) == 1
+    assert "(the residuals, full kernel)" in buf.getvalue()

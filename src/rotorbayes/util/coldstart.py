@@ -14,6 +14,7 @@ the first ``rotorbayes simulate`` compiles for FIGSIM s, the first ``rotorbayes 
 FIGFIT s (FIGFITMAIN s before a batch called its row by address and the collector paused,
 in three lines).  Before, every entry point was compiled at import: 121 s.
 """
+
 from __future__ import annotations
 
 import importlib.util
@@ -68,22 +69,23 @@ def _index_is_current(index: Path, source: Path, numba_version: str | None) -> b
     return tuple(stamp) == (st.st_mtime, st.st_size)
 
 
-def _solver_source() -> tuple[Path, Path] | None:
-    """``(kernel folder, solver.py)`` of the installed package, or None."""
+def _solver_source(module: str = "solver") -> tuple[Path, Path] | None:
+    """``(kernel folder, solver.py)`` (or another kernel ``module``'s file) of the installed
+    package, or None."""
     spec = importlib.util.find_spec("rotorbayes.kernel")
     if spec is None or not spec.submodule_search_locations:
         return None
     kernel_dir = Path(next(iter(spec.submodule_search_locations)))
-    return kernel_dir, kernel_dir / "solver.py"
+    return kernel_dir, kernel_dir / f"{module}.py"
 
 
-def cache_is_cold(name: str = "*") -> bool:
+def cache_is_cold(name: str = "*", module: str = "solver") -> bool:
     """True when numba has no cache entry of the solver's function ``name`` (``"*"``: of
-    any of its functions) that matches its source for this Python and this numba (numba
-    would compile it)."""
+    any of its functions; of another kernel ``module``'s) that matches its source for this
+    Python and this numba (numba would compile it)."""
     from importlib.metadata import PackageNotFoundError, version
 
-    found_source = _solver_source()
+    found_source = _solver_source(module)
     if found_source is None:
         return False
     kernel_dir, source = found_source
@@ -95,7 +97,7 @@ def cache_is_cold(name: str = "*") -> bool:
     for d in _cache_dirs(kernel_dir):
         if not d.is_dir():
             continue
-        pattern = f"solver.{name}-*.{tag}.nbi" if name != "*" else f"solver.*.{tag}.nbi"
+        pattern = f"{module}.{name}-*.{tag}.nbi" if name != "*" else f"{module}.*.{tag}.nbi"
         found = d.glob(pattern) if d.name == "__pycache__" else d.rglob(pattern)
         if any(_index_is_current(p, source, numba_version) for p in found):
             return False
@@ -125,13 +127,23 @@ _WHAT = {
 #: What the first use of an entry point compiles with it, in one go and said in one line
 #: (by the entry point without its kernel's suffix): the residuals' first use is a fit's,
 #: whose Jacobian's columns are a batch of residuals and whose result is a simulation (a
-#: first ``fit`` said three lines); a simulation is compiled alone (``simulate``).
+#: first ``fit`` said three lines, and compiled its least squares' helpers unsaid); a
+#: simulation is compiled alone (``simulate``).
 GROUPS = {
     "residuals_into": ("residuals_into", "residuals_batch_into", "simulate_into"),
     "residuals_batch_into": ("residuals_into", "residuals_batch_into", "simulate_into"),
     "simulate_into": ("simulate_into",),
     "simulate_batch_into": ("simulate_into", "simulate_batch_into"),
 }
+
+#: The compiled helpers outside the solver that a fit's least squares uses with the
+#: residuals (all parallel), as ``(kernel module, function, argument types)``: the
+#: Jacobian's difference quotients and the QR triangle of ``[J | r]``
+#: (:mod:`rotorbayes.kernel.triangle`), for the arrays the least squares passes.
+FIT_HELPERS = (
+    ("triangle", "difference_quotients", "float64[:, ::1], float64[::1], float64[::1]"),
+    ("triangle", "triangle", "float64[:, ::1], float64[::1], float64[::1]"),
+)
 
 #: The entry points ready in this process, by name (the hot path looks here first).
 _READY: dict = {}
@@ -154,11 +166,27 @@ def _split(name: str) -> tuple[str, str]:
     return name, ""
 
 
-def group_of(name: str) -> list[str]:
+def group_of(name: str, parallel: bool = True) -> list[str]:
     """The entry points compiled together with ``name`` (``name`` among them): see
-    :data:`GROUPS`."""
+    :data:`GROUPS`; without the parallel batches but ``name`` if not ``parallel``."""
     base, suffix = _split(name)
-    return [m + suffix for m in GROUPS[base]]
+    return [m + suffix for m in GROUPS[base] if m == base or parallel or "batch" not in m]
+
+
+def _helpers(name: str, parallel: bool) -> list[tuple]:
+    """``(module, function name, dispatcher, argument types)`` of the helpers compiled
+    with ``name`` (:data:`FIT_HELPERS` with the residuals), not yet compiled."""
+    if not parallel or _split(name)[0] not in ("residuals_into", "residuals_batch_into"):
+        return []
+    from numba.core import sigutils
+
+    out = []
+    for module, fn_name, arg_types in FIT_HELPERS:
+        fn = getattr(importlib.import_module(f"rotorbayes.kernel.{module}"), fn_name)
+        args, _ = sigutils.normalize_signature(f"({arg_types},)")
+        if args not in fn.overloads:
+            out.append((module, fn_name, fn, args))
+    return out
 
 
 def notice(names) -> str:
@@ -172,17 +200,19 @@ def notice(names) -> str:
     return f"{MESSAGE} ({what}, {kernel}), once: numba caches it for later runs ..."
 
 
-def kernel_entry(name: str, stream=None):
+def kernel_entry(name: str, stream=None, *, parallel: bool = True):
     """The solver's entry point ``name`` (a key of
     :data:`rotorbayes.kernel.solver.SIGNATURES`), compiled or loaded from numba's cache on
-    its first use in this process, with the entry points that go with it (:data:`GROUPS`).
-    With a cold cache the compilation is said on stderr (``stream``), in one line:
-    :data:`MESSAGE` before, the wall time of the whole after."""
+    its first use in this process, with what goes with it (:data:`GROUPS`,
+    :data:`FIT_HELPERS`; the parallel ones only if ``parallel``: a process that forks
+    must not have loaded them, they start numba's threads).  With a cold cache the
+    compilation is said on stderr (``stream``), in one line: :data:`MESSAGE` before, the
+    wall time of the whole after."""
     fn = _READY.get(name)
     if fn is not None:
         return fn
     with _COMPILING:  # threads of one process (a multistart) compile and say it once
-        return _compile_entry(name, stream)
+        return _compile_entry(name, stream, parallel)
 
 
 def _is_cold(solver, name: str) -> bool:
@@ -194,7 +224,7 @@ def _is_cold(solver, name: str) -> bool:
     return any(cache_is_cold(solver.compiled(n).__name__) for n in names)
 
 
-def _compile_entry(name: str, stream):
+def _compile_entry(name: str, stream, parallel: bool = True):
     fn = _READY.get(name)
     if fn is not None:
         return fn
@@ -202,11 +232,15 @@ def _compile_entry(name: str, stream):
 
     from ..kernel import solver
 
-    names = [n for n in group_of(name) if n not in _READY]
-    cold = [n for n in names if _is_cold(solver, n)]
+    names = [n for n in group_of(name, parallel) if n not in _READY]
+    cold_entries = [n for n in names if _is_cold(solver, n)]
+    helpers = _helpers(name, parallel)
+    cold = list(cold_entries)
+    if cold:  # the helpers are said with the entry points; compiled alone, they are not
+        cold += [f"{m}.{f}" for m, f, _, _ in helpers if cache_is_cold(f, m)]
     stream = sys.stderr if stream is None else stream
     if cold:
-        print(notice(cold), end="", file=stream, flush=True)
+        print(notice(cold_entries), end="", file=stream, flush=True)
     t_all = time.perf_counter()
     # numba makes millions of small objects while it compiles; with the command's modules
     # loaded (a third of a million objects) Python's cyclic collections took 1.5-2 of a
@@ -214,16 +248,20 @@ def _compile_entry(name: str, stream):
     # numba compiles, one of the young objects after each entry point (0.1-0.4 s, counted
     # in its time); the command's peak memory is 500 MB instead of 420 MB.
     collecting = gc.isenabled()
+    jobs = [(n, lambda n=n: solver.entry(n)) for n in names]
+    jobs += [(f"{m}.{f}", lambda fn=fn, args=args: fn.compile(args)) for m, f, fn, args in helpers]
     try:
-        for n in names:
+        for n, job in jobs:
             t0, c0 = time.perf_counter(), time.process_time()
             gc.disable()
             try:
-                _READY[n] = solver.entry(n)
+                done = job()
             finally:
                 if collecting:
                     gc.enable()
                     gc.collect(0)
+            if n in names:
+                _READY[n] = done
             if n in cold:
                 COMPILE_SECONDS[n] = time.perf_counter() - t0
                 COMPILE_CPU_SECONDS[n] = time.process_time() - c0
