@@ -5,14 +5,17 @@ Nothing is compiled when rotorbayes is imported.  Each of the solver's entry poi
 batches; each plain, full or with user hooks) is compiled by numba when a command first
 uses it (:func:`kernel_entry`) and kept in numba's on-disk cache, so a command compiles
 only what it uses: a simulation alone, or the residuals with what a fit uses with them
-(their batch for the Jacobian's columns, the simulation of the result; :data:`GROUPS`).
+(their batch for the Jacobian's columns, the simulation of the result, the least squares'
+compiled helpers; :data:`GROUPS`, :data:`FIT_HELPERS`).
 With a cold cache (a fresh install, a new Python, an edited kernel) :func:`kernel_entry`
 says what is happening before and how long it took after, on stderr, in one line; with a
 warm one it says nothing.  Measured with an empty cache (``benchmarks/bench_coldstart.py``;
-CPU seconds of the compiling process, one core's time, 2 cores shared with other work):
-the first ``rotorbayes simulate`` compiles for FIGSIM s, the first ``rotorbayes fit`` for
-FIGFIT s (FIGFITMAIN s before a batch called its row by address and the collector paused,
-in three lines).  Before, every entry point was compiled at import: 121 s.
+CPU seconds of the compiling process, one core's time, 2 cores shared with other work,
+every numba compilation of the command counted): the first ``rotorbayes simulate``
+compiles for 14-14.5 s, the first ``rotorbayes fit`` for 19.5-20.5 s (17-18.7 s and
+26.5-26.8 s, in three lines for the fit, before a batch called its row by address, the
+collector paused and the least squares' helpers compiled more cheaply).  Before, every
+entry point was compiled at import: 121 s.
 """
 
 from __future__ import annotations
