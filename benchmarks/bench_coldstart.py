@@ -17,7 +17,9 @@ Each is run ``--rounds`` times, the commands alternating, so a passing load hits
 min and median per command.  The compile time is the sum of what the command's
 ``coldstart.kernel_entry`` measured (the "took N s" figures, unrounded), as wall time and as
 the process's CPU time meanwhile (numba compiles on one core; on a shared machine the CPU
-time is what an idle core gives, the wall time is not).
+time is what an idle core gives, the wall time is not); beside it, the CPU time of every
+numba compilation in the process, the few small functions the command compiles outside
+the entry points included (the step grid, the parameter check: about 1-1.5 s).
 
 Usage::
 
@@ -37,14 +39,32 @@ import time
 from pathlib import Path
 
 #: The child: the command line's ``main`` with the command's arguments, then the seconds
-#: each entry point took to compile (``coldstart.COMPILE_SECONDS``) to the file named first.
-CHILD = """import json, sys
-from rotorbayes import cli, coldstart
+#: each entry point took to compile (``coldstart.COMPILE_SECONDS``) to the file named first,
+#: and the CPU seconds of every numba compilation in the process (numba's compile events,
+#: outermost only): the entry points' and what the command compiles outside them (the step
+#: grid, the parameter check).
+CHILD = """import json, sys, time
+from numba.core import event
+from rotorbayes import cli
+from rotorbayes.util import coldstart
 out = sys.argv.pop(1)
+class AllCompiles(event.Listener):
+    depth, start, total = 0, 0.0, 0.0
+    def on_start(self, e):
+        if self.depth == 0:
+            self.start = time.process_time()
+        self.depth += 1
+    def on_end(self, e):
+        self.depth -= 1
+        if self.depth == 0:
+            self.total += time.process_time() - self.start
+every = AllCompiles()
+event.register("numba:compile", every)
 try:
     rc = cli.main(sys.argv[1:]) if len(sys.argv) > 1 else 0
 finally:
-    open(out, "w").write(json.dumps([coldstart.COMPILE_SECONDS, coldstart.COMPILE_CPU_SECONDS]))
+    open(out, "w").write(json.dumps([coldstart.COMPILE_SECONDS, coldstart.COMPILE_CPU_SECONDS,
+                                     every.total]))
 sys.exit(rc)
 """
 
@@ -73,7 +93,9 @@ def run_cold(name: str) -> dict:
         t0 = time.perf_counter()
         res = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=tmp)
         wall = time.perf_counter() - t0
-        compiled, cpu = json.loads(report.read_text()) if report.exists() else ({}, {})
+        compiled, cpu, every = (
+            json.loads(report.read_text()) if report.exists() else ({}, {}, float("nan"))
+        )
         notices = [line for line in res.stderr.splitlines() if "compiling the integrator" in line]
     return {
         "wall": wall,
@@ -81,6 +103,7 @@ def run_cold(name: str) -> dict:
         "compile": sum(compiled.values()),
         "cpu": cpu,
         "compile_cpu": sum(cpu.values()),
+        "every_compile_cpu": every,
         "rc": res.returncode,
         "notices": notices,
         "load": os.getloadavg()[0],
@@ -105,7 +128,8 @@ def main() -> None:
             parts = ", ".join(f"{k} {v:.1f} s" for k, v in out["compiled"].items()) or "nothing"
             print(
                 f"round {r + 1} {n}: wall {out['wall']:.1f} s, compiled {out['compile']:.1f} s "
-                f"(CPU {out['compile_cpu']:.1f} s) "
+                f"(CPU {out['compile_cpu']:.1f} s; all numba compiles "
+                f"{out['every_compile_cpu']:.1f} CPU s) "
                 f"({parts}), exit {out['rc']}, 1-min load {out['load']:.1f}",
                 flush=True,
             )
@@ -116,18 +140,20 @@ def main() -> None:
         "rounds; min / median [s]"
     )
     print(
-        "| command | compiling (wall) | compiling (CPU) | whole command (wall) | entry "
-        "points compiled |"
+        "| command | compiling (wall) | compiling (CPU) | all numba compiles (CPU) | whole "
+        "command (wall) | entry points compiled |"
     )
-    print("|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|")
     for n in names:
         c = [x["compile"] for x in runs[n]]
         u = [x["compile_cpu"] for x in runs[n]]
+        e = [x["every_compile_cpu"] for x in runs[n]]
         w = [x["wall"] for x in runs[n]]
         entries = ", ".join(sorted({k for x in runs[n] for k in x["compiled"]})) or "none"
         print(
             f"| {n} | {min(c):.1f} / {statistics.median(c):.1f} | {min(u):.1f} / "
-            f"{statistics.median(u):.1f} | {min(w):.1f} / {statistics.median(w):.1f} | "
+            f"{statistics.median(u):.1f} | {min(e):.1f} / {statistics.median(e):.1f} | "
+            f"{min(w):.1f} / {statistics.median(w):.1f} | "
             f"{entries} |"
         )
     if a.json:

@@ -92,7 +92,7 @@ def test_import_compiles_nothing():
 
     code = (
         "import rotorbayes\nfrom rotorbayes.kernel import solver as S\n"
-        "print(sum(len(getattr(S, n).overloads) for n in S.SIGNATURES),"
+        "print(sum(len(S.compiled(n).overloads) for n in S.SIGNATURES),"
         " len(S._integrate.overloads))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -100,24 +100,54 @@ def test_import_compiles_nothing():
     assert out.stdout.split() == ["0", "0"]
 
 
-def test_compile_notice_names_the_entry_point_and_its_time(monkeypatch):
+def test_compile_notice_is_one_line_for_what_a_fit_compiles(monkeypatch):
+    # A fit's first residuals compile its Jacobian's batch and its simulation with them:
+    # one line, one figure (it said three lines, one per entry point).
     from rotorbayes.kernel import solver
 
     monkeypatch.setattr(coldstart, "_READY", {})
     monkeypatch.setattr(coldstart, "COMPILE_SECONDS", {})
-    monkeypatch.setattr(coldstart, "cache_is_cold", lambda name="*": True)
+    monkeypatch.setattr(coldstart, "COMPILE_CPU_SECONDS", {})
+    monkeypatch.setattr(coldstart, "cache_is_cold", lambda name="*", module="solver": True)
     monkeypatch.setattr(solver, "is_ready", lambda name: False)
-    monkeypatch.setattr(solver, "entry", lambda name: "compiled " + name)
-    buf = io.StringIO()
-    assert coldstart.kernel_entry("residuals_batch_into_plain", buf) == (
-        "compiled residuals_batch_into_plain"
+    asked = []
+    monkeypatch.setattr(solver, "entry", lambda name: asked.append(name) or "compiled " + name)
+    helpers = []  # the least squares' compiled helpers, compiled with the residuals
+
+    class Helper:
+        def compile(self, args):
+            helpers.append(args)
+
+    monkeypatch.setattr(
+        coldstart,
+        "_helpers",
+        lambda name, parallel: (
+            [("triangle", "triangle", Helper(), ("D", "r", "scale"))]
+            if parallel and "residuals" in name
+            else []
+        ),
     )
+    buf = io.StringIO()
+    assert coldstart.kernel_entry("residuals_into_plain", buf) == "compiled residuals_into_plain"
     line = buf.getvalue()
     assert line.startswith(
-        coldstart.MESSAGE + " (the residuals in parallel batches, plain kernel), once"
+        coldstart.MESSAGE
+        + " (the residuals, their parallel batches and the simulation, plain kernel), once"
     ) and line.rstrip().endswith(" s")
-    assert line.count("\n") == 1 and "took" in line
-    assert set(coldstart.COMPILE_SECONDS) == {"residuals_batch_into_plain"}
-    buf = io.StringIO()  # ready now: nothing said, nothing asked of the solver
+    assert line.count("\n") == 1 and line.count("took") == 1
+    group = {"residuals_into_plain", "residuals_batch_into_plain", "simulate_into_plain"}
+    assert set(asked) == group and helpers == [("D", "r", "scale")]
+    assert set(coldstart.COMPILE_SECONDS) == group | {"triangle.triangle"}
+    buf = io.StringIO()  # ready now, the batch too: nothing said, nothing asked of the solver
     assert coldstart.kernel_entry("residuals_batch_into_plain", buf).startswith("compiled")
-    assert buf.getvalue() == ""
+    assert buf.getvalue() == "" and len(asked) == 3
+    # A simulation alone compiles the simulation alone (the first `simulate`).
+    buf = io.StringIO()
+    assert coldstart.kernel_entry("simulate_into_full", buf) == "compiled simulate_into_full"
+    assert buf.getvalue().startswith(coldstart.MESSAGE + " (the simulation, full kernel), once")
+    assert asked[3:] == ["simulate_into_full"]
+    # A process that forks (a pool's fork server) loads no parallel batch or helper.
+    buf = io.StringIO()
+    coldstart.kernel_entry("residuals_into_full", buf, parallel=False)
+    assert asked[4:] == ["residuals_into_full"] and len(helpers) == 1
+    assert "(the residuals, full kernel)" in buf.getvalue()

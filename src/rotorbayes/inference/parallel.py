@@ -243,7 +243,7 @@ def warm_kernel(parallel_entries: bool = True) -> None:
     names = ["residuals_into_plain"] + (["residuals_batch_into_plain"] if parallel_entries else [])
     for name in names:
         with contextlib.suppress(Exception):
-            kernel_entry(name)
+            kernel_entry(name, parallel=parallel_entries)
 
 
 def _process_initializer(active=None, cap: int = 1) -> None:

@@ -49,10 +49,12 @@ and interpolates.  The kernel never raises: it returns a status code
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 from numba import njit, prange, types
 
+from .calls import address, caller
 from .layout import (
     BAD_EFFECT,
     BAD_PARAMETERS,
@@ -776,64 +778,6 @@ def residuals_into(
     return status
 
 
-_BATCH_SIGNATURE = types.void(
-    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE,
-    types.int64,
-    types.float64[:, ::1], types.float64[:, ::1], types.int64[::1],
-)  # fmt: skip
-
-
-@njit(cache=True)
-def _batch_scratch(n):
-    """What one row of a batched simulation writes and nobody reads: velocities, modes
-    (``n`` samples each) and no events."""
-    return (np.empty(n), np.empty(n), np.empty(n, dtype=np.int8), np.empty(n, dtype=np.int8),
-            np.empty((0, 3)))  # fmt: skip
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def simulate_batch_into(
-    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
-    state_reset, out_thu, out_thl, status,
-):  # fmt: skip
-    """Integrate one experiment for every row of ``P`` (and ``Q``) in parallel threads.
-
-    ``out_thu`` and ``out_thl`` have shape ``(len(P), len(u))``; ``status`` ``len(P)``.
-    """
-    m = P.shape[0]
-    n = u.shape[0]
-    for i in prange(m):
-        wu, wl, mu, ml, ev = _batch_scratch(n)
-        s, _ = simulate_into(
-            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
-            hook_shift, hook_rate, state_reset, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
-        )  # fmt: skip
-        status[i] = s
-
-
-_SIMULATE_PLAIN_BATCH_SIGNATURE = types.void(
-    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, _F1, types.float64, _F1, types.float64[:, ::1], types.float64[:, ::1],
-    types.int64[::1],
-)  # fmt: skip
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def simulate_batch_into_plain(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl, status):
-    """:func:`simulate_batch_into` for a model without user-defined effects (see
-    :func:`simulate_into_plain`)."""
-    m = P.shape[0]
-    n = u.shape[0]
-    for i in prange(m):
-        wu, wl, mu, ml, ev = _batch_scratch(n)
-        s, _ = simulate_into_plain(
-            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, out_thu[i], wu, out_thl[i], wl,
-            mu, ml, ev,
-        )  # fmt: skip
-        status[i] = s
-
-
 _PLAIN_SIGNATURE = types.int64(
     _F1, _F1, _F1, types.float64, types.int64, types.int64, _F1, types.float64, _F1,
     _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
@@ -860,53 +804,6 @@ def residuals_into_plain(
         meas_u, meas_l, w_u, w_l, r, row, col_u, col_l,
     )  # fmt: skip
     return status
-
-
-_RESIDUALS_BATCH_SIGNATURE = types.void(
-    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE,
-    types.int64,
-    _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
-    types.int64[::1],
-)  # fmt: skip
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def residuals_batch_into(
-    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
-    state_reset, meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
-):  # fmt: skip
-    """:func:`residuals_into` for every row of ``P`` (and ``Q``) in parallel threads:
-    row ``i`` of ``R`` receives the residuals of parameter row ``i``, ``status[i]`` its
-    status.  Nothing is allocated per row."""
-    m = P.shape[0]
-    for i in prange(m):
-        status[i] = residuals_into(
-            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
-            hook_shift, hook_rate, state_reset, meas_u, meas_l, w_u, w_l, R, i, col_u, col_l,
-        )  # fmt: skip
-
-
-_PLAIN_BATCH_SIGNATURE = types.void(
-    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
-    types.int64, _F1, types.float64, _F1, _F1, _F1, types.float64, types.float64,
-    types.float64[:, ::1], types.int64, types.int64, types.int64[::1],
-)  # fmt: skip
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def residuals_batch_into_plain(
-    P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
-    status,
-):  # fmt: skip
-    """:func:`residuals_batch_into` for a model without user-defined effects (see
-    :func:`residuals_into_plain`)."""
-    m = P.shape[0]
-    for i in prange(m):
-        status[i] = residuals_into_plain(
-            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
-            i, col_u, col_l,
-        )  # fmt: skip
 
 
 # ------------------------------------------------------------------ the full kernel
@@ -945,41 +842,188 @@ def residuals_into_full(
     return status
 
 
+# ------------------------------------------------------------------ parallel batches
+# A batch calls its row's entry point through the address of the row's compiled code
+# (calls.caller), passed in as its first argument `row_fn` by entry(): a direct call would
+# link the whole solver into the batch and have LLVM optimise and translate it again, 3.0-
+# 3.3 CPU s on 2 cores of a first fit's 20 (now 0.4 s).  The plain and the full kernel's
+# rows have one signature, so one compiled batch serves both.  Called through the public
+# functions below (or entry()), which pass the right address.
+_BATCH_SIGNATURE = types.void(
+    types.int64,
+    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
+    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE,
+    types.int64,
+    types.float64[:, ::1], types.float64[:, ::1], types.int64[::1],
+)  # fmt: skip
+_SIMULATE_PLAIN_BATCH_SIGNATURE = types.void(
+    types.int64,
+    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
+    types.int64, _F1, types.float64, _F1, types.float64[:, ::1], types.float64[:, ::1],
+    types.int64[::1],
+)  # fmt: skip
+_RESIDUALS_BATCH_SIGNATURE = types.void(
+    types.int64,
+    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
+    types.int64, _F1, types.float64, _F1, types.boolean, HOOK_TYPE, HOOK_TYPE, HOOK_TYPE,
+    types.int64,
+    _F1, _F1, types.float64, types.float64, types.float64[:, ::1], types.int64, types.int64,
+    types.int64[::1],
+)  # fmt: skip
+_PLAIN_BATCH_SIGNATURE = types.void(
+    types.int64,
+    types.float64[:, ::1], types.float64[:, ::1], _F1, types.float64, types.int64,
+    types.int64, _F1, types.float64, _F1, _F1, _F1, types.float64, types.float64,
+    types.float64[:, ::1], types.int64, types.int64, types.int64[::1],
+)  # fmt: skip
+
+_call_simulate = caller(_SIMULATE_SIGNATURE)
+_call_simulate_plain = caller(_SIMULATE_PLAIN_SIGNATURE)
+_call_residuals = caller(_RESIDUALS_SIGNATURE)
+_call_residuals_plain = caller(_PLAIN_SIGNATURE)
+
+
+@njit(cache=True)
+def _batch_scratch(n):
+    """What one row of a batched simulation writes and nobody reads: velocities, modes
+    (``n`` samples each) and no events."""
+    return (np.empty(n), np.empty(n), np.empty(n, dtype=np.int8), np.empty(n, dtype=np.int8),
+            np.empty((0, 3)))  # fmt: skip
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
-def simulate_batch_into_full(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl, status):
-    """:func:`simulate_batch_into_plain` on the full kernel."""
+def _simulate_batch(
+    row_fn, P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
+    hook_rate, state_reset, out_thu, out_thl, status,
+):  # fmt: skip
+    """:func:`simulate_batch_into` with the address of :func:`simulate_into`'s code."""
     m = P.shape[0]
     n = u.shape[0]
     for i in prange(m):
         wu, wl, mu, ml, ev = _batch_scratch(n)
-        s, _ = simulate_into_full(
-            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, out_thu[i], wu, out_thl[i], wl,
-            mu, ml, ev,
-        )  # fmt: skip
+        s, _ = _call_simulate(row_fn, (
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
+            hook_shift, hook_rate, state_reset, out_thu[i], wu, out_thl[i], wl, mu, ml, ev,
+        ))  # fmt: skip
         status[i] = s
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
+def _simulate_batch_plain(row_fn, P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl,
+                          status):  # fmt: skip
+    """:func:`simulate_batch_into_plain` (or ``_full``) with the address of the row's code."""
+    m = P.shape[0]
+    n = u.shape[0]
+    for i in prange(m):
+        wu, wl, mu, ml, ev = _batch_scratch(n)
+        s, _ = _call_simulate_plain(row_fn, (
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, out_thu[i], wu, out_thl[i], wl,
+            mu, ml, ev,
+        ))  # fmt: skip
+        status[i] = s
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _residuals_batch(
+    row_fn, P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
+    hook_rate, state_reset, meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
+):  # fmt: skip
+    """:func:`residuals_batch_into` with the address of :func:`residuals_into`'s code."""
+    m = P.shape[0]
+    for i in prange(m):
+        status[i] = _call_residuals(row_fn, (
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque,
+            hook_shift, hook_rate, state_reset, meas_u, meas_l, w_u, w_l, R, i, col_u, col_l,
+        ))  # fmt: skip
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _residuals_batch_plain(
+    row_fn, P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u,
+    col_l, status,
+):  # fmt: skip
+    """:func:`residuals_batch_into_plain` (or ``_full``) with the address of the row's
+    code."""
+    m = P.shape[0]
+    for i in prange(m):
+        status[i] = _call_residuals_plain(row_fn, (
+            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
+            i, col_u, col_l,
+        ))  # fmt: skip
+
+
+def simulate_batch_into(
+    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
+    state_reset, out_thu, out_thl, status,
+):  # fmt: skip
+    """Integrate one experiment for every row of ``P`` (and ``Q``) in parallel threads
+    (numba ``prange``; :func:`simulate_into` per row).
+
+    ``out_thu`` and ``out_thl`` have shape ``(len(P), len(u))``; ``status`` ``len(P)``.
+    """
+    entry("simulate_batch_into")(
+        P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
+        hook_rate, state_reset, out_thu, out_thl, status,
+    )  # fmt: skip
+
+
+def simulate_batch_into_plain(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl, status):
+    """:func:`simulate_batch_into` for a model without user-defined effects (see
+    :func:`simulate_into_plain`)."""
+    entry("simulate_batch_into_plain")(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu,
+                                       out_thl, status)  # fmt: skip
+
+
+def simulate_batch_into_full(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu, out_thl, status):
+    """:func:`simulate_batch_into_plain` on the full kernel."""
+    entry("simulate_batch_into_full")(P, Q, u, dt, cfg, shape, grid, h0, thp, out_thu,
+                                      out_thl, status)  # fmt: skip
+
+
+def residuals_batch_into(
+    P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift, hook_rate,
+    state_reset, meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
+):  # fmt: skip
+    """:func:`residuals_into` for every row of ``P`` (and ``Q``) in parallel threads:
+    row ``i`` of ``R`` receives the residuals of parameter row ``i``, ``status[i]`` its
+    status.  Nothing is allocated per row."""
+    entry("residuals_batch_into")(
+        P, Q, u, dt, cfg, shape, grid, h0, thp, use_hooks, hook_torque, hook_shift,
+        hook_rate, state_reset, meas_u, meas_l, w_u, w_l, R, col_u, col_l, status,
+    )  # fmt: skip
+
+
+def residuals_batch_into_plain(
+    P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
+    status,
+):  # fmt: skip
+    """:func:`residuals_batch_into` for a model without user-defined effects (see
+    :func:`residuals_into_plain`)."""
+    entry("residuals_batch_into_plain")(
+        P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
+        status,
+    )  # fmt: skip
+
+
 def residuals_batch_into_full(
     P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
     status,
 ):  # fmt: skip
     """:func:`residuals_batch_into_plain` on the full kernel."""
-    m = P.shape[0]
-    for i in prange(m):
-        status[i] = residuals_into_full(
-            P[i], Q[i], u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R,
-            i, col_u, col_l,
-        )  # fmt: skip
+    entry("residuals_batch_into_full")(
+        P, Q, u, dt, cfg, shape, grid, h0, thp, meas_u, meas_l, w_u, w_l, R, col_u, col_l,
+        status,
+    )  # fmt: skip
 
 
 # ------------------------------------------------------------------ compiled on request
-#: Every entry point and the one signature it is compiled for.  None is compiled when this
-#: module is imported: :func:`entry` compiles one (or loads it from numba's cache) when it
-#: is first asked for, so a command compiles only what it uses (issue 33: all of them at
-#: import took 121 s on 2 cores with a cold cache).  The hooked ones need their signature
-#: (it turns a hook, a numba dispatcher, into a function value of ``HOOK_TYPE``); the
-#: others get it so that each is compiled exactly once, for the types Python passes.
+#: Every entry point and the one signature its compiled function is compiled for.  None is
+#: compiled when this module is imported: :func:`entry` compiles one (or loads it from
+#: numba's cache) when it is first asked for, so a command compiles only what it uses (all
+#: of them at import took 121 s on 2 cores with a cold cache).  The hooked ones need their
+#: signature (it turns a hook, a numba dispatcher, into a function value of ``HOOK_TYPE``);
+#: the others get it so that each is compiled exactly once, for the types Python passes.
+#: A batch's signature starts with its row's address (see :data:`BATCHES`).
 SIGNATURES = {
     "simulate_into": _SIMULATE_SIGNATURE,
     "simulate_into_plain": _SIMULATE_PLAIN_SIGNATURE,
@@ -995,23 +1039,49 @@ SIGNATURES = {
     "residuals_batch_into_full": _PLAIN_BATCH_SIGNATURE,
 }
 
+#: Each batch entry point: its compiled function and its row's entry point.
+BATCHES = {
+    "simulate_batch_into": (_simulate_batch, "simulate_into"),
+    "simulate_batch_into_plain": (_simulate_batch_plain, "simulate_into_plain"),
+    "simulate_batch_into_full": (_simulate_batch_plain, "simulate_into_full"),
+    "residuals_batch_into": (_residuals_batch, "residuals_into"),
+    "residuals_batch_into_plain": (_residuals_batch_plain, "residuals_into_plain"),
+    "residuals_batch_into_full": (_residuals_batch_plain, "residuals_into_full"),
+}
+
+#: The batch entry points ready in this process, bound to their row's address.
+_BOUND: dict = {}
+
+
+def compiled(name: str):
+    """The numba function that entry point ``name`` compiles (a batch's is shared by the
+    plain and the full kernel)."""
+    return BATCHES[name][0] if name in BATCHES else globals()[name]
+
 
 def is_ready(name: str) -> bool:
     """Whether entry point ``name`` is compiled (or loaded from the cache) in this process."""
-    fn = globals()[name]
-    return SIGNATURES[name].args in fn.overloads
+    if name in BATCHES and not is_ready(BATCHES[name][1]):
+        return False
+    return SIGNATURES[name].args in compiled(name).overloads
 
 
 def entry(name: str):
     """The compiled entry point ``name`` (a key of :data:`SIGNATURES`), compiled for its
-    signature, or loaded from numba's cache, on the first request in this process."""
-    fn = globals()[name]
+    signature, or loaded from numba's cache, on the first request in this process.  A
+    batch's comes with its row's address bound: it takes the arguments of the public
+    function of its name."""
+    bound = _BOUND.get(name)
+    if bound is not None:
+        return bound
+    fn = compiled(name)
+    if name in BATCHES:
+        row = BATCHES[name][1]
+        row_fn = address(entry(row), SIGNATURES[row])
     sig = SIGNATURES[name]
     if sig.args not in fn.overloads:
-        if "_batch" in name:
-            # The row's entry point first, fixed to its signature: the batch's parallel
-            # loop calls it with a uint64 row and would otherwise compile the solver again.
-            entry(name.replace("_batch", ""))
         fn.compile(sig)
         fn.disable_compile()  # as with an eager signature: other types are refused
+    if name in BATCHES:
+        fn = _BOUND.setdefault(name, partial(fn, row_fn))
     return fn

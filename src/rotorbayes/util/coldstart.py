@@ -1,18 +1,21 @@
-"""The first run compiles the integrator; say so, with the real wall time.
+"""The first run compiles the integrator; say so, in one line, with the real wall time.
 
 Nothing is compiled when rotorbayes is imported.  Each of the solver's entry points
 (:data:`rotorbayes.kernel.solver.SIGNATURES`: a simulation, the residuals, their parallel
 batches; each plain, full or with user hooks) is compiled by numba when a command first
 uses it (:func:`kernel_entry`) and kept in numba's on-disk cache, so a command compiles
-only what it uses.  With a cold cache (a fresh install, a new Python, an edited kernel)
-:func:`kernel_entry` says what is happening before and how long it took after, on stderr;
-with a warm one it says nothing.  Measured with an empty cache
-(``benchmarks/bench_coldstart.py``; CPU seconds of the compiling process, one core's time,
-2 cores shared with other work): the first ``rotorbayes simulate`` compiles for 17 s (the
-plain simulation), the first ``rotorbayes fit`` for 20-21 s (the plain residuals, their
-batch, the simulation; one compilation of the solver serves all three); 25-28 s and
-31-33 s before the Runge-Kutta step was compiled as a function of its own.  Before, every
-entry point was compiled at import: 121 s (69 s before the effect state).
+only what it uses: a simulation alone, or the residuals with what a fit uses with them
+(their batch for the Jacobian's columns, the simulation of the result, the least squares'
+compiled helpers; :data:`GROUPS`, :data:`FIT_HELPERS`).
+With a cold cache (a fresh install, a new Python, an edited kernel) :func:`kernel_entry`
+says what is happening before and how long it took after, on stderr, in one line; with a
+warm one it says nothing.  Measured with an empty cache (``benchmarks/bench_coldstart.py``;
+CPU seconds of the compiling process, one core's time, 2 cores shared with other work,
+every numba compilation of the command counted): the first ``rotorbayes simulate``
+compiles for 14-14.5 s, the first ``rotorbayes fit`` for 19.5-20.5 s (17-18.7 s and
+26.5-26.8 s, in three lines for the fit, before a batch called its row by address, the
+collector paused and the least squares' helpers compiled more cheaply).  Before, every
+entry point was compiled at import: 121 s.
 """
 
 from __future__ import annotations
@@ -31,8 +34,8 @@ from pathlib import Path
 PARENT_ENV = "ROTORBAYES_PARENT_PID"
 
 #: The notice's first part (tests look for it); the whole line reads "rotorbayes: compiling
-#: the integrator (the residuals, plain kernel), once: numba caches it for later runs ...
-#: took 14 s".
+#: the integrator (the residuals, their parallel batches and the simulation, plain kernel),
+#: once: numba caches it for later runs ... took 17 s".
 MESSAGE = "rotorbayes: compiling the integrator"
 
 
@@ -69,22 +72,23 @@ def _index_is_current(index: Path, source: Path, numba_version: str | None) -> b
     return tuple(stamp) == (st.st_mtime, st.st_size)
 
 
-def _solver_source() -> tuple[Path, Path] | None:
-    """``(kernel folder, solver.py)`` of the installed package, or None."""
+def _solver_source(module: str = "solver") -> tuple[Path, Path] | None:
+    """``(kernel folder, solver.py)`` (or another kernel ``module``'s file) of the installed
+    package, or None."""
     spec = importlib.util.find_spec("rotorbayes.kernel")
     if spec is None or not spec.submodule_search_locations:
         return None
     kernel_dir = Path(next(iter(spec.submodule_search_locations)))
-    return kernel_dir, kernel_dir / "solver.py"
+    return kernel_dir, kernel_dir / f"{module}.py"
 
 
-def cache_is_cold(name: str = "*") -> bool:
+def cache_is_cold(name: str = "*", module: str = "solver") -> bool:
     """True when numba has no cache entry of the solver's function ``name`` (``"*"``: of
-    any of its functions) that matches its source for this Python and this numba (numba
-    would compile it)."""
+    any of its functions; of another kernel ``module``'s) that matches its source for this
+    Python and this numba (numba would compile it)."""
     from importlib.metadata import PackageNotFoundError, version
 
-    found_source = _solver_source()
+    found_source = _solver_source(module)
     if found_source is None:
         return False
     kernel_dir, source = found_source
@@ -96,7 +100,7 @@ def cache_is_cold(name: str = "*") -> bool:
     for d in _cache_dirs(kernel_dir):
         if not d.is_dir():
             continue
-        pattern = f"solver.{name}-*.{tag}.nbi" if name != "*" else f"solver.*.{tag}.nbi"
+        pattern = f"{module}.{name}-*.{tag}.nbi" if name != "*" else f"{module}.*.{tag}.nbi"
         found = d.glob(pattern) if d.name == "__pycache__" else d.rglob(pattern)
         if any(_index_is_current(p, source, numba_version) for p in found):
             return False
@@ -116,7 +120,33 @@ def compile_kernel(stream=None) -> float | None:
 
 
 #: What each entry point is, in the compile notice.
-_WHAT = {"simulate": "the simulation", "residuals": "the residuals"}
+_WHAT = {
+    "residuals_into": "the residuals",
+    "residuals_batch_into": "their parallel batches",
+    "simulate_into": "the simulation",
+    "simulate_batch_into": "its parallel batches",
+}
+
+#: What the first use of an entry point compiles with it, in one go and said in one line
+#: (by the entry point without its kernel's suffix): the residuals' first use is a fit's,
+#: whose Jacobian's columns are a batch of residuals and whose result is a simulation (a
+#: first ``fit`` said three lines, and compiled its least squares' helpers unsaid); a
+#: simulation is compiled alone (``simulate``).
+GROUPS = {
+    "residuals_into": ("residuals_into", "residuals_batch_into", "simulate_into"),
+    "residuals_batch_into": ("residuals_into", "residuals_batch_into", "simulate_into"),
+    "simulate_into": ("simulate_into",),
+    "simulate_batch_into": ("simulate_into", "simulate_batch_into"),
+}
+
+#: The compiled helpers outside the solver that a fit's least squares uses with the
+#: residuals (all parallel), as ``(kernel module, function, argument types)``: the
+#: Jacobian's difference quotients and the QR triangle of ``[J | r]``
+#: (:mod:`rotorbayes.kernel.triangle`), for the arrays the least squares passes.
+FIT_HELPERS = (
+    ("triangle", "difference_quotients", "float64[:, ::1], float64[::1], float64[::1]"),
+    ("triangle", "triangle", "float64[:, ::1], float64[::1], float64[::1]"),
+)
 
 #: The entry points ready in this process, by name (the hot path looks here first).
 _READY: dict = {}
@@ -130,50 +160,118 @@ COMPILE_SECONDS: dict[str, float] = {}
 COMPILE_CPU_SECONDS: dict[str, float] = {}
 
 
-def kernel_entry(name: str, stream=None):
+def _split(name: str) -> tuple[str, str]:
+    """``(entry point, kernel suffix)``: ``"residuals_into_plain"`` -> ``("residuals_into",
+    "_plain")``; the kernel with user effects has no suffix."""
+    for suffix in ("_plain", "_full"):
+        if name.endswith(suffix):
+            return name[: -len(suffix)], suffix
+    return name, ""
+
+
+def group_of(name: str, parallel: bool = True) -> list[str]:
+    """The entry points compiled together with ``name`` (``name`` among them): see
+    :data:`GROUPS`; without the parallel batches but ``name`` if not ``parallel``."""
+    base, suffix = _split(name)
+    return [m + suffix for m in GROUPS[base] if m == base or parallel or "batch" not in m]
+
+
+def _helpers(name: str, parallel: bool) -> list[tuple]:
+    """``(module, function name, dispatcher, argument types)`` of the helpers compiled
+    with ``name`` (:data:`FIT_HELPERS` with the residuals), not yet compiled."""
+    if not parallel or _split(name)[0] not in ("residuals_into", "residuals_batch_into"):
+        return []
+    from numba.core import sigutils
+
+    out = []
+    for module, fn_name, arg_types in FIT_HELPERS:
+        fn = getattr(importlib.import_module(f"rotorbayes.kernel.{module}"), fn_name)
+        args, _ = sigutils.normalize_signature(f"({arg_types},)")
+        if args not in fn.overloads:
+            out.append((module, fn_name, fn, args))
+    return out
+
+
+def notice(names) -> str:
+    """The compile notice's first part for entry points ``names`` (of one kernel): "rotorbayes:
+    compiling the integrator (the residuals, their parallel batches and the simulation,
+    plain kernel), once: numba caches it for later runs ..."."""
+    parts = [_WHAT[_split(n)[0]] for n in names]
+    what = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
+    suffix = _split(names[0])[1]
+    kernel = f"{suffix[1:]} kernel" if suffix else "kernel with user effects"
+    return f"{MESSAGE} ({what}, {kernel}), once: numba caches it for later runs ..."
+
+
+def kernel_entry(name: str, stream=None, *, parallel: bool = True):
     """The solver's entry point ``name`` (a key of
     :data:`rotorbayes.kernel.solver.SIGNATURES`), compiled or loaded from numba's cache on
-    its first use in this process.  With a cold cache the compilation is said on stderr
-    (``stream``): :data:`MESSAGE` before, the wall time after."""
+    its first use in this process, with what goes with it (:data:`GROUPS`,
+    :data:`FIT_HELPERS`; the parallel ones only if ``parallel``: a process that forks
+    must not have loaded them, they start numba's threads).  With a cold cache the
+    compilation is said on stderr (``stream``), in one line: :data:`MESSAGE` before, the
+    wall time of the whole after."""
     fn = _READY.get(name)
     if fn is not None:
         return fn
     with _COMPILING:  # threads of one process (a multistart) compile and say it once
-        return _compile_entry(name, stream)
+        return _compile_entry(name, stream, parallel)
 
 
-def _compile_entry(name: str, stream):
+def _is_cold(solver, name: str) -> bool:
+    """Whether entry point ``name`` is neither ready in this process nor in numba's cache
+    (its compiled function's, and a batch's row's)."""
+    if solver.is_ready(name):
+        return False
+    names = [name] + ([solver.BATCHES[name][1]] if name in solver.BATCHES else [])
+    return any(cache_is_cold(solver.compiled(n).__name__) for n in names)
+
+
+def _compile_entry(name: str, stream, parallel: bool = True):
     fn = _READY.get(name)
     if fn is not None:
         return fn
+    import gc
+
     from ..kernel import solver
 
-    cold = not solver.is_ready(name) and cache_is_cold(name)
+    names = [n for n in group_of(name, parallel) if n not in _READY]
+    cold_entries = [n for n in names if _is_cold(solver, n)]
+    helpers = _helpers(name, parallel)
+    cold = list(cold_entries)
+    if cold:  # the helpers are said with the entry points; compiled alone, they are not
+        cold += [f"{m}.{f}" for m, f, _, _ in helpers if cache_is_cold(f, m)]
     stream = sys.stderr if stream is None else stream
     if cold:
-        what = _WHAT[name.split("_", 1)[0]]
-        if "batch" in name:
-            what += " in parallel batches"
-        flavour = name.rpartition("_")[2]
-        if flavour in ("plain", "full"):
-            what += f", {flavour} kernel"
-        else:
-            what += ", kernel with user effects"
-        print(
-            f"{MESSAGE} ({what}), once: numba caches it for later runs ...",
-            end="",
-            file=stream,
-            flush=True,
-        )
-    t0, c0 = time.perf_counter(), time.process_time()
-    fn = solver.entry(name)
-    dt = time.perf_counter() - t0
-    if cold:
-        COMPILE_SECONDS[name] = dt
-        COMPILE_CPU_SECONDS[name] = time.process_time() - c0
-        print(f" took {dt:.0f} s", file=stream, flush=True)
-    _READY[name] = fn
-    return fn
+        print(notice(cold_entries), end="", file=stream, flush=True)
+    t_all = time.perf_counter()
+    # numba makes millions of small objects while it compiles; with the command's modules
+    # loaded (a third of a million objects) Python's cyclic collections took 1.5-2 of a
+    # first fit's CPU seconds, walking the same old objects again and again.  None while
+    # numba compiles, one of the young objects after each entry point (0.1-0.4 s, counted
+    # in its time); the command's peak memory is 500 MB instead of 420 MB.
+    collecting = gc.isenabled()
+    jobs = [(n, lambda n=n: solver.entry(n)) for n in names]
+    jobs += [(f"{m}.{f}", lambda fn=fn, args=args: fn.compile(args)) for m, f, fn, args in helpers]
+    try:
+        for n, job in jobs:
+            t0, c0 = time.perf_counter(), time.process_time()
+            gc.disable()
+            try:
+                done = job()
+            finally:
+                if collecting:
+                    gc.enable()
+                    gc.collect(0)
+            if n in names:
+                _READY[n] = done
+            if n in cold:
+                COMPILE_SECONDS[n] = time.perf_counter() - t0
+                COMPILE_CPU_SECONDS[n] = time.process_time() - c0
+    finally:
+        if cold:
+            print(f" took {time.perf_counter() - t_all:.0f} s", file=stream, flush=True)
+    return _READY[name]
 
 
 def launched_as_command() -> bool:
