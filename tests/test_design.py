@@ -448,3 +448,25 @@ def test_acceptance_designed_input_pins_the_coupled_scale_on_reference_data():
     assert w_b / w_d >= 2.0 and h_b / h_d >= 2.0
     # The prediction holds on data the model was not written from: within a factor 1.5.
     assert w_b / w_d == pytest.approx(pred, rel=0.5)
+
+
+def test_a_switch_the_data_do_not_determine_is_at_null_after_rounding(coupled_fit):
+    """``voltage_offset`` on Coulomb + viscous upper friction is exactly a change of
+    ``dTc_u``: its fit moves it from 0 by rounding alone (-1.1e-6 V seen), which the
+    millionth-of-the-bounds rule called "shown by the data".  With the fit's information
+    the candidate is at null within its standard deviation; far from null it is not."""
+    from rotorbayes.design.core import _at_null, _candidate
+
+    prob, x = coupled_fit
+    cand, xc, eff, _ = _candidate(prob, x, "voltage_offset", max_nfev=5)
+    frame = Frame(cand, xc)
+    j = cand.names.index("u_offset")
+    moved = np.array(xc, dtype=float)
+    moved[j] = -1.1e-6
+    assert not _at_null(cand, moved, eff)  # the old rule alone
+    assert _at_null(cand, moved, eff, frame)
+    far = np.array(xc, dtype=float)
+    far[j] = 0.5 * cand.upper[j]
+    sd = frame.scale_old[j] * math.sqrt(frame.variances(frame.F_fit, [j])[0])
+    assert far[j] > sd  # the data would show an offset this large
+    assert not _at_null(cand, far, eff, frame)

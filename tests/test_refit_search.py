@@ -7,7 +7,8 @@ Stribeck velocity 0.5 rad/s).  The first fit is thousands of times the floor; th
 names ``lower_stribeck``; from the diagnosis's one-step estimate alone (``--no-search``, the
 old behaviour) the refit landed in a wrong basin under the optimiser handed the whole
 Jacobian (it reaches the floor under the compressed one); the search's starts disagree.
-The search over the added parameters must land at the floor.  This proves the loop, on data rotorbayes did not make.
+The search over the added parameters must land at the floor.  This proves the loop, on
+data rotorbayes did not make.
 
 The small tests check the search's starts and words without fitting.
 """

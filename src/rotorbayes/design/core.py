@@ -386,15 +386,27 @@ def _candidate(problem: Problem, x: np.ndarray, name: str, max_nfev: int):
     return cand, res.x, eff, f"fitted to the existing data ({res.nfev} evaluations)"
 
 
-def _at_null(problem: Problem, x: np.ndarray, eff) -> bool:
-    """Whether the fit put every switch parameter of ``eff`` at its null value (within a
-    millionth of its bounds' width)."""
+def _at_null(problem: Problem, x: np.ndarray, eff, frame: Frame | None = None) -> bool:
+    """Whether the fit put every switch parameter of ``eff`` at its null value: within a
+    millionth of its bounds' width, or (``frame`` given: the fit's information) within one
+    standard deviation the existing data leave it.  A switch the data do not determine
+    (e.g. an offset that is exactly a change of another parameter) moves from its null
+    start by rounding alone; the data do not show that effect either way."""
     vals = problem.values(x)
     for p in eff.switches:
         names = [n for n in vals if local_name(n)[0] == p.name]
         null = vals.get("Tc_l", 0.0) if p.name == "Ts_l" else p.null
-        if not names or any(abs(vals[n] - null) > 1e-6 * (p.upper - p.lower) for n in names):
+        if not names:
             return False
+        for n in names:
+            tol = 1e-6 * (p.upper - p.lower)
+            if frame is not None and n in problem.names:
+                j = problem.names.index(n)
+                var = frame.variances(frame.F_fit, [j])[0]
+                if math.isfinite(var) and var >= 0:
+                    tol = max(tol, frame.scale_old[j] * math.sqrt(var))
+            if abs(vals[n] - null) > tol:
+                return False
     return True
 
 
@@ -557,7 +569,7 @@ def design_input(
         # direction of such a pair can be separated.  Two candidates both at null are
         # both the fit's model: with more than two candidates such a pair is left out of
         # the design (it would hold every input's worst gap at zero) and said so.
-        at_null = [_at_null(c[0], c[1], c[2]) for c in cands]
+        at_null = [_at_null(c[0], c[1], c[2], f) for c, f in zip(cands, frames, strict=True)]
         target["at_null"] = {lab: z for lab, z in zip(labels, at_null, strict=True)}
         designed_pairs, dirs = [], []
         for i, j in separable:
