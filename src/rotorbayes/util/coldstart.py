@@ -20,12 +20,15 @@ entry point was compiled at import: 121 s.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 #: Set in a process rotorbayes starts as a child (a study of ``run a.toml b.toml ...``): the
 #: pid of the process that started it. The child ends itself when that process is gone (a
@@ -251,8 +254,10 @@ def _compile_entry(name: str, stream, parallel: bool = True):
     # numba compiles, one of the young objects after each entry point (0.1-0.4 s, counted
     # in its time); the command's peak memory is 500 MB instead of 420 MB.
     collecting = gc.isenabled()
-    jobs = [(n, lambda n=n: solver.entry(n)) for n in names]
-    jobs += [(f"{m}.{f}", lambda fn=fn, args=args: fn.compile(args)) for m, f, fn, args in helpers]
+    jobs: list[tuple[str, Callable[[], Any]]] = [
+        (n, functools.partial(solver.entry, n)) for n in names
+    ]
+    jobs += [(f"{m}.{f}", functools.partial(fn.compile, args)) for m, f, fn, args in helpers]
     try:
         for n, job in jobs:
             t0, c0 = time.perf_counter(), time.process_time()
