@@ -363,10 +363,7 @@ def fit(
     lo, hi = problem.lower / scale, problem.upper / scale
     counter = {"n": 0, "best": math.inf}
     best_x: dict = {}  # the best point so far, reported if the fit is interrupted
-    if compressed is None:
-        compressed = True
-    if compressed and not _count_true_rows():
-        compressed = False
+    compressed = (compressed is None or compressed) and _count_true_rows()
 
     last: dict = {}
 
