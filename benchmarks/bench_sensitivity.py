@@ -60,7 +60,8 @@ def main() -> None:
     def integration_only():
         sensitivities_into(kp, sim.u, sim.dt, sim.cfg, sim.shape, sim.grid, sim.h0, idx,
                            not prob.model.stribeck, np.empty(0), np.empty(0), 1.0, 1.0, r0,
-                           J0, np.arange(idx.size, dtype=np.int64), -1, -1)  # fmt: skip
+                           J0, np.arange(idx.size, dtype=np.int64), -1, -1,
+                           np.empty((idx.size + 1, 0)), np.zeros(2, dtype=np.int64))  # fmt: skip
 
     calls = {
         "residuals": lambda: prob.residuals(x),

@@ -24,6 +24,7 @@ from ..kernel.triangle import triangle
 from ..model.parameters import ParameterError
 from ..model.simulate import SimulationError, Simulator
 from ..util import metrics as _metrics
+from . import problem as _problem
 from .parallel import claim_kernel_threads
 from .problem import Problem
 from .uncertainty import Uncertainty, col_norms, fit_uncertainty
@@ -201,11 +202,15 @@ def _triangle(J: np.ndarray, r: np.ndarray, scale: np.ndarray | None = None) -> 
     )
 
 
-def compress(J: np.ndarray, r: np.ndarray, scale: np.ndarray | None = None) -> np.ndarray:
+def compress(
+    J: np.ndarray, r: np.ndarray, scale: np.ndarray | None = None, *, norm: float | None = None
+) -> np.ndarray:
     """A ``(k + 1) x k`` matrix ``C`` with ``Cᵀ C = Jᵀ J`` and ``Cᵀ f = Jᵀ r`` for
     ``f = (|r|, 0, ..., 0)``: least squares on ``(f, C)`` has the same cost and the same
     Gauss-Newton model ``|J p + r|²`` as on ``(r, J)``.  ``scale`` (optional) multiplies
     the columns of ``J`` on the way (the optimiser's variables), without a scaled copy.
+    ``norm``: ``|r|`` where ``(J, r)`` are reduced rows (:meth:`Problem.jacobian_rows`:
+    the same ``Jᵀ J`` and ``Jᵀ r``, ``r`` shorter than the residuals).
 
     ``[J | r] = Q [[R, q], [0, ρ]]`` (:func:`_triangle`: no copy of ``J``); with
     ``u = q / |r|``, ``C = [uᵀ R; (I − α u uᵀ) R]``, ``α = 1 / (1 + √(1 − |u|²))``, the
@@ -214,7 +219,7 @@ def compress(J: np.ndarray, r: np.ndarray, scale: np.ndarray | None = None) -> n
     k = J.shape[1]
     T = _triangle(J, r, scale)
     R, q = T[:k, :k], T[:k, k]
-    rho = math.sqrt(float(r @ r))
+    rho = math.sqrt(float(r @ r)) if norm is None else float(norm)
     u = q / rho if rho > 0 else np.zeros(k)
     uu = min(float(u @ u), 1.0)
     alpha = 1.0 / (1.0 + math.sqrt(1.0 - uu))
@@ -364,6 +369,9 @@ def fit(
     counter = {"n": 0, "best": math.inf}
     best_x: dict = {}  # the best point so far, reported if the fit is interrupted
     compressed = (compressed is None or compressed) and _count_true_rows()
+    # The compressed problem straight from the sensitivity kernel's reduced rows (no
+    # n x k Jacobian formed or triangularised) where the Jacobian is by sensitivities.
+    use_rows = compressed and _problem.JACOBIAN_DEFAULT == "sensitivity"
 
     last: dict = {}
 
@@ -395,6 +403,14 @@ def fit(
     def jac(z):
         if not compressed:
             return full_jac(z)
+        if use_rows:
+            try:
+                got = problem.jacobian_rows(z * scale)
+            except SimulationError:
+                got = None  # the differences below say why, or penalise
+            if got is not None:
+                A, b, r = got
+                return compress(A, b, scale, norm=math.sqrt(float(r @ r)))
         J = unscaled_jac(z)
         r = last["r"] if "z" in last and np.array_equal(z, last["z"]) else full_fun(z)
         return compress(J, r, scale)  # the columns scaled on the way: no pass over J
