@@ -496,7 +496,7 @@ def _hermite_qr(X, ns, Qt, R):
     return True
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _write_rows(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas_l, w_u, w_l,
                 r, Wt, info, jcol, col_u, col_l, X, Qc, Rc, known, V):  # fmt: skip
     """The rows of ``[J | r]`` of samples ``kout .. k1`` of a segment, reduced: the
