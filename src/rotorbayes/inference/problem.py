@@ -26,6 +26,7 @@ the problem holds (:attr:`Problem.parameters`).
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -351,6 +352,24 @@ class ValidationTorsion:
 
 
 @dataclass(init=False)
+class _RowsBuffer(threading.local):
+    """This thread's buffer of :meth:`Problem.jacobian_rows` (kept: a fresh 6 MB array per
+    Jacobian cost as much in page faults as the rows themselves)."""
+
+    array: np.ndarray | None = None
+
+
+_ROWS_BUFFER = _RowsBuffer()
+
+
+def _rows_buffer(m1: int, n: int) -> np.ndarray:
+    """An ``(m1, n)`` C-order array (contents undefined), this thread's own."""
+    a = _ROWS_BUFFER.array
+    if a is None or a.size < m1 * n:
+        a = _ROWS_BUFFER.array = np.empty(m1 * n)
+    return a[: m1 * n].reshape(m1, n)
+
+
 class Problem:
     """A least-squares / likelihood problem over one or more experiments.
 
@@ -995,7 +1014,7 @@ class Problem:
         m = len(names)
         if rows:
             J = np.empty((2, 2), order="F")  # unused: the same compiled kernel
-            Wt = np.empty((m + 1, self.n_residuals))
+            Wt = _rows_buffer(m + 1, self.n_residuals)
         else:
             # Fortran order: the kernel writes each column down the samples (vectorised,
             # sequential stores).  Not zeroed where every column is written whole.
