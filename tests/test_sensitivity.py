@@ -288,3 +288,36 @@ def test_fit_on_reduced_rows_ends_where_the_whole_jacobian_does(monkeypatch):
     se = b.stderr
     moved = (a.x - b.x) / se
     assert np.all(np.abs(moved) <= 1e-3), dict(zip(prob.names, moved, strict=True))
+
+
+def test_jacobian_option_of_fit(tmp_path, capsys):
+    """``--jacobian sensitivity`` on the command line: the fit ends where the default's
+    does (within a hundredth of a standard error) and fit.json says which was used; a
+    model the kernel cannot differentiate falls back to differences and says so."""
+    import json
+
+    from rotorbayes.cli import main
+
+    _, u = rb.signals.estimation_signal(10.0, seed=1)
+    s = rb.simulate(_brake(), u, dt=DT, config="brake", quantize_angles=True)
+    data = tmp_path / "d.csv"
+    rb.save_experiment(s.to_experiment("d"), data)
+    docs = {}
+    for how in ("differences", "sensitivity"):
+        out = tmp_path / how
+        argv = ["fit", str(data), "--model", "brake", "--p0", "thesis:4.3:P_ref"]
+        assert main([*argv, "--out", str(out), "--jacobian", how]) == 0
+        docs[how] = json.loads((out / "fit.json").read_text())
+        assert docs[how]["jacobian"] == how
+    for n, e in docs["differences"]["estimates"].items():
+        other = docs["sensitivity"]["estimates"][n]["value"]
+        assert abs(other - e["value"]) <= 1e-2 * e["stderr"], n
+    capsys.readouterr()
+    code = main(
+        ["fit", str(data), "--model", "brake", "--p0", "thesis:4.3:P_ref", "--add",
+         "input_delay", "--jacobian", "sensitivity", "--out", str(tmp_path / "delay")]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert err.count("Jacobian by finite differences: no sensitivity by t_delay") == 1
+    assert code in (0, 1)
+    assert json.loads((tmp_path / "delay" / "fit.json").read_text())["jacobian"] == "differences"

@@ -78,6 +78,7 @@ def multistart(
     ftol: float = 1e-10,
     xtol: float = 1e-10,
     gtol: float = 1e-10,
+    jacobian: str | None = None,
     backend: str | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
@@ -119,7 +120,9 @@ def multistart(
         MultistartOptions(
             problem=problem,
             out=out,
-            solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
+            solver=SolverOptions(
+                max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol, jacobian=jacobian
+            ),
             executor=ExecutorOptions(backend=backend, workers=workers, scheduler=scheduler),
             starts=starts,
             around=around,

@@ -351,7 +351,6 @@ class ValidationTorsion:
         )
 
 
-@dataclass(init=False)
 class _RowsBuffer(threading.local):
     """This thread's buffer of :meth:`Problem.jacobian_rows` (kept: a fresh 6 MB array per
     Jacobian cost as much in page faults as the rows themselves)."""
@@ -370,6 +369,7 @@ def _rows_buffer(m1: int, n: int) -> np.ndarray:
     return a[: m1 * n].reshape(m1, n)
 
 
+@dataclass(init=False)
 class Problem:
     """A least-squares / likelihood problem over one or more experiments.
 
