@@ -41,7 +41,9 @@ of the child, every thread) for both trees and their ratios, and compares the re
 the last round (estimates and standard errors, verdicts) number by number::
 
     python benchmarks/bench_end_to_end.py --against /tmp/main/src [--rounds 3]
-        [--cases fit,multistart,diagnose,design,long]
+        [--cases fit,multistart,diagnose,design,long] [--this-jacobian sensitivity]
+
+(``--this-jacobian`` gives this tree's ``fit`` and ``multistart`` that ``--jacobian``.)
 """
 
 from __future__ import annotations
@@ -159,7 +161,13 @@ def _numbers_agreement(a: Path, b: Path, name: str) -> str:
             + f"; verdict {'same' if verdict else 'DIFFERS'}; SSR {da['ssr']!r} vs {db['ssr']!r}"
         )
     if name == "multistart.json":
-        return "SSRs " + ("bit-identical" if da["ssr"] == db["ssr"] else "DIFFER")
+        if da["ssr"] == db["ssr"]:
+            return "SSRs bit-identical"
+        ba, bb = (min(v for v in d["ssr"] if v is not None) for d in (da, db))
+        return (
+            f"SSRs differ (paths part at rounding level); best SSR {ba:.6g} vs {bb:.6g} "
+            f"(relative difference {abs(ba - bb) / max(abs(ba), 1e-300):.1e})"
+        )
     if name == "design.json":
         va, vb = ([st["value"] for st in d["starts"]] for d in (da, db))
         return "objectives " + ("bit-identical" if va == vb else f"{va} vs {vb}")
@@ -181,6 +189,12 @@ def compare_trees(a, work: Path, log, brake: Path, longs: list[Path]) -> None:
         return work / f"fit-{tree}"
 
     def args_of(case: str, tree: str) -> tuple[list[str], str]:
+        args, name = _args_of(case, tree)
+        if a.this_jacobian and tree == "this" and case in ("fit", "multistart", "long"):
+            args = [*args, "--jacobian", a.this_jacobian]
+        return args, name
+
+    def _args_of(case: str, tree: str) -> tuple[list[str], str]:
         out = work / f"{case}-{tree}"
         if case == "fit":
             return ["fit", str(brake), "--model", "brake", "--out", str(out), "--force"], "fit.json"
@@ -264,6 +278,11 @@ def main() -> None:
     ap.add_argument("--log", default=os.devnull, help="where the commands' output goes")
     ap.add_argument("--against", help="another source tree (its src folder) to compare with")
     ap.add_argument("--rounds", type=int, default=3, help="timed rounds of --against")
+    ap.add_argument(
+        "--this-jacobian",
+        choices=("differences", "sensitivity"),
+        help="with --against: this tree's fits and multistarts take --jacobian this",
+    )
     a = ap.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     import numpy as np

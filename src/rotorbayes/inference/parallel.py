@@ -544,10 +544,10 @@ def _share_worker_cores(worker) -> None:
         or 1
     )
     scheduler = getattr(getattr(worker, "scheduler", None), "address", None)
-    share = open_host_share(str(scheduler), nthreads) if scheduler else None
-    if share is None:
-        share = _Share(min(nthreads, int(numba.config.NUMBA_NUM_THREADS)))
-    _POOL_SHARE = share
+    host = open_host_share(str(scheduler), nthreads) if scheduler else None
+    _POOL_SHARE = (
+        host if host is not None else _Share(min(nthreads, int(numba.config.NUMBA_NUM_THREADS)))
+    )
 
 
 def _dask_executor(client) -> Executor:
