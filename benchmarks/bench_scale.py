@@ -31,6 +31,7 @@ steps, one
 repeat, no pool start-up and no "before" rows.
 
     python benchmarks/bench_scale.py [--quick] [--starts 48] [--workers N] [--dask]
+        [--jacobian sensitivity]
                                      [--json out.json]
 """
 
@@ -92,6 +93,10 @@ class KernelClock:
         problem.Problem.residuals, problem.Problem.jacobian = self._res, self._jac
 
 
+#: The Jacobian's method of every fit (``--jacobian``; None: the package's default).
+JACOBIAN: str | None = None
+
+
 def one_fit(prob, x0, threads: int, repeat: int, blas: int = 1, compressed: bool = True) -> dict:
     from threadpoolctl import threadpool_limits
 
@@ -100,7 +105,7 @@ def one_fit(prob, x0, threads: int, repeat: int, blas: int = 1, compressed: bool
     for _ in range(repeat):
         with threadpool_limits(blas), KernelClock() as clock:
             s = time.perf_counter()
-            r = inference.fit(prob, x0, uncertainty=False, compressed=compressed)
+            r = inference.fit(prob, x0, uncertainty=False, compressed=compressed, jacobian=JACOBIAN)
             w = time.perf_counter() - s
         if best is None or w < best["wall"]:
             best = {
@@ -137,6 +142,8 @@ def old_process_pool(n: int):
 
 def run_multistart(prob, starts: int, executor, **fit_kw) -> tuple[float, object]:
     s = time.perf_counter()
+    if JACOBIAN is not None:
+        fit_kw.setdefault("jacobian", JACOBIAN)
     res = multistart(prob, starts, seed=0, executor=executor, progress=False, **fit_kw)
     return time.perf_counter() - s, res
 
@@ -216,7 +223,14 @@ def _main() -> None:
         "--quick", action="store_true", help="10 s of data, 16 starts, 2 ensembles of 20 steps"
     )
     ap.add_argument("--json")
+    ap.add_argument(
+        "--jacobian",
+        choices=("differences", "sensitivity"),
+        help="every fit's Jacobian method (default: the package's, differences)",
+    )
     a = ap.parse_args()
+    global JACOBIAN
+    JACOBIAN = a.jacobian
     n = a.workers
     skip = set(filter(None, a.skip.split(";")))
     # The sizes not given: issue 34's, or --quick's (any of them can still be given).
@@ -239,6 +253,7 @@ def _main() -> None:
         "cpu": platform.processor() or platform.machine(),
         "python": sys.version.split()[0],
         "numba": numba.__version__,
+        "jacobian": a.jacobian or "differences",
     }
     print(
         f"{os.cpu_count()} cores, {maxth} numba threads, N = {n}, Python "
