@@ -269,61 +269,57 @@ def _rates_at(Y, out, co, P):
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage2(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
-    out = K[1]
     for a in range(np.uint64(S.shape[1])):
         y0 = S[0, a] + h * (0.25 * K0[0, a])
         y1 = S[1, a] + h * (0.25 * K0[1, a])
         y2 = S[2, a] + h * (0.25 * K0[2, a])
         y3 = S[3, a] + h * (0.25 * K0[3, a])
-        out[0, a] = cu * y1
-        out[1, a] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
-        out[2, a] = cl * y3
-        out[3, a] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        K[a, 0, 0] = cu * y1
+        K[a, 0, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 0, 2] = cl * y3
+        K[a, 0, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage3(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
-    out = K[2]
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (0.125 * K0[0, a] + 0.125 * K[1, 0, a])
-        y1 = S[1, a] + h * (0.125 * K0[1, a] + 0.125 * K[1, 1, a])
-        y2 = S[2, a] + h * (0.125 * K0[2, a] + 0.125 * K[1, 2, a])
-        y3 = S[3, a] + h * (0.125 * K0[3, a] + 0.125 * K[1, 3, a])
-        out[0, a] = cu * y1
-        out[1, a] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
-        out[2, a] = cl * y3
-        out[3, a] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        y0 = S[0, a] + h * (0.125 * K0[0, a] + 0.125 * K[a, 0, 0])
+        y1 = S[1, a] + h * (0.125 * K0[1, a] + 0.125 * K[a, 0, 1])
+        y2 = S[2, a] + h * (0.125 * K0[2, a] + 0.125 * K[a, 0, 2])
+        y3 = S[3, a] + h * (0.125 * K0[3, a] + 0.125 * K[a, 0, 3])
+        K[a, 1, 0] = cu * y1
+        K[a, 1, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 1, 2] = cl * y3
+        K[a, 1, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage4(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
-    out = K[3]
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (-0.5 * K[1, 0, a] + K[2, 0, a])
-        y1 = S[1, a] + h * (-0.5 * K[1, 1, a] + K[2, 1, a])
-        y2 = S[2, a] + h * (-0.5 * K[1, 2, a] + K[2, 2, a])
-        y3 = S[3, a] + h * (-0.5 * K[1, 3, a] + K[2, 3, a])
-        out[0, a] = cu * y1
-        out[1, a] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
-        out[2, a] = cl * y3
-        out[3, a] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        y0 = S[0, a] + h * (-0.5 * K[a, 0, 0] + K[a, 1, 0])
+        y1 = S[1, a] + h * (-0.5 * K[a, 0, 1] + K[a, 1, 1])
+        y2 = S[2, a] + h * (-0.5 * K[a, 0, 2] + K[a, 1, 2])
+        y3 = S[3, a] + h * (-0.5 * K[a, 0, 3] + K[a, 1, 3])
+        K[a, 2, 0] = cu * y1
+        K[a, 2, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 2, 2] = cl * y3
+        K[a, 2, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage5(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
-    out = K[4]
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (0.1875 * K0[0, a] + 0.5625 * K[3, 0, a])
-        y1 = S[1, a] + h * (0.1875 * K0[1, a] + 0.5625 * K[3, 1, a])
-        y2 = S[2, a] + h * (0.1875 * K0[2, a] + 0.5625 * K[3, 2, a])
-        y3 = S[3, a] + h * (0.1875 * K0[3, a] + 0.5625 * K[3, 3, a])
-        out[0, a] = cu * y1
-        out[1, a] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
-        out[2, a] = cl * y3
-        out[3, a] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        y0 = S[0, a] + h * (0.1875 * K0[0, a] + 0.5625 * K[a, 2, 0])
+        y1 = S[1, a] + h * (0.1875 * K0[1, a] + 0.5625 * K[a, 2, 1])
+        y2 = S[2, a] + h * (0.1875 * K0[2, a] + 0.5625 * K[a, 2, 2])
+        y3 = S[3, a] + h * (0.1875 * K0[3, a] + 0.5625 * K[a, 2, 3])
+        K[a, 3, 0] = cu * y1
+        K[a, 3, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 3, 2] = cl * y3
+        K[a, 3, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -337,31 +333,31 @@ def _stage6_end(h, S, K0, K, co, P, S1):
     w4 = 8.0 / 7.0
     hn = h / 90.0
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (w0 * K0[0, a] + w1 * K[1, 0, a] + w2 * K[2, 0, a] + w3 * K[3, 0, a]
-                            + w4 * K[4, 0, a])
-        y1 = S[1, a] + h * (w0 * K0[1, a] + w1 * K[1, 1, a] + w2 * K[2, 1, a] + w3 * K[3, 1, a]
-                            + w4 * K[4, 1, a])
-        y2 = S[2, a] + h * (w0 * K0[2, a] + w1 * K[1, 2, a] + w2 * K[2, 2, a] + w3 * K[3, 2, a]
-                            + w4 * K[4, 2, a])
-        y3 = S[3, a] + h * (w0 * K0[3, a] + w1 * K[1, 3, a] + w2 * K[2, 3, a] + w3 * K[3, 3, a]
-                            + w4 * K[4, 3, a])
+        y0 = S[0, a] + h * (w0 * K0[0, a] + w1 * K[a, 0, 0] + w2 * K[a, 1, 0] + w3 * K[a, 2, 0]
+                            + w4 * K[a, 3, 0])
+        y1 = S[1, a] + h * (w0 * K0[1, a] + w1 * K[a, 0, 1] + w2 * K[a, 1, 1] + w3 * K[a, 2, 1]
+                            + w4 * K[a, 3, 1])
+        y2 = S[2, a] + h * (w0 * K0[2, a] + w1 * K[a, 0, 2] + w2 * K[a, 1, 2] + w3 * K[a, 2, 2]
+                            + w4 * K[a, 3, 2])
+        y3 = S[3, a] + h * (w0 * K0[3, a] + w1 * K[a, 0, 3] + w2 * K[a, 1, 3] + w3 * K[a, 2, 3]
+                            + w4 * K[a, 3, 3])
         g1 = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
         g3 = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
         S1[0, a] = S[0, a] + hn * (7.0 * (K0[0, a] + cu * y1)
-                                   + 32.0 * (K[2, 0, a] + K[4, 0, a]) + 12.0 * K[3, 0, a])
+                                   + 32.0 * (K[a, 1, 0] + K[a, 3, 0]) + 12.0 * K[a, 2, 0])
         S1[1, a] = S[1, a] + hn * (7.0 * (K0[1, a] + g1)
-                                   + 32.0 * (K[2, 1, a] + K[4, 1, a]) + 12.0 * K[3, 1, a])
+                                   + 32.0 * (K[a, 1, 1] + K[a, 3, 1]) + 12.0 * K[a, 2, 1])
         S1[2, a] = S[2, a] + hn * (7.0 * (K0[2, a] + cl * y3)
-                                   + 32.0 * (K[2, 2, a] + K[4, 2, a]) + 12.0 * K[3, 2, a])
+                                   + 32.0 * (K[a, 1, 2] + K[a, 3, 2]) + 12.0 * K[a, 2, 2])
         S1[3, a] = S[3, a] + hn * (7.0 * (K0[3, a] + g3)
-                                   + 32.0 * (K[2, 3, a] + K[4, 3, a]) + 12.0 * K[3, 3, a])
+                                   + 32.0 * (K[a, 1, 3] + K[a, 3, 3]) + 12.0 * K[a, 2, 3])
 
 
 @njit(cache=True, error_model="numpy")
 def _rk5_sens(t, h, y, mu, ml, k1, dF, S, S1, K, c, cfg, shape, src, idx, tsf, pu, pl, P):
     """:func:`rotorbayes.kernel.solver._rk5` (the same operations in the plain kernel)
     and its sensitivities: ``dF`` holds the rates' sensitivities at the start (in),
-    ``K`` (at least 5 x 4 x k) and ``P`` (2 x k) are scratch; ``S1`` receives the
+    ``K`` (k x 4 x 4: column, stage 2-5, state) and ``P`` (2 x k) are scratch; ``S1`` receives the
     sensitivities at the end.  Returns the state and drive at the end."""
     thu, wu, thl, wl = y
     a1, a2, a3, a4 = k1
@@ -597,7 +593,7 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     Sev = np.zeros((4, k))
     dF = np.zeros((4, k))
     dFe = np.zeros((4, k))
-    K = np.zeros((6, 4, k))
+    K = np.zeros((k, 4, 4))
     gp = np.zeros(k)
     P = np.zeros((2, k))
     y = (0.0, 0.0, 0.0, 0.0)
