@@ -240,15 +240,15 @@ def _rhs_lin(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, pu, pl, P):
 
 
 # The sensitivities' rates at the stages of rotorbayes.kernel.solver._rk5,
-# ``out = f_x Y + f_p`` with ``Y = S + h sum_j a_ij K_j`` (``K0`` the rates at the start,
-# ``K[j]`` stage j's): the sums in the solver's order and weights, zero weights left out
-# (the same numbers).  One pass over the columns per stage, the combination and the rates
-# together (no stage state stored and read back), over unsigned indices (no negative-index
-# wraparound per access), the parameter terms read in column order from ``P``.  LLVM
-# vectorises these loops, but behind a run-time check that the arrays do not overlap,
-# worth it from about 40 columns on: with 13 the scalar loop runs (about 40 ns a stage;
-# a loop over the 4 k entries of a stage's combination, vectorised, was no faster).
-# ``co``, ``P``: the linearisation (:func:`_rhs_lin`).
+# ``out = f_x Y + f_p`` with ``Y = S + sum_j h a_ij K_j`` (``K0`` the rates at the start,
+# ``K[a, j - 2]`` stage j's in column a), in fused multiply-adds (the products' roundings
+# left out: the same derivatives to rounding, a third of the operations).  One pass over
+# the columns per stage, the combination and the rates together (no stage state stored
+# and read back), over unsigned indices (no negative-index wraparound per access), the
+# parameter terms read in column order from ``P``.  LLVM vectorises these loops, but
+# behind a run-time check that the arrays do not overlap, worth it from about 40 columns
+# on: with 13 the scalar loop runs (a loop over the 4 k entries of a combination,
+# vectorised, was no faster).  ``co``, ``P``: the linearisation (:func:`_rhs_lin`).
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -261,96 +261,105 @@ def _rates_at(Y, out, co, P):
         y2 = Y[2, a]
         y3 = Y[3, a]
         out[0, a] = cu * y1
-        out[1, a] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        out[1, a] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
         out[2, a] = cl * y3
-        out[3, a] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        out[3, a] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage2(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w0 = 0.25 * h
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (0.25 * K0[0, a])
-        y1 = S[1, a] + h * (0.25 * K0[1, a])
-        y2 = S[2, a] + h * (0.25 * K0[2, a])
-        y3 = S[3, a] + h * (0.25 * K0[3, a])
+        y0 = fma(w0, K0[0, a], S[0, a])
+        y1 = fma(w0, K0[1, a], S[1, a])
+        y2 = fma(w0, K0[2, a], S[2, a])
+        y3 = fma(w0, K0[3, a], S[3, a])
         K[a, 0, 0] = cu * y1
-        K[a, 0, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 0, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
         K[a, 0, 2] = cl * y3
-        K[a, 0, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        K[a, 0, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage3(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w0 = 0.125 * h
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (0.125 * K0[0, a] + 0.125 * K[a, 0, 0])
-        y1 = S[1, a] + h * (0.125 * K0[1, a] + 0.125 * K[a, 0, 1])
-        y2 = S[2, a] + h * (0.125 * K0[2, a] + 0.125 * K[a, 0, 2])
-        y3 = S[3, a] + h * (0.125 * K0[3, a] + 0.125 * K[a, 0, 3])
+        y0 = fma(w0, K[a, 0, 0], fma(w0, K0[0, a], S[0, a]))
+        y1 = fma(w0, K[a, 0, 1], fma(w0, K0[1, a], S[1, a]))
+        y2 = fma(w0, K[a, 0, 2], fma(w0, K0[2, a], S[2, a]))
+        y3 = fma(w0, K[a, 0, 3], fma(w0, K0[3, a], S[3, a]))
         K[a, 1, 0] = cu * y1
-        K[a, 1, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 1, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
         K[a, 1, 2] = cl * y3
-        K[a, 1, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        K[a, 1, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage4(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w1 = -0.5 * h
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (-0.5 * K[a, 0, 0] + K[a, 1, 0])
-        y1 = S[1, a] + h * (-0.5 * K[a, 0, 1] + K[a, 1, 1])
-        y2 = S[2, a] + h * (-0.5 * K[a, 0, 2] + K[a, 1, 2])
-        y3 = S[3, a] + h * (-0.5 * K[a, 0, 3] + K[a, 1, 3])
+        y0 = fma(h, K[a, 1, 0], fma(w1, K[a, 0, 0], S[0, a]))
+        y1 = fma(h, K[a, 1, 1], fma(w1, K[a, 0, 1], S[1, a]))
+        y2 = fma(h, K[a, 1, 2], fma(w1, K[a, 0, 2], S[2, a]))
+        y3 = fma(h, K[a, 1, 3], fma(w1, K[a, 0, 3], S[3, a]))
         K[a, 2, 0] = cu * y1
-        K[a, 2, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 2, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
         K[a, 2, 2] = cl * y3
-        K[a, 2, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        K[a, 2, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage5(h, S, K0, K, co, P):
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w0 = 0.1875 * h
+    w3 = 0.5625 * h
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (0.1875 * K0[0, a] + 0.5625 * K[a, 2, 0])
-        y1 = S[1, a] + h * (0.1875 * K0[1, a] + 0.5625 * K[a, 2, 1])
-        y2 = S[2, a] + h * (0.1875 * K0[2, a] + 0.5625 * K[a, 2, 2])
-        y3 = S[3, a] + h * (0.1875 * K0[3, a] + 0.5625 * K[a, 2, 3])
+        y0 = fma(w3, K[a, 2, 0], fma(w0, K0[0, a], S[0, a]))
+        y1 = fma(w3, K[a, 2, 1], fma(w0, K0[1, a], S[1, a]))
+        y2 = fma(w3, K[a, 2, 2], fma(w0, K0[2, a], S[2, a]))
+        y3 = fma(w3, K[a, 2, 3], fma(w0, K0[3, a], S[3, a]))
         K[a, 3, 0] = cu * y1
-        K[a, 3, 1] = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
+        K[a, 3, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
         K[a, 3, 2] = cl * y3
-        K[a, 3, 3] = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
+        K[a, 3, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _stage6_end(h, S, K0, K, co, P, S1):
     """The last stage, and the step's end ``S1`` from all six."""
     cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
-    w0 = -3.0 / 7.0
-    w1 = 2.0 / 7.0
-    w2 = 12.0 / 7.0
-    w3 = -12.0 / 7.0
-    w4 = 8.0 / 7.0
-    hn = h / 90.0
+    w0 = -3.0 / 7.0 * h
+    w1 = 2.0 / 7.0 * h
+    w2 = 12.0 / 7.0 * h
+    w3 = -12.0 / 7.0 * h
+    w4 = 8.0 / 7.0 * h
+    v0 = 7.0 / 90.0 * h
+    v2 = 32.0 / 90.0 * h
+    v3 = 12.0 / 90.0 * h
     for a in range(np.uint64(S.shape[1])):
-        y0 = S[0, a] + h * (w0 * K0[0, a] + w1 * K[a, 0, 0] + w2 * K[a, 1, 0] + w3 * K[a, 2, 0]
-                            + w4 * K[a, 3, 0])
-        y1 = S[1, a] + h * (w0 * K0[1, a] + w1 * K[a, 0, 1] + w2 * K[a, 1, 1] + w3 * K[a, 2, 1]
-                            + w4 * K[a, 3, 1])
-        y2 = S[2, a] + h * (w0 * K0[2, a] + w1 * K[a, 0, 2] + w2 * K[a, 1, 2] + w3 * K[a, 2, 2]
-                            + w4 * K[a, 3, 2])
-        y3 = S[3, a] + h * (w0 * K0[3, a] + w1 * K[a, 0, 3] + w2 * K[a, 1, 3] + w3 * K[a, 2, 3]
-                            + w4 * K[a, 3, 3])
-        g1 = a0 * y0 + a1 * y1 + a2 * y2 + a3 * y3 + P[0, a]
-        g3 = b0 * y0 + b1 * y1 + b2 * y2 + b3 * y3 + P[1, a]
-        S1[0, a] = S[0, a] + hn * (7.0 * (K0[0, a] + cu * y1)
-                                   + 32.0 * (K[a, 1, 0] + K[a, 3, 0]) + 12.0 * K[a, 2, 0])
-        S1[1, a] = S[1, a] + hn * (7.0 * (K0[1, a] + g1)
-                                   + 32.0 * (K[a, 1, 1] + K[a, 3, 1]) + 12.0 * K[a, 2, 1])
-        S1[2, a] = S[2, a] + hn * (7.0 * (K0[2, a] + cl * y3)
-                                   + 32.0 * (K[a, 1, 2] + K[a, 3, 2]) + 12.0 * K[a, 2, 2])
-        S1[3, a] = S[3, a] + hn * (7.0 * (K0[3, a] + g3)
-                                   + 32.0 * (K[a, 1, 3] + K[a, 3, 3]) + 12.0 * K[a, 2, 3])
+        y0 = fma(w2, K[a, 1, 0], fma(w1, K[a, 0, 0], fma(w0, K0[0, a], S[0, a])))
+        y0 = fma(w4, K[a, 3, 0], fma(w3, K[a, 2, 0], y0))
+        y1 = fma(w2, K[a, 1, 1], fma(w1, K[a, 0, 1], fma(w0, K0[1, a], S[1, a])))
+        y1 = fma(w4, K[a, 3, 1], fma(w3, K[a, 2, 1], y1))
+        y2 = fma(w2, K[a, 1, 2], fma(w1, K[a, 0, 2], fma(w0, K0[2, a], S[2, a])))
+        y2 = fma(w4, K[a, 3, 2], fma(w3, K[a, 2, 2], y2))
+        y3 = fma(w2, K[a, 1, 3], fma(w1, K[a, 0, 3], fma(w0, K0[3, a], S[3, a])))
+        y3 = fma(w4, K[a, 3, 3], fma(w3, K[a, 2, 3], y3))
+        g0 = cu * y1
+        g1 = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
+        g2 = cl * y3
+        g3 = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
+        S1[0, a] = fma(v0, g0, fma(v2, K[a, 3, 0], fma(v3, K[a, 2, 0],
+                         fma(v2, K[a, 1, 0], fma(v0, K0[0, a], S[0, a])))))
+        S1[1, a] = fma(v0, g1, fma(v2, K[a, 3, 1], fma(v3, K[a, 2, 1],
+                         fma(v2, K[a, 1, 1], fma(v0, K0[1, a], S[1, a])))))
+        S1[2, a] = fma(v0, g2, fma(v2, K[a, 3, 2], fma(v3, K[a, 2, 2],
+                         fma(v2, K[a, 1, 2], fma(v0, K0[2, a], S[2, a])))))
+        S1[3, a] = fma(v0, g3, fma(v2, K[a, 3, 3], fma(v3, K[a, 2, 3],
+                         fma(v2, K[a, 1, 3], fma(v0, K0[3, a], S[3, a])))))
 
 
 @njit(cache=True, error_model="numpy")
