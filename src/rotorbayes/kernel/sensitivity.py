@@ -705,7 +705,9 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
                 ml = new_l
                 new = ml
             fm = f
-            Sev[:, :] = S
+            for rr in range(4):  # (a slice assignment compiled its shape-error message: 3 s)
+                for a in range(k):
+                    Sev[rr, a] = S[rr, a]
             f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, de, c, cfg, shape, idx, tsf, Sev, dF,
                        pu, pl, P)  # fmt: skip
             # S+ = S- + (f- - f+) dtau/dp,  dtau/dp = -(g_x S- + g_p) / (g_x f- + g_t).
