@@ -9,7 +9,13 @@ each (minimum and median per call):
 * ``Problem.jacobian(method="sensitivity")``: the kernel's forward sensitivities;
 * ``Problem.jacobian(method="differences")``: forward differences (14 residual vectors);
 * the sensitivity kernel with nothing written (no residual, no Jacobian entry): its
-  integration alone.
+  integration alone;
+* ``Problem.jacobian_rows``: the same kernel writing each step's rows reduced (the
+  ``Jᵀ J`` and ``Jᵀ r`` least squares needs, a few rows per step instead of every
+  sample's);
+* what a compressed least-squares iteration needs, the Jacobian and the ``(k + 1) x k``
+  matrix of :func:`rotorbayes.inference.least_squares.compress`: from the reduced rows,
+  from the whole sensitivity Jacobian, and from forward differences (the default).
 
 It also prints how far the two Jacobians differ, column by column (relative to the
 column's largest entry; the differences carry their own step error, so this is a sanity
@@ -17,7 +23,8 @@ check, not the accuracy test: see tests/test_sensitivity.py).
 
 Usage::
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_sensitivity.py [--rounds 5] [--repeats 20]
+    OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/bench_sensitivity.py \
+        [--rounds 5] [--repeats 20]
 """
 
 from __future__ import annotations
@@ -60,13 +67,31 @@ def main() -> None:
     def integration_only():
         sensitivities_into(kp, sim.u, sim.dt, sim.cfg, sim.shape, sim.grid, sim.h0, idx,
                            not prob.model.stribeck, np.empty(0), np.empty(0), 1.0, 1.0, r0,
-                           J0, np.arange(idx.size, dtype=np.int64), -1, -1)  # fmt: skip
+                           J0, np.arange(idx.size, dtype=np.int64), -1, -1,
+                           np.empty((idx.size + 1, 0)), np.zeros(2, dtype=np.int64))  # fmt: skip
+
+    from rotorbayes.inference.least_squares import compress
+
+    r_x = prob.residuals(x)
+    sc = np.abs(x)
+
+    def rows_compressed():
+        A, b, r = prob.jacobian_rows(x)
+        return compress(A, b, sc, norm=float(np.sqrt(r @ r)))
 
     calls = {
         "residuals": lambda: prob.residuals(x),
         "jacobian (sensitivity)": lambda: prob.jacobian(x, method="sensitivity"),
         "jacobian (differences)": lambda: prob.jacobian(x, method="differences"),
         "sensitivities, no output": integration_only,
+        "jacobian rows (reduced)": lambda: prob.jacobian_rows(x),
+        "rows + compress": rows_compressed,
+        "sensitivity + compress": lambda: compress(
+            prob.jacobian(x, method="sensitivity")[0], r_x, sc
+        ),
+        "differences + compress": lambda: compress(
+            prob.jacobian(x, method="differences")[0], r_x, sc
+        ),
     }
     for f in calls.values():  # compile and warm up
         f()
@@ -97,6 +122,12 @@ def main() -> None:
         "/ column's largest entry:"
     )
     print("   " + ", ".join(f"{n} {e:.1e}" for n, e in zip(prob.names, rel, strict=True)))
+    A, b, r = prob.jacobian_rows(x)
+    G = Js.T @ Js
+    print(
+        f"  reduced rows: {A.shape[0]} instead of {prob.n_residuals}; their JᵀJ against the "
+        f"whole Jacobian's: {np.abs(A.T @ A - G).max() / np.abs(G).max():.1e} (relative)"
+    )
 
 
 if __name__ == "__main__":

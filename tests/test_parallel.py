@@ -123,7 +123,9 @@ def test_dask_cluster_gives_the_serial_results_bit_for_bit(cluster):
             __import__("numba").get_num_threads(),
         )
     )
-    assert len(info) == 2 and all(v == ("1", "1", 1) for v in info.values())
+    # One BLAS thread; numba one thread outside a task's kernel batches (its threads per
+    # core kept for the batches: NUMBA_NUM_THREADS not limited by the cluster).
+    assert len(info) == 2 and all(v[0] != "1" and v[1:] == ("1", 1) for v in info.values())
     plugins = client.run(lambda dask_worker: list(dask_worker.plugins))
     assert all(parallel._WarmUp.name in v for v in plugins.values())
 
@@ -493,3 +495,63 @@ def test_a_lone_task_takes_the_cores_for_its_batches():
         outside, inside = ex.submit(_threads_in_task, 0).result()
     assert outside == 1
     assert inside == min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS)
+
+
+def test_a_lone_task_on_a_dask_worker_takes_the_hosts_cores(cluster):
+    """Two one-thread workers on this host: a task running alone gets both cores for its
+    kernel batches (the host's share), not its worker's one thread."""
+    from rotorbayes.inference.hostshare import usable_cores
+
+    outside, inside = cluster.submit(_threads_in_task, 0).result()
+    assert outside == 1
+    assert inside == min(2, usable_cores())
+
+
+def test_host_share_counts_every_workers_tasks(tmp_path):
+    """The host's counters, as two workers of one scheduler see them: the threads they
+    brought over the tasks running now; the last worker to leave removes the file."""
+    import numba
+
+    from rotorbayes.inference.hostshare import HostShare, usable_cores
+
+    path = tmp_path / "cores-x"
+    a, b = HostShare(path, 3), HostShare(path, 1)
+    cap = min(4, usable_cores(), numba.config.NUMBA_NUM_THREADS)
+    a.enter()
+    assert a.threads() == b.threads() == cap
+    b.enter()
+    assert a.threads() == max(1, cap // 2)
+    a.leave()
+    assert b.threads() == cap
+    b.leave()
+    a.close()
+    assert path.exists()
+    b.close()
+    assert not path.exists()
+
+
+def test_host_share_forgets_a_worker_killed_in_a_task(tmp_path):
+    """A worker whose process ended in a task (its count never taken back) does not shrink
+    the others' share: its slot is dead from the next task on, and reused."""
+    import subprocess
+    import sys
+
+    import numba
+
+    from rotorbayes.inference.hostshare import HostShare, usable_cores
+
+    if min(usable_cores(), numba.config.NUMBA_NUM_THREADS) < 2:
+        pytest.skip("needs two cores to tell the shares apart")
+    path = tmp_path / "cores-y"
+    code = (
+        "import os, sys; from pathlib import Path;"
+        "from rotorbayes.inference.hostshare import HostShare;"
+        "s = HostShare(Path(sys.argv[1]), 4); s.enter(); os._exit(0)"
+    )
+    subprocess.run([sys.executable, "-c", code, str(path)], check=True)
+    a = HostShare(path, 2)
+    a.enter()
+    assert a.threads() == 2  # the dead worker's 4 threads and 1 task not counted
+    a.leave()
+    a.close()
+    assert not path.exists()

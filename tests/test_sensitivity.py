@@ -6,7 +6,9 @@
 * across stick/slip events (start, stop, reversal) it agrees with central differences
   of the independent reference integrator (tests/reference.py) to 1e-5 of each column;
 * ``Problem.jacobian(method="sensitivity")`` gives it, and falls back to differences,
-  with a warning that says why, where the kernel has no sensitivities.
+  with a warning that says why, where the kernel has no sensitivities;
+* ``Problem.jacobian_rows`` hands least squares the same ``Jᵀ J`` and ``Jᵀ r`` in a few
+  rows per step, and a fit on them ends where a fit on the whole Jacobian does.
 """
 
 from __future__ import annotations
@@ -52,7 +54,9 @@ def _kernel(prob, kp, names):
     st = sensitivity.sensitivities_into(kp, sim.u, sim.dt, sim.cfg, sim.shape, sim.grid, sim.h0,
                                         idx,
                                not prob.model.stribeck, mu, ml, float(wu), float(wl), r, J,
-                               np.arange(len(names), dtype=np.int64), cu, cl)  # fmt: skip
+                               np.arange(len(names), dtype=np.int64), cu, cl,
+                               np.empty((len(names) + 1, 0)),
+                               np.zeros(2, dtype=np.int64))  # fmt: skip
     assert st == layout.OK
     return r[0], J
 
@@ -219,3 +223,101 @@ def test_multi_experiment_columns():
     assert not Js[:n, j1].any()
     rel = np.abs(Js - Jd).max(axis=0) / np.abs(Jd).max(axis=0)
     assert rel.max() < 1e-2, dict(zip(prob.names, rel, strict=True))
+
+
+def _gram_matches(prob, x):
+    J, _ = prob.jacobian(x, method="sensitivity")
+    r = prob.residuals(x)
+    A, b, rk = prob.jacobian_rows(x)
+    assert np.array_equal(rk, r)
+    G, Ga = J.T @ J, A.T @ A
+    assert np.abs(G - Ga).max() < 1e-12 * np.abs(G).max()
+    assert np.abs(J.T @ r - A.T @ b).max() < 1e-12 * np.abs(J.T @ r).max() + 1e-300
+    assert float(b @ b) <= float(r @ r) * (1 + 1e-12)
+    return A
+
+
+def test_reduced_rows_hold_the_gauss_newton_model():
+    """The rows the kernel writes per step instead of every sample's (the samples' rows of
+    a step lie in the span of six Hermite weights): the same JᵀJ and Jᵀr to 1e-12, in
+    several times fewer rows, across events and Stribeck substeps."""
+    t = np.arange(0, 4.0 + DT / 2, DT)
+    u = 1.3 * np.sin(2 * np.pi * 0.5 * t)
+    p = _brake()
+    s, prob = _problem("brake", p, u)
+    assert len(s.events) >= 3
+    A = _gram_matches(prob, prob.x_from(p) * 1.03)
+    assert A.shape[0] * 4 < prob.n_residuals
+    # Two experiments, alpha0 of each its own column: zero in the other's rows.
+    exs = []
+    for k, a0 in enumerate((0.05, -0.04)):
+        uk = 1.5 + 1.2 * np.sin(2 * np.pi * (0.6 + 0.3 * k) * t)
+        exs.append(
+            rb.simulate(
+                {**p, "alpha0": a0}, uk, dt=DT, config="brake", effects=["initial_torsion"]
+            ).to_experiment(f"x{k}")
+        )
+    prob2 = inference.Problem("brake", exs, base=p)
+    _gram_matches(prob2, prob2.x_from({**p, "alpha0": 0.01}))
+    # Upper disc alone (one channel).
+    _, prob3 = _problem("upper", {**p, "Ts_l": p["Tc_l"]}, u)
+    _gram_matches(prob3, prob3.x_from(prob3.base) * 0.97)
+    # Where the kernel has no sensitivities: None (the caller differentiates otherwise).
+    dprob = inference.Problem(
+        "brake", prob.experiments, base={**p, "t_delay": 0.01}, effects=["input_delay"],
+        channels=("theta_u", "theta_l"),
+    )  # fmt: skip
+    assert dprob.jacobian_rows(dprob.x_from(dprob.base)) is None
+
+
+def test_fit_on_reduced_rows_ends_where_the_whole_jacobian_does(monkeypatch):
+    from rotorbayes.inference import problem as problem_module
+    from rotorbayes.inference.least_squares import fit
+
+    t = np.arange(0, 6.0 + DT / 2, DT)
+    u = 1.4 + 1.1 * np.sin(2 * np.pi * 0.4 * t) + 0.4 * np.sin(2 * np.pi * 1.3 * t)
+    p = _brake()
+    ex = rb.simulate(p, u, dt=DT, config="brake", quantize_angles=True).to_experiment("x")
+    prob = inference.Problem("brake", [ex], base=p)
+    x0 = prob.x_from(p) * 1.04
+    monkeypatch.setattr(problem_module, "JACOBIAN_DEFAULT", "sensitivity")
+    a = fit(prob, x0, uncertainty=False)
+    b = fit(prob, x0, uncertainty=False, compressed=False)
+    assert a.success and b.success
+    assert abs(a.ssr - b.ssr) <= 1e-9 * b.ssr
+    se = b.stderr
+    moved = (a.x - b.x) / se
+    assert np.all(np.abs(moved) <= 1e-3), dict(zip(prob.names, moved, strict=True))
+
+
+def test_jacobian_option_of_fit(tmp_path, capsys):
+    """``--jacobian sensitivity`` on the command line: the fit ends where the default's
+    does (within a hundredth of a standard error) and fit.json says which was used; a
+    model the kernel cannot differentiate falls back to differences and says so."""
+    import json
+
+    from rotorbayes.cli import main
+
+    _, u = rb.signals.estimation_signal(10.0, seed=1)
+    s = rb.simulate(_brake(), u, dt=DT, config="brake", quantize_angles=True)
+    data = tmp_path / "d.csv"
+    rb.save_experiment(s.to_experiment("d"), data)
+    docs = {}
+    for how in ("differences", "sensitivity"):
+        out = tmp_path / how
+        argv = ["fit", str(data), "--model", "brake", "--p0", "thesis:4.3:P_ref"]
+        assert main([*argv, "--out", str(out), "--jacobian", how]) == 0
+        docs[how] = json.loads((out / "fit.json").read_text())
+        assert docs[how]["jacobian"] == how
+    for n, e in docs["differences"]["estimates"].items():
+        other = docs["sensitivity"]["estimates"][n]["value"]
+        assert abs(other - e["value"]) <= 1e-2 * e["stderr"], n
+    capsys.readouterr()
+    code = main(
+        ["fit", str(data), "--model", "brake", "--p0", "thesis:4.3:P_ref", "--add",
+         "input_delay", "--jacobian", "sensitivity", "--out", str(tmp_path / "delay")]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert err.count("Jacobian by finite differences: no sensitivity by t_delay") == 1
+    assert code in (0, 1)
+    assert json.loads((tmp_path / "delay" / "fit.json").read_text())["jacobian"] == "differences"

@@ -98,16 +98,25 @@ class ProblemOptions:
 class SolverOptions:
     """The budget and tolerances of each least-squares fit
     (:func:`scipy.optimize.least_squares`): at most ``max_nfev`` residual evaluations,
-    ``ftol``/``xtol``/``gtol`` relative convergence tolerances."""
+    ``ftol``/``xtol``/``gtol`` relative convergence tolerances, and how its Jacobian is
+    computed (``jacobian``)."""
 
     max_nfev: int = 200
     ftol: float = 1e-10
     xtol: float = 1e-10
     gtol: float = 1e-10
+    #: 'differences' or 'sensitivity' (None: :data:`rotorbayes.inference.problem.
+    #: JACOBIAN_DEFAULT`).
+    jacobian: str | None = None
 
-    def keywords(self) -> dict[str, float]:
-        """The keywords of :func:`rotorbayes.inference.fit` and its relatives."""
-        return dataclasses.asdict(self)
+    def keywords(self) -> dict[str, Any]:
+        """The keywords of :func:`rotorbayes.inference.fit` and its relatives (the
+        Jacobian's method only where one was chosen: a multistart's resume record of the
+        default stays as it was)."""
+        kw = dataclasses.asdict(self)
+        if kw["jacobian"] is None:
+            del kw["jacobian"]
+        return kw
 
 
 @dataclass(frozen=True)

@@ -115,6 +115,7 @@ def fit(
     ftol: float = 1e-10,
     xtol: float = 1e-10,
     gtol: float = 1e-10,
+    jacobian: str | None = None,
     force: bool = False,
     trust_effects: bool = False,
     step: float | None = None,
@@ -163,7 +164,9 @@ def fit(
         FitOptions(
             problem=problem,
             out=out,
-            solver=SolverOptions(max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol),
+            solver=SolverOptions(
+                max_nfev=max_nfev, ftol=ftol, xtol=xtol, gtol=gtol, jacobian=jacobian
+            ),
             validate=validate,
             validate_alpha0=validate_alpha0,
             p0=p0,
@@ -700,6 +703,7 @@ def _run(
         "success": res.success,
         "message": res.message,
         "nfev": res.nfev,
+        "jacobian": res.jacobian_method,
         "seconds": res.seconds,
         "ssr": res.ssr,
         "n_residuals": res.n_residuals,

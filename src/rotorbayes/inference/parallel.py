@@ -135,9 +135,10 @@ TIMEOUT_ENV = "ROTORBAYES_DASK_TIMEOUT"
 #: that passed :func:`probe_scheduler` but never answers the client).
 CLIENT_GRACE = 10.0
 
-#: Thread counts every worker runs with: one task per worker, each single-threaded.
+#: Thread counts every worker runs with: one BLAS thread (the same rounding everywhere);
+#: numba keeps its thread per core, of which a task runs one outside its kernel batches and
+#: its share of the host's cores inside them (:func:`claim_kernel_threads`).
 WORKER_ENV = {
-    "NUMBA_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "OMP_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
@@ -293,8 +294,9 @@ class _Share:
         return max(1, self.cap // max(1, n))
 
 
-#: The share of this process-pool worker (set by its initializer), else None.
-_POOL_SHARE: _Share | None = None
+#: The share of this process-pool or Dask worker (set by its initializer or warm-up), else
+#: None.
+_POOL_SHARE: Any = None
 #: The share of the task this thread runs (a local thread pool's task), else unset.
 _TASK = threading.local()
 
@@ -506,7 +508,12 @@ class _WarmUp:
         _share_worker_cores(worker)
 
     def teardown(self, worker=None):
-        pass
+        global _POOL_SHARE
+        share, _POOL_SHARE = _POOL_SHARE, None
+        close = getattr(share, "close", None)
+        if close is not None:
+            with contextlib.suppress(Exception):
+                close()
 
     def transition(self, *args, **kwargs):
         pass
@@ -516,21 +523,31 @@ class _WarmUp:
 
 
 def _share_worker_cores(worker) -> None:
-    """A Dask worker's tasks share its cores as a local pool's do (:class:`_Share`): a worker
-    of T threads (``--nthreads T``; dask-jobqueue's ``cores / processes``) runs each task on
-    one numba thread outside its kernel batches and T // (tasks running) inside them.
-    Without this a task would run its batches on numba's default, a thread per core of the
-    machine, in every one of the worker's threads (numba's thread count is per thread, and a
-    worker's tasks run in threads the warm-up never sees)."""
+    """The tasks of every Dask worker on a host share its cores as a local process pool's
+    do: each task runs on one numba thread outside its kernel batches and on
+    ``C // (tasks running on the host)`` inside them, ``C`` the threads the host's workers
+    of this scheduler brought (``--nthreads``; dask-jobqueue's ``cores / processes``), at
+    most the cores the worker may use (:mod:`.hostshare`).  So the last starts of a
+    multistart take the cores that other workers left idle.  Where the host's counters
+    cannot be kept, a worker shares its own threads (``T // its tasks running``).  Without
+    either, a task would run its batches on numba's default, a thread per core, in every
+    one of the worker's threads (numba's thread count is per thread, and a worker's tasks
+    run in threads the warm-up never sees)."""
     global _POOL_SHARE
     import numba
 
-    nthreads = (
+    from .hostshare import open_host_share
+
+    nthreads = int(
         getattr(getattr(worker, "state", None), "nthreads", None)
         or getattr(worker, "nthreads", None)
         or 1
     )
-    _POOL_SHARE = _Share(min(int(nthreads), int(numba.config.NUMBA_NUM_THREADS)))
+    scheduler = getattr(getattr(worker, "scheduler", None), "address", None)
+    share = open_host_share(str(scheduler), nthreads) if scheduler else None
+    if share is None:
+        share = _Share(min(nthreads, int(numba.config.NUMBA_NUM_THREADS)))
+    _POOL_SHARE = share
 
 
 def _dask_executor(client) -> Executor:

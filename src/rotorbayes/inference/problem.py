@@ -26,6 +26,7 @@ the problem holds (:attr:`Problem.parameters`).
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -348,6 +349,24 @@ class ValidationTorsion:
             how,
             d.get("file") if isinstance(d.get("file"), str) else file,
         )
+
+
+class _RowsBuffer(threading.local):
+    """This thread's buffer of :meth:`Problem.jacobian_rows` (kept: a fresh 6 MB array per
+    Jacobian cost as much in page faults as the rows themselves)."""
+
+    array: np.ndarray | None = None
+
+
+_ROWS_BUFFER = _RowsBuffer()
+
+
+def _rows_buffer(m1: int, n: int) -> np.ndarray:
+    """An ``(m1, n)`` C-order array (contents undefined), this thread's own."""
+    a = _ROWS_BUFFER.array
+    if a is None or a.size < m1 * n:
+        a = _ROWS_BUFFER.array = np.empty(m1 * n)
+    return a[: m1 * n].reshape(m1, n)
 
 
 @dataclass(init=False)
@@ -965,14 +984,44 @@ class Problem:
     def _jacobian_sensitivity(self, x: np.ndarray, names: list[str]) -> np.ndarray:
         """:meth:`jacobian` by the kernel's forward sensitivities (supported, see
         :meth:`sensitivity_support`)."""
+        return self._sensitivity_pass(x, names, rows=False)[0]
+
+    def jacobian_rows(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The free parameters' Jacobian by forward sensitivities, reduced: ``(A, b, r)``
+        with ``Aᵀ A = Jᵀ J``, ``Aᵀ b = Jᵀ r`` and ``|b| <= |r|`` (``r`` the residuals at
+        ``x``, whole).  Least squares needs no more than these (:func:`.least_squares.
+        compress`); the kernel writes a few rows per step of its grid (the samples'
+        rows of a step lie in the span of six Hermite weights; their part outside it, of
+        ``r`` alone, is ``|r|² - |b|²``) instead of every sample's row, and never forms
+        ``J``.  ``None`` where the sensitivities do not cover this problem
+        (:meth:`sensitivity_support`); raises :class:`SimulationError` where ``x``
+        cannot be simulated."""
+        names = list(self.names)
+        if self.sensitivity_support(names) is not None:
+            return None
+        W, r = self._sensitivity_pass(x, names, rows=True)
+        return W[:-1].T, W[-1], r
+
+    def _sensitivity_pass(
+        self, x: np.ndarray, names: list[str], *, rows: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One pass of the sensitivity kernel over every experiment: ``(J, r)``, or with
+        ``rows`` the reduced rows ``Wt`` (a column per row, the residual last) and ``r``."""
         from ..kernel.sensitivity import sensitivities_into
         from ..model.simulate import SimulationError
 
         x = self.point(x)
-        # Fortran order: the kernel writes each column down the samples (vectorised,
-        # sequential stores).  Not zeroed where every column is written whole.
-        whole = len(self.experiments) == 1 or all(local_name(n)[1] is None for n in names)
-        J = (np.empty if whole else np.zeros)((len(names), self.n_residuals)).T
+        m = len(names)
+        if rows:
+            J = np.empty((2, 2), order="F")  # unused: the same compiled kernel
+            Wt = _rows_buffer(m + 1, self.n_residuals)
+        else:
+            # Fortran order: the kernel writes each column down the samples (vectorised,
+            # sequential stores).  Not zeroed where every column is written whole.
+            whole = len(self.experiments) == 1 or all(local_name(n)[1] is None for n in names)
+            J = (np.empty if whole else np.zeros)((m, self.n_residuals)).T
+            Wt = np.empty((m + 1, 0))
+        info = np.zeros(2, dtype=np.int64)
         r = np.empty((1, self.n_residuals))
         tsf = not self.model.stribeck
         off = 0
@@ -994,15 +1043,19 @@ class Problem:
             st = sensitivities_into(
                 np.ascontiguousarray(p, dtype=float), sim.u, sim.dt, sim.cfg, sim.shape,
                 sim.grid, sim.h0, np.array(idx, dtype=np.int64), tsf, mu, ml, float(wu),
-                float(wl), r, J, np.array(jcol, dtype=np.int64), cu, cl,
+                float(wl), r, J, np.array(jcol, dtype=np.int64), cu, cl, Wt, info,
             )  # fmt: skip
             if st != _layout.OK:
                 raise SimulationError(
                     f"Jacobian: experiment {i} cannot be simulated at the "
                     f"point: {_layout.STATUS_MESSAGES[int(st)]}"
                 )
+            if info[1]:  # pragma: no cover - the rows never outnumber the samples
+                raise SimulationError("Jacobian rows: more rows than residuals")
             off += ex.n * len(self.channels)
-        return J
+        if rows:
+            return np.ascontiguousarray(Wt[:, : info[0]]), r[0]
+        return J, r[0]
 
     def jacobian(
         self,

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..util.smoothing import savgol_filter
 from .problem import Problem, local_name
 
 #: Parameters the regression estimates, with the equation they enter.
@@ -67,10 +68,6 @@ def derivatives(theta: np.ndarray, dt: float, window: float = 0.15):
     n = min(n, (theta.size - 1) | 1 if theta.size % 2 == 0 else theta.size)
     if n < 5:
         raise ValueError("the experiment is too short for derivatives of its angles")
-    # here: scipy.signal brings scipy.stats, a third of a second, that a fit from a start
-    # given never needs
-    from scipy.signal import savgol_filter
-
     th = savgol_filter(theta, n, 3)
     w = savgol_filter(theta, n, 3, deriv=1, delta=dt)
     a = savgol_filter(theta, n, 3, deriv=2, delta=dt)

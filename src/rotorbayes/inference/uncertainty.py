@@ -114,9 +114,9 @@ class Uncertainty:
     def quantile(self, level: float) -> np.ndarray:
         """Half-width of the central ``level`` interval in standard errors, per parameter
         (Student's t with the Welch–Satterthwaite degrees of freedom)."""
-        from scipy import stats  # here: scipy.stats takes a quarter second to import
+        from scipy.special import stdtrit  # Student's t quantile (scipy.stats: 0.3 s import)
 
-        return stats.t.ppf(0.5 + level / 2, np.maximum(self.dof, 1.0))
+        return stdtrit(np.maximum(self.dof, 1.0), 0.5 + level / 2)
 
     def shares(self) -> dict[str, dict[str, float]]:
         """Per parameter: the share of the total variance that is noise, model error shown

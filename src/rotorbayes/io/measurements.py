@@ -140,7 +140,7 @@ def jitter_rms(theta: np.ndarray, window: int = 11) -> float:
     clearly larger value means the data carry other noise (electrical, or added by a
     simulator), which the noise floor must include.
     """
-    from scipy.signal import savgol_coeffs, savgol_filter
+    from ..util.smoothing import savgol_coeffs, savgol_filter
 
     theta = np.asarray(theta, float)
     if theta.size < 3 * window:
@@ -224,7 +224,7 @@ def jitter_evidence(theta: np.ndarray, dt: float, channel: str, window: int = 11
     3 ``window`` samples); each stretch's jitter is the RMS of the residual of a local
     cubic (Savitzky-Golay, ``window`` samples) corrected for the fit's leverage.
     """
-    from scipy.signal import savgol_coeffs, savgol_filter
+    from ..util.smoothing import savgol_coeffs, savgol_filter
 
     theta = np.asarray(theta, float)
     n = theta.size

@@ -553,9 +553,180 @@ def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, m
                                   + v3 * X[3, i] + v4 * X[4, i] + v5 * X[5, i])  # fmt: skip
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _dot_at(a, ao, b, bo, n):
+    """``sum a[ao + i] b[bo + i]`` for ``i < n``, in four interleaved partial sums (the
+    code's order, so the same bits anywhere; four chains, not one, so it is not bound by
+    the addition's latency); unsigned indices (vectorised)."""
+    s0 = s1 = s2 = s3 = 0.0
+    u = np.uint64
+    a0 = u(ao)
+    b0 = u(bo)
+    i = u(0)
+    m = u(n)
+    while i + u(4) <= m:
+        s0 += a[a0 + i] * b[b0 + i]
+        s1 += a[a0 + i + u(1)] * b[b0 + i + u(1)]
+        s2 += a[a0 + i + u(2)] * b[b0 + i + u(2)]
+        s3 += a[a0 + i + u(3)] * b[b0 + i + u(3)]
+        i += u(4)
+    while i < m:
+        s0 += a[a0 + i] * b[b0 + i]
+        i += u(1)
+    return (s0 + s1) + (s2 + s3)
+
+
+#: Samples of a segment above which its rows are handed on reduced to six (fewer: the
+#: samples' own rows, unreduced).
+_HERMITE = 6
+
+
+@njit(cache=True, error_model="numpy")
+def _hermite_qr(X, ns, Qt, R):
+    """``Xᵀ = Q R`` for the first ``ns`` columns of ``X`` (6 x ns, the Hermite weights of a
+    segment's samples): Gram-Schmidt twice per column (orthogonal to rounding), ``Qt``
+    (6 x ns) receives ``Qᵀ``, ``R`` (6 x 6) the triangle.  False where a weight column is
+    (nearly) a combination of the others: the segment's rows are then handed on whole."""
+    for b in range(_HERMITE):
+        for c in range(_HERMITE):
+            R[b, c] = 0.0
+    for b in range(_HERMITE):
+        xb = X[b]
+        qb = Qt[b]
+        for i in range(ns):
+            qb[i] = xb[i]
+        nrm0 = _dot_at(qb, 0, qb, 0, ns)
+        for _ in range(2):
+            for c in range(b):
+                qc = Qt[c]
+                d = _dot_at(qc, 0, qb, 0, ns)
+                R[c, b] += d
+                for i in range(ns):
+                    qb[i] -= d * qc[i]
+        nrm = _dot_at(qb, 0, qb, 0, ns)
+        if not nrm > 1e-24 * nrm0 or nrm0 == 0.0:
+            return False
+        nrm = math.sqrt(nrm)
+        R[b, b] = nrm
+        inv = 1.0 / nrm
+        for i in range(ns):
+            qb[i] *= inv
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _write_rows(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas_l, w_u, w_l,
+                r, Wt, info, jcol, col_u, col_l, X, Qc, Rc, known, V):  # fmt: skip
+    """The rows of ``[J | r]`` of samples ``kout .. k1`` of a segment, reduced: the
+    residuals go to ``r`` whole, and the segment's rows (per channel ``Xᵀ V`` for the
+    Hermite weights ``X`` and the six end values' sensitivities ``V``; ``r_s`` beside)
+    go to ``Wt`` (a column per row: ``Wt[jcol[a], row]``, ``Wt[-1, row]`` the residual)
+    as the six rows ``[R V | Qᵀ r_s]`` of ``Xᵀ = Q R``: the same ``Jᵀ J`` and ``Jᵀ r``
+    (what is left of ``r_s``, ``|r_s|² - |Qᵀ r_s|²``, is the caller's to add: it knows
+    ``|r|²``).  ``info[0]`` counts the rows written.  The factors of a segment of whole
+    samples (``ns`` of them, the grid's ordinary step) are computed once per ``ns`` into
+    ``Qc``/``Rc`` (``known[ns]``: 1 done, 2 not reducible); others each time.  ``V``:
+    scratch (6 x k).  Where ``Wt`` has no room left, ``info[1]`` is set and nothing is
+    written."""
+    k = S.shape[1]
+    m1 = Wt.shape[0]
+    hs = seg
+    h2 = seg * seg
+    inv = 1.0 / seg if seg > 0.0 else 0.0
+    cu = _quintic(seg, y[0], f[0], f[1], y1[0], fe[0], fe[1])
+    cl = _quintic(seg, y[2], f[2], f[3], y1[2], fe[2], fe[3])
+    ns = k1 + 1 - kout
+    regular = ns > _HERMITE and ns < Qc.shape[0]
+    for i in range(ns):
+        kk = kout + i
+        sf = (kk * dt - t) * inv if seg > 0.0 else 1.0
+        if sf > 1.0:
+            sf = 1.0
+        if col_u >= 0:
+            r[0, col_u + kk] = w_u * (meas_u[kk] - _horner5(sf, cu))
+        if col_l >= 0:
+            r[0, col_l + kk] = w_l * (meas_l[kk] - _horner5(sf, cl))
+        if abs(sf * ns - (i + 1)) > 1e-9:
+            regular = False
+    Qt = Qc[0]
+    R = Rc[0]
+    reduced = False
+    if regular and known[ns] == 1:
+        Qt = Qc[ns]
+        R = Rc[ns]
+        reduced = True
+    else:
+        # The Hermite weights of the samples, in units of the step (X[1] times seg and
+        # X[2] times seg² are the interpolant's).
+        for i in range(ns):
+            sf = ((kout + i) * dt - t) * inv if seg > 0.0 else 1.0
+            if sf > 1.0:
+                sf = 1.0
+            s2 = sf * sf
+            s3 = s2 * sf
+            s4 = s3 * sf
+            s5 = s4 * sf
+            X[0, i] = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
+            X[1, i] = sf - 6.0 * s3 + 8.0 * s4 - 3.0 * s5
+            X[2, i] = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
+            X[3, i] = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
+            X[4, i] = -4.0 * s3 + 7.0 * s4 - 3.0 * s5
+            X[5, i] = 0.5 * s3 - s4 + 0.5 * s5
+        if regular and known[ns] == 0:
+            known[ns] = 1 if _hermite_qr(X, ns, Qc[ns], Rc[ns]) else 2
+            if known[ns] == 1:
+                Qt = Qc[ns]
+                R = Rc[ns]
+                reduced = True
+        elif ns > _HERMITE and not regular:
+            reduced = _hermite_qr(X, ns, Qt, R)
+    row = info[0]
+    nrow = _HERMITE if reduced else ns
+    if row + 2 * nrow > Wt.shape[1]:
+        info[1] = 1
+        return
+    for ch in range(2):
+        col = col_u if ch == 0 else col_l
+        if col < 0:
+            continue
+        w = -(w_u if ch == 0 else w_l)
+        i0 = 2 * ch
+        for a in range(k):
+            V[0, a] = w * S[i0, a]
+            V[1, a] = w * hs * dF[i0, a]
+            V[2, a] = w * h2 * dF[i0 + 1, a]
+            V[3, a] = w * S1[i0, a]
+            V[4, a] = w * hs * dFe[i0, a]
+            V[5, a] = w * h2 * dFe[i0 + 1, a]
+        if k < m1 - 1:  # columns of other experiments' parameters: zero in these rows
+            for b in range(nrow):
+                for c in range(m1):
+                    Wt[c, row + b] = 0.0
+        if reduced:
+            # R is upper triangular with zeros below (as _hermite_qr leaves it): six
+            # products each, no triangular loop bounds.
+            for b in range(_HERMITE):
+                r0, r1, r2, r3, r4, r5 = R[b, 0], R[b, 1], R[b, 2], R[b, 3], R[b, 4], R[b, 5]
+                for a in range(k):
+                    Wt[jcol[a], row + b] = (r0 * V[0, a] + r1 * V[1, a] + r2 * V[2, a]
+                                            + r3 * V[3, a] + r4 * V[4, a]
+                                            + r5 * V[5, a])  # fmt: skip
+                Wt[m1 - 1, row + b] = _dot_at(Qt[b], 0, r[0], col + kout, ns)
+        else:
+            for i in range(ns):
+                x0, x1, x2, x3, x4, x5 = X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i]
+                for a in range(k):
+                    Wt[jcol[a], row + i] = (x0 * V[0, a] + x1 * V[1, a] + x2 * V[2, a]
+                                            + x3 * V[3, a] + x4 * V[4, a]
+                                            + x5 * V[5, a])  # fmt: skip
+                Wt[m1 - 1, row + i] = r[0, col + kout + i]
+        row += nrow
+    info[0] = row
+
+
 @njit(cache=True, error_model="numpy", nogil=True)
 def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l, w_u, w_l,
-                       r, J, jcol, col_u, col_l):  # fmt: skip
+                       r, J, jcol, col_u, col_l, Wt, info):  # fmt: skip
     """Residuals of one experiment and their derivatives by the parameters ``p[idx]``.
 
     The arguments are :func:`rotorbayes.kernel.solver.residuals_into_plain`'s (``r`` of
@@ -564,7 +735,11 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     ``Tc_l`` (no Stribeck effect: the derivative by ``Tc_l`` moves both); ``J``
     (n_residuals x m) receives ``d r / d p[idx[a]]`` in column ``jcol[a]`` (rows as
     ``r``'s columns; rows of samples only, other rows untouched); any memory order, the
-    fastest Fortran order (a column contiguous).
+    fastest Fortran order (a column contiguous).  ``Wt`` (m + 1 x capacity, C order) and
+    ``info`` (int64, 2): where ``Wt`` has columns, ``J`` is not written (pass any
+    Fortran-order array) and the rows of ``[J | r]`` go to ``Wt`` reduced instead
+    (:func:`_write_rows`, from column ``info[0]`` on; ``info[0]`` ends as the count,
+    ``info[1]`` is 1 where they did not fit); ``r`` is written whole either way.
 
     Returns the status code (:data:`rotorbayes.kernel.layout.STATUS_MESSAGES`); the plain
     kernel's code for a model it cannot differentiate is ``BAD_PARAMETERS`` (a dead zone,
@@ -587,6 +762,12 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
         cap = max(cap, grid[j] - grid[j - 1])
     X = np.empty((6, min(int(cap) + 2, n)))
     JT = J.T
+    rows = Wt.shape[1] > 0
+    nq = min(int(cap) + 2, n) + 1 if rows else 1
+    Qc = np.empty((nq, _HERMITE, nq))
+    Rc = np.empty((nq, _HERMITE, _HERMITE))
+    known = np.zeros(nq, dtype=np.int8)
+    Vs = np.empty((_HERMITE, k))
     q = np.empty(0)
     m = (c, cfg, shape, p, q, False, None, None, None)
     last = n - 1.0
@@ -611,14 +792,18 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, d1, c, cfg, shape, idx, tsf, S, dF, pu, pl,
               P)
     status = OK
+    # The first sample's rows of J are zero (the start is fixed): in the reduced rows
+    # their residual is part of what the caller adds.
     if col_u >= 0:
         r[0, col_u] = w_u * (meas_u[0] - y[0])
         for a in range(k):
-            JT[jcol[a], col_u] = 0.0
+            if not rows:
+                JT[jcol[a], col_u] = 0.0
     if col_l >= 0:
         r[0, col_l] = w_l * (meas_l[0] - y[2])
         for a in range(k):
-            JT[jcol[a], col_l] = 0.0
+            if not rows:
+                JT[jcol[a], col_l] = 0.0
     kout = 1
     t_end = 0.0
     s_end = 0.0
@@ -677,8 +862,14 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
             lim = t_seg + 1e-9 * dt
             if kout < n and kout * dt <= lim:
                 k1 = _last_sample(kout, lim, dt, inv_dt, n)
-                _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u,
-                               meas_l, w_u, w_l, r, JT, jcol, col_u, col_l, X)  # fmt: skip
+                if rows:
+                    _write_rows(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u,
+                                meas_l, w_u, w_l, r, Wt, info, jcol, col_u, col_l, X, Qc,
+                                Rc, known, Vs)  # fmt: skip
+                else:
+                    _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe,
+                                   meas_u, meas_l, w_u, w_l, r, JT, jcol, col_u, col_l,
+                                   X)  # fmt: skip
                 kout = k1 + 1
             y = y1
             f = fe

@@ -56,6 +56,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
         "effects": (list,),
         "channels": (list,),
         "max_nfev": (int,),
+        "jacobian": (str,),
         "step": (int, float),
         "keep_glitches": (bool,),
         "search": (bool,),
@@ -315,6 +316,8 @@ def load_analysis(path: str | Path) -> Analysis:
     for c in fit.get("channels", []):
         if c not in ("theta_u", "theta_l"):
             raise _err(p, "fit", f"channels: {c!r}; choose theta_u and/or theta_l")
+    if "jacobian" in fit and fit["jacobian"] not in ("differences", "sensitivity"):
+        raise _err(p, "fit", f"jacobian = {fit['jacobian']!r}; choose differences or sensitivity")
     s = a.table("sample")
     if "noise" in s and s["noise"] not in ("robust", "floor", "sampled"):
         raise _err(p, "sample", f"noise = {s['noise']!r}; choose robust, floor or sampled")
@@ -729,6 +732,8 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
             fit_args[k] = ",".join(fit_t[k])
     if fit_t.get("max_nfev"):
         fit_args["max_nfev"] = fit_t["max_nfev"]
+    if fit_t.get("jacobian"):
+        fit_args["jacobian"] = fit_t["jacobian"]
     if fit_t.get("step") is not None:
         fit_args["step"] = float(fit_t["step"])
     if fit_t.get("keep_glitches"):
