@@ -110,7 +110,9 @@ def stribeck_g(v):
     return v  # NaN stays NaN
 
 
-@njit(cache=True, error_model="numpy")
+# Inlined by numba (only the sensitivities call it): a call left in the integrator's loop
+# kept numba from pairing off the reference counts of the arrays around it.
+@njit(cache=True, error_model="numpy", inline="always")
 def stribeck_g_slope(v):
     """:func:`stribeck_g` (the same operations) and its derivative by ``v``: the table's
     cubic differentiated, so the forward sensitivities

@@ -140,12 +140,21 @@ def _stribeck_d(x, delta, shape, x_cut):
     return g, q * delta / x, q * lx
 
 
+# Inlined by numba into the five stages of _rk5_sens: called there, each call passed the
+# constants' tuple by value and cost the integration 15 % (measured side by side, 30 s
+# brake, 13 parameters).  _rhs_d, which the integrator calls between steps, is a function
+# of its own: inlined at its five sites it made the first compilation 28 s instead of 20 s
+# (2 cores) for the same speed.
 @njit(cache=True, error_model="numpy", inline="always")
-def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl):
+def _rhs_lin(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, pu, pl, P):
     """The right-hand side (as :func:`rotorbayes.kernel.terms.rhs` computes it in the plain
-    kernel, operation for operation) and its derivative along the state sensitivities
-    ``Y`` (4 x k): ``out[r, a] = sum_j d f_r / d x_j Y[j, a] + d f_r / d p_idx[a]``.
-    ``pu``, ``pl``: scratch of length N_PARAMS (zero outside the entries set here)."""
+    kernel, operation for operation) and its linearisation: the rates, the coefficients
+    of ``d f / d x`` (``cu`` and ``cl`` 1 for a slipping disc, 0 for a sticking one; the
+    rows of the angle rates are copies of the velocity sensitivities), and
+    ``d f / d p`` in ``pu`` (the upper velocity's row) and ``pl`` (the lower one's), both
+    indexed by parameter (length N_PARAMS, zero outside the entries set here), and
+    gathered by column into ``P`` (2 x k: the loops over the columns read them in order,
+    which LLVM vectorises; a gather ``pu[idx[a]]`` inside them it does not)."""
     v = d[1]
     ts = 0.0
     da = 0.0
@@ -156,13 +165,12 @@ def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl)
         ts = fma(c[_KA], da, c[_CA] * dw)
     te_u = fma(c[_KM], v, ts)
     te_l = -ts
-    k = idx.shape[0]
     dthu = 0.0
     dwu = 0.0
+    cu = cl = 0.0
     a_thu = a_wu = a_thl = a_wl = 0.0
     b_thu = b_wu = b_thl = b_wl = 0.0
-    su = mu != 0
-    if su:
+    if mu != 0:
         s = float(mu)
         bu = c[_BU] + s * c[_DBU]
         T = fma(bu, s * wu, c[_TCU] + 0.0 + s * c[_DTCU])
@@ -172,6 +180,7 @@ def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl)
         iju = c[_IJU]
         ka = c[_KA] * iju if cfg != CFG_UPPER else 0.0
         ca = c[_CA] * iju if cfg != CFG_UPPER else 0.0
+        cu = 1.0
         a_thu, a_wu, a_thl, a_wl = -ka, -ca - bu * iju, ka, ca
         pu[K_M] = v * iju
         pu[J_U] = -dwu * iju
@@ -183,10 +192,12 @@ def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl)
         pu[ALPHA0] = ka
         pu[C_ALPHA] = dw * iju
         pu[U_OFFSET] = c[_KM] * iju
+    else:  # a sticking disc: no rate, no sensitivity rate
+        pu[K_M] = pu[J_U] = pu[TC_U] = pu[DTC_U] = pu[B_U] = pu[DB_U] = 0.0
+        pu[K_ALPHA] = pu[ALPHA0] = pu[C_ALPHA] = pu[U_OFFSET] = 0.0
     dthl = 0.0
     dwl = 0.0
-    sl = ml != 0 and cfg != CFG_UPPER
-    if sl:
+    if ml != 0 and cfg != CFG_UPPER:
         s = float(ml)
         bl = c[_BL] + s * c[_DBL]
         T = fma(bl, s * wl, c[_TCL] + 0.0 + s * c[_DTCL])
@@ -203,6 +214,7 @@ def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl)
         fw = bl + s * ds * gx * sw * c[_IWSL]
         ka = c[_KA] * ijl
         ca = c[_CA] * ijl
+        cl = 1.0
         b_thu, b_wu, b_thl, b_wl = ka, ca, -ka, -ca - fw * ijl
         pl[J_L] = -dwl * ijl
         pl[K_ALPHA] = -da * ijl
@@ -217,44 +229,145 @@ def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl)
         pl[DELTA_L] = -s * ds * gd * ijl
         if tsf:  # Ts_l follows Tc_l (no Stribeck effect): one parameter
             pl[TC_L] += pl[TS_L]
-    for a in range(k):
+    else:
+        pl[J_L] = pl[K_ALPHA] = pl[ALPHA0] = pl[C_ALPHA] = pl[TC_L] = pl[DTC_L] = 0.0
+        pl[B_L] = pl[DB_L] = pl[TS_L] = pl[WS_L] = pl[DELTA_L] = 0.0
+    for a in range(idx.shape[0]):
         i = idx[a]
+        P[0, a] = pu[i]
+        P[1, a] = pl[i]
+    return (dthu, dwu, dthl, dwl), (cu, a_thu, a_wu, a_thl, a_wl, cl, b_thu, b_wu, b_thl, b_wl)
+
+
+# The sensitivities' rates at the stages of rotorbayes.kernel.solver._rk5,
+# ``out = f_x Y + f_p`` with ``Y = S + sum_j h a_ij K_j`` (``K0`` the rates at the start,
+# ``K[a, j - 2]`` stage j's in column a), in fused multiply-adds (the products' roundings
+# left out: the same derivatives to rounding, a third of the operations).  One pass over
+# the columns per stage, the combination and the rates together (no stage state stored
+# and read back), over unsigned indices (no negative-index wraparound per access), the
+# parameter terms read in column order from ``P``.  LLVM vectorises these loops, but
+# behind a run-time check that the arrays do not overlap, worth it from about 40 columns
+# on: with 13 the scalar loop runs (a loop over the 4 k entries of a combination,
+# vectorised, was no faster).  ``co``, ``P``: the linearisation (:func:`_rhs_lin`).
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rates_at(Y, out, co, P):
+    """The rates of the sensitivities ``Y`` (4 x k) into ``out``."""
+    cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    for a in range(np.uint64(Y.shape[1])):
         y0 = Y[0, a]
         y1 = Y[1, a]
         y2 = Y[2, a]
         y3 = Y[3, a]
-        if su:
-            out[0, a] = y1
-            out[1, a] = a_thu * y0 + a_wu * y1 + a_thl * y2 + a_wl * y3 + pu[i]
-        else:
-            out[0, a] = 0.0
-            out[1, a] = 0.0
-        if sl:
-            out[2, a] = y3
-            out[3, a] = b_thu * y0 + b_wu * y1 + b_thl * y2 + b_wl * y3 + pl[i]
-        else:
-            out[2, a] = 0.0
-            out[3, a] = 0.0
-    return dthu, dwu, dthl, dwl
+        out[0, a] = cu * y1
+        out[1, a] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
+        out[2, a] = cl * y3
+        out[3, a] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _comb(Y, S, h, w, K, n_st):
-    """``Y = S + h * sum_j w[j] * K[j]`` over the first ``n_st`` stage rates."""
-    k = S.shape[1]
-    for r in range(4):
-        for a in range(k):
-            acc = 0.0
-            for j in range(n_st):
-                acc += w[j] * K[j, r, a]
-            Y[r, a] = S[r, a] + h * acc
+def _stage2(h, S, K0, K, co, P):
+    cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w0 = 0.25 * h
+    for a in range(np.uint64(S.shape[1])):
+        y0 = fma(w0, K0[0, a], S[0, a])
+        y1 = fma(w0, K0[1, a], S[1, a])
+        y2 = fma(w0, K0[2, a], S[2, a])
+        y3 = fma(w0, K0[3, a], S[3, a])
+        K[a, 0, 0] = cu * y1
+        K[a, 0, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
+        K[a, 0, 2] = cl * y3
+        K[a, 0, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _stage3(h, S, K0, K, co, P):
+    cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w0 = 0.125 * h
+    for a in range(np.uint64(S.shape[1])):
+        y0 = fma(w0, K[a, 0, 0], fma(w0, K0[0, a], S[0, a]))
+        y1 = fma(w0, K[a, 0, 1], fma(w0, K0[1, a], S[1, a]))
+        y2 = fma(w0, K[a, 0, 2], fma(w0, K0[2, a], S[2, a]))
+        y3 = fma(w0, K[a, 0, 3], fma(w0, K0[3, a], S[3, a]))
+        K[a, 1, 0] = cu * y1
+        K[a, 1, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
+        K[a, 1, 2] = cl * y3
+        K[a, 1, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _stage4(h, S, K0, K, co, P):
+    cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w1 = -0.5 * h
+    for a in range(np.uint64(S.shape[1])):
+        y0 = fma(h, K[a, 1, 0], fma(w1, K[a, 0, 0], S[0, a]))
+        y1 = fma(h, K[a, 1, 1], fma(w1, K[a, 0, 1], S[1, a]))
+        y2 = fma(h, K[a, 1, 2], fma(w1, K[a, 0, 2], S[2, a]))
+        y3 = fma(h, K[a, 1, 3], fma(w1, K[a, 0, 3], S[3, a]))
+        K[a, 2, 0] = cu * y1
+        K[a, 2, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
+        K[a, 2, 2] = cl * y3
+        K[a, 2, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _stage5(h, S, K0, K, co, P):
+    cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w0 = 0.1875 * h
+    w3 = 0.5625 * h
+    for a in range(np.uint64(S.shape[1])):
+        y0 = fma(w3, K[a, 2, 0], fma(w0, K0[0, a], S[0, a]))
+        y1 = fma(w3, K[a, 2, 1], fma(w0, K0[1, a], S[1, a]))
+        y2 = fma(w3, K[a, 2, 2], fma(w0, K0[2, a], S[2, a]))
+        y3 = fma(w3, K[a, 2, 3], fma(w0, K0[3, a], S[3, a]))
+        K[a, 3, 0] = cu * y1
+        K[a, 3, 1] = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
+        K[a, 3, 2] = cl * y3
+        K[a, 3, 3] = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _stage6_end(h, S, K0, K, co, P, S1):
+    """The last stage, and the step's end ``S1`` from all six."""
+    cu, a0, a1, a2, a3, cl, b0, b1, b2, b3 = co
+    w0 = -3.0 / 7.0 * h
+    w1 = 2.0 / 7.0 * h
+    w2 = 12.0 / 7.0 * h
+    w3 = -12.0 / 7.0 * h
+    w4 = 8.0 / 7.0 * h
+    v0 = 7.0 / 90.0 * h
+    v2 = 32.0 / 90.0 * h
+    v3 = 12.0 / 90.0 * h
+    for a in range(np.uint64(S.shape[1])):
+        y0 = fma(w2, K[a, 1, 0], fma(w1, K[a, 0, 0], fma(w0, K0[0, a], S[0, a])))
+        y0 = fma(w4, K[a, 3, 0], fma(w3, K[a, 2, 0], y0))
+        y1 = fma(w2, K[a, 1, 1], fma(w1, K[a, 0, 1], fma(w0, K0[1, a], S[1, a])))
+        y1 = fma(w4, K[a, 3, 1], fma(w3, K[a, 2, 1], y1))
+        y2 = fma(w2, K[a, 1, 2], fma(w1, K[a, 0, 2], fma(w0, K0[2, a], S[2, a])))
+        y2 = fma(w4, K[a, 3, 2], fma(w3, K[a, 2, 2], y2))
+        y3 = fma(w2, K[a, 1, 3], fma(w1, K[a, 0, 3], fma(w0, K0[3, a], S[3, a])))
+        y3 = fma(w4, K[a, 3, 3], fma(w3, K[a, 2, 3], y3))
+        g0 = cu * y1
+        g1 = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
+        g2 = cl * y3
+        g3 = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
+        S1[0, a] = fma(v0, g0, fma(v2, K[a, 3, 0], fma(v3, K[a, 2, 0],
+                         fma(v2, K[a, 1, 0], fma(v0, K0[0, a], S[0, a])))))
+        S1[1, a] = fma(v0, g1, fma(v2, K[a, 3, 1], fma(v3, K[a, 2, 1],
+                         fma(v2, K[a, 1, 1], fma(v0, K0[1, a], S[1, a])))))
+        S1[2, a] = fma(v0, g2, fma(v2, K[a, 3, 2], fma(v3, K[a, 2, 2],
+                         fma(v2, K[a, 1, 2], fma(v0, K0[2, a], S[2, a])))))
+        S1[3, a] = fma(v0, g3, fma(v2, K[a, 3, 3], fma(v3, K[a, 2, 3],
+                         fma(v2, K[a, 1, 3], fma(v0, K0[3, a], S[3, a])))))
 
 
 @njit(cache=True, error_model="numpy")
-def _rk5_sens(t, h, y, mu, ml, k1, S, S1, K, Y, c, cfg, shape, src, idx, tsf, pu, pl):
+def _rk5_sens(t, h, y, mu, ml, k1, dF, S, S1, K, c, cfg, shape, src, idx, tsf, pu, pl, P):
     """:func:`rotorbayes.kernel.solver._rk5` (the same operations in the plain kernel)
-    and its sensitivities: ``K[0]`` holds the rate's sensitivity at the start (in);
-    ``S1`` receives the sensitivity at the end.  Returns the state and drive at the end."""
+    and its sensitivities: ``dF`` holds the rates' sensitivities at the start (in),
+    ``K`` (k x 4 x 4: column, stage 2-5, state) and ``P`` (2 x k) are scratch; ``S1`` receives the
+    sensitivities at the end.  Returns the state and drive at the end."""
     thu, wu, thl, wl = y
     a1, a2, a3, a4 = k1
     d_q = drive(t + 0.25 * h, c, cfg, src, None)
@@ -262,52 +375,57 @@ def _rk5_sens(t, h, y, mu, ml, k1, S, S1, K, Y, c, cfg, shape, src, idx, tsf, pu
     d_3q = drive(t + 0.75 * h, c, cfg, src, None)
     d_1 = drive(t + h, c, cfg, src, None)
     q = 0.25 * h
-    _comb(Y, S, h, (0.25, 0.0, 0.0, 0.0, 0.0), K, 1)
-    b1, b2, b3, b4 = _rhs_d(fma(q, a1, thu), fma(q, a2, wu), fma(q, a3, thl), fma(q, a4, wl),
-                            mu, ml, d_q, c, cfg, shape, idx, tsf, Y, K[1], pu, pl)  # fmt: skip
+    (b1, b2, b3, b4), co = _rhs_lin(fma(q, a1, thu), fma(q, a2, wu), fma(q, a3, thl),
+                                    fma(q, a4, wl), mu, ml, d_q, c, cfg, shape, idx, tsf, pu,
+                                    pl, P)  # fmt: skip
+    _stage2(h, S, dF, K, co, P)
     e = 0.125 * h
-    _comb(Y, S, h, (0.125, 0.125, 0.0, 0.0, 0.0), K, 2)
-    c1, c2, c3, c4 = _rhs_d(
+    (c1, c2, c3, c4), co = _rhs_lin(
         fma(e, a1 + b1, thu), fma(e, a2 + b2, wu), fma(e, a3 + b3, thl), fma(e, a4 + b4, wl),
-        mu, ml, d_q, c, cfg, shape, idx, tsf, Y, K[2], pu, pl,
+        mu, ml, d_q, c, cfg, shape, idx, tsf, pu, pl, P,
     )  # fmt: skip
+    _stage3(h, S, dF, K, co, P)
     hh = 0.5 * h
-    _comb(Y, S, h, (0.0, -0.5, 1.0, 0.0, 0.0), K, 3)
-    e1, e2, e3, e4 = _rhs_d(
+    (e1, e2, e3, e4), co = _rhs_lin(
         fma(h, c1, fma(-hh, b1, thu)), fma(h, c2, fma(-hh, b2, wu)),
         fma(h, c3, fma(-hh, b3, thl)), fma(h, c4, fma(-hh, b4, wl)),
-        mu, ml, d_m, c, cfg, shape, idx, tsf, Y, K[3], pu, pl,
+        mu, ml, d_m, c, cfg, shape, idx, tsf, pu, pl, P,
     )  # fmt: skip
+    _stage4(h, S, dF, K, co, P)
     r = 0.1875 * h
     zz = 0.5625 * h
-    _comb(Y, S, h, (0.1875, 0.0, 0.0, 0.5625, 0.0), K, 4)
-    f1, f2, f3, f4 = _rhs_d(
+    (f1, f2, f3, f4), co = _rhs_lin(
         fma(zz, e1, fma(r, a1, thu)), fma(zz, e2, fma(r, a2, wu)),
         fma(zz, e3, fma(r, a3, thl)), fma(zz, e4, fma(r, a4, wl)),
-        mu, ml, d_3q, c, cfg, shape, idx, tsf, Y, K[4], pu, pl,
+        mu, ml, d_3q, c, cfg, shape, idx, tsf, pu, pl, P,
     )  # fmt: skip
+    _stage5(h, S, dF, K, co, P)
     s = h / 7.0
-    _comb(Y, S, h, (-3.0 / 7.0, 2.0 / 7.0, 12.0 / 7.0, -12.0 / 7.0, 8.0 / 7.0), K, 5)
-    g1, g2, g3, g4 = _rhs_d(
+    (g1, g2, g3, g4), co = _rhs_lin(
         fma(s * 8.0, f1, fma(s, 2.0 * b1 + 12.0 * (c1 - e1) - 3.0 * a1, thu)),
         fma(s * 8.0, f2, fma(s, 2.0 * b2 + 12.0 * (c2 - e2) - 3.0 * a2, wu)),
         fma(s * 8.0, f3, fma(s, 2.0 * b3 + 12.0 * (c3 - e3) - 3.0 * a3, thl)),
         fma(s * 8.0, f4, fma(s, 2.0 * b4 + 12.0 * (c4 - e4) - 3.0 * a4, wl)),
-        mu, ml, d_1, c, cfg, shape, idx, tsf, Y, K[5], pu, pl,
+        mu, ml, d_1, c, cfg, shape, idx, tsf, pu, pl, P,
     )  # fmt: skip
+    _stage6_end(h, S, dF, K, co, P, S1)
     k = h / 90.0
-    n = S.shape[1]
-    for rr in range(4):
-        for a in range(n):
-            S1[rr, a] = S[rr, a] + (h / 90.0) * (
-                7.0 * (K[0, rr, a] + K[5, rr, a]) + 32.0 * (K[2, rr, a] + K[4, rr, a])
-                + 12.0 * K[3, rr, a])  # fmt: skip
     return (
         fma(k * 7.0, g1, fma(k, 7.0 * a1 + 32.0 * (c1 + f1) + 12.0 * e1, thu)),
         fma(k * 7.0, g2, fma(k, 7.0 * a2 + 32.0 * (c2 + f2) + 12.0 * e2, wu)),
         fma(k * 7.0, g3, fma(k, 7.0 * a3 + 32.0 * (c3 + f3) + 12.0 * e3, thl)),
         fma(k * 7.0, g4, fma(k, 7.0 * a4 + 32.0 * (c4 + f4) + 12.0 * e4, wl)),
     ), d_1
+
+
+@njit(cache=True, error_model="numpy")
+def _rhs_d(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, Y, out, pu, pl, P):
+    """The right-hand side at a state (:func:`_rhs_lin`) and the rates of the
+    sensitivities ``Y`` (4 x k) there: ``out[r, a] = sum_j d f_r / d x_j Y[j, a] + d f_r /
+    d p_idx[a]``.  ``pu``, ``pl``, ``P``: scratch (:func:`_rhs_lin`)."""
+    f, co = _rhs_lin(thu, wu, thl, wl, mu, ml, d, c, cfg, shape, idx, tsf, pu, pl, P)
+    _rates_at(Y, out, co, P)
+    return f
 
 
 @njit(cache=True, error_model="numpy")
@@ -665,13 +783,14 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     Sev = np.zeros((4, k))
     dF = np.zeros((4, k))
     dFe = np.zeros((4, k))
-    K = np.zeros((6, 4, k))
-    Y = np.zeros((4, k))
+    K = np.zeros((k, 4, 4))
     gp = np.zeros(k)
+    P = np.zeros((2, k))
     y = (0.0, 0.0, 0.0, 0.0)
     d1 = drive(0.0, c, cfg, src, None)
     mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], 0.0, d1, m)
-    f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, d1, c, cfg, shape, idx, tsf, S, dF, pu, pl)
+    f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, d1, c, cfg, shape, idx, tsf, S, dF, pu, pl,
+              P)
     status = OK
     # The first sample's rows of J are zero (the start is fixed): in the reduced rows
     # their residual is part of what the caller adds.
@@ -705,9 +824,8 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
             if t_sub < t_tgt:
                 t_tgt = t_sub
             rem = t_tgt - t
-            K[0, :, :] = dF
-            y1, d1 = _rk5_sens(t, rem, y, mu, ml, f, S, S1, K, Y, c, cfg, shape, src, idx,
-                               tsf, pu, pl)  # fmt: skip
+            y1, d1 = _rk5_sens(t, rem, y, mu, ml, f, dF, S, S1, K, c, cfg, shape, src, idx,
+                               tsf, pu, pl, P)  # fmt: skip
             gu1, gl1 = guards(y1[0], y1[1], y1[2], y1[3], 0.0, mu, ml, d1, m)
             seg = rem
             ok_step = gu1 >= 0.0 and gl1 >= 0.0
@@ -717,7 +835,7 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
                 d0 = drive(t, c, cfg, src, None)
                 gu0, gl0 = guards(y[0], y[1], y[2], y[3], 0.0, mu, ml, d0, m)
                 f1 = _rhs_d(y1[0], y1[1], y1[2], y1[3], mu, ml, d1, c, cfg, shape, idx, tsf,
-                            S1, dFe, pu, pl)  # fmt: skip
+                            S1, dFe, pu, pl, P)  # fmt: skip
                 y5 = (y[0], y[1], y[2], y[3], 0.0)
                 y15 = (y1[0], y1[1], y1[2], y1[3], 0.0)
                 f5 = (f[0], f[1], f[2], f[3], 0.0)
@@ -734,13 +852,12 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
                             disc = dsc
                             y_ev, d_ev = yl, dl
                 # The sensitivities at the event: the step of the located length again.
-                K[0, :, :] = dF
-                y1, de = _rk5_sens(t, seg, y, mu, ml, f, S, S1, K, Y, c, cfg, shape, src,
-                                   idx, tsf, pu, pl)  # fmt: skip
+                y1, de = _rk5_sens(t, seg, y, mu, ml, f, dF, S, S1, K, c, cfg, shape, src,
+                                   idx, tsf, pu, pl, P)  # fmt: skip
                 y1 = (y_ev[0], y_ev[1], y_ev[2], y_ev[3])
                 de = d_ev
             fe = _rhs_d(y1[0], y1[1], y1[2], y1[3], mu, ml, de, c, cfg, shape, idx, tsf, S1,
-                        dFe, pu, pl)  # fmt: skip
+                        dFe, pu, pl, P)  # fmt: skip
             t_seg = t + seg
             lim = t_seg + 1e-9 * dt
             if kout < n and kout * dt <= lim:
@@ -779,9 +896,11 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
                 ml = new_l
                 new = ml
             fm = f
-            Sev[:, :] = S
+            for rr in range(4):  # (a slice assignment compiled its shape-error message: 3 s)
+                for a in range(k):
+                    Sev[rr, a] = S[rr, a]
             f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, de, c, cfg, shape, idx, tsf, Sev, dF,
-                       pu, pl)  # fmt: skip
+                       pu, pl, P)  # fmt: skip
             # S+ = S- + (f- - f+) dtau/dp,  dtau/dp = -(g_x S- + g_p) / (g_x f- + g_t).
             if gdot != 0.0:
                 for a in range(k):
@@ -796,7 +915,7 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
                 for a in range(k):
                     S[wr, a] = 0.0
             f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, de, c, cfg, shape, idx, tsf, S, dF,
-                       pu, pl)  # fmt: skip
+                       pu, pl, P)  # fmt: skip
             n_step_ev += 1
             if n_step_ev > _MAX_EVENTS_PER_STEP:
                 status = TOO_MANY_EVENTS
