@@ -16,6 +16,8 @@ from rotorbayes import inference
 from rotorbayes.inference import least_squares as L
 from rotorbayes.kernel.triangle import BLOCK_ROWS, difference_quotients, triangle
 
+NO_BASE = np.empty(0)
+
 
 def _matrix(n: int, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
@@ -36,7 +38,7 @@ def _norms(A: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("n", [2 * 14, BLOCK_ROWS - 1, 3 * BLOCK_ROWS + 17, 60_002])
 def test_triangle_holds_the_gram_matrix_of_lapacks_qr(n):
     D, r = _matrix(n, 13, seed=n)
-    T = triangle(D, r, np.ones(13))
+    T = triangle(D, r, np.ones(13), NO_BASE)
     A = np.column_stack([D.T, r])
     R = np.linalg.qr(A, mode="r")
     assert np.all(np.isfinite(T))
@@ -66,7 +68,7 @@ def test_triangle_and_quotients_give_the_same_bits_on_any_thread_count():
             numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
             Q = R[1:].copy()
             difference_quotients(Q, R[0], steps)
-            out.append((triangle(D, r, np.ones(13)), Q))
+            out.append((triangle(D, r, np.ones(13), NO_BASE), Q))
     finally:
         numba.set_num_threads(before)
     assert np.array_equal(out[0][0], out[1][0])
@@ -81,7 +83,29 @@ def test_triangle_and_quotients_give_the_same_bits_on_any_thread_count():
 def test_columns_scaled_on_the_way_in_are_the_scaled_copys_bits():
     D, r = _matrix(20_000, 13, seed=11)
     scale = np.geomspace(1e-3, 10.0, 13)
-    assert np.array_equal(triangle(D, r, scale), triangle(D * scale[:, None], r, np.ones(13)))
+    assert np.array_equal(
+        triangle(D, r, scale, NO_BASE), triangle(D * scale[:, None], r, np.ones(13), NO_BASE)
+    )
+
+
+def test_difference_quotients_formed_on_the_way_in():
+    """compress of forward differences given as perturbed residuals and steps (the
+    quotients and the scaling folded into the triangle's copy) holds the same Gauss-Newton
+    model as compress of the quotients formed first."""
+    D, r = _matrix(20_000, 13, seed=5)
+    steps = np.geomspace(1e-7, 1e-3, 13) * np.where(np.arange(13) % 3 == 0, -1.0, 1.0)
+    R = r[None, :] + D * steps[:, None]  # the perturbed residuals of quotients D
+    scale = np.geomspace(1e-2, 10.0, 13)
+    J = ((R - r[None, :]) / steps[:, None]).T
+    a = L.compress_differences(R, r, steps, scale)
+    b = L.compress(J, r, scale)
+    G = b.T @ b
+    assert np.abs(a.T @ a - G).max() <= 1e-12 * np.abs(G).max()
+    assert np.abs(a[0] - b[0]).max() <= 1e-12 * np.abs(b[0]).max()
+    # Short data: the same through NumPy's QR.
+    a6 = L.compress_differences(R[:, :20], r[:20], steps, scale)
+    b6 = L.compress(J[:20], r[:20], scale)
+    assert np.abs(a6.T @ a6 - b6.T @ b6).max() <= 1e-12 * np.abs(b6.T @ b6).max()
 
 
 def test_compress_keeps_the_gauss_newton_model():

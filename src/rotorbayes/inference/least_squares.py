@@ -201,8 +201,32 @@ def _triangle(J: np.ndarray, r: np.ndarray, scale: np.ndarray | None = None) -> 
     D = np.asfortranarray(J).T  # (k, n), each row one column of J: no copy for ours
     claim_kernel_threads()  # inside a pool's task: its share of the cores
     return triangle(
-        np.ascontiguousarray(D), np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(scale)
+        np.ascontiguousarray(D),
+        np.ascontiguousarray(r, dtype=float),
+        np.ascontiguousarray(scale),
+        _NO_BASE,
     )
+
+
+#: ``triangle``'s ``base`` where its rows are the Jacobian's columns already.
+_NO_BASE = np.empty(0)
+
+
+def compress_differences(
+    R: np.ndarray, r: np.ndarray, steps: np.ndarray, scale: np.ndarray | None = None
+) -> np.ndarray:
+    """:func:`compress` of the forward-difference Jacobian ``(R[j] - r) / steps[j]``
+    (:meth:`Problem.difference_parts`: ``R`` is ``(k, n)``, the perturbed residuals),
+    the quotients formed on the way into the triangle (times ``scale[j] / steps[j]``)
+    instead of in a pass over the ``k x n`` values of their own."""
+    k, n = R.shape
+    scale = np.ones(k) if scale is None else np.asarray(scale, dtype=float)
+    r = np.ascontiguousarray(r, dtype=float)
+    if n < 2 * (k + 1):
+        return compress(((R - r[None, :]) / steps[:, None]).T, r, scale)
+    claim_kernel_threads()
+    T = triangle(np.ascontiguousarray(R), r, np.ascontiguousarray(scale / steps), r)
+    return _compressed(T, k, math.sqrt(float(r @ r)))
 
 
 def compress(
@@ -221,8 +245,12 @@ def compress(
     """
     k = J.shape[1]
     T = _triangle(J, r, scale)
+    return _compressed(T, k, math.sqrt(float(r @ r)) if norm is None else float(norm))
+
+
+def _compressed(T: np.ndarray, k: int, rho: float) -> np.ndarray:
+    """:func:`compress`'s matrix from the triangle ``T`` of ``[J | r]`` and ``|r|``."""
     R, q = T[:k, :k], T[:k, k]
-    rho = math.sqrt(float(r @ r)) if norm is None else float(norm)
     u = q / rho if rho > 0 else np.zeros(k)
     uu = min(float(u @ u), 1.0)
     alpha = 1.0 / (1.0 + math.sqrt(1.0 - uu))
@@ -442,8 +470,17 @@ def fit(
             if got is not None:
                 A, b, r = got
                 return compress(A, b, scale, norm=math.sqrt(float(r @ r)))
-        J = unscaled_jac(z)
         r = last["r"] if "z" in last and np.array_equal(z, last["z"]) else full_fun(z)
+        if method == "differences":
+            try:
+                R, base, steps = problem.difference_parts(z * scale, rel_step=fd_step, r0=r)
+            except SimulationError:
+                pass  # the penalised differences below
+            else:
+                # The quotients and the scaling on the way into the triangle: no pass over
+                # the k x n values of their own.
+                return compress_differences(R, base, steps, scale)
+        J = unscaled_jac(z)
         return compress(J, r, scale)  # the columns scaled on the way: no pass over J
 
     def full_jac(z):

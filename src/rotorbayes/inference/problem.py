@@ -1111,8 +1111,6 @@ class Problem:
         rotorbayes.SimulationError
             If the model cannot be simulated at ``x`` or at a perturbed point.
         """
-        from ..model.simulate import SimulationError
-
         names = list(self.names if names is None else names)
         asked = method is not None
         method = JACOBIAN_DEFAULT if method is None else method
@@ -1126,6 +1124,27 @@ class Problem:
                 warnings.warn(
                     f"Jacobian by finite differences: {why}", SensitivityFallback, stacklevel=2
                 )
+        D, base_r, steps = self._differences(x, names, rel_step, r0, values, secant)
+        # In place: long data make D the largest array of a fit (k + 1 residual vectors);
+        # no second and third copy for the difference and the quotient.
+        difference_quotients(D, base_r, steps)
+        return D.T, steps
+
+    def difference_parts(
+        self, x: np.ndarray, *, rel_step: float = 1e-6, r0: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The free parameters' forward differences before their quotients: ``(R, r,
+        steps)`` with the Jacobian's column j ``(R[j] - r) / steps[j]`` (``R`` is
+        ``(k, n_residuals)``, the perturbed sets' residuals).  For least squares, which
+        forms the quotients on its way into the triangle (:func:`.least_squares.compress`)
+        instead of in a pass of its own.  Raises :class:`SimulationError` as
+        :meth:`jacobian` does."""
+        return self._differences(x, list(self.names), rel_step, r0, None, None)
+
+    def _differences(self, x, names, rel_step, r0, values, secant):
+        """:meth:`jacobian`'s forward differences up to the quotients."""
+        from ..model.simulate import SimulationError
+
         off_effects = []
         for n in names:
             b, _ = local_name(n)
@@ -1196,8 +1215,4 @@ class Problem:
                 f"{_layout.STATUS_MESSAGES[int(S[j, i])]}"
             )
         base_r = R[0] if r0 is None or prob is not self or values else r0
-        # In place: long data make R the largest array of a fit (k + 1 residual vectors);
-        # no second and third copy for the difference and the quotient.
-        D = R[1:]
-        difference_quotients(D, np.ascontiguousarray(base_r, dtype=float), steps)
-        return D.T, steps
+        return R[1:], np.ascontiguousarray(base_r, dtype=float), steps

@@ -132,10 +132,13 @@ def _householder(W, nb):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=_PARALLEL, nogil=True)
-def triangle(D, r, scale):  # pragma: no cover - compiled
+def triangle(D, r, scale, base):  # pragma: no cover - compiled
     """``T`` (``(k + 1) x (k + 1)``, upper triangular) with ``Tᵀ T = Aᵀ A`` for
     ``A = [Dᵀ diag(scale) | r]``: ``D`` is ``(k, n)`` (row j is column j of the Jacobian,
-    multiplied by ``scale[j]`` on the way in), ``r`` the ``n`` residuals.  Needs
+    multiplied by ``scale[j]`` on the way in), ``r`` the ``n`` residuals.  With ``base``
+    (``n`` values; empty: none) row j of ``D`` is a perturbed residual vector and column
+    j of the Jacobian ``(D[j] - base) * scale[j]`` (the difference quotient formed on the
+    way in: ``scale[j]`` then holds the column's scale over its step).  Needs
     ``n >= 2 (k + 1)``."""
     k, n = D.shape
     nc = k + 1
@@ -149,8 +152,12 @@ def triangle(D, r, scale):  # pragma: no cover - compiled
         ua = _U(a)
         for j in range(k):
             sj = scale[j]
-            for i in range(_U(nb)):
-                W[j, i] = D[j, ua + i] * sj
+            if base.shape[0] > 0:
+                for i in range(_U(nb)):
+                    W[j, i] = (D[j, ua + i] - base[ua + i]) * sj
+            else:
+                for i in range(_U(nb)):
+                    W[j, i] = D[j, ua + i] * sj
         for i in range(_U(nb)):
             W[k, i] = r[ua + i]
         _householder(W, nb)

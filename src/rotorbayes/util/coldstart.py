@@ -148,7 +148,7 @@ GROUPS = {
 #: (:mod:`rotorbayes.kernel.triangle`), for the arrays the least squares passes.
 FIT_HELPERS = (
     ("triangle", "difference_quotients", "float64[:, ::1], float64[::1], float64[::1]"),
-    ("triangle", "triangle", "float64[:, ::1], float64[::1], float64[::1]"),
+    ("triangle", "triangle", "float64[:, ::1], float64[::1], float64[::1], float64[::1]"),
 )
 
 #: The entry points ready in this process, by name (the hot path looks here first).
