@@ -352,34 +352,14 @@ def _stage6_end(h, S, K0, K, co, P, S1):
         g1 = fma(a3, y3, fma(a2, y2, fma(a1, y1, fma(a0, y0, P[0, a]))))
         g2 = cl * y3
         g3 = fma(b3, y3, fma(b2, y2, fma(b1, y1, fma(b0, y0, P[1, a]))))
-        S1[0, a] = fma(
-            v0,
-            g0,
-            fma(
-                v2, K[a, 3, 0], fma(v3, K[a, 2, 0], fma(v2, K[a, 1, 0], fma(v0, K0[0, a], S[0, a])))
-            ),
-        )
-        S1[1, a] = fma(
-            v0,
-            g1,
-            fma(
-                v2, K[a, 3, 1], fma(v3, K[a, 2, 1], fma(v2, K[a, 1, 1], fma(v0, K0[1, a], S[1, a])))
-            ),
-        )
-        S1[2, a] = fma(
-            v0,
-            g2,
-            fma(
-                v2, K[a, 3, 2], fma(v3, K[a, 2, 2], fma(v2, K[a, 1, 2], fma(v0, K0[2, a], S[2, a])))
-            ),
-        )
-        S1[3, a] = fma(
-            v0,
-            g3,
-            fma(
-                v2, K[a, 3, 3], fma(v3, K[a, 2, 3], fma(v2, K[a, 1, 3], fma(v0, K0[3, a], S[3, a])))
-            ),
-        )
+        S1[0, a] = fma(v0, g0, fma(v2, K[a, 3, 0], fma(v3, K[a, 2, 0],
+                         fma(v2, K[a, 1, 0], fma(v0, K0[0, a], S[0, a])))))  # fmt: skip
+        S1[1, a] = fma(v0, g1, fma(v2, K[a, 3, 1], fma(v3, K[a, 2, 1],
+                         fma(v2, K[a, 1, 1], fma(v0, K0[1, a], S[1, a])))))  # fmt: skip
+        S1[2, a] = fma(v0, g2, fma(v2, K[a, 3, 2], fma(v3, K[a, 2, 2],
+                         fma(v2, K[a, 1, 2], fma(v0, K0[2, a], S[2, a])))))  # fmt: skip
+        S1[3, a] = fma(v0, g3, fma(v2, K[a, 3, 3], fma(v3, K[a, 2, 3],
+                         fma(v2, K[a, 1, 3], fma(v0, K0[3, a], S[3, a])))))  # fmt: skip
 
 
 @njit(cache=True, error_model="numpy")
@@ -809,7 +789,8 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     y = (0.0, 0.0, 0.0, 0.0)
     d1 = drive(0.0, c, cfg, src, None)
     mu, ml = modes_at_rest(y[0], y[1], y[2], y[3], 0.0, d1, m)
-    f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, d1, c, cfg, shape, idx, tsf, S, dF, pu, pl, P)
+    f = _rhs_d(y[0], y[1], y[2], y[3], mu, ml, d1, c, cfg, shape, idx, tsf, S, dF, pu, pl,
+              P)  # fmt: skip
     status = OK
     # The first sample's rows of J are zero (the start is fixed): in the reduced rows
     # their residual is part of what the caller adds.
