@@ -1,5 +1,6 @@
-"""rotorbayes.util.smoothing against scipy.signal's Savitzky-Golay filter (the independent
-reference: scipy's own implementation)."""
+"""rotorbayes.util.smoothing against scipy.signal's Savitzky-Golay filter, and the tail
+probabilities taken from scipy.special against scipy.stats (the independent references:
+scipy's own implementations)."""
 
 from __future__ import annotations
 
@@ -40,3 +41,40 @@ def test_bad_windows_say_why():
         savgol_filter(np.zeros(50), 5, 5)
     with pytest.raises(ValueError, match="fewer"):
         savgol_filter(np.zeros(4), 5, 3)
+
+
+def test_tail_probabilities_from_scipy_special_match_scipy_stats():
+    """The score tests' and the likelihood-ratio test's p-values, taken from scipy.special
+    (scipy.stats is not imported by fit and diagnose), against scipy.stats."""
+    from scipy import stats
+
+    from rotorbayes.diagnosis import compare, score
+
+    for t in (-3.0, -0.2, 0.0, 1.7, 6.0):
+        for df in (3, 19, 200):
+            assert score._t_sf(t, df) == pytest.approx(stats.t.sf(t, df), rel=1e-12, abs=1e-300)
+    rng = np.random.default_rng(0)
+    S = rng.standard_normal((20, 3)) + 0.4
+    F, p = score._stat(S, None)  # Hotelling's T² as an F statistic, (3, 17) degrees
+    assert p == pytest.approx(stats.f.sf(F, 3, 17), rel=1e-12)
+    T, p1 = score._stat(S[:, :1], True)
+    assert p1 == pytest.approx(stats.t.sf(T, 19), rel=1e-12)
+    from types import SimpleNamespace
+
+    a = SimpleNamespace(k=5, rho=0.0, n=1000, ssr=1.00)
+    b = SimpleNamespace(k=7, rho=0.2, n=1000, ssr=0.99)
+    lr = compare.lr_test(a, b)
+    assert lr["p_value"] == pytest.approx(stats.chi2.sf(lr["statistic"], 2), rel=1e-12)
+
+
+def test_fit_and_diagnose_do_not_import_scipy_stats():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, rotorbayes.cli, rotorbayes.commands.fit, rotorbayes.commands.diagnose, "
+        "rotorbayes.diagnosis.score, rotorbayes.diagnosis.compare, rotorbayes.inference.starts;"
+        "print(sorted(m for m in ('scipy.stats', 'scipy.signal') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
