@@ -201,10 +201,8 @@ def test_problem_jacobian_option_and_fallback():
     assert np.isfinite(J2).all()
 
 
-def test_multi_experiment_columns():
-    """alpha0[i] moves only experiment i's rows; the other rows of its column are 0."""
-    t = np.arange(0, 2.0 + DT / 2, DT)
-    p = _brake()
+def _two_pre_wound_runs(p, t):
+    """Two brake runs at times ``t`` with their own string torsion (0.05 and -0.04 rad)."""
     exs = []
     for k, a0 in enumerate((0.05, -0.04)):
         u = 1.5 + 1.2 * np.sin(2 * np.pi * (0.6 + 0.3 * k) * t)
@@ -213,7 +211,14 @@ def test_multi_experiment_columns():
                 {**p, "alpha0": a0}, u, dt=DT, config="brake", effects=["initial_torsion"]
             ).to_experiment(f"x{k}")
         )
-    prob = inference.Problem("brake", exs, base=p)
+    return exs
+
+
+def test_multi_experiment_columns():
+    """alpha0[i] moves only experiment i's rows; the other rows of its column are 0."""
+    t = np.arange(0, 2.0 + DT / 2, DT)
+    p = _brake()
+    prob = inference.Problem("brake", _two_pre_wound_runs(p, t), base=p)
     x = prob.x_from({**p, "alpha0": 0.01})
     assert "alpha0[1]" in prob.names
     Js, _ = prob.jacobian(x, method="sensitivity")
@@ -249,15 +254,7 @@ def test_reduced_rows_hold_the_gauss_newton_model():
     A = _gram_matches(prob, prob.x_from(p) * 1.03)
     assert A.shape[0] * 4 < prob.n_residuals
     # Two experiments, alpha0 of each its own column: zero in the other's rows.
-    exs = []
-    for k, a0 in enumerate((0.05, -0.04)):
-        uk = 1.5 + 1.2 * np.sin(2 * np.pi * (0.6 + 0.3 * k) * t)
-        exs.append(
-            rb.simulate(
-                {**p, "alpha0": a0}, uk, dt=DT, config="brake", effects=["initial_torsion"]
-            ).to_experiment(f"x{k}")
-        )
-    prob2 = inference.Problem("brake", exs, base=p)
+    prob2 = inference.Problem("brake", _two_pre_wound_runs(p, t), base=p)
     _gram_matches(prob2, prob2.x_from({**p, "alpha0": 0.01}))
     # Upper disc alone (one channel).
     _, prob3 = _problem("upper", {**p, "Ts_l": p["Tc_l"]}, u)
