@@ -462,26 +462,19 @@ def fit(
     def jac(z):
         if not compressed:
             return full_jac(z)
-        if use_rows:
-            try:
-                got = problem.jacobian_rows(z * scale)
-            except SimulationError:
-                got = None  # the differences below say why, or penalise
-            if got is not None:
-                A, b, r = got
-                return compress(A, b, scale, norm=math.sqrt(float(r @ r)))
         r = last["r"] if "z" in last and np.array_equal(z, last["z"]) else full_fun(z)
-        if method == "differences":
-            try:
-                R, base, steps = problem.difference_parts(z * scale, rel_step=fd_step, r0=r)
-            except SimulationError:
-                pass  # the penalised differences below
-            else:
-                # The quotients and the scaling on the way into the triangle: no pass over
-                # the k x n values of their own.
-                return compress_differences(R, base, steps, scale)
-        J = unscaled_jac(z)
-        return compress(J, r, scale)  # the columns scaled on the way: no pass over J
+        try:
+            if use_rows:
+                A, b, rk = problem.jacobian_rows(z * scale)
+                return compress(A, b, scale, norm=math.sqrt(float(rk @ rk)))
+            # The quotients and the scaling on the way into the triangle: no pass over the
+            # k x n values of their own.
+            R, base, steps = problem.difference_parts(z * scale, rel_step=fd_step, r0=r)
+            return compress_differences(R, base, steps, scale)
+        except SimulationError:
+            # A perturbed set cannot be simulated: penalised differences (not the same
+            # sets again through unscaled_jac).
+            return compress(penalised_jac(z, r), r, scale)
 
     def full_jac(z):
         J = unscaled_jac(z)
@@ -496,13 +489,17 @@ def fit(
             # A perturbed set cannot be simulated: fall back to penalised differences.
             if r0 is None:
                 r0 = problem.residuals(z * scale, penalty=FAIL_RESIDUAL)
-            k = z.size
-            Z = np.repeat(z[None, :], k, axis=0)
-            steps = np.where(z + fd_step <= hi, fd_step, -fd_step)
-            Z[np.arange(k), np.arange(k)] += steps
-            R = problem.residuals_batch(Z * scale, penalty=FAIL_RESIDUAL)
-            return ((R - r0[None, :]) / (steps * scale)[:, None]).T
+            return penalised_jac(z, r0)
         return J
+
+    def penalised_jac(z, r0):
+        """Forward differences with failed simulations' residuals penalised (unscaled)."""
+        k = z.size
+        Z = np.repeat(z[None, :], k, axis=0)
+        steps = np.where(z + fd_step <= hi, fd_step, -fd_step)
+        Z[np.arange(k), np.arange(k)] += steps
+        R = problem.residuals_batch(Z * scale, penalty=FAIL_RESIDUAL)
+        return ((R - r0[None, :]) / (steps * scale)[:, None]).T
 
     t0 = time.perf_counter()
     outer_rows, _ROWS.n = _ROWS.n, (problem.n_residuals if compressed else None)
