@@ -715,9 +715,22 @@ def _long_rows(n: int, seed: int = 3) -> list[str]:
     return rows
 
 
-def test_a_long_file_reads_the_same_numbers_as_float_does(tmp_path):
-    # More rows than one block (4096): the blocks after the first are parsed by NumPy; every
-    # value must be the double Python's float() gives for its text, bit for bit.
+#: Characters decoded at once in the long-file tests: the reader's own (the whole file in
+#: one chunk) and 997 (chunks end inside lines, numbers and line breaks).
+CHUNKS = [None, 997]
+
+
+def _chunk(monkeypatch, chunk):
+    if chunk is not None:
+        monkeypatch.setattr(data, "_CHUNK", chunk)
+
+
+@pytest.mark.parametrize("chunk", CHUNKS)
+def test_a_long_file_reads_the_same_numbers_as_float_does(tmp_path, monkeypatch, chunk):
+    # More rows than one block (4096): the rows after the first block are parsed by NumPy a
+    # chunk at a time; every value must be the double Python's float() gives for its text,
+    # bit for bit.
+    _chunk(monkeypatch, chunk)
     rows = _long_rows(10_000)
     path = tmp_path / "long.csv"
     path.write_text("t,u,theta_u,theta_l\n" + "\n".join(rows) + "\n", encoding="utf-8")
@@ -738,7 +751,11 @@ def test_a_long_file_reads_the_same_numbers_as_float_does(tmp_path):
         ("1_0e-1", None),  # a voltage Python's float reads: so does the file
     ],
 )
-def test_a_bad_row_deep_in_a_long_file_is_named_by_its_line(tmp_path, bad, message):
+@pytest.mark.parametrize("chunk", CHUNKS)
+def test_a_bad_row_deep_in_a_long_file_is_named_by_its_line(
+    tmp_path, monkeypatch, chunk, bad, message
+):
+    _chunk(monkeypatch, chunk)
     rows = _long_rows(9_000)
     if message is None:
         cells = rows[7000].split(",")
@@ -755,9 +772,42 @@ def test_a_bad_row_deep_in_a_long_file_is_named_by_its_line(tmp_path, bad, messa
         load_experiment(path)
 
 
-def test_the_row_limit_holds_inside_a_block(tmp_path):
+@pytest.mark.parametrize("chunk", CHUNKS)
+def test_the_row_limit_holds_inside_a_block(tmp_path, monkeypatch, chunk):
+    _chunk(monkeypatch, chunk)
     rows = _long_rows(6_000)
     path = tmp_path / "many.csv"
     path.write_text("t,u,theta_u,theta_l\n" + "\n".join(rows) + "\n", encoding="utf-8")
     with pytest.raises(DataFileError, match=r"line 5002: more than 5,000 data rows"):
         load_experiment(path, max_rows=5_000)
+
+
+@pytest.mark.parametrize("chunk", CHUNKS)
+@pytest.mark.parametrize(
+    "tail, message",
+    [
+        ("\n\n\n", None),  # an editor's blank lines after the data: harmless
+        ("\r\n", None),  # (with CRLF line breaks throughout, below)
+        ("", r"line 9001: the last line .* does not end with a line break"),
+        ("\n" + "0\0\0\0" * 10 + "\n", r"line 9002: holds NUL bytes"),
+        ("\n" + "1" * 70_000 + "\n", r"line 9002: longer than 65536 characters"),
+        ("\n\n8.99,0.1,0.2,0.3\n", r"line 9002: empty line inside the data"),
+    ],
+)
+def test_the_end_of_a_long_file_is_judged_as_a_short_ones(
+    tmp_path, monkeypatch, chunk, tail, message
+):
+    _chunk(monkeypatch, chunk)
+    rows = _long_rows(9_000)
+    path = tmp_path / "end.csv"
+    if tail == "\r\n":
+        path.write_bytes(("t,u,theta_u,theta_l\r\n" + "\r\n".join(rows) + "\r\n").encode())
+    else:
+        path.write_text("t,u,theta_u,theta_l\n" + "\n".join(rows) + tail, encoding="utf-8")
+    if message is None:
+        exp = load_experiment(path, keep_glitches=True)
+        assert exp.n == 9_000
+        assert exp.theta_l[-1] == float(rows[-1].split(",")[3])
+        return
+    with pytest.raises(DataFileError, match=message):
+        load_experiment(path)

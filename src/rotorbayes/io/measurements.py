@@ -897,33 +897,94 @@ def _bad_utf8_offset(path: Path) -> int | str:
     return "?"
 
 
-def _numbered_lines(fh, path: Path):
+#: Characters of a data file decoded at once: the data rows are parsed a chunk at a time
+#: where they are plain (:meth:`_Lines.bulk`), everything else line by line.
+_CHUNK = 1 << 22
+
+
+class _Lines:
     """``(line number, line)`` of a text file, each line with its line break; a line with
     NUL characters or longer than :data:`_MAX_LINE` is refused when it is met (a binary or
-    sparse file is never read whole)."""
-    lineno = 0
-    while True:
-        line = fh.readline(_MAX_LINE + 1)
-        if not line:
-            return
-        lineno += 1
+    sparse file is never read whole).  The file is decoded :data:`_CHUNK` characters at a
+    time: the complete lines ahead can be had in one piece (:meth:`bulk`, :meth:`take`)."""
+
+    def __init__(self, fh, path: Path) -> None:
+        self.fh = fh
+        self.path = path
+        self.lineno = 0
+        self.buf = ""
+        self.pos = 0
+        self.eof = False
+
+    def __iter__(self):
+        return self
+
+    def _more(self) -> bool:
+        if self.eof:
+            return False
+        chunk = self.fh.read(_CHUNK)
+        if not chunk:
+            self.eof = True
+            return False
+        self.buf = self.buf[self.pos :] + chunk
+        self.pos = 0
+        return True
+
+    def __next__(self) -> tuple[int, str]:
+        while True:
+            i = self.buf.find("\n", self.pos, self.pos + _MAX_LINE + 1)
+            if i >= 0:
+                line = self.buf[self.pos : i + 1]
+                self.pos = i + 1
+                break
+            if len(self.buf) - self.pos > _MAX_LINE:
+                self._refuse(self.buf[self.pos : self.pos + _MAX_LINE + 1], long=True)
+            if not self._more():
+                if self.pos >= len(self.buf):
+                    raise StopIteration
+                line = self.buf[self.pos :]
+                self.pos = len(self.buf)
+                break
+        self.lineno += 1
+        if "\0" in line:
+            self._refuse(line)
+        return self.lineno, line
+
+    def _refuse(self, line: str, long: bool = False) -> None:
+        lineno = self.lineno + 1 if long else self.lineno
         if "\0" in line:
             raise DataFileError(
-                path,
+                self.path,
                 lineno,
                 "holds NUL bytes (binary data, or a sparse or preallocated file that was "
                 "never written): not a measurement file; export the measurement as "
                 "plain-text CSV",
             )
-        if len(line) > _MAX_LINE and not line.endswith("\n"):
-            raise DataFileError(
-                path,
-                lineno,
-                f"longer than {_MAX_LINE} characters (a data row has a few dozen): not a "
-                "measurement file; export the measurement as plain-text CSV, one sample a "
-                "line",
-            )
-        yield lineno, line
+        raise DataFileError(
+            self.path,
+            lineno,
+            f"longer than {_MAX_LINE} characters (a data row has a few dozen): not a "
+            "measurement file; export the measurement as plain-text CSV, one sample a "
+            "line",
+        )
+
+    def bulk(self) -> str:
+        """The complete lines buffered ahead (a chunk more decoded first where less than
+        half a chunk is), not yet taken: "" where there are none."""
+        if len(self.buf) - self.pos < _CHUNK // 2:
+            self._more()
+        j = self.buf.rfind("\n", self.pos)
+        return self.buf[self.pos : j + 1] if j >= 0 else ""
+
+    def take(self, text: str) -> None:
+        """Move past ``text``, what :meth:`bulk` gave."""
+        self.pos += len(text)
+        self.lineno += text.count("\n")
+
+
+def _numbered_lines(fh, path: Path) -> _Lines:
+    """The lines of ``fh``, numbered (:class:`_Lines`)."""
+    return _Lines(fh, path)
 
 
 def _rest_is_blank(lines) -> bool:
@@ -1026,7 +1087,8 @@ def load_experiment(
     try:
         # utf-8-sig drops the byte-order mark that spreadsheet programs put in front of CSVs;
         # universal newlines make CRLF files count lines exactly like LF files. The file is
-        # read line by line: the memory taken is the values' (8 bytes each), not the text's.
+        # decoded a few MB at a time: the memory taken is the values' (8 bytes each), not
+        # the text's.
         with io.TextIOWrapper(
             io.BufferedReader(raw, 1 << 16), encoding="utf-8-sig", newline=None
         ) as fh:
@@ -1311,6 +1373,22 @@ def _plain_block(block: list, sep: str, ncols: int) -> np.ndarray | None:
     return rows if rows.shape == (len(lines), ncols) else None
 
 
+def _plain_text(text: str, sep: str, ncols: int) -> np.ndarray | None:
+    """The values of ``text`` (complete lines, each ending in a line break) as a
+    ``(lines, ncols)`` array when every line is a complete row of ``ncols`` numbers, as
+    :func:`_plain_block` asks of a block; else None."""
+    if "#" in text or "\0" in text:
+        return None
+    try:
+        rows = np.loadtxt(
+            io.StringIO(text), delimiter=sep, dtype=np.float64, ndmin=2, comments=None
+        )
+    except ValueError:
+        return None
+    # NumPy skips blank lines: a row short of the lines' count is one.
+    return rows if rows.shape == (text.count("\n"), ncols) else None
+
+
 @dataclass
 class _Rows:
     """The data rows of a text file, read after its header: blocks of plain rows by NumPy,
@@ -1341,9 +1419,26 @@ class _Rows:
     def ncols(self) -> int:
         return len(self.file_fields)
 
-    def read_all(self, lines) -> None:
-        """Read every ``(line number, line)`` of ``lines``."""
-        while block := list(itertools.islice(lines, _BLOCK_ROWS)):
+    def read_all(self, lines: _Lines) -> None:
+        """Read every ``(line number, line)`` of ``lines``: plain rows a chunk at a time
+        (:func:`_plain_text`), a chunk NumPy does not read whole in blocks of
+        :data:`_BLOCK_ROWS` lines, each block's rows at once where they are plain and line
+        by line where they are not."""
+        slow_until = 0  # the lines of a chunk that was not plain: read in blocks
+        while True:
+            if self.plain and self.n_rows > 0 and self.blank is None and lines.lineno >= slow_until:
+                text = lines.bulk()
+                rows = _plain_text(text, self.sep, self.ncols) if text else None
+                if rows is not None and self.n_rows + rows.shape[0] <= self.max_rows:
+                    lines.take(text)
+                    self.values.frombytes(rows.tobytes())
+                    self.n_rows += rows.shape[0]
+                    self.last = (lines.lineno, text[text.rfind("\n", 0, len(text) - 1) + 1 :])
+                    continue
+                slow_until = lines.lineno + text.count("\n")
+            block = list(itertools.islice(lines, _BLOCK_ROWS))
+            if not block:
+                return
             if self.plain and self.n_rows > 0 and self.blank is None:
                 rows = _plain_block(block, self.sep, self.ncols)
                 if rows is not None and self.n_rows + rows.shape[0] <= self.max_rows:
