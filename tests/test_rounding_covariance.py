@@ -148,3 +148,30 @@ def test_gaussian_noise_beyond_the_rounding_has_the_draw_by_draw_covariance():
     # The noise matters: the rounding alone is narrower than either in some direction.
     alone = uncertainty.rounding_covariance(prob, x, J, r, floors, n_boot=3000, seed=4)
     assert _whitened_spread(alone, want, seen).min() < 0.5
+
+
+def test_the_input_hold_shift_is_the_inputs_and_not_two_grids():
+    """The estimate's shift between a linear and a smooth input between samples, computed on
+    the fit's own Runge-Kutta steps (the smooth input's simulation takes them, at 8 times
+    the samples), against the same shift with both inputs integrated at a quarter of a
+    sample (converged: an eighth changes it by 4e-11 of it, measured).  30 s brake stick-slip at
+    1 kHz, in the data's metric ``|v|_A = sqrt(vᵀ JᵀJ v)``: measured 0.39 of the shift's
+    size on the fit's steps; each input on a step grid of its own was 1.02 (all error)."""
+    p = rb.parameters.thesis_set("4.3", "P_ref")
+    t, u = rb.signals.estimation_signal(30.0, rate=1000.0, seed=1)
+    dt = float(t[1] - t[0])
+    ex = rb.simulate(p, u, dt=dt, config="brake", quantize_angles=True).to_experiment("b")
+    prob = inference.Problem("brake", [ex], base=p)
+    x = prob.x_from(p) * 1.01
+    J, _ = prob.jacobian(x)
+    shift, ssr_lin, ssr_smooth = uncertainty.hold_shift(prob, x, J, prob.residuals(x))
+    fine = inference.Problem("brake", [ex], base=p, step=dt / 4)
+    want, *_ = uncertainty.hold_shift(fine, x, J, fine.residuals(x))
+    A = J.T @ J
+
+    def size(v):
+        return float(np.sqrt(v @ A @ v))
+
+    assert size(want) > 0
+    assert size(shift - want) <= 0.6 * size(want)
+    assert ssr_smooth > ssr_lin > 0

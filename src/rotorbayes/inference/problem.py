@@ -630,8 +630,9 @@ class Problem:
         """Metadata of a (possibly per-experiment) parameter name."""
         return self.model.info[local_name(name)[0]]
 
-    def simulator_for(self, ex: Experiment, model: Model | None = None) -> Simulator:
-        """A :class:`~rotorbayes.Simulator` of this problem's model for experiment ``ex``."""
+    def simulator_for(self, ex: Experiment, model: Model | None = None, steps_of=None) -> Simulator:
+        """A :class:`~rotorbayes.Simulator` of this problem's model for experiment ``ex``
+        (``steps_of``: see :class:`~rotorbayes.Simulator`)."""
         return Simulator(
             model or self.model,
             ex.u,
@@ -639,6 +640,7 @@ class Problem:
             shape=self.shape,
             step=self.step,
             theta_u=ex.theta_u if self.prescribed_upper else None,
+            steps_of=steps_of,
         )
 
     def like(self, **changes) -> Problem:

@@ -260,6 +260,11 @@ class Simulator:
     step : float, optional
         Largest Runge-Kutta step [s] (default :func:`default_step`); the step is an odd
         number of samples (or a whole fraction of one), see :func:`stride_of`.
+    steps_of : tuple (Simulator, int), optional
+        ``(other, K)``: take the Runge-Kutta steps of ``other``, a simulation of the same
+        record whose samples are ``K`` of these apart (``u`` its input resampled ``K``
+        times finer), instead of the steps this input would give: two input models
+        compared on the same steps differ by their inputs alone.
     """
 
     #: What the kernel reads (:meth:`args`): the sample interval, the configuration code,
@@ -283,6 +288,7 @@ class Simulator:
         effects: Iterable[str] = (),
         shape: str = "exp",
         step: float | None = DEFAULT_STEP,
+        steps_of: tuple[Simulator, int] | None = None,
     ):
         if isinstance(model, Model):
             if tuple(effects):
@@ -340,7 +346,21 @@ class Simulator:
                 f"points, more memory than a simulation may take; give a step between "
                 f"{lo:.3g} s and {hi:.4g} s"
             )
-        if self.substeps > 1:  # steps shorter than a sample: every sample alike
+        if steps_of is not None:
+            other, finer = steps_of
+            if (
+                (other.n - 1) * finer != self.n - 1
+                or other.substeps != 1
+                or other.prescribed
+                or self.prescribed
+            ):
+                raise ValueError(
+                    f"steps_of: the steps of {other.n} samples at {finer} times the spacing do "
+                    f"not fit these {self.n} (nor a prescribed motion's, or steps shorter "
+                    "than a sample)"
+                )
+            self.grid = other.grid * finer
+        elif self.substeps > 1:  # steps shorter than a sample: every sample alike
             k = np.arange((self.n - 1) * self.substeps + 1, dtype=float)
             self.grid = k / self.substeps
         elif self.prescribed:  # the motion is the input; its steps stay uniform
@@ -349,7 +369,7 @@ class Simulator:
             )
         else:
             self.grid = _solver.step_grid(self.u, self.stride, INPUT_TOLERANCE / self.dt)
-        self.h0 = self.stride / self.substeps
+        self.h0 = self.stride / self.substeps if steps_of is None else other.h0 * finer
 
     @property
     def effects(self) -> tuple[str, ...]:
