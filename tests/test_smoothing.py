@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from rotorbayes.util.smoothing import savgol_coeffs, savgol_filter
+from rotorbayes.util.smoothing import lowpass, savgol_coeffs, savgol_filter
 
 
 @pytest.mark.parametrize("window", [5, 7, 11, 151])
@@ -74,7 +74,22 @@ def test_fit_and_diagnose_do_not_import_scipy_stats():
     code = (
         "import sys, rotorbayes.cli, rotorbayes.commands.fit, rotorbayes.commands.diagnose, "
         "rotorbayes.diagnosis.score, rotorbayes.diagnosis.compare, rotorbayes.inference.starts;"
+        # the missing-torque map's input history, which used scipy.signal's lfilter
+        "import numpy; from rotorbayes.diagnosis import torque;"
+        "torque._history(numpy.ones(9), 1e-3);"
         "print(sorted(m for m in ('scipy.stats', 'scipy.signal') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("tau_over_dt", [0.5, 20.0, 5000.0])
+def test_lowpass_is_lfilter_bit_for_bit(tau_over_dt):
+    rng = np.random.default_rng(3)
+    v = np.cumsum(rng.normal(size=20_000)) + 3.0
+    a = float(np.exp(-1.0 / tau_over_dt))
+    want, _ = signal.lfilter([1.0 - a], [1.0, -a], v, zi=[a * v[0]])
+    got = lowpass(v, a)
+    assert np.array_equal(got, want)
+    # Held first value: a constant input passes unchanged.
+    assert np.array_equal(lowpass(np.full(50, 2.5), a), np.full(50, 2.5))

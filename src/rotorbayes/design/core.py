@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import optimize
 
 from ..inference.least_squares import fit as _fit
 from ..inference.parallel import run_tasks
@@ -190,6 +189,8 @@ class _Objective:
 
 def _run_start(objective: _Objective, item) -> dict:
     """One optimisation start (a task of the executor layer)."""
+    from scipy import optimize  # here: diagnose imports this module, never optimises
+
     i, z0, max_evals = item
     t0 = time.perf_counter()
     fam = objective.family

@@ -685,13 +685,11 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
 def _history(v: np.ndarray, dt: float) -> np.ndarray:
     """Columns: the input low-pass filtered at each of :data:`HISTORY_TAUS` (first order,
     exact for a held sample, starting from the held first value), minus the input."""
-    from scipy.signal import lfilter
+    from ..util.smoothing import lowpass
 
     cols = []
     for tau in HISTORY_TAUS:
-        a = math.exp(-dt / tau)
-        y, _ = lfilter([1.0 - a], [1.0, -a], v, zi=[a * v[0]])
-        cols.append(y - v)
+        cols.append(lowpass(v, math.exp(-dt / tau)) - v)
     return np.column_stack(cols)
 
 

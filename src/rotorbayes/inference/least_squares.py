@@ -18,7 +18,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..io.measurements import Experiment
 from ..kernel.triangle import triangle
@@ -504,6 +503,8 @@ def fit(
     t0 = time.perf_counter()
     outer_rows, _ROWS.n = _ROWS.n, (problem.n_residuals if compressed else None)
     try:
+        from scipy.optimize import least_squares  # here: diagnose and report never use it
+
         res = least_squares(
             fun,
             x0 / scale,

@@ -25,7 +25,6 @@ Both signals
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from scipy import optimize
 
 __all__ = [
     "MAX_VOLTAGE",
@@ -357,6 +356,8 @@ def _continuous_peak(
     peak = float(values.max())
     for k in candidates:
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+        from scipy import optimize  # here: every command imports this module, few use it
+
         result = optimize.minimize_scalar(
             lambda x: -abs(float(func(np.array([x]))[0])),
             bounds=(lo, hi),

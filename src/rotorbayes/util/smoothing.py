@@ -1,11 +1,12 @@
 """Savitzky-Golay smoothing and differentiation (a least-squares polynomial over a sliding
-window of samples), in NumPy.
+window of samples), in NumPy; and a first-order low-pass filter (compiled).
 
 The start from the data differentiates the measured angles this way, and the jitter check
 fits local cubics.  scipy.signal does the same, but importing it brings scipy.stats along
 (a third of a second on these machines, in every ``fit`` from the data); tests/
 test_smoothing.py checks these against scipy.signal's ``savgol_coeffs`` and
-``savgol_filter`` (mode ``'interp'``).
+``savgol_filter`` (mode ``'interp'``), and :func:`lowpass` against ``lfilter`` (the
+missing-torque map's input history used it: importing scipy.signal cost ``diagnose`` 0.76 s).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 
 def _fit_matrix(window: int, order: int) -> tuple[np.ndarray, int]:
@@ -73,4 +75,25 @@ def savgol_filter(
     return y
 
 
-__all__ = ["savgol_coeffs", "savgol_filter"]
+@njit(cache=True, error_model="numpy")
+def _lowpass(v, a, z):  # pragma: no cover - compiled
+    y = np.empty(v.shape[0])
+    b = 1.0 - a
+    for i in range(v.shape[0]):
+        y[i] = b * v[i] + z
+        z = a * y[i]
+    return y
+
+
+def lowpass(v: np.ndarray, a: float) -> np.ndarray:
+    """``y[i] = (1 - a) v[i] + a y[i - 1]``, starting as if ``v[0]`` had been held
+    forever (``y[-1] = v[0]``): a first-order low-pass of pole ``a`` (``exp(-dt/tau)``),
+    the same operations in the same order as scipy.signal's ``lfilter([1 - a], [1, -a],
+    v, zi=[a v[0]])``."""
+    v = np.ascontiguousarray(v, dtype=float)
+    if v.size == 0:
+        return v.copy()
+    return _lowpass(v, float(a), float(a) * float(v[0]))
+
+
+__all__ = ["lowpass", "savgol_coeffs", "savgol_filter"]
