@@ -118,17 +118,17 @@ def test_compile_notice_is_one_line_for_what_a_fit_compiles(monkeypatch):
         def compile(self, args):
             helpers.append(args)
 
+    fake = ("triangle", "triangle", Helper(), ("D", "r", "scale"))
     monkeypatch.setattr(
         coldstart,
         "_helpers",
-        lambda name, parallel: (
-            [("triangle", "triangle", Helper(), ("D", "r", "scale"))]
-            if parallel and "residuals" in name
-            else []
-        ),
+        lambda name, parallel: [fake] if parallel and "residuals" in name else [],
     )
+    aside = []  # the helpers handed to a second process while the solver compiles
+    monkeypatch.setattr(coldstart, "_compile_aside", lambda h: aside.append(h))
     buf = io.StringIO()
     assert coldstart.kernel_entry("residuals_into_plain", buf) == "compiled residuals_into_plain"
+    assert aside == [[fake]]
     line = buf.getvalue()
     assert line.startswith(
         coldstart.MESSAGE
@@ -151,3 +151,24 @@ def test_compile_notice_is_one_line_for_what_a_fit_compiles(monkeypatch):
     coldstart.kernel_entry("residuals_into_full", buf, parallel=False)
     assert asked[4:] == ["residuals_into_full"] and len(helpers) == 1
     assert "(the residuals, full kernel)" in buf.getvalue()
+
+
+def test_a_fits_helpers_compiled_aside_land_in_numbas_cache(tmp_path, monkeypatch):
+    """The process :func:`coldstart._compile_aside` starts compiles the least squares'
+    helpers into the cache this process then loads them from (a fresh cache here)."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv(coldstart.ASIDE_ENV, raising=False)
+    monkeypatch.setattr(coldstart, "_cores", lambda: 2)
+    helpers = [(m, f, None, None) for m, f, _ in coldstart.FIT_HELPERS]
+    assert all(coldstart.cache_is_cold(f, m) for m, f, _, _ in helpers)
+    child = coldstart._compile_aside(helpers)
+    assert child is not None
+    coldstart._await_aside(child)
+    assert child.returncode == 0
+    assert not any(coldstart.cache_is_cold(f, m) for m, f, _, _ in helpers)
+    # Not with one core, nor when switched off: the command compiles them itself.
+    monkeypatch.setattr(coldstart, "_cores", lambda: 1)
+    assert coldstart._compile_aside(helpers) is None
+    monkeypatch.setattr(coldstart, "_cores", lambda: 2)
+    monkeypatch.setenv(coldstart.ASIDE_ENV, "0")
+    assert coldstart._compile_aside(helpers) is None

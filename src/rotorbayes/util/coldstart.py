@@ -12,10 +12,11 @@ says what is happening before and how long it took after, on stderr, in one line
 warm one it says nothing.  Measured with an empty cache (``benchmarks/bench_coldstart.py``;
 CPU seconds of the compiling process, one core's time, 2 cores shared with other work,
 every numba compilation of the command counted): the first ``rotorbayes simulate``
-compiles for 14-14.5 s, the first ``rotorbayes fit`` for 19.5-20.5 s (17-18.7 s and
-26.5-26.8 s, in three lines for the fit, before a batch called its row by address, the
-collector paused and the least squares' helpers compiled more cheaply).  Before, every
-entry point was compiled at import: 121 s.
+compiles for 14-14.5 s, the first ``rotorbayes fit`` for 15.2-15.4 s of wall time, its
+least squares' helpers compiled meanwhile by a second process on the other core
+(:func:`_compile_aside`; 19.5-20.5 s in one process; 17-18.7 s and 26.5-26.8 s, in three
+lines for the fit, before a batch called its row by address, the collector paused and the
+helpers compiled more cheaply).  Before, every entry point was compiled at import: 121 s.
 """
 
 from __future__ import annotations
@@ -195,6 +196,84 @@ def _helpers(name: str, parallel: bool) -> list[tuple]:
     return out
 
 
+#: Set to ``0`` to compile a fit's helpers in the command's own process, after the solver
+#: (see :func:`_compile_aside`).
+ASIDE_ENV = "ROTORBAYES_COMPILE_ASIDE"
+#: Longest wait for the helpers compiled aside [s]; past it the command compiles them itself.
+ASIDE_TIMEOUT = 120.0
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _compile_aside(helpers: list[tuple]):
+    """Start a process that compiles ``helpers`` (:func:`_helpers`' entries) into numba's
+    cache while this one compiles the solver (numba compiles one function at a time per
+    process, on one core): the first fit's least-squares helpers (3.1 of its 20 CPU s on
+    these 2 cores) come off its wall time.  The command loads them from the cache
+    afterwards, or compiles them itself where the other process could not.  None (nothing
+    started) with one core, with :data:`ASIDE_ENV` ``=0``, or where the cache cannot be
+    written."""
+    import subprocess
+
+    specs = [
+        f"{m}:{f}:{types}"
+        for m, f, _, _ in helpers
+        for mm, ff, types in FIT_HELPERS
+        if (mm, ff) == (m, f)
+    ]
+    if not specs or os.environ.get(ASIDE_ENV, "1") == "0" or _cores() < 2:
+        return None
+    found = _solver_source("triangle")
+    if found is None:
+        return None
+    where = _cache_dirs(found[0])[0]
+    if not os.access(where if where.exists() else where.parent, os.W_OK):
+        return None
+    env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
+    code = "from rotorbayes.util.coldstart import compile_aside_main; compile_aside_main()"
+    try:
+        return subprocess.Popen(
+            [sys.executable, "-c", code, *specs],
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    except OSError:
+        return None
+
+
+def _await_aside(child) -> None:
+    """Wait for the process of :func:`_compile_aside` (ended, if it takes too long)."""
+    if child is None:
+        return
+    import subprocess
+
+    try:
+        child.wait(timeout=ASIDE_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        child.kill()
+        child.wait()
+
+
+def compile_aside_main() -> None:
+    """The process :func:`_compile_aside` starts: compile each ``module:function:types``
+    of its arguments (into numba's cache)."""
+    from numba.core import sigutils
+
+    end_with_parent()
+    for spec in sys.argv[1:]:
+        module, fn_name, arg_types = spec.split(":", 2)
+        fn = getattr(importlib.import_module(f"rotorbayes.kernel.{module}"), fn_name)
+        args, _ = sigutils.normalize_signature(f"({arg_types},)")
+        fn.compile(args)
+
+
 def notice(names) -> str:
     """The compile notice's first part for entry points ``names`` (of one kernel): "rotorbayes:
     compiling the integrator (the residuals, their parallel batches and the simulation,
@@ -242,8 +321,12 @@ def _compile_entry(name: str, stream, parallel: bool = True):
     cold_entries = [n for n in names if _is_cold(solver, n)]
     helpers = _helpers(name, parallel)
     cold = list(cold_entries)
+    aside = None
     if cold:  # the helpers are said with the entry points; compiled alone, they are not
-        cold += [f"{m}.{f}" for m, f, _, _ in helpers if cache_is_cold(f, m)]
+        cold_helpers = [h for h in helpers if cache_is_cold(h[1], h[0])]
+        cold += [f"{m}.{f}" for m, f, _, _ in cold_helpers]
+        if cold_entries:
+            aside = _compile_aside(cold_helpers)
     stream = sys.stderr if stream is None else stream
     if cold:
         print(notice(cold_entries), end="", file=stream, flush=True)
@@ -260,6 +343,9 @@ def _compile_entry(name: str, stream, parallel: bool = True):
     jobs += [(f"{m}.{f}", functools.partial(fn.compile, args)) for m, f, fn, args in helpers]
     try:
         for n, job in jobs:
+            if n not in names:  # a helper: compiled aside meanwhile, or here
+                _await_aside(aside)
+                aside = None
             t0, c0 = time.perf_counter(), time.process_time()
             gc.disable()
             try:
@@ -274,6 +360,9 @@ def _compile_entry(name: str, stream, parallel: bool = True):
                 COMPILE_SECONDS[n] = time.perf_counter() - t0
                 COMPILE_CPU_SECONDS[n] = time.process_time() - c0
     finally:
+        if aside is not None:  # stopped before the helpers: the other process goes too
+            aside.kill()
+            aside.wait()
         if cold:
             print(f" took {time.perf_counter() - t_all:.0f} s", file=stream, flush=True)
     return _READY[name]
