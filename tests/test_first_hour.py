@@ -172,3 +172,37 @@ def test_a_fits_helpers_compiled_aside_land_in_numbas_cache(tmp_path, monkeypatc
     monkeypatch.setattr(coldstart, "_cores", lambda: 2)
     monkeypatch.setenv(coldstart.ASIDE_ENV, "0")
     assert coldstart._compile_aside(helpers) is None
+
+
+def test_the_sensitivity_kernels_first_use_is_said_once_and_waits_for_its_aside(monkeypatch):
+    monkeypatch.setattr(coldstart, "_SENS", {"ready": False, "child": None})
+    monkeypatch.setattr(coldstart, "COMPILE_SECONDS", {})
+    monkeypatch.setattr(coldstart, "cache_is_cold", lambda name="*", module="solver": True)
+    started = []
+    waited = []
+
+    class Child:
+        returncode = 0
+
+        def wait(self, timeout=None):
+            waited.append(timeout)
+
+        def kill(self):  # pragma: no cover - only if the call fails
+            raise AssertionError("killed")
+
+    monkeypatch.setattr(coldstart, "_spawn_aside", lambda specs: started.append(specs) or Child())
+    coldstart.sensitivity_aside()
+    coldstart.sensitivity_aside()  # once per process
+    assert started == [[coldstart.SENSITIVITY]]
+    buf = io.StringIO()
+    with coldstart.first_sensitivities(buf):
+        assert waited == [coldstart.ASIDE_TIMEOUT]  # the aside is done before the call
+    with coldstart.first_sensitivities(buf):
+        pass
+    text = buf.getvalue()
+    assert text.startswith(coldstart.MESSAGE + " (the sensitivities, for the Jacobian), once")
+    assert text.count("\n") == 1 and text.count("took") == 1
+    assert coldstart.SENSITIVITY in coldstart.COMPILE_SECONDS
+    # Ready in this process: no second process, nothing said.
+    coldstart.sensitivity_aside()
+    assert len(started) == 1

@@ -181,6 +181,10 @@ def execute(options: FitOptions) -> Outcome:
     """:func:`fit` with its options as one :class:`~rotorbayes.commands.config.FitOptions`
     (the form the study builds)."""
     o, pr = options, options.problem
+    if o.solver.jacobian == "sensitivity":  # compiled aside while the solver compiles
+        from ..util.coldstart import sensitivity_aside
+
+        sensitivity_aside()
     guard = InterruptGuard()
     try:
         with output_folder(

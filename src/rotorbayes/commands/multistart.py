@@ -141,6 +141,10 @@ def execute(options: MultistartOptions) -> Outcome:
     from ..inference.taskstore import remove_store, store_path
 
     o, pr = options, options.problem
+    if o.solver.jacobian == "sensitivity":  # compiled aside while the solver compiles
+        from ..util.coldstart import sensitivity_aside
+
+        sensitivity_aside()
     guard = InterruptGuard()
     with guard, output_folder(o.out, o.force, inputs=[pr.data, o.around, pr.base, pr.add]) as out:
         exps = load_experiments(

@@ -1011,6 +1011,7 @@ class Problem:
         ``rows`` the reduced rows ``Wt`` (a column per row, the residual last) and ``r``."""
         from ..kernel.sensitivity import sensitivities_into
         from ..model.simulate import SimulationError
+        from ..util.coldstart import first_sensitivities
 
         x = self.point(x)
         m = len(names)
@@ -1042,11 +1043,12 @@ class Problem:
             (mu, wu, cu), (ml, wl, cl) = [
                 (c[0], c[1], c[2]) if c is not None else (np.empty(0), 1.0, -1) for c in cols
             ]
-            st = sensitivities_into(
-                np.ascontiguousarray(p, dtype=float), sim.u, sim.dt, sim.cfg, sim.shape,
-                sim.grid, sim.h0, np.array(idx, dtype=np.int64), tsf, mu, ml, float(wu),
-                float(wl), r, J, np.array(jcol, dtype=np.int64), cu, cl, Wt, info,
-            )  # fmt: skip
+            with first_sensitivities():  # a cold cache: compiled here, said in one line
+                st = sensitivities_into(
+                    np.ascontiguousarray(p, dtype=float), sim.u, sim.dt, sim.cfg, sim.shape,
+                    sim.grid, sim.h0, np.array(idx, dtype=np.int64), tsf, mu, ml, float(wu),
+                    float(wl), r, J, np.array(jcol, dtype=np.int64), cu, cl, Wt, info,
+                )  # fmt: skip
             if st != _layout.OK:
                 raise SimulationError(
                     f"Jacobian: experiment {i} cannot be simulated at the "

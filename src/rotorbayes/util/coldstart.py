@@ -21,6 +21,7 @@ helpers compiled more cheaply).  Before, every entry point was compiled at impor
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.util
 import os
@@ -218,14 +219,20 @@ def _compile_aside(helpers: list[tuple]):
     afterwards, or compiles them itself where the other process could not.  None (nothing
     started) with one core, with :data:`ASIDE_ENV` ``=0``, or where the cache cannot be
     written."""
-    import subprocess
-
     specs = [
         f"{m}:{f}:{types}"
         for m, f, _, _ in helpers
         for mm, ff, types in FIT_HELPERS
         if (mm, ff) == (m, f)
     ]
+    return _spawn_aside(specs)
+
+
+def _spawn_aside(specs: list[str]):
+    """The process of :func:`compile_aside_main` for ``specs``, started; or None (see
+    :func:`_compile_aside`)."""
+    import subprocess
+
     if not specs or os.environ.get(ASIDE_ENV, "1") == "0" or _cores() < 2:
         return None
     found = _solver_source("triangle")
@@ -268,10 +275,91 @@ def compile_aside_main() -> None:
 
     end_with_parent()
     for spec in sys.argv[1:]:
+        if spec == SENSITIVITY:
+            _compile_sensitivities_here()
+            continue
         module, fn_name, arg_types = spec.split(":", 2)
         fn = getattr(importlib.import_module(f"rotorbayes.kernel.{module}"), fn_name)
         args, _ = sigutils.normalize_signature(f"({arg_types},)")
         fn.compile(args)
+
+
+#: :func:`compile_aside_main`'s argument for the sensitivity kernel.
+SENSITIVITY = "sensitivity"
+#: The sensitivity kernel in this process: ``ready`` once loaded or compiled, ``child``
+#: the process compiling it aside (:func:`sensitivity_aside`).
+_SENS: dict = {"ready": False, "child": None}
+#: What the notice says the sensitivity kernel is.
+_SENS_WHAT = "the sensitivities, for the Jacobian"
+
+
+def _compile_sensitivities_here() -> None:
+    """Compile the sensitivity kernel for the arguments :meth:`rotorbayes.Problem.jacobian`
+    and :meth:`~rotorbayes.Problem.jacobian_rows` pass it, by calling both on a tenth of a
+    second of made-up brake data (what they compute is not looked at; nothing else of the
+    solver is compiled)."""
+    import numpy as np
+
+    from ..inference.problem import Problem
+    from ..io.measurements import Experiment
+    from ..model.parameters import thesis_set
+
+    t = np.arange(101) * 1e-3
+    ex = Experiment(t=t, u=np.full(t.size, 1.0), theta_u=t * 0.1, theta_l=t * 0.05, name="aside")
+    p = thesis_set("4.3", "P_ref")
+    prob = Problem("brake", [ex], base=p)
+    x = prob.x_from(p)
+    try:
+        prob.jacobian(x, method="sensitivity")
+        prob.jacobian_rows(x)
+    except Exception:  # noqa: BLE001 -- compiled all the same: the call is what compiles
+        pass
+
+
+def sensitivity_aside() -> None:
+    """A command that will take Jacobians by sensitivities: where numba's cache has no
+    sensitivity kernel, start compiling it in a second process now, while this one
+    compiles the solver (about 20 CPU s on these 2 cores: the first ``fit --jacobian
+    sensitivity`` waited 32 s on both, unsaid).  :func:`first_sensitivities` waits for it."""
+    with _COMPILING:
+        if _SENS["ready"] or _SENS["child"] is not None:
+            return
+        if not cache_is_cold("sensitivities_into", "sensitivity"):
+            return
+        _SENS["child"] = _spawn_aside([SENSITIVITY])
+
+
+@contextlib.contextmanager
+def first_sensitivities(stream=None):
+    """Around a call of the sensitivity kernel: on its first use in this process with a
+    cold cache, say so in one line with the wall time (the call compiles it, or loads what
+    the process of :func:`sensitivity_aside` compiled: waited for here)."""
+    if _SENS["ready"]:
+        yield
+        return
+    with _COMPILING:
+        if _SENS["ready"]:
+            yield
+            return
+        child, _SENS["child"] = _SENS["child"], None
+        cold = child is not None or cache_is_cold("sensitivities_into", "sensitivity")
+        stream = sys.stderr if stream is None else stream
+        t0 = time.perf_counter()
+        if cold:
+            print(f"{MESSAGE} ({_SENS_WHAT}), once: numba caches it for later runs ...",
+                  end="", file=stream, flush=True)  # fmt: skip
+        try:
+            _await_aside(child)
+            child = None
+            yield
+            _SENS["ready"] = True
+        finally:
+            if child is not None:
+                child.kill()
+                child.wait()
+            if cold:
+                COMPILE_SECONDS[SENSITIVITY] = time.perf_counter() - t0
+                print(f" took {time.perf_counter() - t0:.0f} s", file=stream, flush=True)
 
 
 def notice(names) -> str:
