@@ -319,8 +319,9 @@ def _compile_sensitivities_here() -> None:
 def sensitivity_aside() -> None:
     """A command that will take Jacobians by sensitivities: where numba's cache has no
     sensitivity kernel, start compiling it in a second process now, while this one
-    compiles the solver (about 20 CPU s on these 2 cores: the first ``fit --jacobian
-    sensitivity`` waited 32 s on both, unsaid).  :func:`first_sensitivities` waits for it."""
+    compiles the solver (20-27 CPU s on these 2 cores; the first ``fit --jacobian
+    sensitivity`` of a 30 s brake record took 46.1 s of wall time, 26 s of it unsaid inside
+    the fit, and takes 31.5 s so).  :func:`first_sensitivities` waits for it."""
     with _COMPILING:
         if _SENS["ready"] or _SENS["child"] is not None:
             return
