@@ -208,6 +208,19 @@ def test_a_map_cause_the_score_test_finds_nothing_of_is_said_to_be_unsupported()
     assert "cannot be tested" in note and "does not support" not in note, note
 
 
+def test_the_tests_pointing_at_a_users_own_effect_are_weighed_without_a_traceback():
+    """``diagnose --add my_effects.py:cog4``: the tests back the user's effect, the map names
+    the input's rate; the catalogue cannot say what a user's torque varies with (an
+    IndexError in the sentence's list of the map's variables, before)."""
+    m = _input_rate_map()
+    ranking, judgements = _judged(
+        17.09, [("cog4", 1e-6, 1.2, True), ("input_delay", 1.0, 17.09, False)]
+    )
+    note = map_agreement(m, ranking, judgements, named="cog4")
+    assert "the tests point at cog4 instead" in note, note
+    assert "is your own" in note and "none of the map's variables" not in note, note
+
+
 def test_a_claim_the_map_contradicts_is_said_to_be_contradicted():
     """Vice versa: the tests claim an effect whose torque would not vary with what the
     map names on its disc."""

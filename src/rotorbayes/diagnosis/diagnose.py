@@ -581,12 +581,16 @@ def effect_discs(effect: str) -> set[str]:
 
 
 def _or_list(names: Sequence[str]) -> str:
+    """``"a, b or c"``; ``""`` for none."""
     names = list(names)
+    if not names:
+        return ""
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " or " + names[-1]
 
 
 def _produces(effect: str) -> str:
-    """What a catalogue effect's torque would vary with, in the map's words."""
+    """What a catalogue effect's torque would vary with, in the map's words (a user's
+    effect: none the catalogue's table knows)."""
     own = EXPLAINS.get(effect, set())
     return _or_list([SHORT[k] for k in SHORT if k in own]) or "none of the map's variables"
 
@@ -663,11 +667,12 @@ def map_agreement(
                 "of it)"
             )
         o = others[0]
-        how = (
-            "can vary with " + SHORT[var] + " too"
-            if var in EXPLAINS.get(o.effect, ())
-            else f"would vary with {_produces(o.effect)}, not with {SHORT[var]}"
-        )
+        if o.effect not in EXPLAINS:  # the user's own effect: what it varies with is theirs
+            how = f"is your own (the catalogue does not say whether it varies with {SHORT[var]})"
+        elif var in EXPLAINS[o.effect]:
+            how = "can vary with " + SHORT[var] + " too"
+        else:
+            how = f"would vary with {_produces(o.effect)}, not with {SHORT[var]}"
         return (
             f"{lead}; the tests point at {o.effect} instead (p {o.p_adjusted:.2g} after "
             f"correction, {fall(o)}), whose torque {how}: the map's dependence may be a "
