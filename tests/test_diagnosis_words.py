@@ -372,3 +372,35 @@ def test_reference_near_the_floor_a_missing_torque_is_not_called_noise():
         assert ("no missing torque" in d.map_words(m)) == (not m.exceeds_noise)
     if any(d.judgements[s.effect]["material"] for s in d.ranking):
         assert "would change the fit materially" not in d.verdict, d.verdict
+
+
+def test_a_trial_tied_with_a_material_best_must_be_material_itself(monkeypatch):
+    """A cogging torque the catalogue lacks, 449x the floor: upper_stribeck's refit reaches
+    424x (material), initial_torsion's and lower_asymmetric_coulomb's 440x (2 %: not),
+    within 5 % of the best; the validation runs prefer lower_asymmetric_coulomb.  The
+    advice added it ("Add it and refit") for a 2 % fall."""
+    from rotorbayes.diagnosis import trials as T
+
+    val = {"upper_stribeck": 6790.0, "initial_torsion": 5750.0, "lower_asymmetric_coulomb": 5750.0}
+    monkeypatch.setattr(T, "validation_ratio", lambda problem, x, experiments: val[x])
+
+    class Result:
+        def __init__(self, effect):
+            self.problem, self.x = None, effect
+
+    out = [
+        T.Trial(e, r, result=Result(e))
+        for e, r in (
+            ("upper_stribeck", 424.0),
+            ("initial_torsion", 440.0),
+            ("lower_asymmetric_coulomb", 440.0),
+            ("string_damping", 448.0),
+        )
+    ]
+    best = T.trial_choice(out, 449.0, validation=["a validation run"])
+    assert best is not None and best.effect == "upper_stribeck"
+    # Two material trials tied on the estimation data: the validation runs decide.
+    out[1].ratio = 425.0
+    assert T.trial_choice(out, 449.0, validation=["run"]).effect == "initial_torsion"
+    # Nothing material: nothing chosen.
+    assert T.trial_choice(out[3:], 449.0, validation=["run"]) is None

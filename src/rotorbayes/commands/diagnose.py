@@ -220,7 +220,7 @@ def _trials(result, d, specs: dict) -> dict | None:
     """Far above the floor (and the model inadequate): refit every candidate effect with its
     parameters searched (:mod:`rotorbayes.diagnosis.trials`), print the ranking and what
     it decides against the score tests; None when not run."""
-    from ..diagnosis.diagnose import REFIT_TOKEN
+    from ..diagnosis.diagnose import REFIT_TOKEN, is_material
     from ..diagnosis.score import candidates
     from ..diagnosis.trials import (
         TIE,
@@ -309,6 +309,7 @@ def _trials(result, d, specs: dict) -> dict | None:
             if t is not best
             and not t.failed
             and t.ratio <= TIE * best.ratio
+            and is_material(worst, t.ratio)
             and (not math.isfinite(best.validation) or t.validation <= TIE * best.validation)
         ]
         if alike:

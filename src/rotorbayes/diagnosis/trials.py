@@ -176,8 +176,8 @@ def validation_ratio(problem: Problem, x: np.ndarray, experiments) -> float:
 def trial_choice(trials: Sequence[Trial], before: float, validation=()) -> Trial | None:
     """The effect whose refit lowered the worst RMS/floor most, if materially (see
     :func:`.diagnose.is_material`); None otherwise.  Trials tied with the best on the
-    estimation data (:data:`TIE`) are told apart by ``validation`` experiments when given
-    (their :attr:`Trial.validation` is filled)."""
+    estimation data (:data:`TIE`), each itself a material fall, are told apart by
+    ``validation`` experiments when given (their :attr:`Trial.validation` is filled)."""
     from .diagnose import is_material
 
     ok = [t for t in trials if not t.failed and math.isfinite(t.ratio)]
@@ -186,7 +186,10 @@ def trial_choice(trials: Sequence[Trial], before: float, validation=()) -> Trial
     best = min(ok, key=lambda t: (t.ratio, t.effect))
     if not is_material(before, best.ratio):
         return None
-    tied = [t for t in ok if t.ratio <= TIE * best.ratio]
+    # Tied with the best, and material on their own: a trial within TIE of a material best
+    # that lowers the figure immaterially itself (449x -> 440x beside 449x -> 424x) is not
+    # worth adding, whatever the validation data prefer.
+    tied = [t for t in ok if t.ratio <= TIE * best.ratio and is_material(before, t.ratio)]
     if len(tied) > 1 and validation:
         for t in tied:
             try:
