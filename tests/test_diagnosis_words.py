@@ -404,3 +404,37 @@ def test_a_trial_tied_with_a_material_best_must_be_material_itself(monkeypatch):
     assert T.trial_choice(out, 449.0, validation=["run"]).effect == "initial_torsion"
     # Nothing material: nothing chosen.
     assert T.trial_choice(out[3:], 449.0, validation=["run"]) is None
+
+
+def _fitted(ts, tc, var_ts, var_tc, cov, base=("lower_stribeck",)):
+    from types import SimpleNamespace
+
+    names = ["Tc_l", "Ts_l", "ws_l"]
+    C = np.diag([var_tc, var_ts, 0.01])
+    C[0, 1] = C[1, 0] = cov
+    return SimpleNamespace(
+        names=names,
+        x=np.array([tc, ts, 1.0]),
+        honest_covariance=lambda: C,
+        problem=SimpleNamespace(
+            info=lambda n: SimpleNamespace(unit="N m"),
+            model=SimpleNamespace(configuration=SimpleNamespace(base_effects=base)),
+        ),
+    )
+
+
+def test_a_stribeck_effect_that_contradicts_its_physics_or_vanished_is_said_so():
+    """The cogging trial's numbers: a hidden cogging torque taken up by lower_stribeck
+    with Ts_l 0.01833 below Tc_l 0.02431 (their difference 0.00598 +- 0.0027); with the
+    cogging added, Ts_l - Tc_l = 4.8e-7 +- 6.1e-7."""
+    from rotorbayes.inference.assess import stribeck_words
+
+    below = stribeck_words(_fitted(0.01833, 0.02431, 0.0033**2, 0.002**2, 3.8e-6))
+    assert len(below) == 1 and "below Tc_l" in below[0] and "opposite of a Stribeck" in below[0]
+    gone = stribeck_words(_fitted(0.0273984, 0.0273980, 5.3e-6**2, 5.1e-6**2, 2.4e-11))
+    assert len(gone) == 1 and "zero within two standard errors" in gone[0], gone
+    assert "--without lower_stribeck" in gone[0]  # part of the configuration's base model
+    added = stribeck_words(_fitted(0.0273984, 0.0273980, 5.3e-6**2, 5.1e-6**2, 2.4e-11, ()))
+    assert "--without" not in added[0] and "from the fit it was added to" in added[0]
+    # A real static peak (thesis table 4.3 P_ref: Ts_l 0.278, Tc_l 0.0473): nothing to say.
+    assert stribeck_words(_fitted(0.278, 0.0473, 2.4e-6**2, 2e-6**2, 0.0)) == []

@@ -411,6 +411,7 @@ def assess(
                 f"{b_} = {p[b_]:.4g}): the fit was stopped by it, which usually means a "
                 "wrong basin, a missing effect or a wrong fixed value"
             )
+    a.warnings.extend(stribeck_words(result))
     und = result.undetermined()
     if und:
         a.warnings.append(
@@ -439,6 +440,50 @@ def assess(
                 f"it to {s['step_to']:.4g}); check it, or free it with --free"
             )
     return a
+
+
+def stribeck_words(result) -> list[str]:
+    """What a fitted lower Stribeck effect says of itself: a static level below the Coulomb
+    level (friction that rises with speed from standstill, the opposite of the effect's
+    physics: it stands in for something else), or the two levels equal within their
+    standard errors (no static peak: the effect is not needed, and its velocity and shape
+    mean nothing).  Measured: a cogging torque the catalogue lacks was taken up by
+    lower_stribeck with Ts_l 0.0183 below Tc_l 0.0243, unremarked."""
+    names = list(result.names)
+    if "Ts_l" not in names or "Tc_l" not in names:
+        return []
+    i, j = names.index("Ts_l"), names.index("Tc_l")
+    ts, tc = float(result.x[i]), float(result.x[j])
+    try:
+        cov = np.asarray(result.honest_covariance(), float)
+        var = cov[i, i] + cov[j, j] - 2.0 * cov[i, j]
+    except Exception:  # noqa: BLE001 - no covariance: the sign alone is said
+        var = math.nan
+    se = math.sqrt(var) if math.isfinite(var) and var > 0 else math.nan
+    d = ts - tc
+    unit = result.problem.info("Ts_l").unit
+    pm = f" ± {se:.2g}" if math.isfinite(se) else ""
+    if math.isfinite(se) and abs(d) <= 2.0 * se:
+        base = "lower_stribeck" in result.problem.model.configuration.base_effects
+        how = (
+            "--without lower_stribeck"
+            if base
+            else "from the fit it was added to, with the other effects added since"
+        )
+        return [
+            f"lower_stribeck: Ts_l - Tc_l = {d:.3g}{pm} {unit}, zero within two standard "
+            "errors: no static friction peak in these data, so the effect is not needed "
+            f"(ws_l and delta_l mean nothing); refit without it ({how})"
+        ]
+    if d < 0:
+        return [
+            f"lower_stribeck: Ts_l = {ts:.4g} is below Tc_l = {tc:.4g} {unit} "
+            f"(by {-d:.3g}{pm}): the fitted friction rises with speed from standstill, the "
+            "opposite of a Stribeck effect (static friction above the Coulomb level); it "
+            "stands in for something else (a missing effect, a wrong fixed value or a "
+            "wrong basin): distrust its parameters and the fall it gave"
+        ]
+    return []
 
 
 def fixed_influence(result, sources: dict, *, min_drop: float = 0.1) -> list[dict]:
