@@ -389,6 +389,15 @@ def simulate_reference(
     # rest: a state z [N m], z' = (warm_k |omega_l| - z) / warm_tau, z(0) = 0, the lower
     # friction level shifted by -z (warm_k [N m s/rad], warm_tau [s]).
     warm_k, warm_tau = params.pop("warm_k", 0.0), params.pop("warm_tau", 0.0)
+    # ... and a load on the lower disc repeating cog_h times a revolution (a cogging
+    # torque): cog_l * sin(cog_h * theta_l) [N m], the reference's extra_torque.
+    cog_l, cog_h = params.pop("cog_l", 0.0), params.pop("cog_h", 4.0)
+    extra = None
+    if cog_l:
+
+        def extra(t_, theta_u, omega_u, theta_l, omega_l, v, _a=cog_l, _h=cog_h):
+            return 0.0, _a * math.sin(_h * theta_l)
+
     # The drive's lag (the catalogue's tau_drive; drive_lag is its older name here): the
     # command -- the input function, or with hold='linear' the linear interpolant of its
     # samples -- through a first-order lag, before delay, offset and dead zone.
@@ -443,11 +452,20 @@ def simulate_reference(
             rtol=rtol,
             atol=atol,
             friction_shift=shift,
+            extra_torque=extra,
             **state,
         )
     else:
         res = reference_simulate(
-            params, t, u, config, rtol=rtol, atol=atol, friction_shift=shift, **state
+            params,
+            t,
+            u,
+            config,
+            rtol=rtol,
+            atol=atol,
+            friction_shift=shift,
+            extra_torque=extra,
+            **state,
         )
     secs = time.perf_counter() - t0
     thl = res["theta_l"]

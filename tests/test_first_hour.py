@@ -191,9 +191,10 @@ def test_the_sensitivity_kernels_first_use_is_said_once_and_waits_for_its_aside(
             raise AssertionError("killed")
 
     monkeypatch.setattr(coldstart, "_spawn_aside", lambda specs: started.append(specs) or Child())
-    coldstart.sensitivity_aside()
-    coldstart.sensitivity_aside()  # once per process
-    assert started == [[coldstart.SENSITIVITY]]
+    call = "rotorbayes.inference.problem:compile_sensitivity_kernel"
+    coldstart.sensitivity_aside(call)
+    coldstart.sensitivity_aside(call)  # once per process
+    assert started == [[coldstart.CALL + call]]
     buf = io.StringIO()
     with coldstart.first_sensitivities(buf):
         assert waited == [coldstart.ASIDE_TIMEOUT]  # the aside is done before the call
@@ -204,5 +205,5 @@ def test_the_sensitivity_kernels_first_use_is_said_once_and_waits_for_its_aside(
     assert text.count("\n") == 1 and text.count("took") == 1
     assert coldstart.SENSITIVITY in coldstart.COMPILE_SECONDS
     # Ready in this process: no second process, nothing said.
-    coldstart.sensitivity_aside()
+    coldstart.sensitivity_aside(call)
     assert len(started) == 1

@@ -184,7 +184,7 @@ def execute(options: FitOptions) -> Outcome:
     if o.solver.jacobian == "sensitivity":  # compiled aside while the solver compiles
         from ..util.coldstart import sensitivity_aside
 
-        sensitivity_aside()
+        sensitivity_aside("rotorbayes.inference.problem:compile_sensitivity_kernel")
     guard = InterruptGuard()
     try:
         with output_folder(

@@ -144,7 +144,7 @@ def execute(options: MultistartOptions) -> Outcome:
     if o.solver.jacobian == "sensitivity":  # compiled aside while the solver compiles
         from ..util.coldstart import sensitivity_aside
 
-        sensitivity_aside()
+        sensitivity_aside("rotorbayes.inference.problem:compile_sensitivity_kernel")
     guard = InterruptGuard()
     with guard, output_folder(o.out, o.force, inputs=[pr.data, o.around, pr.base, pr.add]) as out:
         exps = load_experiments(

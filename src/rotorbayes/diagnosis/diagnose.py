@@ -53,7 +53,7 @@ from ..inference.assess import AT_FLOOR, NEAR_FLOOR
 from ..inference.problem import Problem, local_name
 from ..model import effects as _effects
 from .score import EffectScore, score_tests
-from .torque import SHORT, TESTED_BY, TorqueMap, apart, missing_torque
+from .torque import ANGLE_VARIABLES, SHORT, TESTED_BY, TorqueMap, apart, missing_torque
 
 #: Significance level of the ranking (after Holm's correction).
 LEVEL = 0.01
@@ -72,7 +72,7 @@ MATERIAL_FLOOR_UNITS = 0.1
 #: there for a variable produces it).
 EXPLAINS = {e.name: set(e.explains) for e in _effects.CATALOGUE.values()}
 #: Variables no catalogue effect produces: a strong dependence on them rules a claim out.
-FOREIGN = {"angle_1", "angle_2", "time"}
+FOREIGN = {*ANGLE_VARIABLES, "time"}
 
 
 def is_material(before: float, after: float) -> bool:

@@ -7,12 +7,11 @@ import numpy as np
 
 from ..figures.plots import envelope, envelope_index, margins_inches, pyplot
 from .diagnose import LEVEL
+from .torque import ANGLE_VARIABLES, SHORT
 
 _LABEL = {
     "velocity": "velocity [rad/s]",
     "direction": "direction of rotation",
-    "angle_1": "angle within a revolution [rad]",
-    "angle_2": "angle within a revolution [rad]",
     "torsion": "string torsion α [rad]",
     "torsion_rate": "twist rate dα/dt [rad/s]",
     "input": "input voltage [V]",
@@ -22,13 +21,14 @@ _LABEL = {
 }
 #: Panel titles of the map's variables (the names in diagnosis.json are terse).
 _TITLE = {
-    "angle_1": "angle, once per revolution",
-    "angle_2": "angle, twice per revolution",
     "torsion_rate": "twist rate",
     "input_rate": "input rate",
     "input_history": "input's recent history",
 }
 
+
+_LABEL.update(dict.fromkeys(ANGLE_VARIABLES, "angle within a revolution [rad]"))
+_TITLE.update({v: SHORT[v].replace("its angle (", "angle, ").rstrip(")") for v in ANGLE_VARIABLES})
 
 #: Colours of the top candidates' corrections (the residual is grey).
 

@@ -18,14 +18,17 @@ The library (:func:`library`), per disc, with ``w`` its velocity, ``s = sign(w)`
   that depends on speed is a level shift, not a torque: a level shift moves the stick band
   and does not push a disc at rest, where an added torque would;
 * **torques** (a ``torque``, alike in both directions): ``cos``/``sin`` of the angle once
-  and twice per revolution (an uneven load), time, ``alpha^2`` and ``alpha^3`` (a string
+  and twice per revolution (an uneven load) and at the harmonic the map names (a cogging
+  torque), time, ``alpha^2`` and ``alpha^3`` (a string
   that is not linear), and ``v^3`` on the upper disc (a motor that is not linear).
 
 What the fitted parameters already vary (the Coulomb level and its asymmetry, the viscous
 coefficient and its asymmetry, the string stiffness, the motor constant) is projected out
 of the missing torque and of every column first, so a proposal never repeats the model.
-Each term enters centred on its estimation-data mean (the constant goes to the friction
-level the refit re-estimates anyway), so the refit starts where the parent fit is.
+Each friction term enters centred on its estimation-data mean (the constant goes to the
+friction level the refit re-estimates anyway), so the refit starts where the parent fit
+is; each torque term enters whole (a constant load has no parameter of the model to go
+to: a cogging torque's centred term ended its refit at 206x the floor, whole at 0.864x).
 The filtered input the map uses (``input_history``) is not in the library: a hook sees the
 present state only, so a lag of the drive cannot be written as a user effect.
 
@@ -56,7 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .torque import NOISE_FACTOR, TorqueMap
+from .torque import NOISE_FACTOR, TorqueMap, harmonic_of
 
 #: The kept samples are thinned to one every THIN seconds (the map's derivative filter
 #: makes neighbours share their noise).
@@ -297,8 +300,13 @@ def library(m: TorqueMap) -> list[tuple[Term, np.ndarray]]:
     out.append((Term("load_t", "torque", "a load drifting in time", "t", "s"), m.t.copy()))
     if "angle_1" in f:
         a = f["angle_1"]
-        for h in (1, 2):
-            arg = th if h == 1 else f"2.0 * {th}"
+        # Once and twice per revolution, and the harmonic the map names where it names a
+        # higher one (a cogging torque: each of the eight would be 32 more terms).
+        hs = [1, 2]
+        if m.ranking and m.ranking[0][0].startswith("angle_"):
+            hs = sorted({*hs, harmonic_of(m.ranking[0][0])})
+        for h in hs:
+            arg = th if h == 1 else f"{float(h)!r} * {th}"
             for fn in ("cos", "sin"):
                 val = getattr(np, fn)(h * a)
                 out.append(
@@ -306,7 +314,7 @@ def library(m: TorqueMap) -> list[tuple[Term, np.ndarray]]:
                         Term(
                             f"{fn}{h}",
                             "friction",
-                            f"friction level varying as {fn}({'' if h == 1 else '2 '}{th})",
+                            f"friction level varying as {fn}({'' if h == 1 else f'{h} '}{th})",
                             f"math.{fn}({arg})",
                             "1",
                         ),
@@ -318,7 +326,7 @@ def library(m: TorqueMap) -> list[tuple[Term, np.ndarray]]:
                         Term(
                             f"load_{fn}{h}",
                             "torque",
-                            f"a load varying as {fn}({'' if h == 1 else '2 '}{th})",
+                            f"a load varying as {fn}({'' if h == 1 else f'{h} '}{th})",
                             f"math.{fn}({arg})",
                             "1",
                         ),
@@ -575,7 +583,15 @@ def effect_source(p: Proposal, *, header: str = "") -> str:
             acc = []
             for i, k in enumerate(kept):
                 if k.disc == disc and k.term.kind == kind:
-                    acc.append(f"q[{i}] * ({k.term.expr} - {k.centre!r})")
+                    # A friction term centred: its constant is a friction level, which the
+                    # refit's Coulomb level takes.  A torque term whole: a constant load
+                    # has no parameter of the model to go to (a cogging torque's centred
+                    # term ended its refit at 206x the floor, uncentred at 0.864x).
+                    acc.append(
+                        f"q[{i}] * ({k.term.expr} - {k.centre!r})"
+                        if kind == "friction"
+                        else f"q[{i}] * {k.term.expr}"
+                    )
             lines.append(
                 f"    {'upper' if disc == 'u' else 'lower'} = "
                 + (" + ".join(acc) if acc else "0.0")
@@ -658,8 +674,9 @@ def header_text(p: Proposal, command: str) -> str:
             lines.append(f"{disc} disc: nothing ({d.reason})")
     lines += [
         "",
-        "Each term enters centred on its mean over the estimation data (the constant",
-        "is a friction level the refit re-estimates).  Refit it with:",
+        "Each friction term enters centred on its mean over the estimation data (the",
+        "constant is a friction level the refit re-estimates); each torque term whole (a",
+        "constant load has no parameter of the model to go to).  Refit it with:",
         "",
         f"    {command}",
     ]

@@ -11,7 +11,7 @@ clear slip are used: at rest friction is set-valued and balances anything.
 
 The map ranks how much of ``M`` each candidate variable explains (adjusted R² of a
 binned-mean or harmonic fit): the disc's velocity and its direction, its angle within a
-revolution (once and twice per revolution), the string's torsion and its rate, the input
+revolution (once to eight times per revolution), the string's torsion and its rate, the input
 and its rate, time.
 
 What the map can support.  Smoothed derivatives of quantised angles are not exact: the
@@ -55,14 +55,6 @@ WORDS = {
         "depends on the direction of rotation",
         "friction that differs between the two directions (asymmetric Coulomb or viscous friction)",
     ),
-    "angle_1": (
-        "varies with its angle, once per revolution",
-        "friction or load varying with angle (an eccentric or uneven bearing or brake surface)",
-    ),
-    "angle_2": (
-        "varies with its angle, twice per revolution",
-        "friction or load varying with angle (an oval or misaligned contact)",
-    ),
     "torsion": (
         "varies with the string's torsion",
         "a string stiffness that is not "
@@ -95,6 +87,39 @@ WORDS = {
     ),
 }
 
+#: The harmonics of a disc's angle the map tries: once to eight times per revolution (an
+#: eccentric or uneven surface, an oval contact, a motor's or gear's cogging, rolling
+#: elements or bolts around the shaft).  A cogging torque four times per revolution hidden
+#: in reference data was read as "the string's torsion" when the map tried only the first
+#: two.
+ANGLE_HARMONICS = (1, 2, 3, 4, 5, 6, 7, 8)
+#: The map's variables of those harmonics (``angle_h``).
+ANGLE_VARIABLES = tuple(f"angle_{h}" for h in ANGLE_HARMONICS)
+
+
+def harmonic_of(variable: str) -> int:
+    """``h`` of an angle variable ``angle_h``."""
+    return int(variable.split("_", 1)[1])
+
+
+def _times_per_rev(h: int) -> str:
+    return {1: "once", 2: "twice"}.get(h, f"{h} times")
+
+
+for _h in ANGLE_HARMONICS:
+    WORDS[f"angle_{_h}"] = (
+        f"varies with its angle, {_times_per_rev(_h)} per revolution",
+        {
+            1: "friction or load varying with angle (an eccentric or uneven bearing or "
+            "brake surface)",
+            2: "friction or load varying with angle (an oval or misaligned contact)",
+        }.get(
+            _h,
+            f"a torque that repeats {_h} times a revolution (cogging of a motor or a gear, "
+            "rolling elements, bolts or poles around the shaft)",
+        ),
+    )
+
 #: Time constants [s] of the low-pass filtered inputs the map's input-history variable
 #: uses: a lag of the drive between them is a combination of their differences from the
 #: input.
@@ -104,8 +129,6 @@ HISTORY_TAUS = (0.01, 0.04, 0.16)
 SHORT = {
     "velocity": "its speed",
     "direction": "the direction of rotation",
-    "angle_1": "its angle (once per revolution)",
-    "angle_2": "its angle (twice per revolution)",
     "torsion": "the string's torsion",
     "torsion_rate": "the twist rate",
     "input": "the input voltage",
@@ -113,6 +136,9 @@ SHORT = {
     "input_history": "the input's recent history",
     "time": "time",
 }
+SHORT.update(
+    {v: f"its angle ({_times_per_rev(harmonic_of(v))} per revolution)" for v in ANGLE_VARIABLES}
+)
 
 #: The catalogue's version of each dependence's usual cause: per disc, the effects whose
 #: score tests test what :data:`WORDS` names, and what else the dependence can be when
@@ -342,7 +368,7 @@ class TorqueMap:
         )
 
     def angle_terms(self, variable: str) -> dict | None:
-        """For a dependence on angle (``angle_1``, ``angle_2``): the two parts the map's
+        """For a dependence on angle (``angle_1`` ... ``angle_8``): the two parts the map's
         regression separates, as a user effect would write them, with ``theta`` the disc's
         angle and ``s`` its direction of rotation:
 
@@ -358,7 +384,7 @@ class TorqueMap:
         if X is None or X.shape[0] <= X.shape[1]:
             return None
         beta, *_ = np.linalg.lstsq(X, self.torque, rcond=None)
-        h = int(variable[-1])
+        h = harmonic_of(variable)
         out = {}
         # columns: 1, s, sin, cos, s sin, s cos
         for name, (a, b, sign) in (
@@ -470,7 +496,7 @@ def _design(k: str, feats: dict[str, np.ndarray]) -> np.ndarray | None:
     if k.startswith("angle_"):
         # A load varying with angle acts alike in both directions; a friction level
         # varying with angle acts against the motion: both columns, with the sign.
-        h = int(k[-1])
+        h = harmonic_of(k)
         s = feats["direction"]
         return np.column_stack(
             [one, s, np.sin(h * v), np.cos(h * v), s * np.sin(h * v), s * np.cos(h * v)]
@@ -667,14 +693,14 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             **common,
         }
         if np.ptp(thl) >= MIN_TURNS * 2 * np.pi:
-            feats.update(angle_1=np.mod(thl, 2 * np.pi), angle_2=np.mod(thl, 2 * np.pi))
+            feats.update(dict.fromkeys(ANGLE_VARIABLES, np.mod(thl, 2 * np.pi)))
         out["l"] = (t, Ml, feats, slip_mask(wl, n, 0.02))
     if not problem.prescribed_upper:
         fu = np.nan_to_num(friction_curve(wu, _complete(p), "u", shape=problem.shape))
         Mu = p["J_u"] * au + fu + np.sign(wu) * shift_u - string - p["k_m"] * v - extra_u
         feats = {"velocity": wu, "direction": np.sign(wu), **common}
         if np.ptp(thu) >= MIN_TURNS * 2 * np.pi:
-            feats.update(angle_1=np.mod(thu, 2 * np.pi), angle_2=np.mod(thu, 2 * np.pi))
+            feats.update(dict.fromkeys(ANGLE_VARIABLES, np.mod(thu, 2 * np.pi)))
         if has_l:
             feats["torsion"] = alpha
             feats["torsion_rate"] = dalpha

@@ -361,6 +361,26 @@ class _RowsBuffer(threading.local):
 _ROWS_BUFFER = _RowsBuffer()
 
 
+def compile_sensitivity_kernel() -> None:
+    """Compile the sensitivity kernel for the arguments :meth:`Problem.jacobian` and
+    :meth:`Problem.jacobian_rows` pass it, by calling both on a tenth of a second of
+    made-up brake data (what they compute is not looked at; nothing else of the solver is
+    compiled): what :func:`rotorbayes.util.coldstart.sensitivity_aside`'s second process
+    runs."""
+    from ..model.parameters import thesis_set
+
+    t = np.arange(101) * 1e-3
+    ex = Experiment(t=t, u=np.full(t.size, 1.0), theta_u=t * 0.1, theta_l=t * 0.05, name="aside")
+    p = thesis_set("4.3", "P_ref")
+    prob = Problem("brake", [ex], base=p)
+    x = prob.x_from(p)
+    try:
+        prob.jacobian(x, method="sensitivity")
+        prob.jacobian_rows(x)
+    except Exception:  # noqa: BLE001 -- compiled all the same: the call is what compiles
+        pass
+
+
 def _rows_buffer(m1: int, n: int) -> np.ndarray:
     """An ``(m1, n)`` C-order array (contents undefined), this thread's own."""
     a = _ROWS_BUFFER.array

@@ -275,8 +275,9 @@ def compile_aside_main() -> None:
 
     end_with_parent()
     for spec in sys.argv[1:]:
-        if spec == SENSITIVITY:
-            _compile_sensitivities_here()
+        if spec.startswith(CALL):
+            module, fn_name = spec[len(CALL) :].split(":", 1)
+            getattr(importlib.import_module(module), fn_name)()
             continue
         module, fn_name, arg_types = spec.split(":", 2)
         fn = getattr(importlib.import_module(f"rotorbayes.kernel.{module}"), fn_name)
@@ -284,8 +285,11 @@ def compile_aside_main() -> None:
         fn.compile(args)
 
 
-#: :func:`compile_aside_main`'s argument for the sensitivity kernel.
+#: The sensitivity kernel's key in :data:`COMPILE_SECONDS`.
 SENSITIVITY = "sensitivity"
+#: :func:`compile_aside_main`'s argument for a function to call (``CALL`` +
+#: ``"package.module:function"``) rather than a kernel helper to compile.
+CALL = "call="
 #: The sensitivity kernel in this process: ``ready`` once loaded or compiled, ``child``
 #: the process compiling it aside (:func:`sensitivity_aside`).
 _SENS: dict = {"ready": False, "child": None}
@@ -293,41 +297,21 @@ _SENS: dict = {"ready": False, "child": None}
 _SENS_WHAT = "the sensitivities, for the Jacobian"
 
 
-def _compile_sensitivities_here() -> None:
-    """Compile the sensitivity kernel for the arguments :meth:`rotorbayes.Problem.jacobian`
-    and :meth:`~rotorbayes.Problem.jacobian_rows` pass it, by calling both on a tenth of a
-    second of made-up brake data (what they compute is not looked at; nothing else of the
-    solver is compiled)."""
-    import numpy as np
-
-    from ..inference.problem import Problem
-    from ..io.measurements import Experiment
-    from ..model.parameters import thesis_set
-
-    t = np.arange(101) * 1e-3
-    ex = Experiment(t=t, u=np.full(t.size, 1.0), theta_u=t * 0.1, theta_l=t * 0.05, name="aside")
-    p = thesis_set("4.3", "P_ref")
-    prob = Problem("brake", [ex], base=p)
-    x = prob.x_from(p)
-    try:
-        prob.jacobian(x, method="sensitivity")
-        prob.jacobian_rows(x)
-    except Exception:  # noqa: BLE001 -- compiled all the same: the call is what compiles
-        pass
-
-
-def sensitivity_aside() -> None:
+def sensitivity_aside(compile_call: str) -> None:
     """A command that will take Jacobians by sensitivities: where numba's cache has no
     sensitivity kernel, start compiling it in a second process now, while this one
     compiles the solver (20-27 CPU s on these 2 cores; the first ``fit --jacobian
     sensitivity`` of a 30 s brake record took 46.1 s of wall time, 26 s of it unsaid inside
-    the fit, and takes 31.5 s so).  :func:`first_sensitivities` waits for it."""
+    the fit, and takes 31.5 s so).  :func:`first_sensitivities` waits for it.  The process
+    calls ``compile_call`` (``"package.module:function"``): a function of the layer that
+    knows the kernel's arguments (:func:`rotorbayes.inference.problem.compile_sensitivity_kernel`;
+    this module stays below it)."""
     with _COMPILING:
         if _SENS["ready"] or _SENS["child"] is not None:
             return
         if not cache_is_cold("sensitivities_into", "sensitivity"):
             return
-        _SENS["child"] = _spawn_aside([SENSITIVITY])
+        _SENS["child"] = _spawn_aside([CALL + compile_call])
 
 
 @contextlib.contextmanager
