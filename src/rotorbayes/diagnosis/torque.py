@@ -45,6 +45,43 @@ from ..inference.problem import Problem
 from ..inference.starts import derivatives, slip_mask
 from ..model.friction import friction_curve
 
+#: The harmonics of a disc's angle the map tries: once to eight times per revolution (an
+#: eccentric or uneven surface, an oval contact, a motor's or gear's cogging, rolling
+#: elements or bolts around the shaft).  A cogging torque four times per revolution hidden
+#: in reference data was read as "the string's torsion" when the map tried only the first
+#: two.
+ANGLE_HARMONICS = (1, 2, 3, 4, 5, 6, 7, 8)
+#: The map's variables of those harmonics (``angle_h``).
+ANGLE_VARIABLES = tuple(f"angle_{h}" for h in ANGLE_HARMONICS)
+
+
+def harmonic_of(variable: str) -> int:
+    """``h`` of an angle variable ``angle_h``."""
+    return int(variable.split("_", 1)[1])
+
+
+def _times_per_rev(h: int) -> str:
+    return {1: "once", 2: "twice"}.get(h, f"{h} times")
+
+
+def _angle_words() -> dict[str, tuple[str, str]]:
+    causes = {
+        1: "friction or load varying with angle (an eccentric or uneven bearing or brake surface)",
+        2: "friction or load varying with angle (an oval or misaligned contact)",
+    }
+    return {
+        f"angle_{h}": (
+            f"varies with its angle, {_times_per_rev(h)} per revolution",
+            causes.get(
+                h,
+                f"a torque that repeats {h} times a revolution (cogging of a motor or a "
+                "gear, rolling elements, bolts or poles around the shaft)",
+            ),
+        )
+        for h in ANGLE_HARMONICS
+    }
+
+
 #: Words for a dependence: (what varies, what usually causes it).
 WORDS = {
     "velocity": (
@@ -55,6 +92,7 @@ WORDS = {
         "depends on the direction of rotation",
         "friction that differs between the two directions (asymmetric Coulomb or viscous friction)",
     ),
+    **_angle_words(),
     "torsion": (
         "varies with the string's torsion",
         "a string stiffness that is not "
@@ -87,39 +125,6 @@ WORDS = {
     ),
 }
 
-#: The harmonics of a disc's angle the map tries: once to eight times per revolution (an
-#: eccentric or uneven surface, an oval contact, a motor's or gear's cogging, rolling
-#: elements or bolts around the shaft).  A cogging torque four times per revolution hidden
-#: in reference data was read as "the string's torsion" when the map tried only the first
-#: two.
-ANGLE_HARMONICS = (1, 2, 3, 4, 5, 6, 7, 8)
-#: The map's variables of those harmonics (``angle_h``).
-ANGLE_VARIABLES = tuple(f"angle_{h}" for h in ANGLE_HARMONICS)
-
-
-def harmonic_of(variable: str) -> int:
-    """``h`` of an angle variable ``angle_h``."""
-    return int(variable.split("_", 1)[1])
-
-
-def _times_per_rev(h: int) -> str:
-    return {1: "once", 2: "twice"}.get(h, f"{h} times")
-
-
-for _h in ANGLE_HARMONICS:
-    WORDS[f"angle_{_h}"] = (
-        f"varies with its angle, {_times_per_rev(_h)} per revolution",
-        {
-            1: "friction or load varying with angle (an eccentric or uneven bearing or "
-            "brake surface)",
-            2: "friction or load varying with angle (an oval or misaligned contact)",
-        }.get(
-            _h,
-            f"a torque that repeats {_h} times a revolution (cogging of a motor or a gear, "
-            "rolling elements, bolts or poles around the shaft)",
-        ),
-    )
-
 #: Time constants [s] of the low-pass filtered inputs the map's input-history variable
 #: uses: a lag of the drive between them is a combination of their differences from the
 #: input.
@@ -129,6 +134,7 @@ HISTORY_TAUS = (0.01, 0.04, 0.16)
 SHORT = {
     "velocity": "its speed",
     "direction": "the direction of rotation",
+    **{v: f"its angle ({_times_per_rev(harmonic_of(v))} per revolution)" for v in ANGLE_VARIABLES},
     "torsion": "the string's torsion",
     "torsion_rate": "the twist rate",
     "input": "the input voltage",
@@ -136,9 +142,6 @@ SHORT = {
     "input_history": "the input's recent history",
     "time": "time",
 }
-SHORT.update(
-    {v: f"its angle ({_times_per_rev(harmonic_of(v))} per revolution)" for v in ANGLE_VARIABLES}
-)
 
 #: The catalogue's version of each dependence's usual cause: per disc, the effects whose
 #: score tests test what :data:`WORDS` names, and what else the dependence can be when
