@@ -311,3 +311,22 @@ def test_a_study_tries_a_candidate_effect_and_keeps_it_only_if_it_helps(data, mo
         assert rec["added_effects"] == [] and rec["final_fit"].endswith("fit0")
         assert [r["effect"] for r in rec["rejected_effects"]] == ["lower_asymmetric_viscous"]
         assert "did not lower the worst RMS/floor materially" in log
+
+
+def test_the_studys_last_line_gives_the_final_fits_verdict(tmp_path):
+    """A new user's trial: the study's last console line named the folder but not where the
+    final fit ended (449x, inadequate); only the report did."""
+    from rotorbayes.commands.run import _final_words
+
+    fit = tmp_path / "fit1"
+    fit.mkdir()
+    verdict = "the model does not explain the data (worst fitted channel 449x the floor)"
+    (fit / "fit.json").write_text(json.dumps({"assessment": {"verdict": verdict}}))
+    rec = {"final_fit": str(fit), "added_effects": ["lower_stribeck"]}
+    assert _final_words(rec) == f"final fit, fit1 (effects added: lower_stribeck): {verdict}"
+    assert _final_words({"final_fit": str(tmp_path / "gone")}) == ""
+
+
+def test_a_p0_that_is_nowhere_is_said_to_be_not_found():
+    with pytest.raises(rb.parameters.ParameterError, match="'nofit/': not found"):
+        resolve("nofit/", config="coupled")

@@ -72,6 +72,25 @@ def run(
         f"\nstudy done in {time.perf_counter() - t0:.0f} s{again}; outputs and run.json in "
         f"{Path(rec['final_fit']).parent}/"
     )
+    verdict = _final_words(rec)
+    if verdict:
+        print(verdict)
     if rec.get("report"):
         print(f"report: {rec['report']}")
     return Outcome(doc=rec)
+
+
+def _final_words(rec: dict) -> str:
+    """The final fit's verdict in one line ("" where the record lacks it): the study's last
+    word, beside the report's."""
+    import json
+
+    try:
+        verdict = json.loads((Path(rec["final_fit"]) / "fit.json").read_text())["assessment"][
+            "verdict"
+        ]
+    except (KeyError, OSError, TypeError, ValueError):
+        return ""
+    added = rec.get("added_effects") or []
+    what = f" (effects added: {', '.join(added)})" if added else ""
+    return f"final fit, {Path(rec['final_fit']).name}{what}: {verdict}" if verdict else ""

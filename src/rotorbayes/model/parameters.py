@@ -319,7 +319,9 @@ def resolve(spec, *, config: str | None = None) -> dict[str, float]:
             base.update(load_toml(s))
             return base
         raise ParameterError(
-            f"{s!r} is neither a named set ({', '.join(named_sets()[:3])}, ...) nor a TOML file"
+            f"{s!r}: not found (no file or folder of that name) and not a named set "
+            f"({', '.join(named_sets()[:3])}, ...); give a fit folder, a TOML file of "
+            "values or a named set"
         )
     if isinstance(spec, Mapping):
         check_names(spec)
