@@ -598,7 +598,8 @@ def _write_sample_outputs(a: SampleOptions, out: Path, lp, fit, runs, guard, res
         print(f"warning: {w}", file=sys.stderr)
     print(
         f"\nwrote posterior.nc, summary.md/.csv, corner.png, trace.png, predictive.png, "
-        f"correlation.png in {out}/ ({lp.n_calls} log-posterior evaluations)"
+        f"correlation.png in {out}/ ({lp.n_calls} log-posterior evaluations in all, the "
+        "walkers' starting points included)"
     )
     if guard.hit:
         raise Interrupted(
