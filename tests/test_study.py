@@ -330,3 +330,17 @@ def test_the_studys_last_line_gives_the_final_fits_verdict(tmp_path):
 def test_a_p0_that_is_nowhere_is_said_to_be_not_found():
     with pytest.raises(rb.parameters.ParameterError, match="'nofit/': not found"):
         resolve("nofit/", config="coupled")
+
+
+def test_an_effect_tried_is_dropped_when_the_validation_runs_get_worse():
+    """A hidden cogging torque (reference data, a new user's trial): upper_stribeck's
+    trial refit lowered the estimation figure 449x -> 424x (material) and raised the
+    validation runs' 5695x -> 6791x; the study kept it and ended there."""
+    from rotorbayes.commands.study.analysis import drop_reason
+
+    why = drop_reason(449.0, 424.0, 5695.0, 6791.0)
+    assert why.startswith("made the validation data materially worse (5.7e+03x -> 6.79e+03x)")
+    assert drop_reason(746.0, 449.0, 8009.0, 5695.0) == ""  # better on both: kept
+    assert drop_reason(449.0, 424.0, None, None) == ""  # no validation data: the estimation
+    assert "did not lower" in drop_reason(449.0, 440.0, 5695.0, 5000.0)
+    assert drop_reason(1.5, 1.0, 0.994, 0.998) == ""  # a rise within the noise is no rise
