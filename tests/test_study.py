@@ -344,3 +344,25 @@ def test_an_effect_tried_is_dropped_when_the_validation_runs_get_worse():
     assert drop_reason(449.0, 424.0, None, None) == ""  # no validation data: the estimation
     assert "did not lower" in drop_reason(449.0, 440.0, 5695.0, 5000.0)
     assert drop_reason(1.5, 1.0, 0.994, 0.998) == ""  # a rise within the noise is no rise
+
+
+def test_the_study_tries_the_diagnosis_proposal_by_its_file_in_the_fit_folder(tmp_path):
+    """What the study adds when the diagnosis proposed a term of its own: proposal.py of
+    the diagnosed fit, by absolute path (a study of a hidden cogging torque ended at 0.864x
+    the floor with it; before, at 449x with lower_stribeck)."""
+    from rotorbayes.commands.study.analysis import _proposal_spec
+
+    fit = tmp_path / "out" / "fit0"
+    fit.mkdir(parents=True)
+    d = {
+        "proposal": {
+            "proposed": True,
+            "file": "out/fit0/proposal.py",
+            "effect": "out/fit0/proposal.py:proposed",
+        }
+    }
+    assert _proposal_spec(fit, d) is None  # no file: nothing to try
+    (fit / "proposal.py").write_text("# a proposal\n")
+    assert _proposal_spec(fit, d) == f"{(fit / 'proposal.py').resolve()}:proposed"
+    assert _proposal_spec(fit, {"proposal": None}) is None
+    assert _proposal_spec(fit, {"proposal": dict(d["proposal"], proposed=False)}) is None
