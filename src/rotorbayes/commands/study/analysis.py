@@ -474,7 +474,10 @@ class _Tee(io.TextIOBase):
         # study has closed its log: nothing left to flush then.
         for stream in (self.log, self.echo):
             if stream is not None and not getattr(stream, "closed", False):
-                stream.flush()
+                try:
+                    stream.flush()
+                except ValueError:  # a wrapper whose own stream was closed underneath
+                    pass
 
 
 def run(
