@@ -489,9 +489,7 @@ def hold_shift(
         del uf
         st, thu, thl = sim.angles(sim.kernel_vector(problem.params_for(x, i)))
         del sim
-        st0, thu0, thl0 = problem.sims[i].angles(
-            problem.sims[i].kernel_vector(problem.params_for(x, i))
-        )
+        st0, thu0, thl0 = coarse.angles(coarse.kernel_vector(problem.params_for(x, i)))
         for c in problem.channels:
             if st != 0 or st0 != 0:
                 return np.full(J.shape[1], np.nan), math.nan, math.nan

@@ -264,6 +264,12 @@ def _await_aside(child) -> None:
     try:
         child.wait(timeout=ASIDE_TIMEOUT)
     except subprocess.TimeoutExpired:
+        _end_aside(child)
+
+
+def _end_aside(child) -> None:
+    """End the process of :func:`_spawn_aside` (None: nothing to end)."""
+    if child is not None:
         child.kill()
         child.wait()
 
@@ -339,9 +345,7 @@ def first_sensitivities(stream=None):
             yield
             _SENS["ready"] = True
         finally:
-            if child is not None:
-                child.kill()
-                child.wait()
+            _end_aside(child)  # stopped before the call: the other process goes too
             if cold:
                 COMPILE_SECONDS[SENSITIVITY] = time.perf_counter() - t0
                 print(f" took {time.perf_counter() - t0:.0f} s", file=stream, flush=True)
@@ -433,9 +437,7 @@ def _compile_entry(name: str, stream, parallel: bool = True):
                 COMPILE_SECONDS[n] = time.perf_counter() - t0
                 COMPILE_CPU_SECONDS[n] = time.process_time() - c0
     finally:
-        if aside is not None:  # stopped before the helpers: the other process goes too
-            aside.kill()
-            aside.wait()
+        _end_aside(aside)  # stopped before the helpers: the other process goes too
         if cold:
             print(f" took {time.perf_counter() - t_all:.0f} s", file=stream, flush=True)
     return _READY[name]
