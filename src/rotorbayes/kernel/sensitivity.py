@@ -493,8 +493,35 @@ def _guard_grad(disc, mode, y, fm, d, c, cfg, src, idx, tsf, gp):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _hermite_weights(sf, X, i):
+    """The six quintic Hermite weights at the fraction ``sf`` of a step into column ``i``
+    of ``X``, in units of the step: of the start's value, rate and acceleration, then the
+    end's (the rate's times the step and the acceleration's times its square are the
+    interpolant's)."""
+    s2 = sf * sf
+    s3 = s2 * sf
+    s4 = s3 * sf
+    s5 = s4 * sf
+    X[0, i] = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
+    X[1, i] = sf - 6.0 * s3 + 8.0 * s4 - 3.0 * s5
+    X[2, i] = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
+    X[3, i] = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
+    X[4, i] = -4.0 * s3 + 7.0 * s4 - 3.0 * s5
+    X[5, i] = 0.5 * s3 - s4 + 0.5 * s5
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _end_values(S, dF, S1, dFe, i0, a, w, hs, h2):
+    """Column ``a``'s six end values of a segment for the channel of state row ``i0``
+    (times the channel's weight ``w``; the rates times the step ``hs``, the accelerations
+    times its square ``h2``): what :func:`_hermite_weights`' weights multiply."""
+    return (w * S[i0, a], w * hs * dF[i0, a], w * h2 * dF[i0 + 1, a], w * S1[i0, a],
+            w * hs * dFe[i0, a], w * h2 * dFe[i0 + 1, a])  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas_l, w_u,
-                   w_l, r, JT, jcol, col_u, col_l, X):  # fmt: skip
+                   w_l, r, JT, jcol, col_u, col_l, X, Xc, known):  # fmt: skip
     """Residuals and their derivatives at samples ``kout .. k1`` of a segment: the
     solver's quintic Hermite interpolant, and the same interpolant of the sensitivities.
 
@@ -504,7 +531,14 @@ def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, m
     column of ``J``).  With ``J`` in Fortran order, as :meth:`rotorbayes.Problem.jacobian`
     allocates it, ``JT`` is contiguous along the samples, the loop is vectorised and the
     stores are sequential (row by row, 13 scattered stores per sample, writing ``J`` took
-    twice as long as integrating the sensitivities)."""
+    twice as long as integrating the sensitivities).
+
+    The weights are in units of the step (``X[1]`` times ``seg`` and ``X[2]`` times
+    ``seg²`` are the interpolant's, the factors go with the end values).  Those of a
+    segment of whole samples (``ns`` of them at fractions ``1/ns .. 1``: the grid's
+    ordinary step) are computed once per ``ns`` into ``Xc[ns]`` (``known[ns]`` 1);
+    others each time into ``X``.  (Computed at every sample they were a tenth of a
+    Jacobian.)"""
     k = S.shape[1]
     hs = seg
     h2 = seg * seg
@@ -512,6 +546,7 @@ def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, m
     cu = _quintic(seg, y[0], f[0], f[1], y1[0], fe[0], fe[1])
     cl = _quintic(seg, y[2], f[2], f[3], y1[2], fe[2], fe[3])
     ns = k1 + 1 - kout
+    regular = ns < Xc.shape[0]
     for i in range(ns):
         kk = kout + i
         sf = (kk * dt - t) * inv if seg > 0.0 else 1.0
@@ -521,16 +556,21 @@ def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, m
             r[0, col_u + kk] = w_u * (meas_u[kk] - _horner5(sf, cu))
         if col_l >= 0:
             r[0, col_l + kk] = w_l * (meas_l[kk] - _horner5(sf, cl))
-        s2 = sf * sf
-        s3 = s2 * sf
-        s4 = s3 * sf
-        s5 = s4 * sf
-        X[0, i] = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
-        X[1, i] = hs * (sf - 6.0 * s3 + 8.0 * s4 - 3.0 * s5)
-        X[2, i] = h2 * (0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5)
-        X[3, i] = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
-        X[4, i] = hs * (-4.0 * s3 + 7.0 * s4 - 3.0 * s5)
-        X[5, i] = h2 * (0.5 * s3 - s4 + 0.5 * s5)
+        if abs(sf * ns - (i + 1)) > 1e-9:
+            regular = False
+    if not (regular and known[ns] == 1):
+        for i in range(ns):
+            sf = ((kout + i) * dt - t) * inv if seg > 0.0 else 1.0
+            if sf > 1.0:
+                sf = 1.0
+            _hermite_weights(sf, X, i)
+        if regular:
+            for i in range(ns):
+                for j in range(_HERMITE):
+                    Xc[ns, j, i] = X[j, i]
+            known[ns] = 1
+    else:
+        X = Xc[ns]
     for ch in range(2):
         col = col_u if ch == 0 else col_l
         if col < 0:
@@ -540,17 +580,37 @@ def _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, m
         # Unsigned indices (as the solver's): no negative-index wraparound per store, so
         # the loop down the samples is vectorised.
         row = np.uint64(col + kout)
-        for a in range(k):
-            v0 = w * S[i0, a]
-            v1 = w * dF[i0, a]
-            v2 = w * dF[i0 + 1, a]
-            v3 = w * S1[i0, a]
-            v4 = w * dFe[i0, a]
-            v5 = w * dFe[i0 + 1, a]
+        # Four columns per pass down the samples: each sample's six weights are read once
+        # for the four (one column per pass: the loop's set-up and the weights' loads
+        # were most of the time, 42 samples a step).
+        a = 0
+        while a + 4 <= k:
+            p0, p1, p2, p3, p4, p5 = _end_values(S, dF, S1, dFe, i0, a, w, hs, h2)
+            q0, q1, q2, q3, q4, q5 = _end_values(S, dF, S1, dFe, i0, a + 1, w, hs, h2)
+            u0, u1, u2, u3, u4, u5 = _end_values(S, dF, S1, dFe, i0, a + 2, w, hs, h2)
+            v0, v1, v2, v3, v4, v5 = _end_values(S, dF, S1, dFe, i0, a + 3, w, hs, h2)
+            ca = jcol[a]
+            cb = jcol[a + 1]
+            cc = jcol[a + 2]
+            cd = jcol[a + 3]
+            for i in range(np.uint64(ns)):
+                x0, x1, x2, x3, x4, x5 = X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i]
+                JT[ca, row + i] = (p0 * x0 + p1 * x1 + p2 * x2
+                                   + p3 * x3 + p4 * x4 + p5 * x5)  # fmt: skip
+                JT[cb, row + i] = (q0 * x0 + q1 * x1 + q2 * x2
+                                   + q3 * x3 + q4 * x4 + q5 * x5)  # fmt: skip
+                JT[cc, row + i] = (u0 * x0 + u1 * x1 + u2 * x2
+                                   + u3 * x3 + u4 * x4 + u5 * x5)  # fmt: skip
+                JT[cd, row + i] = (v0 * x0 + v1 * x1 + v2 * x2
+                                   + v3 * x3 + v4 * x4 + v5 * x5)  # fmt: skip
+            a += 4
+        while a < k:
+            v0, v1, v2, v3, v4, v5 = _end_values(S, dF, S1, dFe, i0, a, w, hs, h2)
             c = jcol[a]
             for i in range(np.uint64(ns)):
                 JT[c, row + i] = (v0 * X[0, i] + v1 * X[1, i] + v2 * X[2, i]
                                   + v3 * X[3, i] + v4 * X[4, i] + v5 * X[5, i])  # fmt: skip
+            a += 1
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -574,6 +634,31 @@ def _dot_at(a, ao, b, bo, n):
         s0 += a[a0 + i] * b[b0 + i]
         i += u(1)
     return (s0 + s1) + (s2 + s3)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _qt_r(Qt, r, ro, n, out, oo):
+    """``out[oo + b] = sum_i Qt[b, i] r[ro + i]`` for the six rows ``b`` of ``Qt`` and ``i <
+    n``: one pass over ``r``, six sums side by side (independent chains: six passes of a
+    dot product each were twice the time)."""
+    s0 = s1 = s2 = s3 = s4 = s5 = 0.0
+    u = np.uint64
+    b = u(ro)
+    for i in range(u(n)):
+        x = r[b + i]
+        s0 += Qt[0, i] * x
+        s1 += Qt[1, i] * x
+        s2 += Qt[2, i] * x
+        s3 += Qt[3, i] * x
+        s4 += Qt[4, i] * x
+        s5 += Qt[5, i] * x
+    o = u(oo)
+    out[o] = s0
+    out[o + u(1)] = s1
+    out[o + u(2)] = s2
+    out[o + u(3)] = s3
+    out[o + u(4)] = s4
+    out[o + u(5)] = s5
 
 
 #: Samples of a segment above which its rows are handed on reduced to six (fewer: the
@@ -662,16 +747,7 @@ def _write_rows(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas
             sf = ((kout + i) * dt - t) * inv if seg > 0.0 else 1.0
             if sf > 1.0:
                 sf = 1.0
-            s2 = sf * sf
-            s3 = s2 * sf
-            s4 = s3 * sf
-            s5 = s4 * sf
-            X[0, i] = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
-            X[1, i] = sf - 6.0 * s3 + 8.0 * s4 - 3.0 * s5
-            X[2, i] = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
-            X[3, i] = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
-            X[4, i] = -4.0 * s3 + 7.0 * s4 - 3.0 * s5
-            X[5, i] = 0.5 * s3 - s4 + 0.5 * s5
+            _hermite_weights(sf, X, i)
         if regular and known[ns] == 0:
             known[ns] = 1 if _hermite_qr(X, ns, Qc[ns], Rc[ns]) else 2
             if known[ns] == 1:
@@ -703,15 +779,25 @@ def _write_rows(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe, meas_u, meas
                 for c in range(m1):
                     Wt[c, row + b] = 0.0
         if reduced:
-            # R is upper triangular with zeros below (as _hermite_qr leaves it): six
-            # products each, no triangular loop bounds.
-            for b in range(_HERMITE):
-                r0, r1, r2, r3, r4, r5 = R[b, 0], R[b, 1], R[b, 2], R[b, 3], R[b, 4], R[b, 5]
-                for a in range(k):
-                    Wt[jcol[a], row + b] = (r0 * V[0, a] + r1 * V[1, a] + r2 * V[2, a]
-                                            + r3 * V[3, a] + r4 * V[4, a]
-                                            + r5 * V[5, a])  # fmt: skip
-                Wt[m1 - 1, row + b] = _dot_at(Qt[b], 0, r[0], col + kout, ns)
+            # R is upper triangular: its 21 entries, a column's six rows written together
+            # (next to each other in Wt's row of that column; by rows of R, six passes
+            # over the columns, they cost twice as much).
+            r00, r01, r02, r03, r04, r05 = R[0, 0], R[0, 1], R[0, 2], R[0, 3], R[0, 4], R[0, 5]
+            r11, r12, r13, r14, r15 = R[1, 1], R[1, 2], R[1, 3], R[1, 4], R[1, 5]
+            r22, r23, r24, r25 = R[2, 2], R[2, 3], R[2, 4], R[2, 5]
+            r33, r34, r35 = R[3, 3], R[3, 4], R[3, 5]
+            r44, r45 = R[4, 4], R[4, 5]
+            r55 = R[5, 5]
+            for a in range(k):
+                c = jcol[a]
+                v0, v1, v2, v3, v4, v5 = V[0, a], V[1, a], V[2, a], V[3, a], V[4, a], V[5, a]
+                Wt[c, row] = r00 * v0 + r01 * v1 + r02 * v2 + r03 * v3 + r04 * v4 + r05 * v5
+                Wt[c, row + 1] = r11 * v1 + r12 * v2 + r13 * v3 + r14 * v4 + r15 * v5
+                Wt[c, row + 2] = r22 * v2 + r23 * v3 + r24 * v4 + r25 * v5
+                Wt[c, row + 3] = r33 * v3 + r34 * v4 + r35 * v5
+                Wt[c, row + 4] = r44 * v4 + r45 * v5
+                Wt[c, row + 5] = r55 * v5
+            _qt_r(Qt, r[0], col + kout, ns, Wt[m1 - 1], row)
         else:
             for i in range(ns):
                 x0, x1, x2, x3, x4, x5 = X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i]
@@ -763,8 +849,8 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
     X = np.empty((6, min(int(cap) + 2, n)))
     JT = J.T
     rows = Wt.shape[1] > 0
-    nq = min(int(cap) + 2, n) + 1 if rows else 1
-    Qc = np.empty((nq, _HERMITE, nq))
+    nq = min(int(cap) + 2, n) + 1
+    Qc = np.empty((nq, _HERMITE, nq))  # with rows Q's factors, without them X's weights
     Rc = np.empty((nq, _HERMITE, _HERMITE))
     known = np.zeros(nq, dtype=np.int8)
     Vs = np.empty((_HERMITE, k))
@@ -869,7 +955,7 @@ def sensitivities_into(p, u, dt, cfg, shape, grid, h0, idx, tsf, meas_u, meas_l,
                 else:
                     _write_samples(kout, k1, t, seg, dt, y, f, y1, fe, S, dF, S1, dFe,
                                    meas_u, meas_l, w_u, w_l, r, JT, jcol, col_u, col_l,
-                                   X)  # fmt: skip
+                                   X, Qc, known)  # fmt: skip
                 kout = k1 + 1
             y = y1
             f = fe
