@@ -438,3 +438,39 @@ def test_a_stribeck_effect_that_contradicts_its_physics_or_vanished_is_said_so()
     assert "--without" not in added[0] and "from the fit it was added to" in added[0]
     # A real static peak (thesis table 4.3 P_ref: Ts_l 0.278, Tc_l 0.0473): nothing to say.
     assert stribeck_words(_fitted(0.278, 0.0473, 2.4e-6**2, 2e-6**2, 0.0)) == []
+
+
+def test_an_inverted_stribeck_trial_is_no_claim_and_does_not_hold_the_proposal_back():
+    """A quadratic air drag on the lower disc (reference data, s19 trial): the trial refit
+    with lower_stribeck reached 1.28x from 697x with Ts_l 0.02736 (the true Coulomb level)
+    below Tc_l 0.6256 -- an upside-down Stribeck curve, a friction rising with speed --
+    and was claimed; the proposal (a friction rising with speed squared, the truth) was
+    held back as "the catalogue is near the floor"."""
+    from types import SimpleNamespace
+
+    from rotorbayes.diagnosis import trials as T
+    from rotorbayes.diagnosis.proposal import catalogue_near_floor
+    from rotorbayes.model import effects
+
+    e = effects.get("lower_stribeck")
+    words = e.inverted({"Ts_l": 0.02736, "Tc_l": 0.6256})
+    assert "below Tc_l" in words and "rises with speed" in words
+    assert e.inverted({"Ts_l": 0.278, "Tc_l": 0.0473}) == ""  # thesis P_ref: a real peak
+    assert e.inverted({"Ts_l": 0.0473, "Tc_l": 0.0473}) == ""  # no peak: not inverted
+    assert all(c.inverted is None for n, c in effects.CATALOGUE.items() if n != "lower_stribeck")
+
+    out = [
+        T.Trial("lower_stribeck", 1.28, inverted=words),
+        T.Trial("lower_asymmetric_viscous", 439.0),
+        T.Trial("upper_stribeck", 625.0),
+    ]
+    best = T.trial_choice(out, 697.0)
+    assert best is not None and best.effect == "lower_asymmetric_viscous"
+    assert T.trial_choice(out[:1], 697.0) is None  # the inverted one alone: nothing
+    assert out[0].as_dict()["inverted"] == words
+
+    d = SimpleNamespace(adequate=False, rms_over_floor={"theta_l": 697.0}, claimed=None)
+    tried = {"trials": [t.as_dict() for t in out]}
+    assert catalogue_near_floor(d, tried) == ""  # the proposal is made
+    out[0].inverted = ""  # had it been a true Stribeck effect, it would hold it back
+    assert "lower_stribeck" in catalogue_near_floor(d, {"trials": [t.as_dict() for t in out]})

@@ -257,3 +257,30 @@ def test_a_second_proposal_gets_names_of_its_own(tmp_path):
     e = load_user_effect(f"{path}:proposed_2")
     assert e.name == "proposed_2" and [q.name for q in e.parameters] == ["c2_l_t"]
     assert p.as_dict()["discs"][0]["kept"][0]["parameter"] == "c2_l_t"
+
+
+@pytest.mark.slow
+def test_a_drag_taken_up_by_an_upside_down_stribeck_curve_is_no_claim():
+    """The lower friction rising with the speed squared, the trial refit with
+    lower_stribeck: an inverted Stribeck curve (Ts_l below Tc_l) takes the drag up (a
+    fresh-eyes trial with a quadratic air drag: 697x -> 1.28x on the estimation run, 36.6x
+    on the validation run, claimed).  Here the refit must be marked inverted, not chosen,
+    and the proposal must not be held back by it (recovery on reference data)."""
+    from types import SimpleNamespace
+
+    from rotorbayes.diagnosis.proposal import catalogue_near_floor
+    from rotorbayes.diagnosis.trials import trial_choice, trial_refits
+
+    prob, x, va = _case({"drag_l": 0.004})
+    before = floor_ratio(prob, x)
+    assert before > 20
+    trials = trial_refits(prob, x, ["lower_stribeck", "lower_asymmetric_viscous"])
+    by = {t.effect: t for t in trials}
+    st = by["lower_stribeck"]
+    assert not st.failed, st.failed
+    assert st.inverted and "below Tc_l" in st.inverted, (st.ratio, st.values)
+    choice = trial_choice(trials, before)
+    assert choice is None or choice.effect != "lower_stribeck"
+    d = SimpleNamespace(adequate=False, rms_over_floor={"theta_l": before}, claimed=None)
+    assert catalogue_near_floor(d, {"trials": [t.as_dict() for t in trials]}) == ""
+    assert propose(missing_torque(prob, x), catalogue_near_floor=False).kept

@@ -96,6 +96,9 @@ class _Formatter(argparse.HelpFormatter):
             or action.default is argparse.SUPPRESS
             or not action.option_strings
             or not text
+            # A --no-X switch (store_false) defaults to doing X: "(default: True)" beside
+            # "skip X" read as if X were off by default.
+            or isinstance(action, argparse._StoreFalseAction)
         ):
             return text
         return f"{text} (default: %(default)s)"

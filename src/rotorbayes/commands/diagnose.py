@@ -126,6 +126,9 @@ def diagnose(
     d.advice = _with_refit_command(d.advice, result.folder, result.doc, specs)
     print()
     print(d.text())
+    cautions = _cautions(result)
+    for line in cautions:
+        print(f"warning: {line}")
     tried = _trials(result, d, specs) if trials else None
     proposed = _proposal(result, d, tried, specs) if proposal else None
     integ = _integration(result)
@@ -138,7 +141,12 @@ def diagnose(
         v = val["worst_ratio_to_floor"]
     sp = fa.get("validation_spread")
     if d.adequate and isinstance(v, (int, float)) and v > VALIDATION_NOTE:
-        if isinstance(sp, dict) and sp.get("undetermined"):
+        if any(" is inverted at this fit " in c for c in cautions):
+            why = (
+                "an effect of the model is inverted at this fit (above): the gap is more "
+                "likely what it stands in for than the parameters' uncertainty"
+            )
+        elif isinstance(sp, dict) and sp.get("undetermined"):
             why = (
                 f"the estimation data do not determine {', '.join(sp['undetermined'])} "
                 "(infinite standard errors), so the gap may be theirs rather than a "
@@ -176,6 +184,7 @@ def diagnose(
     )
     doc["fit"] = str(result.folder)
     doc["trials"] = tried
+    doc["cautions"] = cautions
     doc["refit_choice"] = (tried or {}).get("choice")
     doc["proposal"] = None if proposed is None else proposed.as_dict()
     if result.changed_data:  # diagnosed on data the fit was not made from
@@ -216,6 +225,39 @@ def diagnose(
     return Outcome(folder=Path(fit), doc=doc)
 
 
+def _cautions(result) -> list[str]:
+    """What speaks against trusting the diagnosed fit itself, whatever the verdict: a fit
+    that stopped before converging, and effects of its model that the fit turned into the
+    opposite of their physics (the registry's ``inverted``: an upside-down Stribeck curve
+    that takes up a friction rising with speed reached 1.28x on the estimation run, 36.6x
+    on the validation run, and was diagnosed ADEQUATE unremarked)."""
+    out = []
+    doc = result.doc
+    if doc.get("success") is False:
+        out.append(
+            f"the fit did not converge ({doc.get('message') or 'stopped early'}): its "
+            "parameters, figures and this diagnosis are of a point short of the minimum; "
+            "refit with a larger --max-nfev (or --p0 from it) before you trust them"
+        )
+    prob = result.problem
+    values = {**prob.base, **prob.values(result.x)}
+    for e in prob.model.effects:
+        why = e.inverted(values) if e.inverted is not None else ""
+        if why:
+            where = (
+                f"refit without it (--without {e.name})"
+                if e.name in prob.model.configuration.base_effects
+                else "diagnose the fit it was added to: its trial refits and proposal name "
+                "what is missing"
+            )
+            out.append(
+                f"{e.name} is inverted at this fit ({why}): it stands in for something the "
+                f"model lacks, so the fit's nearness to the floor is no evidence for the "
+                f"model; {where}"
+            )
+    return out
+
+
 def _trials(result, d, specs: dict) -> dict | None:
     """Far above the floor (and the model inadequate): refit every candidate effect with its
     parameters searched (:mod:`rotorbayes.diagnosis.trials`), print the ranking and what
@@ -254,32 +296,54 @@ def _trials(result, d, specs: dict) -> dict | None:
         )
     named = d.claimed or d.candidate
     by_name = {t.effect: t for t in trials}
+    # Falls that only an inverted effect gives (a friction rising with speed fitted as a
+    # Stribeck curve upside down) stand in for something the catalogue lacks: said, and
+    # never claimed -- a claim of the score tests for that effect is withdrawn.
+    inverted = [
+        t
+        for t in trials
+        if t.inverted and not t.failed and (best is None or t.ratio < best.ratio)
+        and is_material(worst, t.ratio)
+    ]  # fmt: skip
+    stands_in = "".join(
+        f"{t.effect} reaches {t.ratio:.3g}x only inverted ({t.inverted}): it stands in for "
+        "something the catalogue lacks and is not claimed. "
+        for t in inverted
+    )
+    withdrawn = d.claimed if d.claimed in {t.effect for t in inverted} else None
+    if withdrawn:
+        stands_in += f"The score tests' claim for {withdrawn} is withdrawn. "
     if best is None:
-        words = (
-            f"no trial refit lowers the worst RMS/floor materially (the best, "
-            f"{trials[0].effect}, ends at {trials[0].ratio:.3g}x): what is missing is "
-            "not in the catalogue, or the fit is in a wrong basin; see the missing-"
-            "torque map, try `rotorbayes multistart`, or write the effect yourself "
+        first = next((t for t in trials if not t.failed and not t.inverted), None)
+        words = stands_in + (
+            f"{'No' if stands_in else 'no'} trial refit lowers the worst RMS/floor materially"
+            + (f" (the best, {first.effect}, ends at {first.ratio:.3g}x)" if first else "")
+            + ": what is missing is not in the catalogue, or the fit is in a wrong basin; "
+            "see the missing-torque map"
+            + (" and the proposal below" if inverted else "")
+            + ", try `rotorbayes multistart`, or write the effect yourself "
             "(docs/effects.md)"
         )
     elif best.effect == named or (specs.get(named or "") == best.effect):
-        words = (
-            f"the trial refits agree with the diagnosis: {best.effect} lowers the worst "
+        words = stands_in + (
+            f"{'The' if stands_in else 'the'} trial refits agree with the diagnosis: "
+            f"{best.effect} lowers the worst "
             f"RMS/floor most, {worst:.3g}x -> {best.ratio:.3g}x"
         )
     else:
         other = by_name.get(named or "")
         than = (
             f"; the effect the score tests named, {named}, reaches {other.ratio:.3g}x"
-            if other is not None and not other.failed
+            if other is not None and not other.failed and not other.inverted
             else ""
         )
         cmd = _with_refit_command(
             f"{REFIT_TOKEN} --add {best.effect}", result.folder, result.doc, specs
         )
-        words = (
-            f"the trial refits decide: {best.effect} lowers the worst RMS/floor to "
-            f"{best.ratio:.3g}x (from {worst:.3g}x){than}. Add it and refit: {cmd}"
+        words = stands_in + (
+            f"{'The' if stands_in else 'the'} trial refits decide: {best.effect} lowers "
+            f"the worst RMS/floor to {best.ratio:.3g}x (from {worst:.3g}x){than}. Add it "
+            f"and refit: {cmd}"
         )
     if best is not None and math.isfinite(best.validation):
         # Tied on the estimation data; the validation runs chose (whichever branch above).
@@ -308,6 +372,7 @@ def _trials(result, d, specs: dict) -> dict | None:
             for t in trials
             if t is not best
             and not t.failed
+            and not t.inverted
             and t.ratio <= TIE * best.ratio
             and is_material(worst, t.ratio)
             and (not math.isfinite(best.validation) or t.validation <= TIE * best.validation)
@@ -337,12 +402,15 @@ def _trials(result, d, specs: dict) -> dict | None:
             "own if it has memory (docs/effects.md)"
         )
     print(words)
+    if withdrawn:
+        d.claimed = None  # diagnosis.json's claimed_effect: nothing to add for it
     return {
         "ran_above": TRIAL_ABOVE,
         "before": worst,
         "choice": None if best is None else best.effect,
         "words": words,
         "trials": [t.as_dict() for t in trials],
+        "withdrawn_claim": withdrawn,
     }
 
 

@@ -778,11 +778,20 @@ def _run(
             )
             save_figure_atomic(fig, out / f"fit_{label}_{i}.png")
     shape_discs = ("u",) if pr.model == "upper" else ("u", "l")
+    # An effect's own friction-level shift depends on the state and time: not drawn, said
+    # (a proposed friction rising with speed squared was left out of the curve unsaid).
+    shifts = [e.name for e in prob.model.effects if e.friction_shift is not None]
     fig, _ = plot_friction(
         res.params,
         discs=shape_discs,
         shape=prob.shape,
         title=f"fitted friction, {pr.model} configuration",
+        note=(
+            f"not drawn: the friction-level shift of {', '.join(shifts)} (a function of "
+            "the state and time); these curves are the model's friction without it"
+            if shifts
+            else ""
+        ),
     )
     save_figure_atomic(fig, out / "friction.png")
     print(f"\nwrote {Path(options.out) / 'fit.json'} and figures in {options.out}/")

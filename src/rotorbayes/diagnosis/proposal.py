@@ -529,13 +529,21 @@ def catalogue_near_floor(diagnosis, trials: dict | None) -> str:
         return "the model is adequate (the remaining error is noise)"
     if worst <= NEAR:
         return f"the fit is within {NEAR:g}x the floor ({worst:.3g}x)"
+    # An inverted trial's fall stands in for something else: it is no reason to hold the
+    # proposal back (a quadratic drag taken up by an inverted lower_stribeck, 1.28x).
     ends = [
-        t.get("rms_over_floor") for t in (trials or {}).get("trials") or [] if not t.get("failed")
+        t.get("rms_over_floor")
+        for t in (trials or {}).get("trials") or []
+        if not t.get("failed") and not t.get("inverted")
     ]
     ends = [e for e in ends if isinstance(e, (int, float)) and math.isfinite(e)]
     if ends and min(ends) <= NEAR:
         best = min(
-            (t for t in trials["trials"] if t.get("rms_over_floor") == min(ends)),
+            (
+                t
+                for t in trials["trials"]
+                if t.get("rms_over_floor") == min(ends) and not t.get("inverted")
+            ),
             key=lambda t: t["effect"],
         )
         return (

@@ -47,6 +47,9 @@ class Trial:
     #: Worst fitted channel's RMS/floor on the validation data (each run with its own
     #: torsion), where trials tie on the estimation data; NaN when not computed.
     validation: float = math.nan
+    #: Where the refit turned the effect into the opposite of its physics (the registry's
+    #: :attr:`rotorbayes.model.effects.Effect.inverted`): its fall is no claim for it.
+    inverted: str = ""
     result: object = field(default=None, repr=False)  # the refit (a FitResult)
 
     def as_dict(self) -> dict:
@@ -61,6 +64,7 @@ class Trial:
             "validation_rms_over_floor": (
                 self.validation if math.isfinite(self.validation) else None
             ),
+            "inverted": self.inverted or None,
         }
 
 
@@ -126,6 +130,8 @@ def trial_refits(
             r.disagreed(),
             result=r.result,
         )
+        if e.inverted is not None:
+            t.inverted = e.inverted({**pe.base, **pe.values(xr)})
         out.append(t)
         t.effect = name  # as the user names it (a file's effect with its file)
         if verbose:
@@ -147,6 +153,7 @@ def trial_table(trials: Sequence[Trial], before: float) -> str:
             continue
         vals = ", ".join(f"{n} = {v:.4g}" for n, v in t.values.items())
         tag = f"  [on a bound: {', '.join(t.on_bound)}]" if t.on_bound else ""
+        tag += "  [inverted]" if t.inverted else ""
         lines.append(f"  {t.effect:<26} {before:.3g}x -> {t.ratio:.3g}x  ({vals}){tag}")
     return "\n".join(lines)
 
@@ -175,12 +182,13 @@ def validation_ratio(problem: Problem, x: np.ndarray, experiments) -> float:
 
 def trial_choice(trials: Sequence[Trial], before: float, validation=()) -> Trial | None:
     """The effect whose refit lowered the worst RMS/floor most, if materially (see
-    :func:`.diagnose.is_material`); None otherwise.  Trials tied with the best on the
+    :func:`.diagnose.is_material`) and not inverted (:attr:`Trial.inverted`); None
+    otherwise.  Trials tied with the best on the
     estimation data (:data:`TIE`), each itself a material fall, are told apart by
     ``validation`` experiments when given (their :attr:`Trial.validation` is filled)."""
     from .diagnose import is_material
 
-    ok = [t for t in trials if not t.failed and math.isfinite(t.ratio)]
+    ok = [t for t in trials if not t.failed and not t.inverted and math.isfinite(t.ratio)]
     if not ok:
         return None
     best = min(ok, key=lambda t: (t.ratio, t.effect))

@@ -320,6 +320,7 @@ def plot_friction(
     label: str = "fitted",
     reference_label: str = "reference",
     title: str = "",
+    note: str = "",
 ):
     """Friction torque against angular velocity (thesis figs. 5.3, 5.12, 5.18).
 
@@ -331,7 +332,8 @@ def plot_friction(
     Legend entries name the disc and the set (``label``, e.g. ``"lower disc, fitted"``);
     ``reference`` is an optional second parameter set drawn dashed (``reference_label``).
     The default figure title is ``"<label> friction"``; give ``title`` (e.g. ``"fitted
-    friction, coupled configuration"``) to name the configuration as well.
+    friction, coupled configuration"``) to name the configuration as well; ``note``, a
+    line under it (what the curves leave out).
     """
     from matplotlib.ticker import MaxNLocator
 
@@ -343,7 +345,8 @@ def plot_friction(
         sets.append((reference_label, _friction_params(reference), "--", "tab:orange"))
     fig, axes = plt.subplots(len(discs), 2, figsize=(10, 3.0 * len(discs) + 0.6), squeeze=False)
     # Room for the tick labels and axis labels of every panel and its title.
-    margins_inches(fig, left=0.8, right=0.1, top=0.55, bottom=0.55, hspace=0.85, wspace=0.9)
+    top = 0.85 if note else 0.55
+    margins_inches(fig, left=0.8, right=0.1, top=top, bottom=0.55, hspace=0.85, wspace=0.9)
     for i, d in enumerate(discs):
         if d not in DISC_NAMES:
             raise ValueError(f"disc must be 'u' or 'l', not {d!r}")
@@ -366,6 +369,9 @@ def plot_friction(
             ax.set_title(f"{name}, |ω| ≤ {wmax:g} rad/s", fontsize=9)
             ax.legend(fontsize=8, loc="upper left")
     fig.suptitle(title or f"{label} friction")
+    if note:
+        fig.text(0.5, 1.0 - 0.5 / fig.get_figheight(), note, ha="center", va="top",
+                 fontsize=8, color="tab:red", wrap=True)  # fmt: skip
     return fig, axes
 
 
