@@ -453,10 +453,11 @@ def test_an_inverted_stribeck_trial_is_no_claim_and_does_not_hold_the_proposal_b
     from rotorbayes.model import effects
 
     e = effects.get("lower_stribeck")
-    words = e.inverted({"Ts_l": 0.02736, "Tc_l": 0.6256})
+    words, instead = e.inverted({"Ts_l": 0.02736, "Tc_l": 0.6256})
     assert "below Tc_l" in words and "rises with speed" in words
-    assert e.inverted({"Ts_l": 0.278, "Tc_l": 0.0473}) == ""  # thesis P_ref: a real peak
-    assert e.inverted({"Ts_l": 0.0473, "Tc_l": 0.0473}) == ""  # no peak: not inverted
+    assert instead == {"Tc_l": 0.02736}  # the friction at standstill, kept
+    assert e.inverted({"Ts_l": 0.278, "Tc_l": 0.0473}) == ("", {})  # P_ref: a real peak
+    assert e.inverted({"Ts_l": 0.0473, "Tc_l": 0.0473}) == ("", {})  # no peak at all
     assert all(c.inverted is None for n, c in effects.CATALOGUE.items() if n != "lower_stribeck")
 
     out = [

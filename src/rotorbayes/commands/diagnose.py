@@ -242,7 +242,7 @@ def _cautions(result) -> list[str]:
     prob = result.problem
     values = {**prob.base, **prob.values(result.x)}
     for e in prob.model.effects:
-        why = e.inverted(values) if e.inverted is not None else ""
+        why = e.inverted(values)[0] if e.inverted is not None else ""
         if why:
             where = (
                 f"refit without it (--without {e.name})"
@@ -411,6 +411,7 @@ def _trials(result, d, specs: dict) -> dict | None:
         "words": words,
         "trials": [t.as_dict() for t in trials],
         "withdrawn_claim": withdrawn,
+        "_inverted": inverted,  # the Trial objects, for the proposal (not written)
     }
 
 
@@ -427,6 +428,28 @@ def _proposal(result, d, tried: dict | None, specs: dict):
     p = propose(d.maps, catalogue_near_floor=bool(why))
     if why:
         p.reason = why
+    stood_in = (tried or {}).pop("_inverted", None) or []
+    if not p.kept and not why and stood_in:
+        # What an inverted trial stood in for shows at its point, the effect replaced by
+        # the model's own parameters (trials.point_without): propose from there.
+        from ..diagnosis.torque import missing_torque
+        from ..diagnosis.trials import point_without
+
+        t = min(stood_in, key=lambda t: t.ratio)
+        try:
+            maps = missing_torque(result.problem, point_without(result.problem, t))
+        except Exception:  # noqa: BLE001 - no map there: the proposal at the fit stands
+            maps = []
+        if maps:
+            p2 = propose(maps, catalogue_near_floor=False)
+            if p2.kept:
+                at = ", ".join(f"{n} = {v:.4g}" for n, v in t.instead.items())
+                p2.where = (
+                    f"not at the fit (there: {p.reason}) but at the inverted {t.effect} "
+                    f"trial's point with {at} instead of it, where what it stood in for "
+                    "shows"
+                )
+                p = p2
     if p.kept:
         # A fit made with an earlier proposal has "proposed" on: this one gets other names.
         model = result.problem.model

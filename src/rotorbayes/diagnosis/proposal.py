@@ -167,6 +167,9 @@ class Proposal:
 
     discs: list[DiscProposal] = field(default_factory=list)
     reason: str = ""
+    #: Where the missing torque was mapped, when not at the fit itself (an inverted
+    #: trial's point: :func:`rotorbayes.diagnosis.trials.point_without`).
+    where: str = ""
     file: str = ""
     command: str = ""
     seconds: float = 0.0
@@ -199,7 +202,9 @@ class Proposal:
             return f"no missing term is proposed: {self.reason}"
         lines = [
             "proposed missing term (sparse regression of the missing torque, "
-            f"terms kept in >= {KEEP:.0%} of {RESAMPLES} block-bootstrap resamples):"
+            f"terms kept in >= {KEEP:.0%} of {RESAMPLES} block-bootstrap resamples"
+            + (f"; mapped {self.where}" if self.where else "")
+            + "):"
         ]
         for d in self.discs:
             disc = "upper" if d.disc == "u" else "lower"
@@ -208,8 +213,8 @@ class Proposal:
                 continue
             lines.append(
                 f"  {disc} disc: explains {100 * d.r2:.0f} % of its missing torque "
-                f"at this fit (RMS {d.explained_rms:.2g} N m; the map's noise "
-                f"{d.noise_rms:.2g} N m)"
+                f"{'there' if self.where else 'at this fit'} (RMS {d.explained_rms:.2g} "
+                f"N m; the map's noise {d.noise_rms:.2g} N m)"
             )
             for k in d.kept:
                 lines.append(
@@ -227,6 +232,7 @@ class Proposal:
         return {
             "proposed": bool(self.kept),
             "reason": self.reason or None,
+            "where": self.where or None,
             "discs": [d.as_dict() for d in self.discs],
             "file": self.file or None,
             "effect": f"{self.file}:{self.effect}" if self.file else None,

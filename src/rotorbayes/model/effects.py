@@ -132,11 +132,14 @@ class Effect:
     source : str
         Where a user effect was loaded from.
     inverted : callable, optional
-        ``f(values) -> str``: given a fit's parameter values (a mapping by name, the
-        model's and the effect's), a sentence where they turn the effect into the opposite
-        of its physics (a static friction level below the Coulomb one: a friction that
-        rises with speed), else ``""``.  A fall of the error an inverted effect gives is
-        not a claim for it: it stands in for something else.  ``None``: it cannot invert.
+        ``f(values) -> (str, dict)``: given a fit's parameter values (a mapping by name,
+        the model's and the effect's), a sentence where they turn the effect into the
+        opposite of its physics (a static friction level below the Coulomb one: a friction
+        that rises with speed), and the model's own parameters that keep what it fits
+        where it is harmless (the friction at standstill: ``Tc_l`` at ``Ts_l``); ``("",
+        {})`` where it is not inverted.  A fall of the error an inverted effect gives is
+        not a claim for it: it stands in for something else, whose missing torque shows at
+        the fit's point with those values instead.  ``None``: it cannot invert.
     """
 
     name: str
@@ -358,7 +361,7 @@ def _p(name, unit, lo, hi, null, desc, start=math.nan, nuisance=False) -> Parame
     return Parameter(name, unit, lo, hi, null, desc, start, nuisance)
 
 
-def _stribeck_inverted(values) -> str:
+def _stribeck_inverted(values) -> tuple[str, dict[str, float]]:
     """lower_stribeck's parameters as thesis eqs. 4.11-4.14 write them allow a static level
     below the Coulomb one: the fitted friction then rises with speed from standstill
     (``Tc_l + (Ts_l - Tc_l) exp(-(w/ws_l)^delta_l)`` grows like ``(w/ws_l)^delta_l``).
@@ -367,11 +370,11 @@ def _stribeck_inverted(values) -> str:
     estimation run and 36.6x on the validation run."""
     ts, tc = values.get("Ts_l", math.nan), values.get("Tc_l", math.nan)
     if not (math.isfinite(ts) and math.isfinite(tc)) or ts >= tc - 1e-3 * abs(tc):
-        return ""
+        return "", {}
     return (
         f"Ts_l = {ts:.4g} below Tc_l = {tc:.4g} N m: a friction that rises with speed from "
         "standstill, the opposite of a Stribeck peak"
-    )
+    ), {"Tc_l": ts}
 
 
 _CATALOGUE: tuple[Effect, ...] = (
