@@ -438,6 +438,35 @@ def test_a_stribeck_effect_that_contradicts_its_physics_or_vanished_is_said_so()
     assert "--without" not in added[0] and "from the fit it was added to" in added[0]
     # A real static peak (thesis table 4.3 P_ref: Ts_l 0.278, Tc_l 0.0473): nothing to say.
     assert stribeck_words(_fitted(0.278, 0.0473, 2.4e-6**2, 2e-6**2, 0.0)) == []
+    # Far below, with a wide standard error (a fit that stopped early, a drag taken up:
+    # 0.0274 below 0.6256 +- 0.38): upside down, not "not needed".
+    far = stribeck_words(_fitted(0.02736, 0.6256, 0.001**2, 0.38**2, 0.0))
+    assert "opposite of a Stribeck" in far[0] and "not needed" not in far[0], far
+
+
+def test_the_studys_last_word_says_the_final_fit_did_not_converge(tmp_path):
+    """A study ended on a fit that stopped at max_nfev (exit code 1 in run.json) with the
+    verdict "at the encoder floor" and nothing else said."""
+    import json
+
+    from rotorbayes.commands.run import _final_words
+
+    doc = {
+        "success": False,
+        "message": "stopped: the maximum number of evaluations was reached",
+        "assessment": {
+            "verdict": "at the encoder floor on the estimation data",
+            "warnings": ["the fit did not converge: stopped", "lower_stribeck: Ts_l below"],
+        },
+    }
+    (tmp_path / "fit.json").write_text(json.dumps(doc))
+    w = _final_words({"final_fit": str(tmp_path), "added_effects": ["lower_stribeck"]})
+    assert "DID NOT CONVERGE" in w and "maximum number of evaluations" in w
+    assert "1 warning(s)" in w and "lower_stribeck: Ts_l below" in w
+    doc["success"], doc["assessment"]["warnings"] = True, []
+    (tmp_path / "fit.json").write_text(json.dumps(doc))
+    w = _final_words({"final_fit": str(tmp_path)})
+    assert w == f"final fit, {tmp_path.name}: at the encoder floor on the estimation data"
 
 
 def test_an_inverted_stribeck_trial_is_no_claim_and_does_not_hold_the_proposal_back():

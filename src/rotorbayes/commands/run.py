@@ -86,11 +86,24 @@ def _final_words(rec: dict) -> str:
     import json
 
     try:
-        verdict = json.loads((Path(rec["final_fit"]) / "fit.json").read_text())["assessment"][
-            "verdict"
-        ]
+        doc = json.loads((Path(rec["final_fit"]) / "fit.json").read_text())
+        verdict = doc["assessment"]["verdict"]
     except (KeyError, OSError, TypeError, ValueError):
         return ""
     added = rec.get("added_effects") or []
     what = f" (effects added: {', '.join(added)})" if added else ""
-    return f"final fit, {Path(rec['final_fit']).name}{what}: {verdict}" if verdict else ""
+    if not verdict:
+        return ""
+    # What the verdict alone would hide: a final fit that stopped before converging (a
+    # study ended on one, its exit code 1 in run.json, and said nothing), and the fit's own
+    # warnings (an inverted Stribeck effect standing in for a missing drag).
+    if doc.get("success") is False:
+        verdict += f"; but it DID NOT CONVERGE ({doc.get('message') or 'stopped early'})"
+    warns = [
+        w
+        for w in (doc.get("assessment") or {}).get("warnings") or []
+        if not str(w).startswith("the fit did not converge")
+    ]
+    if warns:
+        verdict += f"; {len(warns)} warning(s) in its fit.json, first: {warns[0]}"
+    return f"final fit, {Path(rec['final_fit']).name}{what}: {verdict}"

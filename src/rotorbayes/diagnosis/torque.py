@@ -315,7 +315,12 @@ class TorqueMap:
         )
         s = self.strongest
         if s is None or s[1] < MIN_R2:
-            best = f"; the best, {SHORT[s[0]]}, at {s[1]:.2f}" if s is not None else ""
+            # (Naming "the best" at an adjusted R² of 0.00 read as a finding.)
+            best = (
+                f"; the best, {SHORT[s[0]]}, at {s[1]:.2f}"
+                if s is not None and s[1] >= 0.01
+                else ""
+            )
             return (
                 f"{head} that none of {self.variables()} explains (no clear dependence: "
                 f"no adjusted R² reaches {MIN_R2:g}{best}): a torque these variables do "
