@@ -504,3 +504,29 @@ def test_an_inverted_stribeck_trial_is_no_claim_and_does_not_hold_the_proposal_b
     assert catalogue_near_floor(d, tried) == ""  # the proposal is made
     out[0].inverted = ""  # had it been a true Stribeck effect, it would hold it back
     assert "lower_stribeck" in catalogue_near_floor(d, {"trials": [t.as_dict() for t in out]})
+
+
+def test_a_trial_whose_effect_ended_switched_off_is_no_claim():
+    """Two pre-wound runs, a motor torque sagging with speed (reference data, a fresh-eyes
+    trial): the first fit sat in a local minimum; the trial with string_damping ended at
+    c_alpha = 2.8e-21 (its null, a bound) and 3162x -> 2889x -- the base model's better
+    basin, which a multistart found -- and "the trial refits decide: string_damping".
+    """
+    from rotorbayes.diagnosis import trials as T
+    from rotorbayes.model import effects
+
+    damping = effects.get("string_damping")
+    assert T._at_null(damping, {"c_alpha": 2.831e-21})
+    assert not T._at_null(damping, {"c_alpha": 1e-4})
+    # No parameter with a null to end at (Ts_l's null is "follows Tc_l"; ws_l, delta_l are
+    # nuisances): never "at its null".
+    assert not T._at_null(effects.get("lower_stribeck"), {"Ts_l": 0.03, "ws_l": 1.0})
+    out = [T.Trial("string_damping", 2889.0, at_null=True), T.Trial("upper_stribeck", 2000.0)]
+    best = T.trial_choice(out, 3162.0)  # an effect well below the escape: chosen
+    assert best is not None and best.effect == "upper_stribeck"
+    assert T.trial_choice(out[:1], 3162.0) is None
+    assert "[ended at its null" in T.trial_table(out, 3162.0)
+    # ... and where it ends as low as the best, the best's fall may be the same escape:
+    # nothing is chosen (voltage_offset "decided" at 2.89e3x beside it).
+    out = [T.Trial("voltage_offset", 2890.0), T.Trial("string_damping", 2889.5, at_null=True)]
+    assert T.trial_choice(out, 3162.0) is None

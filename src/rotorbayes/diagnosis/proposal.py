@@ -477,10 +477,18 @@ def propose_disc(m: TorqueMap, *, seed: int = 0) -> DiscProposal:
     z = np.abs(beta) / np.maximum(sd, 1e-300)
     if r2 < MIN_R2 or (z < MIN_Z).any():
         names = ", ".join(lib[j][0].key for j in keep)
+        nz = int(np.sum(z < MIN_Z))
+        # Lead with what failed ("explains little" beside "explain 94 %" read as a
+        # contradiction where the coefficients were the reason).
+        lead = (
+            "the regression explains little"
+            if r2 < MIN_R2
+            else f"{nz} of the terms' coefficients are not told from 0"
+        )
         out.reason = (
-            f"the regression explains little: the {keep.size} term(s) it keeps "
+            f"{lead}: the {keep.size} term(s) it keeps "
             f"({names}) explain {100 * r2:.0f} % of the missing torque (RMS "
-            f"{explained:.2g} N m), and {int(np.sum(z < MIN_Z))} of their "
+            f"{explained:.2g} N m), and {nz} of their "
             f"coefficients lie within {MIN_Z:g} bootstrap standard deviations of 0 "
             f"(a proposal needs {100 * MIN_R2:.0f} % and every coefficient beyond "
             f"{MIN_Z:g}); nothing written"

@@ -53,6 +53,9 @@ class Trial:
     #: With :attr:`inverted`: the model's own parameters that keep what the effect fits
     #: where it is harmless (``Tc_l`` at the standstill level ``Ts_l``).
     instead: dict[str, float] = field(default_factory=dict)
+    #: The effect's parameters all ended at their null values (the effect off): the fall
+    #: is the refit's escape from a local minimum of the model without it, not the effect.
+    at_null: bool = False
     result: object = field(default=None, repr=False)  # the refit (a FitResult)
 
     def as_dict(self) -> dict:
@@ -68,6 +71,7 @@ class Trial:
                 self.validation if math.isfinite(self.validation) else None
             ),
             "inverted": self.inverted or None,
+            "at_null": self.at_null,
         }
 
 
@@ -79,6 +83,24 @@ def _on_bound(prob: Problem, x: np.ndarray, names: Sequence[str]) -> list[str]:
         if math.isfinite(width) and min(x[j] - prob.lower[j], prob.upper[j] - x[j]) <= 1e-3 * width:
             out.append(n)
     return out
+
+
+def _at_null(effect, values: Mapping[str, float]) -> bool:
+    """Every searched parameter of ``effect`` with a null value ended at it (to 1e-9 of its
+    bounds' width): the refit switched the effect off.  Measured: two pre-wound runs with
+    a motor torque that sags with speed, the first fit in a local minimum; the trial with
+    string_damping ended at c_alpha = 2.8e-21 (its null, a bound) and 3162x -> 2889x the
+    floor -- the base model's better basin, which a multistart found -- and was chosen."""
+    checked = False
+    for prm in effect.parameters:
+        v = values.get(prm.name)
+        if v is None or not math.isfinite(prm.null) or prm.nuisance:
+            continue
+        width = prm.upper - prm.lower if math.isfinite(prm.upper - prm.lower) else 1.0
+        if abs(v - prm.null) > 1e-9 * max(width, abs(prm.null), 1e-300):
+            return False
+        checked = True
+    return checked
 
 
 def trial_refits(
@@ -135,6 +157,7 @@ def trial_refits(
         )
         if e.inverted is not None:
             t.inverted, t.instead = e.inverted({**pe.base, **pe.values(xr)})
+        t.at_null = _at_null(e, t.values)
         out.append(t)
         t.effect = name  # as the user names it (a file's effect with its file)
         if verbose:
@@ -157,6 +180,7 @@ def trial_table(trials: Sequence[Trial], before: float) -> str:
         vals = ", ".join(f"{n} = {v:.4g}" for n, v in t.values.items())
         tag = f"  [on a bound: {', '.join(t.on_bound)}]" if t.on_bound else ""
         tag += "  [inverted]" if t.inverted else ""
+        tag += "  [ended at its null: the effect off]" if t.at_null else ""
         lines.append(f"  {t.effect:<26} {before:.3g}x -> {t.ratio:.3g}x  ({vals}){tag}")
     return "\n".join(lines)
 
@@ -185,17 +209,27 @@ def validation_ratio(problem: Problem, x: np.ndarray, experiments) -> float:
 
 def trial_choice(trials: Sequence[Trial], before: float, validation=()) -> Trial | None:
     """The effect whose refit lowered the worst RMS/floor most, if materially (see
-    :func:`.diagnose.is_material`) and not inverted (:attr:`Trial.inverted`); None
-    otherwise.  Trials tied with the best on the
+    :func:`.diagnose.is_material`), not inverted (:attr:`Trial.inverted`) and not at its
+    null (:attr:`Trial.at_null`); None otherwise.  Trials tied with the best on the
     estimation data (:data:`TIE`), each itself a material fall, are told apart by
     ``validation`` experiments when given (their :attr:`Trial.validation` is filled)."""
     from .diagnose import is_material
 
-    ok = [t for t in trials if not t.failed and not t.inverted and math.isfinite(t.ratio)]
+    ok = [
+        t
+        for t in trials
+        if not t.failed and not t.inverted and not t.at_null and math.isfinite(t.ratio)
+    ]
     if not ok:
         return None
     best = min(ok, key=lambda t: (t.ratio, t.effect))
     if not is_material(before, best.ratio):
+        return None
+    # A refit that switched its effect off ends as low: the others' falls may be the same
+    # escape from a local minimum of the model as it is -- nothing is chosen before the
+    # model is refitted from several starts (the string_damping case above: voltage_offset
+    # then "decided" at 2.89e3x beside it).
+    if any(t.at_null and not t.failed and t.ratio <= TIE * best.ratio for t in trials):
         return None
     # Tied with the best, and material on their own: a trial within TIE of a material best
     # that lowers the figure immaterially itself (449x -> 440x beside 449x -> 424x) is not
