@@ -467,6 +467,14 @@ def test_the_studys_last_word_says_the_final_fit_did_not_converge(tmp_path):
     (tmp_path / "fit.json").write_text(json.dumps(doc))
     w = _final_words({"final_fit": str(tmp_path)})
     assert w == f"final fit, {tmp_path.name}: at the encoder floor on the estimation data"
+    # Effects added while the fit stays far from the floor are no evidence (a study on
+    # two pre-wound runs ended 2513x the floor with upper_stribeck and
+    # lower_asymmetric_viscous added, neither in the data).
+    doc["assessment"] = {"verdict": "2513x the floor", "worst_ratio_to_floor": 2513.0}
+    (tmp_path / "fit.json").write_text(json.dumps(doc))
+    w = _final_words({"final_fit": str(tmp_path), "added_effects": ["upper_stribeck"]})
+    assert "none is shown to be in the data" in w
+    assert "none is shown" not in _final_words({"final_fit": str(tmp_path)})
 
 
 def test_an_inverted_stribeck_trial_is_no_claim_and_does_not_hold_the_proposal_back():

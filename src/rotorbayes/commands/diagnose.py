@@ -441,6 +441,19 @@ def _trials(result, d, specs: dict) -> dict | None:
     print(words)
     if withdrawn:
         d.claimed = None  # diagnosis.json's claimed_effect: nothing to add for it
+    escape = None
+    if best is None and nulls:
+        # The better basin of the model as it is, where the lowest such trial ended: what
+        # `run` refits from (a --p0 of the model's own parameters).
+        t = min(nulls, key=lambda t: t.ratio)
+        own = set(prob.names)
+        escape = {
+            "effect": t.effect,
+            "rms_over_floor": t.ratio,
+            "params": {
+                n: float(v) for n, v in t.result.problem.values(t.result.x).items() if n in own
+            },
+        }
     return {
         "ran_above": TRIAL_ABOVE,
         "before": worst,
@@ -448,6 +461,7 @@ def _trials(result, d, specs: dict) -> dict | None:
         "words": words,
         "trials": [t.as_dict() for t in trials],
         "withdrawn_claim": withdrawn,
+        "escape": escape,
         "_inverted": inverted,  # the Trial objects, for the proposal (not written)
     }
 

@@ -106,4 +106,13 @@ def _final_words(rec: dict) -> str:
     ]
     if warns:
         verdict += f"; {len(warns)} warning(s) in its fit.json, first: {warns[0]}"
+    worst = (doc.get("assessment") or {}).get("worst_ratio_to_floor")
+    if added and isinstance(worst, (int, float)) and worst > 3.0:
+        # Far from the floor any freedom lowers the error a little (two pre-wound runs, a
+        # motor torque sagging with speed: upper_stribeck and lower_asymmetric_viscous were
+        # added, neither in the data, the fit still 2513x the floor).
+        verdict += (
+            "; the effects were added far from the floor, where any freedom lowers the "
+            "error: none is shown to be in the data"
+        )
     return f"final fit, {Path(rec['final_fit']).name}{what}: {verdict}"

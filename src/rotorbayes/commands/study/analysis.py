@@ -768,6 +768,7 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
     if "diagnose" in a.doc:
         noise = {"noise": float(dg["noise_std"])} if dg.get("noise_std") else {}
         tried = None  # (effect, worst RMS/floor before it, the fit before it): a candidate
+        escaped = False  # refitted once from a better basin the trial refits found
         for k in range(1, dg.get("max_steps", 3) + 2):
             stage(
                 f"diagnose{k - 1}",
@@ -816,6 +817,41 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
                     added.pop()
                     fit = prev
                     break
+            # A trial that switched its effect off ended lower: the fit is in a local minimum
+            # of the model as it is.  Refit the model from that basin once, then diagnose
+            # again (two pre-wound runs, a motor torque sagging with speed: the study had
+            # added three effects none of which is in the data).
+            esc = (d.get("trials") or {}).get("escape")
+            if esc and not escaped and not d["adequate"] and k <= dg.get("max_steps", 3):
+                escaped = True
+                from ...io.outputs import write_text_atomic
+
+                at = out / f"escape{k - 1}.json"
+                write_text_atomic(at, json.dumps(esc["params"], indent=1))
+                print(
+                    f"\nthe trial refit with {esc['effect']} switched it off and ended at "
+                    f"{esc['rms_over_floor']:.3g}x (from {worst:.3g}x): a better basin of the "
+                    f"model as it is; refitting from there ({at.name})",
+                    file=tee,
+                )
+                nxt = out / f"fit{k}"
+                prev_doc = json.loads((fit / "fit.json").read_text())
+                stage(
+                    f"fit{k}",
+                    nxt,
+                    digest(fit, "fit.json", "diagnosis.json") + base,
+                    "fit",
+                    {
+                        **fit_args,
+                        "p0": str(at),
+                        "add": list(prev_doc.get("added_effects") or fit_args.get("add", [])),
+                        "out": str(nxt),
+                        "force": True,
+                    },
+                    "fit.json",
+                )
+                fit = nxt
+                continue
             # Far from the floor the trial refits decide (diagnose ran one per candidate).
             eff = d.get("refit_choice") or d.get("claimed_effect") or d.get("candidate_effect")
             # Where nothing is claimed and the diagnosis proposed a term of its own (it does
