@@ -555,7 +555,7 @@ def catalogue_near_floor(diagnosis, trials: dict | None) -> str:
         best = min(
             (
                 t
-                for t in trials["trials"]
+                for t in (trials or {}).get("trials") or []
                 if t.get("rms_over_floor") == min(ends) and not t.get("inverted")
             ),
             key=lambda t: t["effect"],

@@ -23,6 +23,7 @@ import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -56,7 +57,7 @@ class Trial:
     #: The effect's parameters all ended at their null values (the effect off): the fall
     #: is the refit's escape from a local minimum of the model without it, not the effect.
     at_null: bool = False
-    result: object = field(default=None, repr=False)  # the refit (a FitResult)
+    result: Any = field(default=None, repr=False)  # the refit (a FitResult)
 
     def as_dict(self) -> dict:
         return {

@@ -826,7 +826,7 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
                 escaped = True
                 from ...io.outputs import write_text_atomic
 
-                at = out / f"escape{k - 1}.json"
+                at = out / "escape.json"
                 write_text_atomic(at, json.dumps(esc["params"], indent=1))
                 print(
                     f"\nthe trial refit with {esc['effect']} switched it off and ended at "
