@@ -351,6 +351,12 @@ def test_an_effect_tried_is_dropped_when_the_validation_runs_get_worse():
         2621.0, 2508.0, 9464.0, 10106.0, claimed=True
     )
     assert drop_reason(449.0, 440.0, 5695.0, 5000.0, claimed=True) == ""
+    # Far from the floor an effect only tried must lower the validation runs' error too
+    # (lower_asymmetric_viscous: 2659x -> 2513x, validation 9710x -> 10021x); near it, a
+    # validation run already at the floor cannot fall, and need not.
+    assert "did not lower the validation" in drop_reason(2659.0, 2513.0, 9710.0, 10021.0)
+    assert drop_reason(3.0, 1.0, 1.05, 1.0) == ""
+    assert drop_reason(2659.0, 2513.0, 9710.0, 10021.0, claimed=True) == ""
 
 
 def test_the_study_tries_the_diagnosis_proposal_by_its_file_in_the_fit_folder(tmp_path):
