@@ -312,3 +312,15 @@ def test_records_round_trip(runs):
     t = ValidationTorsion("v", -4.5e-6, FITTED_ALONE, "/d/v.csv")
     assert ValidationTorsion.from_dict(t.as_dict()) == t
     assert np.isfinite(t.value) and "-4.5e-06 rad" in t.words()
+
+
+def test_a_torsion_fitted_far_from_the_floor_is_said_to_be_the_misfits():
+    """Two pre-wound runs with a motor torque the catalogue lacks (a fresh-eyes trial):
+    the validation run's own alpha0 was fitted as 0.1994 rad (its string not wound) with
+    the model 10599x the floor there, and reported like a measurement."""
+    t = ValidationTorsion("B_val", 0.1994, FITTED_ALONE)
+    far = t.words(10599.0)
+    assert "0.1994 rad" in far and "not the string's torsion" in far and "1.06e+04x" in far
+    assert "not the string's torsion" not in t.words(1.2)  # at the floor: a measurement
+    assert t.words() == t.words(math.nan) == t.words(1.2)
+    assert "misfit" not in ValidationTorsion("v", 0.01, GIVEN).words(10599.0)

@@ -636,7 +636,7 @@ def _run(
         print(_quality_table(q_val, "validation data"))
         for t in torsion:
             if t is not None:
-                print(t.words())
+                print(t.words(assessment.worst_ratio_validation))
     print("\nresidual RMS against the encoder quantisation floor (resolution/sqrt(12)):")
     print(assessment.table())
     print(f"verdict: {assessment.verdict}")

@@ -303,13 +303,21 @@ class ValidationTorsion:
     how: str
     file: str | None = None
 
-    def words(self) -> str:
-        """One line a user reads under the fit."""
+    def words(self, ratio: float | None = None) -> str:
+        """One line a user reads under the fit; ``ratio``: the worst validation RMS/floor,
+        which, far above the floor, makes a fitted torsion the misfit's (a study far from
+        the floor reported a fitted 0.1994 rad for a run whose string was not wound)."""
         if self.how == FITTED_ALONE:
+            far = (
+                f"; the model is {ratio:.3g}x the floor on the validation data, so this is "
+                "what its misfit needs, not the string's torsion"
+                if ratio is not None and math.isfinite(ratio) and ratio > 3.0
+                else ""
+            )
             return (
                 f"validation {self.experiment}: its initial torsion alpha0 fitted on that "
                 f"run alone (a nuisance parameter, every other parameter at the fit): "
-                f"{self.value:.4g} rad"
+                f"{self.value:.4g} rad{far}"
             )
         if self.how == GIVEN:
             return (

@@ -101,7 +101,7 @@ class LoadedFit:
                 f"validation data: {figure} the floor (worst fitted channel; each "
                 "run with its own initial torsion)"
             ]
-            + ["  " + t.words() for t in recs if t is not None]
+            + ["  " + t.words(v) for t in recs if t is not None]
         )
         return {
             "worst_ratio_to_floor": v,
