@@ -297,3 +297,42 @@ def test_a_drag_taken_up_by_an_upside_down_stribeck_curve_is_no_claim():
     kept = {k.term.key: k for k in p.kept if k.disc == "l"}
     assert "w2" in kept, p.words()
     assert kept["w2"].value == pytest.approx(5e-4, rel=0.05), p.words()
+
+
+@pytest.mark.slow
+def test_diagnose_of_a_drag_withdraws_the_upside_down_claim_and_its_refit_validates(
+    tmp_path, monkeypatch
+):
+    """The user's path on the drag of DRAG_RIG (estimation seed 13, validation 14): fit,
+    diagnose with trials.  The claim for lower_stribeck is withdrawn, the term is proposed
+    at the inverted trial's point, and the printed refit lands near the floor on both runs
+    (measured 0.967x and 1.88x).  With --no-proposal the same diagnosis is written too (the
+    inverted trials once reached diagnosis.json as objects: a TypeError)."""
+    import json
+    import shlex
+
+    from rotorbayes.cli import main
+    from rotorbayes.io.measurements import save_experiment
+
+    for name, seed in (("est", 13), ("val", 14)):
+        save_experiment(
+            make_experiment("coupled", DRAG_RIG, duration=DURATION, seed=seed),
+            tmp_path / f"{name}.csv",
+        )
+    monkeypatch.chdir(tmp_path)
+    assert (
+        main(["fit", "--model", "coupled", "est.csv", "--validate", "val.csv", "--out", "f/"]) == 0
+    )
+    assert main(["diagnose", "f/", "--no-proposal"]) == 0
+    d = json.loads((tmp_path / "f" / "diagnosis.json").read_text())
+    assert d["claimed_effect"] is None and d["proposal"] is None
+    inv = [t["effect"] for t in d["trials"]["trials"] if t["inverted"]]
+    assert "lower_stribeck" in inv and d["refit_choice"] != "lower_stribeck"
+    assert main(["diagnose", "f/"]) == 0
+    prop = json.loads((tmp_path / "f" / "diagnosis.json").read_text())["proposal"]
+    assert prop["proposed"], prop
+    assert "w2" in [k["term"] for disc in prop["discs"] for k in disc["kept"]]
+    assert main(shlex.split(prop["command"])[1:]) == 0
+    fit = json.loads((tmp_path / "f_proposed" / "fit.json").read_text())["assessment"]
+    assert fit["worst_ratio_to_floor"] <= 1.5
+    assert fit["worst_ratio_to_floor_validation"] <= 2.5

@@ -131,8 +131,8 @@ def diagnose(
     cautions = _cautions(result)
     for line in cautions:
         print(f"warning: {line}")
-    tried = _trials(result, d, specs) if trials else None
-    proposed = _proposal(result, d, tried, specs) if proposal else None
+    tried, stood_in = _trials(result, d, specs) if trials else (None, [])
+    proposed = _proposal(result, d, tried, specs, stood_in) if proposal else None
     integ = _integration(result)
     print(integ["line"])
     fa = result.doc.get("assessment") or {}
@@ -261,10 +261,11 @@ def _cautions(result) -> list[str]:
     return out
 
 
-def _trials(result, d, specs: dict) -> dict | None:
+def _trials(result, d, specs: dict) -> tuple[dict | None, list]:
     """Far above the floor (and the model inadequate): refit every candidate effect with its
     parameters searched (:mod:`rotorbayes.diagnosis.trials`), print the ranking and what
-    it decides against the score tests; None when not run."""
+    it decides against the score tests; None when not run.  Also the trials that ended
+    inverted, for the proposal (:func:`_proposal`)."""
     from ..diagnosis.diagnose import REFIT_TOKEN, is_material
     from ..diagnosis.score import candidates
     from ..diagnosis.trials import (
@@ -278,7 +279,7 @@ def _trials(result, d, specs: dict) -> dict | None:
 
     worst = max(d.rms_over_floor.values())
     if d.adequate or not worst > TRIAL_ABOVE:
-        return None
+        return None, []
     prob = result.problem
     names = [e.name for e in candidates(prob)] + list(specs.values())
     print(
@@ -462,14 +463,15 @@ def _trials(result, d, specs: dict) -> dict | None:
         "trials": [t.as_dict() for t in trials],
         "withdrawn_claim": withdrawn,
         "escape": escape,
-        "_inverted": inverted,  # the Trial objects, for the proposal (not written)
-    }
+    }, inverted
 
 
-def _proposal(result, d, tried: dict | None, specs: dict):
+def _proposal(result, d, tried: dict | None, specs: dict, stood_in=()):
     """When no catalogue effect brings the fit near the floor and a map's missing torque is
     well above its noise: the proposed missing term (:mod:`rotorbayes.diagnosis.proposal`),
-    printed with its refit command; the caller writes its file.  None: not looked for."""
+    printed with its refit command; the caller writes its file.  None: not looked for.
+    ``stood_in``: trials that ended inverted (:func:`_trials`), where the term is looked for
+    when the fit's own map gives none."""
     import os
 
     from ..diagnosis.diagnose import REFIT_TOKEN
@@ -479,7 +481,6 @@ def _proposal(result, d, tried: dict | None, specs: dict):
     p = propose(d.maps, catalogue_near_floor=bool(why))
     if why:
         p.reason = why
-    stood_in = (tried or {}).pop("_inverted", None) or []
     if not p.kept and not why and stood_in:
         # What an inverted trial stood in for shows at its point, the effect replaced by
         # the model's own parameters (trials.point_without): propose from there.
