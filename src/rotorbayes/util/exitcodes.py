@@ -127,5 +127,20 @@ def exiting_after_command() -> None:
 
     from .coldstart import launched_as_command
 
+    forget_caught_ctrl_c()
     if launched_as_command():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def forget_caught_ctrl_c() -> None:
+    """Make sure a Ctrl-C the command caught and reported does not kill the process at exit.
+
+    CPython remembers, in a flag of its own, when code run by ``exec`` or ``eval`` of a
+    string ended with a KeyboardInterrupt, even when a caller then caught it; under
+    ``python -m`` the interpreter reads that flag as it exits and kills itself by SIGINT
+    (exit -2) whatever exit code the program chose.  numba and the standard library run such
+    strings while a command works (generated wrappers, named tuples), so a Ctrl-C landing in
+    one, caught and reported by the command, ended ``python -m rotorbayes.cli`` by SIGINT
+    after its message (1 of 6 stops in a CI run on 3.13).  Every string evaluation resets
+    the flag as it starts, so evaluating one that ends normally clears it."""
+    exec("None", {})  # a constant string: it resets that flag and does nothing else
