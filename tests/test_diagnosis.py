@@ -332,6 +332,60 @@ def test_torque_map_bars_a_dependence_by_what_noise_alone_explains_and_tells_apa
     assert "a hint" in old.words()
 
 
+def test_runs_that_differ_by_a_constant_are_not_a_dependence_on_what_differs_between_them():
+    """Two runs, each with its own input level, whose missing torque is off by a constant
+    of each run's own (a wrongly fitted initial torsion): one constant for both named the
+    input voltage ("varies with the input voltage") on pre-wound runs; one per run names
+    nothing.  A real dependence on the input within the runs is still named."""
+    from rotorbayes.diagnosis import proposal, torque
+
+    rng = np.random.default_rng(7)
+    n = 6000
+    runs = np.repeat([0, 1], n)
+    level = np.where(runs == 0, 2.0, 4.5)
+    u = level + 0.4 * rng.standard_normal(2 * n)
+    speed = rng.uniform(0.2, 3.0, 2 * n)
+    kern = np.ones(50) / 50
+    noise = lambda: np.convolve(rng.standard_normal(2 * n + 49), kern, "valid") * 2e-4  # noqa: E731
+    feats = {"input": u, "velocity": speed, "direction": np.ones(2 * n)}
+    offsets = np.where(runs == 0, -1.5e-3, 1.5e-3)
+
+    def read(M, per_run):
+        base = torque.run_offsets(runs) if per_run else None
+        R = noise() / np.sqrt(2)
+        ranking = torque._rank(M, feats, base)
+        null, shared = torque._null_and_shared(M, R, feats, ranking, base)
+        rms = float(np.sqrt(np.mean(M**2)))
+        return torque.TorqueMap(
+            "l",
+            np.zeros(2 * n),
+            M,
+            feats,
+            ranking,
+            rms,
+            1e-4,
+            null,
+            shared,
+            runs=runs if per_run else None,
+        )
+
+    M = offsets + noise()
+    assert read(M, per_run=False).supports_words  # the old reading: a phantom
+    assert "varies with the input voltage" in read(M, per_run=False).words()
+    m = read(M, per_run=True)
+    assert not m.supports_words, m.words()
+    assert "varies with the input voltage" not in m.words()
+    assert "each run is off by a constant of its own (RMS 0.0015 N m" in m.words(), m.words()
+    assert m.as_dict()["between_runs_rms_N_m"] == pytest.approx(1.5e-3, rel=0.02)
+    # The proposal projects the runs' constants out as well.
+    X = proposal._base(m)
+    assert X.shape[1] >= 2 and np.allclose(X[:, :2].sum(axis=1), 1.0)
+    # A dependence on the input within each run is still found.
+    M2 = offsets + 8e-4 * (u - level) + noise()
+    m2 = read(M2, per_run=True)
+    assert m2.supports_words and m2.strongest[0] == "input", m2.ranking
+
+
 def test_a_material_effect_without_the_tests_support_is_not_called_immaterial(monkeypatch):
     """Trial 9 (a coupled model on brake data, 8378x the floor): `lower_stribeck` was
     predicted to lower the error by 8 % (material) at p 0.54, and the verdict said 'no

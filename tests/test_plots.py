@@ -290,6 +290,35 @@ def test_no_stick_no_shading_entry():
     assert "lower disc sticks" not in legend_texts(axes[0])
 
 
+def test_glitches_are_marked_in_their_channels_panels_and_the_torsions():
+    """A fit's figure used to show the repaired curve with no sign that samples were left
+    out: each glitch is a line at its time, labelled left out or kept."""
+    from rotorbayes.io.glitches import Glitch
+
+    t = np.linspace(0, 2, 200)
+    g = [
+        Glitch("theta_l", 50, float(t[50]), 87.0, 1.0, 0.9),
+        Glitch("theta_l", 120, float(t[120]), -40.0, 1.0, 0.9),
+        Glitch("theta_u", 80, float(t[80]), 300.0, 1.0, 0.9, left_out=False),
+    ]
+    fig, axes = plots.plot_fit(
+        t, {"theta_u": t, "alpha": t}, {"theta_u": t, "alpha": t}, glitches=g
+    )
+    upper, torsion = axes[0], axes[2]
+    assert "1 glitch kept" in legend_texts(upper)
+    assert not any("left out" in x for x in legend_texts(upper))  # theta_l's: not here
+    assert {"2 glitches left out", "1 glitch kept"} <= set(legend_texts(torsion))
+    xs = sorted(
+        float(ln.get_xdata()[0])
+        for ln in torsion.get_lines()
+        if ln.get_color() == plots.GLITCH_COLOR
+    )
+    assert xs == pytest.approx([t[50], t[80], t[120]])
+    # No glitch: no entry.
+    fig, axes = plots.plot_fit(t, {"theta_u": t}, {"theta_u": t})
+    assert not any("glitch" in x for x in legend_texts(axes[0]))
+
+
 @pytest.fixture(scope="module")
 def brake_sim():
     import rotorbayes as rb

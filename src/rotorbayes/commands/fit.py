@@ -775,6 +775,7 @@ def _run(
                 mode=s.mode_l,
                 metrics=txt,
                 title=f"{pr.model}: {label} data {Path(str(ex.path)).name}",
+                glitches=getattr(ex, "glitches", None) or (),
             )
             save_figure_atomic(fig, out / f"fit_{label}_{i}.png")
     shape_discs = ("u",) if pr.model == "upper" else ("u", "l")

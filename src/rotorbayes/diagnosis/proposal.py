@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .torque import NOISE_FACTOR, TorqueMap, harmonic_of
+from .torque import NOISE_FACTOR, TorqueMap, harmonic_of, run_offsets
 
 #: The kept samples are thinned to one every THIN seconds (the map's derivative filter
 #: makes neighbours share their noise).
@@ -373,7 +373,8 @@ def _base(m: TorqueMap) -> np.ndarray:
     f = m.features
     s = f["direction"]
     aw = np.abs(f["velocity"])
-    cols = [np.ones_like(s), s, s * aw, aw]
+    runs = run_offsets(m.runs)  # each run's own constant (its initial torsion), if several
+    cols = [np.ones_like(s) if runs is None else runs, s, s * aw, aw]
     if "torsion" in f:
         cols.append(f["torsion"])
     if m.disc == "u":

@@ -229,10 +229,44 @@ class TorqueMap:
     #: already holds (near 1: the two move together in the data; near 0: each explains
     #: its own part).  Empty: unknown, the R² rule alone decides.
     shared: dict[str, float] = field(default_factory=dict)
+    #: Which run (experiment) each sample comes from; None: one run.  With several runs a
+    #: constant of each run's own replaces the one constant in every regression (see
+    #: :func:`run_offsets`).
+    runs: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def strongest(self) -> tuple[str, float] | None:
         return self.ranking[0] if self.ranking else None
+
+    def _run_parts(self) -> tuple[float, float]:
+        """RMS [N m] of the runs' own constants about their common mean, and of what is
+        left within the runs (0 and the whole RMS for one run)."""
+        base = run_offsets(self.runs)
+        if base is None:
+            return 0.0, self.rms
+        beta, *_ = np.linalg.lstsq(base, self.torque, rcond=None)
+        fitted = base @ beta
+        return (
+            float(np.sqrt(np.mean((fitted - self.torque.mean()) ** 2))),
+            float(np.sqrt(np.mean((self.torque - fitted) ** 2))),
+        )
+
+    @property
+    def _scale(self) -> float:
+        """The RMS a dependence's R² is a fraction of: the whole map for one run, what is
+        left within the runs for several (the regressions hold each run's constant)."""
+        return self.rms if self.runs is None else self._run_parts()[1]
+
+    def _runs_words(self) -> str:
+        """What the runs' own constants add to the words (nothing when they are small)."""
+        between, _ = self._run_parts()
+        if between < NOISE_FACTOR * self.noise_rms:
+            return ""
+        return (
+            f"; besides, each run is off by a constant of its own (RMS {between:.2g} N m "
+            "between the runs, not read as a dependence): a start state that is off in "
+            "some run (its initial torsion) or a load that changed between the runs"
+        )
 
     @property
     def rms_over_noise(self) -> float:
@@ -282,7 +316,7 @@ class TorqueMap:
             s is not None
             and self.above_noise
             and s[1] >= MIN_R2
-            and math.sqrt(max(s[1], 0.0)) * self.rms >= self.bar(s[0])
+            and math.sqrt(max(s[1], 0.0)) * self._scale >= self.bar(s[0])
             and len(self.together) == 1
         )
 
@@ -301,6 +335,10 @@ class TorqueMap:
         return ", ".join(names[:-1]) + " or " + names[-1]
 
     def words(self) -> str:
+        text = self._words()
+        return text + self._runs_words() if self.exceeds_noise else text
+
+    def _words(self) -> str:
         disc = "upper" if self.disc == "u" else "lower"
         noise = f"the map's noise {self.noise_rms:.2g} N m"
         ratio = _times(self.rms_over_noise, WITHIN_NOISE)
@@ -326,7 +364,7 @@ class TorqueMap:
                 f"no adjusted R² reaches {MIN_R2:g}{best}): a torque these variables do "
                 "not describe, or several missing torques at once"
             )
-        explained = math.sqrt(max(s[1], 0.0)) * self.rms
+        explained = math.sqrt(max(s[1], 0.0)) * self._scale
         if explained < self.bar(s[0]):
             # The best candidate is worth a look, but its part is not clearly above what
             # noise alone would explain: say so, as a hint (no claim).
@@ -362,7 +400,7 @@ class TorqueMap:
             if v >= MIN_R2
             and k not in dict(self.together)
             and self.shared.get(k, 1.0) < SHARED
-            and math.sqrt(v) * self.rms >= self.bar(k)
+            and math.sqrt(v) * self._scale >= self.bar(k)
         ]
         more = (
             f"; apart from it, also with {', '.join(SHORT[k] for k in also)} (each "
@@ -388,16 +426,16 @@ class TorqueMap:
         and direction columns (a Coulomb level, an asymmetry) are left out."""
         if not variable.startswith("angle_") or variable not in self.features:
             return None
-        X = _design(variable, self.features)
+        X = _design(variable, self.features, run_offsets(self.runs))
         if X is None or X.shape[0] <= X.shape[1]:
             return None
         beta, *_ = np.linalg.lstsq(X, self.torque, rcond=None)
         h = harmonic_of(variable)
         out = {}
-        # columns: 1, s, sin, cos, s sin, s cos
+        # columns: the constant(s), s, sin, cos, s sin, s cos
         for name, (a, b, sign) in (
-            ("load", (beta[2], beta[3], 1.0)),
-            ("friction", (beta[4], beta[5], -1.0)),
+            ("load", (beta[-4], beta[-3], 1.0)),
+            ("friction", (beta[-2], beta[-1], -1.0)),
         ):
             a, b = sign * a, sign * b
             out[name] = {
@@ -439,6 +477,7 @@ class TorqueMap:
             "rms_N_m": self.rms,
             "noise_rms_N_m": self.noise_rms,
             "rms_over_noise": self.rms_over_noise,
+            "between_runs_rms_N_m": self._run_parts()[0],
             "exceeds_noise": self.exceeds_noise,
             "angle_terms": {k: v for k, v in terms.items() if v},
             "above_noise": self.above_noise,
@@ -474,16 +513,45 @@ def _times(ratio: float, threshold: float) -> str:
     return apart(ratio, threshold, 2)[0] if math.isfinite(ratio) else "inf"
 
 
-def _adj_r2(y: np.ndarray, X: np.ndarray) -> float:
+def run_offsets(runs: np.ndarray | None) -> np.ndarray | None:
+    """Indicator columns of the runs, or None for one run.
+
+    Runs that start from different states (a string wound before the run, each with its
+    own fitted initial torsion) leave each run's missing torque off by a constant of its
+    own where that state is off.  Those constants are not a dependence on any variable:
+    with one constant per run in every regression, a variable that merely differs between
+    runs (the input's level, time across records) is not named for them."""
+    if runs is None:
+        return None
+    ids, idx = np.unique(runs, return_inverse=True)
+    if ids.size < 2:
+        return None
+    X = np.zeros((idx.size, ids.size))
+    X[np.arange(idx.size), idx] = 1.0
+    return X
+
+
+def _residual_ss(y: np.ndarray, base: np.ndarray | None) -> tuple[float, int]:
+    """Sum of squares of ``y`` about its mean (``base`` None) or about its least squares
+    on ``base``'s columns, and the columns used."""
+    if base is None:
+        return float(np.sum((y - y.mean()) ** 2)), 1
+    beta, *_ = np.linalg.lstsq(base, y, rcond=None)
+    return float(np.sum((y - base @ beta) ** 2)), base.shape[1]
+
+
+def _adj_r2(y: np.ndarray, X: np.ndarray, base: np.ndarray | None = None) -> float:
+    """Adjusted R² of ``y`` on ``X``, measured against what ``base`` (a constant, or one
+    per run) explains alone; ``X`` holds ``base``'s columns."""
     n, k = X.shape
     if n <= k + 1:
         return math.nan
     beta, *_ = np.linalg.lstsq(X, y, rcond=None)
     ss = float(np.sum((y - X @ beta) ** 2))
-    st = float(np.sum((y - y.mean()) ** 2))
+    st, k0 = _residual_ss(y, base)
     if st <= 0:
         return 0.0
-    return 1 - (ss / (n - k)) / (st / (n - 1))
+    return 1 - (ss / (n - k)) / (st / (n - k0))
 
 
 def _binned(x: np.ndarray, n_bins: int = 16) -> np.ndarray:
@@ -495,10 +563,14 @@ def _binned(x: np.ndarray, n_bins: int = 16) -> np.ndarray:
     return X
 
 
-def _design(k: str, feats: dict[str, np.ndarray]) -> np.ndarray | None:
-    """The regression columns of a dependence on variable ``k`` (None: it never varies)."""
+def _design(
+    k: str, feats: dict[str, np.ndarray], base: np.ndarray | None = None
+) -> np.ndarray | None:
+    """The regression columns of a dependence on variable ``k`` (None: it never varies);
+    ``base``: the constant's columns (default one; :func:`run_offsets` for several runs),
+    first."""
     v = feats[k]
-    one = np.ones((len(v), 1))
+    one = np.ones((len(v), 1)) if base is None else base
     if k == "direction":
         return np.column_stack([one, v])
     if k.startswith("angle_"):
@@ -522,20 +594,28 @@ def _design(k: str, feats: dict[str, np.ndarray]) -> np.ndarray | None:
         return np.column_stack([one, v])
     if np.ptp(v) == 0:
         return None
-    return _binned(v)
+    # The bins hold a constant; the runs' own constants beside them (one column too many,
+    # which least squares does not mind).
+    return _binned(v) if base is None else np.column_stack([base, _binned(v)])
 
 
-def _rank(M: np.ndarray, feats: dict[str, np.ndarray]) -> list[tuple[str, float]]:
+def _rank(
+    M: np.ndarray, feats: dict[str, np.ndarray], base: np.ndarray | None = None
+) -> list[tuple[str, float]]:
     out = []
     for k in feats:
-        X = _design(k, feats)
+        X = _design(k, feats, base)
         if X is not None:
-            out.append((k, _adj_r2(M, X)))
+            out.append((k, _adj_r2(M, X, base)))
     return sorted([o for o in out if math.isfinite(o[1])], key=lambda kv: -kv[1])
 
 
 def _null_and_shared(
-    M: np.ndarray, R: np.ndarray, feats: dict[str, np.ndarray], ranking: list[tuple[str, float]]
+    M: np.ndarray,
+    R: np.ndarray,
+    feats: dict[str, np.ndarray],
+    ranking: list[tuple[str, float]],
+    base: np.ndarray | None = None,
 ) -> tuple[dict, dict]:
     """What rounding noise alone seems to explain per variable, and how much of each
     variable's R² the strongest one already holds (see :class:`TorqueMap`).
@@ -546,18 +626,18 @@ def _null_and_shared(
     null: dict[str, float] = {}
     shared: dict[str, float] = {}
     r_rms = float(np.sqrt(np.mean(R**2)))
-    st = float(np.sum((R - R.mean()) ** 2))
+    st, _ = _residual_ss(R, base)
     n = R.size
     top = ranking[0] if ranking else None
-    X_top = _design(top[0], feats) if top else None
+    X_top = _design(top[0], feats, base) if top else None
     for k, r2 in ranking:
-        X = _design(k, feats)
+        X = _design(k, feats, base)
         beta, *_ = np.linalg.lstsq(X, R, rcond=None)
         r2_noise = 1.0 - float(np.sum((R - X @ beta) ** 2)) / st if st > 0 else 0.0
         white = math.sqrt(X.shape[1] / max(n, 1))
         null[k] = math.sqrt(2.0) * r_rms * max(math.sqrt(max(r2_noise, 0.0)), white)
         if top is not None and k != top[0] and r2 > 0:
-            joint = _adj_r2(M, np.column_stack([X_top, X]))
+            joint = _adj_r2(M, np.column_stack([X_top, X]), base)
             shared[k] = float(min(max((top[1] + r2 - joint) / r2, 0.0), 1.0))
     return null, shared
 
@@ -629,12 +709,25 @@ def missing_torque(
         keys = [k for k in parts[0][2] if all(k in pt[2] for pt in parts)]
         F = {k: np.concatenate([pt[2][k] for pt in parts]) for k in keys}
         R = np.concatenate([pt[3] for pt in parts])
+        runs = np.concatenate([np.full(len(pt[0]), i) for i, pt in enumerate(parts)])
+        base = run_offsets(runs)
         # What rounding alone does to a balance: the map cannot resolve less.
         noise = float(np.sqrt(np.mean(R**2)))
-        ranking = _rank(M, F)
-        null, shared = _null_and_shared(M, R, F, ranking)
+        ranking = _rank(M, F, base)
+        null, shared = _null_and_shared(M, R, F, ranking, base)
         out.append(
-            TorqueMap(disc, T, M, F, ranking, float(np.sqrt(np.mean(M**2))), noise, null, shared)
+            TorqueMap(
+                disc,
+                T,
+                M,
+                F,
+                ranking,
+                float(np.sqrt(np.mean(M**2))),
+                noise,
+                null,
+                shared,
+                runs=runs if base is not None else None,
+            )
         )
     return out
 

@@ -167,6 +167,29 @@ def _shade_stick(ax, t, mode, color=STICK_COLOR, label="lower disc sticks"):
     return len(starts)
 
 
+GLITCH_COLOR = "tab:purple"
+
+
+def _mark_glitches(ax, glitches) -> int:
+    """A dotted vertical line at each glitch, the first of each kind labelled for the
+    legend ("3 glitches left out").  Lines, not points: a glitch of a thousand
+    counts drawn at its value would squash the trace.  Returns the number drawn."""
+    for left_out in (True, False):
+        these = [g for g in glitches if bool(g.left_out) == left_out]
+        for k, g in enumerate(these):
+            n = len(these)
+            label = f"{n} glitch{'es' if n > 1 else ''} " + ("left out" if left_out else "kept")
+            ax.axvline(
+                g.time,
+                color=GLITCH_COLOR,
+                lw=0.9,
+                ls=":" if left_out else "-",
+                alpha=0.8,
+                label=label if k == 0 else None,
+            )
+    return len(glitches)
+
+
 def plot_simulation(sim, *, title: str | None = None):
     """Input, angles, string torsion and velocities of a :class:`~rotorbayes.Simulation`.
 
@@ -212,6 +235,7 @@ def plot_fit(
     mode=None,
     title: str = "",
     metrics: Mapping[str, str] | None = None,
+    glitches=(),
 ):
     """Measured vs simulated channels with the error below each (thesis figs. 4.1-5.17).
 
@@ -226,6 +250,10 @@ def plot_fit(
         legend as "lower disc sticks").
     metrics : mapping channel -> str, optional
         Text (e.g. ``'R² 0.9996, fit 97.1 %'``) shown in each panel's title.
+    glitches : sequence of :class:`~rotorbayes.io.glitches.Glitch`, optional
+        The encoder glitches the loader found: each is marked by a dotted vertical line in
+        the panels of its channel (and of the torsion, which both angles make), labelled
+        "left out" (the curve holds the cubic through its neighbours there) or "kept".
 
     Legends sit to the right of the panels so they never cover the data.
     """
@@ -268,6 +296,7 @@ def plot_fit(
         b.set_ylabel(f"{sym} error [rad]", fontsize=9)
         for ax in (a, b):
             _shade_stick(ax, t, mode)
+            _mark_glitches(ax, [g for g in glitches if c in (g.channel, "alpha")])
             legend_outside(ax)
     axes[-1].set_xlabel("t [s]")
     if title:
