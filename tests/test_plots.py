@@ -422,3 +422,22 @@ def test_diagnosis_figures_keep_their_samples_and_fit_the_page(brake_sim):
     fig, _ = plot_torque_map(d)
     assert_no_overlap(fig)
     assert_inside(fig)
+
+
+def test_the_chain_figures_legend_never_covers_a_bar():
+    """chain.png's legend sat inside the axes, over the tallest bars of a long chain."""
+    from rotorbayes.diagnosis.figures import plot_chain
+
+    fits = [
+        {
+            "label": f"fit{k}",
+            "estimation": {"rms_over_floor": {"theta_u": r, "theta_l": 0.9 * r}},
+            "validation": {"rms_over_floor": {"theta_u": 1.2 * r, "theta_l": r}},
+        }
+        for k, r in enumerate([3000.0, 700.0, 40.0, 1.0])
+    ]
+    fig, ax = plot_chain({"fits": fits})
+    fig.canvas.draw()
+    leg = ax.get_legend().get_window_extent()
+    assert leg.x0 >= ax.get_window_extent().x1
+    assert "encoder floor" in legend_texts(ax)

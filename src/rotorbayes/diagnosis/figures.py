@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..figures.plots import envelope, envelope_index, margins_inches, pyplot
+from ..figures.plots import envelope, envelope_index, legend_outside, margins_inches, pyplot
 from .diagnose import LEVEL
 from .torque import ANGLE_VARIABLES, SHORT
 
@@ -295,7 +295,7 @@ def plot_chain(doc):
     plt = pyplot()
     fits = doc["fits"]
     labels = [f["label"] for f in fits]
-    fig, ax = plt.subplots(figsize=(max(5, 1.6 * len(fits) + 2), 3.6), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(max(6.5, 1.6 * len(fits) + 3.5), 3.6), constrained_layout=True)
     width = 0.2
     series = []
     for data in ("estimation", "validation"):
@@ -314,6 +314,6 @@ def plot_chain(doc):
     ax.set_yscale("log")
     ax.set_xticks(np.arange(len(fits)), labels, rotation=15)
     ax.set_ylabel("residual RMS / floor")
-    ax.legend(fontsize=7)
+    legend_outside(ax)  # beside the bars: a tall bar is never covered
     ax.set_title("how the error fell, fit by fit")
     return fig, ax
