@@ -392,11 +392,14 @@ def simulate_reference(
     # ... and a load on the lower disc repeating cog_h times a revolution (a cogging
     # torque): cog_l * sin(cog_h * theta_l) [N m], the reference's extra_torque.
     cog_l, cog_h = params.pop("cog_l", 0.0), params.pop("cog_h", 4.0)
+    # ... and a motor whose torque sags with speed in proportion to the voltage:
+    # -sag_u * v * omega_u [N m] on the upper disc (sag_u [N m s/(V rad)]).
+    sag_u = params.pop("sag_u", 0.0)
     extra = None
-    if cog_l:
+    if cog_l or sag_u:
 
-        def extra(t_, theta_u, omega_u, theta_l, omega_l, v, _a=cog_l, _h=cog_h):
-            return 0.0, _a * math.sin(_h * theta_l)
+        def extra(t_, theta_u, omega_u, theta_l, omega_l, v, _a=cog_l, _h=cog_h, _s=sag_u):
+            return -_s * v * omega_u, _a * math.sin(_h * theta_l)
 
     # The drive's lag (the catalogue's tau_drive; drive_lag is its older name here): the
     # command -- the input function, or with hold='linear' the linear interpolant of its
@@ -520,6 +523,8 @@ def make_experiment(
         time [N m/s]; ``drag_l``, a lower friction level rising with the speed squared
         [N m s^2/rad^2]; ``drive_lag``, a first-order lag [s] between the file's input (the
         command) and the voltage that drives the motor (:class:`LaggedInput`);
+        ``sag_u`` [N m s/(V rad)], a motor torque that sags with speed in proportion to
+        the voltage (``-sag_u v omega_u`` on the upper disc);
         ``warm_k`` [N m s/rad] and ``warm_tau`` [s], a lower friction that falls as the
         brake warms from sliding and recovers at rest: a state z [N m] with
         ``z' = (warm_k |omega_l| - z) / warm_tau``, ``z(0) = 0``, the lower friction

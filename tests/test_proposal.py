@@ -110,16 +110,17 @@ def test_nothing_to_write_is_refused():
         effect_source(Proposal())
 
 
-def _check_case(extra, truths: dict, tmp_path):
+def _check_case(extra, truths: dict, tmp_path, disc: str = "l"):
     prob, x, va = _case(extra)
     assert floor_ratio(prob, x) > 20  # the first fit lacks it
     p = propose(missing_torque(prob, x), catalogue_near_floor=False)
     kept = {k.term.key: k for k in p.kept}
-    assert set(truths) <= {k.term.key for k in p.kept if k.disc == "l"}, p.words()
+    assert set(truths) <= {k.term.key for k in p.kept if k.disc == disc}, p.words()
     for key, truth in truths.items():
         # At the parent fit the parameters bend to the missing term (a drift's coefficient
         # was 0.36x-0.84x the truth there); a start, the refit finds it.
-        assert truth / 4 < kept[key].value < 2 * truth, p.words()
+        lo, hi = sorted((truth / 4, 2 * truth))
+        assert lo < kept[key].value < hi, p.words()
         assert kept[key].frequency >= 0.8
     pe, xr = _refit(prob, x, p, tmp_path)
     est, val = floor_ratio(pe, xr), validation_ratio(pe, xr, [va])
@@ -151,6 +152,16 @@ def test_a_cogging_torque_is_named_by_its_harmonic_proposed_and_refitted_to_the_
 @pytest.mark.slow
 def test_a_quadratic_drag_is_proposed_and_its_refit_reaches_the_floor(tmp_path):
     _check_case({"drag_l": 0.004}, {"w2": 0.004}, tmp_path)
+
+
+@pytest.mark.slow
+def test_a_motor_torque_that_sags_with_speed_is_proposed_and_refitted_to_the_floor(tmp_path):
+    """The upper disc's motor torque falls by 0.05 N m per V and rad/s (``sag_u``): the
+    first fit ends at 1357x the floor and the upper map "varies with several variables
+    alike: its speed, the input voltage".  Before the library held ``v w`` nothing it held
+    described it; measured with it: c_u_v_w -0.0493 at the fit, the refit 0.986x the floor
+    with -0.04999875 (validation 0.90x)."""
+    _check_case({"sag_u": 0.05}, {"v_w": -0.05}, tmp_path, disc="u")
 
 
 @pytest.mark.slow

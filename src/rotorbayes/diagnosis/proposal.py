@@ -20,7 +20,8 @@ The library (:func:`library`), per disc, with ``w`` its velocity, ``s = sign(w)`
 * **torques** (a ``torque``, alike in both directions): ``cos``/``sin`` of the angle once
   and twice per revolution (an uneven load) and at the harmonic the map names (a cogging
   torque), time, ``alpha^2`` and ``alpha^3`` (a string
-  that is not linear), and ``v^3`` on the upper disc (a motor that is not linear).
+  that is not linear), and ``v^3`` and ``v w`` on the upper disc (a motor that is not
+  linear, a motor torque that sags with speed).
 
 What the fitted parameters already vary (the Coulomb level and its asymmetry, the viscous
 coefficient and its asymmetry, the string stiffness, the motor constant) is projected out
@@ -363,6 +364,21 @@ def library(m: TorqueMap) -> list[tuple[Term, np.ndarray]]:
             (
                 Term("v3", "torque", "motor torque in voltage cubed", "v ** 3", "V^3"),
                 f["input"] ** 3,
+            )
+        )
+        # A motor whose torque sags with speed at a given voltage (the model's motor
+        # torque k_m v does not depend on the speed; a back-EMF alike at every voltage is
+        # the viscous coefficient's, and projected out).
+        out.append(
+            (
+                Term(
+                    "v_w",
+                    "torque",
+                    "motor torque changing with voltage times speed",
+                    f"v * {om}",
+                    "V rad/s",
+                ),
+                f["input"] * w,
             )
         )
     return out
