@@ -538,3 +538,16 @@ def test_a_trial_whose_effect_ended_switched_off_is_no_claim():
     # nothing is chosen (voltage_offset "decided" at 2.89e3x beside it).
     out = [T.Trial("voltage_offset", 2890.0), T.Trial("string_damping", 2889.5, at_null=True)]
     assert T.trial_choice(out, 3162.0) is None
+
+
+def test_many_variables_alike_are_listed_four_at_most():
+    """A map of noise at 1.7x had fourteen variables alike at R² 0.21-0.22, each listed
+    with its R² in one sentence; three are listed and the rest counted."""
+    keys = ["angle_1", "angle_2", "angle_3", "direction", "velocity", "time", "torsion"]
+    ranking = [(k, 0.22 - 0.001 * i) for i, k in enumerate(keys)]
+    m = _map(ranking, 1.7e-3, 1e-3)
+    words = m.words()
+    assert "and 4 more variables alike" in words, words
+    assert words.count("adjusted R²") == 3, words
+    few = _map(ranking[:3], 1.7e-3, 1e-3).words()
+    assert "more variables alike" not in few and few.count("adjusted R²") == 3, few

@@ -338,6 +338,18 @@ class TorqueMap:
         text = self._words()
         return text + self._runs_words() if self.exceeds_noise else text
 
+    #: At most this many variables are listed as alike; the rest are counted.
+    LISTED = 4
+
+    def _together_words(self) -> str:
+        """The variables as good as the strongest, with their R²: four at most, the rest
+        counted (a map of noise had fourteen alike at 0.21-0.22, one after the other)."""
+        items = [f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together]
+        if len(items) > self.LISTED:
+            rest = len(items) - (self.LISTED - 1)
+            items = [*items[: self.LISTED - 1], f"and {rest} more variables alike"]
+        return ", ".join(items)
+
     def _words(self) -> str:
         disc = "upper" if self.disc == "u" else "lower"
         noise = f"the map's noise {self.noise_rms:.2g} N m"
@@ -368,7 +380,7 @@ class TorqueMap:
         if explained < self.bar(s[0]):
             # The best candidate is worth a look, but its part is not clearly above what
             # noise alone would explain: say so, as a hint (no claim).
-            best = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
+            best = self._together_words()
             what = (
                 "the map's noise"
                 if s[0] not in self.null
@@ -380,7 +392,7 @@ class TorqueMap:
                 "missing_torque.png, not a finding"
             )
         if not self.above_noise:
-            best = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
+            best = self._together_words()
             return (
                 f"{head}; the best candidate, {best}, explains {explained:.2g} N m of "
                 f"it, but the torque is below {NOISE_FACTOR:g}x the map's noise, the bar "
@@ -388,7 +400,7 @@ class TorqueMap:
                 "not a finding"
             )
         if len(self.together) > 1:
-            names = ", ".join(f"{SHORT[k]} (adjusted R² {v:.2f})" for k, v in self.together)
+            names = self._together_words()
             return (
                 f"{head} that varies with several variables alike: {names}; they move "
                 "together in these data, so the map cannot tell which"
