@@ -441,3 +441,30 @@ def test_the_chain_figures_legend_never_covers_a_bar():
     leg = ax.get_legend().get_window_extent()
     assert leg.x0 >= ax.get_window_extent().x1
     assert "encoder floor" in legend_texts(ax)
+
+
+def test_the_torque_map_draws_one_angle_panel_and_then_other_variables():
+    """Three harmonics of the angle were three panels of one picture (each is drawn
+    against the angle within a revolution), in place of the direction and the speed."""
+    from types import SimpleNamespace
+
+    from rotorbayes.diagnosis.figures import plot_torque_map
+    from rotorbayes.diagnosis.torque import TorqueMap
+
+    rng = np.random.default_rng(1)
+    n = 400
+    ang = rng.uniform(0, 2 * np.pi, n)
+    feats = {
+        "angle_1": ang,
+        "angle_2": ang,
+        "angle_3": ang,
+        "direction": np.sign(rng.standard_normal(n)),
+        "velocity": rng.uniform(-3, 3, n),
+    }
+    ranking = [("angle_1", 0.67), ("angle_2", 0.66), ("angle_3", 0.64), ("direction", 0.62)]
+    ranking.append(("velocity", 0.57))
+    m = TorqueMap("l", np.zeros(n), rng.standard_normal(n), feats, ranking, 1.0, 0.1)
+    fig, axes = plot_torque_map(SimpleNamespace(maps=[m]))
+    titles = [ax.get_title() for ax in axes[0]]
+    assert sum("angle" in t for t in titles) == 1, titles
+    assert "direction" in titles[1] and "velocity" in titles[2], titles

@@ -113,6 +113,20 @@ def plot_candidates(problem, x, diagnosis, *, top: int = 3):
     return fig, axes
 
 
+def _distinct(ranking):
+    """The ranking with one angle variable only (its best harmonic): every harmonic is
+    drawn against the same angle within a revolution, so three of them were one picture
+    three times, in place of the next variables."""
+    out, angle = [], False
+    for var, r2 in ranking:
+        if var.startswith("angle_"):
+            if angle:
+                continue
+            angle = True
+        out.append((var, r2))
+    return out
+
+
 def plot_torque_map(diagnosis, *, top: int = 3):
     """Missing torque of each disc against its ``top`` strongest variables."""
     plt = pyplot()
@@ -129,12 +143,13 @@ def plot_torque_map(diagnosis, *, top: int = 3):
     margins_inches(fig, left=0.85, right=0.1, top=0.62, bottom=0.55, hspace=0.9, wspace=0.9)
     for i, m in enumerate(maps):
         disc = "upper" if m.disc == "u" else "lower"
+        shown = _distinct(m.ranking)
         for j in range(top):
             ax = axes[i, j]
-            if j >= len(m.ranking):
+            if j >= len(shown):
                 ax.axis("off")
                 continue
-            var, r2 = m.ranking[j]
+            var, r2 = shown[j]
             xv = m.features[var]
             if np.ndim(xv) == 2:
                 # Several columns (the filtered inputs): the torque against the part of
