@@ -395,11 +395,17 @@ def simulate_reference(
     # ... and a motor whose torque sags with speed in proportion to the voltage:
     # -sag_u * v * omega_u [N m] on the upper disc (sag_u [N m s/(V rad)]).
     sag_u = params.pop("sag_u", 0.0)
+    # ... and a string that stiffens: k3_alpha * a^3 [N m] beside the linear k_alpha * a,
+    # a = theta_l - theta_u + alpha0, pulling the lower disc back and the upper along
+    # (k3_alpha [N m/rad^3]).
+    k3 = params.pop("k3_alpha", 0.0)
+    a0 = float(params.get("alpha0", 0.0))
     extra = None
-    if cog_l or sag_u:
+    if cog_l or sag_u or k3:
 
-        def extra(t_, theta_u, omega_u, theta_l, omega_l, v, _a=cog_l, _h=cog_h, _s=sag_u):
-            return -_s * v * omega_u, _a * math.sin(_h * theta_l)
+        def extra(t_, theta_u, omega_u, theta_l, omega_l, v, _a=cog_l, _h=cog_h, _s=sag_u, _k3=k3):
+            cubic = _k3 * (theta_l - theta_u + a0) ** 3
+            return -_s * v * omega_u + cubic, _a * math.sin(_h * theta_l) - cubic
 
     # The drive's lag (the catalogue's tau_drive; drive_lag is its older name here): the
     # command -- the input function, or with hold='linear' the linear interpolant of its
@@ -524,7 +530,8 @@ def make_experiment(
         [N m s^2/rad^2]; ``drive_lag``, a first-order lag [s] between the file's input (the
         command) and the voltage that drives the motor (:class:`LaggedInput`);
         ``sag_u`` [N m s/(V rad)], a motor torque that sags with speed in proportion to
-        the voltage (``-sag_u v omega_u`` on the upper disc);
+        the voltage (``-sag_u v omega_u`` on the upper disc); ``k3_alpha``
+        [N m/rad^3], a string that stiffens (``k3_alpha a^3`` beside ``k_alpha a``);
         ``warm_k`` [N m s/rad] and ``warm_tau`` [s], a lower friction that falls as the
         brake warms from sliding and recovers at rest: a state z [N m] with
         ``z' = (warm_k |omega_l| - z) / warm_tau``, ``z(0) = 0``, the lower friction

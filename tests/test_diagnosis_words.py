@@ -551,3 +551,15 @@ def test_many_variables_alike_are_listed_four_at_most():
     assert words.count("adjusted R²") == 3, words
     few = _map(ranking[:3], 1.7e-3, 1e-3).words()
     assert "more variables alike" not in few and few.count("adjusted R²") == 3, few
+
+
+def test_the_angle_is_named_once_beside_the_strongest_dependence():
+    """A stiffening string's map read "apart from it, also with its speed, its angle (twice
+    per revolution), its angle (once per revolution), ..." through all eight harmonics."""
+    ranking = [("torsion", 0.59), ("velocity", 0.35)]
+    ranking += [(f"angle_{h}", 0.34 - 0.001 * h) for h in (2, 1, 3, 5, 8, 4, 6, 7)]
+    m = _map(ranking, 0.022, 0.0014, null={k: 1e-5 for k, _ in ranking})
+    m.shared = {k: 0.0 for k, _ in ranking[1:]}
+    words = m.words()
+    assert "varies with the string's torsion" in words, words
+    assert words.count("its angle") == 1 and "twice per revolution" in words, words

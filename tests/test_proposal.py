@@ -103,6 +103,39 @@ def test_the_written_file_loads_and_gives_the_torque(tmp_path):
     assert "kept in 100% of" in text and "rotorbayes fit --model coupled" in text
 
 
+def test_a_string_term_is_one_parameter_acting_on_both_discs_opposite(tmp_path):
+    """The string pulls both its ends: a cubic string term kept on both maps is one term
+    (kept where it is surest), written as +q g on the lower disc and -q g on the upper.
+    Kept on the lower disc alone, it used to leave the upper without the reaction (a
+    refit at 712x the floor, the next diagnosis proposing the upper half)."""
+    from rotorbayes.diagnosis.proposal import _one_string
+    from rotorbayes.kernel.layout import ALPHA0
+
+    cubic = Term(
+        "alpha3",
+        "string",
+        "string torque in torsion cubed",
+        "(theta_l - theta_u + p[ALPHA0]) ** 3",
+        "rad^3",
+    )
+    p = Proposal(
+        discs=[
+            DiscProposal("l", [Kept("l", cubic, 1.0, -1.0e-4, 1e-7, 0.0, 1e-2)]),
+            DiscProposal("u", [Kept("u", cubic, 0.9, -1.3e-4, 4e-5, 0.0, 1e-2)]),
+        ]
+    )
+    _one_string(p)
+    assert [(k.disc, k.value) for k in p.kept] == [("l", -1.0e-4)]  # the surer one
+    path = write_effect_file(p, tmp_path, "rotorbayes fit ...")
+    e = load_user_effect(f"{path}:{EFFECT_NAME}")
+    assert [q.name for q in e.parameters] == ["c_s_alpha3"]
+    pv = np.zeros(32)
+    pv[ALPHA0] = 0.5
+    tu, tl = e.torque(0.0, 1.0, 0.0, 3.0, 0.0, 1.0, pv, np.array([-1.0e-4]))
+    assert tl == pytest.approx(-1.0e-4 * 2.5**3) and tu == pytest.approx(-tl)
+    assert e.friction_shift is None
+
+
 def test_nothing_to_write_is_refused():
     with pytest.raises(ValueError, match="nothing proposed"):
         from rotorbayes.diagnosis.proposal import effect_source
@@ -162,6 +195,14 @@ def test_a_motor_torque_that_sags_with_speed_is_proposed_and_refitted_to_the_flo
     described it; measured with it: c_u_v_w -0.0493 at the fit, the refit 0.986x the floor
     with -0.04999875 (validation 0.90x)."""
     _check_case({"sag_u": 0.05}, {"v_w": -0.05}, tmp_path, disc="u")
+
+
+@pytest.mark.slow
+def test_a_string_that_stiffens_is_proposed_on_both_discs_and_refitted_to_the_floor(tmp_path):
+    """A cubic string torque, 1e-4 N m/rad^3 beside k_alpha 0.041 N m/rad (``k3_alpha``):
+    the first fit ends at 6584x the floor; measured: c_s_alpha3 -0.000125 proposed, the
+    refit 0.977x the floor with -1.00001e-4 (validation 0.973x)."""
+    _check_case({"k3_alpha": 1e-4}, {"alpha3": -1e-4}, tmp_path)
 
 
 @pytest.mark.slow

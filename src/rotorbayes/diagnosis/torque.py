@@ -414,6 +414,11 @@ class TorqueMap:
             and self.shared.get(k, 1.0) < SHARED
             and math.sqrt(v) * self._scale >= self.bar(k)
         ]
+        # One harmonic of the angle stands for the angle (a stiffening string's map
+        # listed all eight beside the torsion, one after the other).
+        angles = [k for k in also if k.startswith("angle_")]
+        skip = set(angles[1:]) | (set(angles) if s[0].startswith("angle_") else set())
+        also = [k for k in also if k not in skip]
         more = (
             f"; apart from it, also with {', '.join(SHORT[k] for k in also)} (each "
             "explains a part of its own)"
