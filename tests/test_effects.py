@@ -380,3 +380,73 @@ def test_the_refit_command_adds_a_user_effect_by_its_file():
     doc = {"config": "brake", "data_files": [{"path": "/d/est.csv"}]}
     got = _with_refit_command(advice, Path("/f/fit0"), doc, {"angle_drag": "my.py:angle_drag"})
     assert "--add my.py:angle_drag --out fit0_angle_drag/" in got
+
+
+_BLIND_EFFECTS = """\
+import math
+
+from rotorbayes import Effect, Parameter
+from rotorbayes.kernel.layout import K_M
+
+
+def _sat(t, theta_u, omega_u, theta_l, omega_l, v, p, q):
+    lin = p[K_M] * v
+    s = q[0]
+    x = lin * s
+    d = lin * x * x / 3.0 if abs(x) < 1e-4 else lin - math.tanh(x) / s
+    return -d, 0.0
+
+
+sat = Effect(
+    name="sat",
+    physics="a motor torque that saturates, written with a zero slope at its null",
+    parameters=(Parameter("s_sat", "1/(N m)", 0.0, 1.0, 0.0, "inverse saturation", start=0.05),),
+    signature="",
+    configs=("upper", "coupled", "brake"),
+    torque=_sat,
+)
+
+
+def _gain(t, theta_u, omega_u, theta_l, omega_l, v, p, q):
+    return q[0] * v, 0.0
+
+
+gain = Effect(
+    name="gain",
+    physics="a second motor constant: the model's own",
+    parameters=(Parameter("g_v", "N m/V", -1.0, 1.0, 0.0, "extra gain", start=0.1),),
+    signature="",
+    configs=("upper", "coupled", "brake"),
+    torque=_gain,
+)
+"""
+
+
+def test_a_user_effect_with_no_slope_at_its_null_is_blind_not_equivalent(tmp_path):
+    """A saturating motor written as ``k_m v - tanh(s k_m v) / s`` has a torque cubic in
+    ``s`` at 0: the score test's derivative is ~0, and it was tagged "equivalent to the
+    free parameters: cannot be told apart", though its refit took a fresh user's fit from
+    1120x the floor to 0.957x.  A secant tells the two apart: such an effect is blind at
+    its null; a second motor constant (``g v``) is the model's own and stays equivalent."""
+    from rotorbayes.diagnosis import diagnose
+
+    (tmp_path / "eff.py").write_text(_BLIND_EFFECTS)
+    t, u = rb.signals.estimation_signal(8.0, seed=1)
+    p = rb.parameters.resolve(
+        dict(k_m=3.1, Tc_u=0.62, dTc_u=0.03, b_u=1.7, db_u=0.05), config="upper"
+    )
+    ex = rb.simulate(p, u, dt=t[1] - t[0], config="upper").to_experiment("up")
+    prob = inference.Problem("upper", [ex], base=p)
+    x = prob.x_from(p)
+    rows = {}
+    for name in ("sat", "gain"):
+        d = diagnose(prob, x, user_effects=[f"{tmp_path / 'eff.py'}:{name}"])
+        rows[name] = (next(s for s in d.ranking if s.effect == name), d.text())
+    sat, sat_text = rows["sat"]
+    gain, gain_text = rows["gain"]
+    assert sat.blind and not sat.equivalent_to_free and sat.as_dict()["blind_at_null"]
+    (line,) = [ln for ln in sat_text.splitlines() if ln.startswith("  sat ")]
+    assert "no first-order effect at its null" in line and "equivalent" not in line, line
+    assert gain.equivalent_to_free and not gain.blind
+    (line,) = [ln for ln in gain_text.splitlines() if ln.startswith("  gain ")]
+    assert "equivalent to the free parameters" in line, line

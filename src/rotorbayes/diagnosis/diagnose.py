@@ -171,7 +171,12 @@ class Diagnosis:
                 for (n, v), u in zip(s.step.items(), s.units, strict=True)
             )
             tag = ""
-            if s.equivalent_to_free:
+            if s.blind:
+                tag = (
+                    "  [no first-order effect at its null: the test cannot see it; "
+                    "refit with it (fit --add) to judge it]"
+                )
+            elif s.equivalent_to_free:
                 tag = "  [equivalent to the free parameters: cannot be told apart]"
             elif s.alike:
                 tag = f"  [indistinguishable here from {', '.join(s.alike)}]"
