@@ -161,7 +161,8 @@ def _blind(pe, x, r, Q, e, names, values) -> bool:
     except Exception:  # noqa: BLE001 - an unsimulable step: no verdict beyond the derivative's
         return False
     Jt = Js - Q @ (Q.T @ Js)
-    return bool(np.linalg.norm(Jt) >= EQUIVALENT_RATIO * max(np.linalg.norm(Js), 1e-300) > 0)
+    size = float(np.linalg.norm(Js))
+    return bool(size > 0 and float(np.linalg.norm(Jt)) >= EQUIVALENT_RATIO * size)
 
 
 def _one_sided(effect) -> bool:
