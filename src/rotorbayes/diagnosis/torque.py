@@ -36,6 +36,7 @@ weighs the map's words against those effects' score tests in one place
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -238,9 +239,10 @@ class TorqueMap:
     def strongest(self) -> tuple[str, float] | None:
         return self.ranking[0] if self.ranking else None
 
+    @functools.cached_property
     def _run_parts(self) -> tuple[float, float]:
         """RMS [N m] of the runs' own constants about their common mean, and of what is
-        left within the runs (0 and the whole RMS for one run)."""
+        left within the runs (0 and the whole RMS for one run); computed once."""
         base = run_offsets(self.runs)
         if base is None:
             return 0.0, self.rms
@@ -255,11 +257,11 @@ class TorqueMap:
     def _scale(self) -> float:
         """The RMS a dependence's R² is a fraction of: the whole map for one run, what is
         left within the runs for several (the regressions hold each run's constant)."""
-        return self.rms if self.runs is None else self._run_parts()[1]
+        return self.rms if self.runs is None else self._run_parts[1]
 
     def _runs_words(self) -> str:
         """What the runs' own constants add to the words (nothing when they are small)."""
-        between, _ = self._run_parts()
+        between, _ = self._run_parts
         if between < NOISE_FACTOR * self.noise_rms:
             return ""
         return (
@@ -494,7 +496,7 @@ class TorqueMap:
             "rms_N_m": self.rms,
             "noise_rms_N_m": self.noise_rms,
             "rms_over_noise": self.rms_over_noise,
-            "between_runs_rms_N_m": self._run_parts()[0],
+            "between_runs_rms_N_m": self._run_parts[0],
             "exceeds_noise": self.exceeds_noise,
             "angle_terms": {k: v for k, v in terms.items() if v},
             "above_noise": self.above_noise,
@@ -541,9 +543,12 @@ def run_offsets(runs: np.ndarray | None) -> np.ndarray | None:
     if runs is None:
         return None
     ids, idx = np.unique(runs, return_inverse=True)
-    if ids.size < 2:
-        return None
-    X = np.zeros((idx.size, ids.size))
+    return None if ids.size < 2 else _indicators(idx)
+
+
+def _indicators(idx: np.ndarray) -> np.ndarray:
+    """One column per value of the integer labels ``idx`` (0, 1, ...): 1 where it holds."""
+    X = np.zeros((idx.size, int(idx.max()) + 1))
     X[np.arange(idx.size), idx] = 1.0
     return X
 
@@ -575,9 +580,7 @@ def _binned(x: np.ndarray, n_bins: int = 16) -> np.ndarray:
     """Indicator columns of quantile bins of ``x``."""
     edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1)))
     idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, max(len(edges) - 2, 0))
-    X = np.zeros((x.size, idx.max() + 1))
-    X[np.arange(x.size), idx] = 1.0
-    return X
+    return _indicators(idx)
 
 
 def _design(

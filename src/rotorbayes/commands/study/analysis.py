@@ -769,7 +769,7 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
         noise = {"noise": float(dg["noise_std"])} if dg.get("noise_std") else {}
         tried = None  # (effect, worst RMS/floor before it, the fit before it): a candidate
         escaped = False  # refitted once from a better basin the trial refits found
-        retry = None  # the proposal to try from a fit whose chosen effect was dropped
+        retry = None  # (the proposal, the effect dropped): tried from the fit before it
         for k in range(1, dg.get("max_steps", 3) + 2):
             if retry is None:  # (a retry goes on from a fit diagnosed already)
                 stage(
@@ -824,7 +824,7 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
                     # printed beside it reached 0.93x).
                     alt = _proposal_spec(prev, json.loads((prev / "diagnosis.json").read_text()))
                     if alt and alt != eff0 and k <= dg.get("max_steps", 3):
-                        retry = alt
+                        retry = (alt, eff0)
                         continue
                     break
             # A trial that switched its effect off ended lower: the fit is in a local minimum
@@ -875,7 +875,8 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
             # is tried first: a hidden cogging torque went 746x -> 0.864x with it, while the
             # trial refits' choice, lower_stribeck, stopped at 449x.
             proposed = _proposal_spec(fit, d)
-            if proposed and (retry == proposed or not d.get("claimed_effect")):
+            dropped = retry[1] if retry else None
+            if proposed and (retry or not d.get("claimed_effect")):
                 eff = proposed
             retry = None
             if d["adequate"] or not eff or not dg.get("add_effects", True):
@@ -897,12 +898,10 @@ def _stages(run: StudyRun) -> dict:  # noqa: C901
                     else "predicted to lower the worst RMS/floor materially"
                 )
                 lead = (
-                    "no effect claimed"
+                    f"{dropped} was dropped"
+                    if dropped
+                    else "no effect claimed"
                     if not d.get("claimed_effect")
-                    else f"{d['claimed_effect']} was dropped"
-                    if eff == proposed
-                    and rejected
-                    and rejected[-1]["effect"] == d["claimed_effect"]
                     else "the trial refits overrule the claim"
                 )
                 print(f"\n{lead}; trying {eff}, {why} (kept only if it does)", file=tee)
