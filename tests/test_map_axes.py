@@ -18,7 +18,7 @@ import numpy as np
 from refdata import SETS, LaggedInput, make_experiment, make_input
 
 from rotorbayes import inference
-from rotorbayes.diagnosis.torque import missing_torque
+from rotorbayes.diagnosis.torque import _rank, missing_torque
 from rotorbayes.inference.assess import floor_ratio
 
 
@@ -74,3 +74,37 @@ def test_a_control_names_neither_time_nor_the_inputs_history():
     for m in maps.values():
         named = [k for k, _ in m.together] if m.supports_words else []
         assert "time" not in named and "input_history" not in named, m.words()
+
+
+def test_bent_upper_parameters_are_not_read_as_a_dependence_of_the_upper_disc():
+    """A string that stiffens (``k3_alpha``, on both discs) bends the fitted parameters:
+    the upper disc then lacks a torque that is its own terms at other values.  Before the
+    maps held those terms, such an upper map named "the input's recent history: a lag"
+    (three hidden effects of a new user's trial, none of them a lag).  Now the own terms
+    take most of it and the words name no lag; the lower disc's balance has no term of a
+    fixed size (J_l is fitted), so it holds none and still names the torsion."""
+    params = dict(SETS["coupled"][0], k3_alpha=1.4e-4)
+    ex = make_experiment(
+        "coupled", params, duration=30.0, signal="steps", hold="continuous", seed=12
+    )
+    prob = inference.Problem("coupled", [ex])
+    res = inference.fit_from_data(prob, restarts=2).result
+    assert floor_ratio(prob, res.x) > 1000  # the model lacks it, and the fit is bent
+    maps = {m.disc: m for m in missing_torque(prob, res.x)}
+    upper, lower = maps["u"], maps["l"]
+    # Without the own terms the upper map's strongest variable is the input's history.
+    assert _rank(upper.torque, upper.features)[0][0] == "input_history"
+    assert lower.own is None and upper.own is not None
+    assert {"k_m", "Tc_u", "b_u", "k_alpha"} <= set(upper.own_names)
+    assert upper.own_notable and upper.own_r2 > 0.5, upper.words()
+    named = [k for k, _ in upper.together] if upper.supports_words else []
+    assert "input_history" not in named and "lag" not in upper.words(), upper.words()
+    assert "own terms would give at other values" in upper.words()
+    assert lower.supports_words and lower.strongest[0] == "torsion", lower.words()
+    # The figure draws what is left beyond the own terms, on the torque's own scale (the
+    # own columns' coefficients alone, collinear with the constant, once drew -1.9e7 N m).
+    left = upper.beyond_own - upper.beyond_own.mean()
+    assert np.sqrt(np.mean(left**2)) <= 0.5 * upper.rms
+    assert np.max(np.abs(upper.beyond_own)) <= np.max(np.abs(upper.torque))
+    d = upper.as_dict()["own_terms"]
+    assert d["parameters"] == list(upper.own_names) and d["adjusted_r2"] == upper.own_r2

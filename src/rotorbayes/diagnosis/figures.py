@@ -144,6 +144,12 @@ def plot_torque_map(diagnosis, *, top: int = 3):
     for i, m in enumerate(maps):
         disc = "upper" if m.disc == "u" else "lower"
         shown = _distinct(m.ranking)
+        # Where the map holds the disc's own terms, what is left beyond them (what the
+        # ranking measured), so the picture shows what the words name.
+        y = m.beyond_own
+        what_y = (
+            f"{disc} missing torque [N m]" if m.own is None else f"{disc}, beyond own terms [N m]"
+        )
         for j in range(top):
             ax = axes[i, j]
             if j >= len(shown):
@@ -155,7 +161,7 @@ def plot_torque_map(diagnosis, *, top: int = 3):
                 # Several columns (the filtered inputs): the torque against the part of
                 # it their least-squares mix explains.
                 X = np.column_stack([np.ones(len(xv)), xv])
-                beta, *_ = np.linalg.lstsq(X, m.torque, rcond=None)
+                beta, *_ = np.linalg.lstsq(X, y, rcond=None)
                 xv = X[:, 1:] @ beta[1:]
             s = m.features.get("direction")
             if s is not None and var != "direction":
@@ -167,16 +173,14 @@ def plot_torque_map(diagnosis, *, top: int = 3):
                 ):
                     k = s == sign
                     if np.any(k):
-                        ax.plot(
-                            xv[k], m.torque[k], ".", ms=1.5, alpha=0.4, color=colour, label=what
-                        )
+                        ax.plot(xv[k], y[k], ".", ms=1.5, alpha=0.4, color=colour, label=what)
                 if j == 0:
                     ax.legend(fontsize=7, markerscale=5, loc="upper right")
             else:
-                ax.plot(xv, m.torque, ".", ms=1.5, alpha=0.4, color="tab:blue")
+                ax.plot(xv, y, ".", ms=1.5, alpha=0.4, color="tab:blue")
             ax.axhline(0, color="k", lw=0.6)
             ax.set_xlabel(_LABEL.get(var, var))
-            ax.set_ylabel(f"{disc} disc missing torque [N m]")
+            ax.set_ylabel(what_y)
             ax.set_title(f"{disc}: {_TITLE.get(var, var)} (adj. R² {r2:.2f})", fontsize=9)
     fig.suptitle(
         "missing torque (the data's balance minus the fit's own simulation, slip samples) "

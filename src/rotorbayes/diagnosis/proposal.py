@@ -405,6 +405,11 @@ def _base(m: TorqueMap) -> np.ndarray:
         cols.append(f["torsion"])
     if m.disc == "u":
         cols.append(f["input"])
+    if m.own is not None:
+        # The balance's own derivatives by the fitted parameters, where the map holds
+        # them (see TorqueMap.own): the same directions as above, and the fitted ones
+        # exactly (asymmetries, Stribeck shape, the motor constant).
+        cols.append(m.own)
     return np.column_stack(cols)
 
 

@@ -209,6 +209,10 @@ DISTINCT_RATIO = 2.0
 #: is shared with the stronger one (what it adds beyond it is small): two dependences that
 #: each explain a part of their own are not confused with one seen twice.
 SHARED = 0.5
+#: A disc's balance whose terms of a fixed size (a geometric inertia, a fixed motor
+#: constant) are below this fraction of its largest fitted term holds no own terms: its
+#: free parameters all scaled alike would balance it whatever the data.
+OWN_SCALE = 0.01
 
 
 @dataclass
@@ -234,6 +238,50 @@ class TorqueMap:
     #: constant of each run's own replaces the one constant in every regression (see
     #: :func:`run_offsets`).
     runs: np.ndarray | None = field(default=None, repr=False)
+    #: The disc's own terms: the balance's derivatives by the free parameters at the fit,
+    #: along the data (columns); every regression holds them, so a dependence is named
+    #: only for what other values of the fitted parameters could not give.  None: the
+    #: disc's balance has no term of a fixed size (see :data:`OWN_SCALE`), or no free
+    #: parameter acts on it.
+    own: np.ndarray | None = field(default=None, repr=False)
+    #: The free parameters of those columns.
+    own_names: tuple[str, ...] = ()
+
+    @property
+    def base(self) -> np.ndarray | None:
+        """The columns every regression of this map holds first (None: a constant)."""
+        return _full_base(run_offsets(self.runs), self.own, self.torque.size)
+
+    @functools.cached_property
+    def _own_parts(self) -> tuple[float, float, np.ndarray]:
+        """The own terms' adjusted R² (beyond the runs' constants), the RMS [N m] left
+        beyond them and the constants, and what is left about the runs' constants."""
+        if self.own is None:
+            return 0.0, self._run_parts[1], self.torque
+        base = _full_base(run_offsets(self.runs), self.own, self.torque.size)
+        assert base is not None  # the own columns are in it
+        beta, *_ = np.linalg.lstsq(base, self.torque, rcond=None)
+        left = self.torque - base @ beta
+        # What is left, about the runs' own constants (the own columns and the constants
+        # can be collinear -- an initial torsion's column is a constant -- so the own
+        # columns' coefficients alone mean nothing).
+        runs = run_offsets(self.runs)
+        if runs is None:
+            level = np.full_like(left, self.torque.mean())
+        else:
+            gamma, *_ = np.linalg.lstsq(runs, self.torque, rcond=None)
+            level = runs @ gamma
+        return (
+            _adj_r2(self.torque, base, runs),
+            float(np.sqrt(np.mean(left**2))),
+            left + level,
+        )
+
+    @property
+    def beyond_own(self) -> np.ndarray:
+        """The missing torque less what other values of the fitted parameters would give
+        (the torque itself where the map holds no own terms): what the figure draws."""
+        return self._own_parts[2]
 
     @property
     def strongest(self) -> tuple[str, float] | None:
@@ -256,8 +304,36 @@ class TorqueMap:
     @property
     def _scale(self) -> float:
         """The RMS a dependence's R² is a fraction of: the whole map for one run, what is
-        left within the runs for several (the regressions hold each run's constant)."""
+        left within the runs for several (the regressions hold each run's constant), what
+        is left beyond the own terms too where the map holds them."""
+        if self.own is not None:
+            return self._own_parts[1]
         return self.rms if self.runs is None else self._run_parts[1]
+
+    @property
+    def own_r2(self) -> float:
+        """Adjusted R² of the own terms (0 without them)."""
+        return self._own_parts[0]
+
+    @property
+    def own_notable(self) -> bool:
+        """The own terms take a part of the torque worth saying: R² at least
+        :data:`MIN_R2` and that part :data:`NOISE_FACTOR` times the map's noise."""
+        between = self._run_parts[1] if self.runs is not None else self.rms
+        return (
+            self.own is not None
+            and self.own_r2 >= MIN_R2
+            and math.sqrt(self.own_r2) * between >= NOISE_FACTOR * self.noise_rms
+        )
+
+    def _own_words(self) -> str:
+        names = ", ".join(self.own_names)
+        return (
+            f"; {100 * self.own_r2:.0f} % of it is what this disc's own terms would give at "
+            f"other values of the fitted {names}: the fit bent them (for a torque missing "
+            "elsewhere, which can be the other disc's), or it sits in another basin (a "
+            "multistart, or a fit from the data, tells which)"
+        )
 
     def _runs_words(self) -> str:
         """What the runs' own constants add to the words (nothing when they are small)."""
@@ -284,8 +360,10 @@ class TorqueMap:
     @property
     def above_noise(self) -> bool:
         """The missing torque is large enough (:data:`NOISE_FACTOR` times the map's
-        noise) for the map to name what it depends on."""
-        return self.rms >= NOISE_FACTOR * self.noise_rms
+        noise) for the map to name what it depends on; where the map holds own terms,
+        what is left beyond them."""
+        left = self.rms if self.own is None else self._own_parts[1]
+        return left >= NOISE_FACTOR * self.noise_rms
 
     @property
     def together(self) -> list[tuple[str, float]]:
@@ -365,6 +443,17 @@ class TorqueMap:
             f"the {disc} disc lacks a torque {ratio}x the map's noise (RMS "
             f"{self.rms:.2g} N m, {noise})"
         )
+        of_it = "of it"
+        if self.own_notable:
+            head += self._own_words()
+            left = self._own_parts[1]
+            if left < NOISE_FACTOR * self.noise_rms:
+                return (
+                    f"{head}; what is left beyond them (RMS {left:.2g} N m) is below "
+                    f"{NOISE_FACTOR:g}x the map's noise: nothing of its own to name here"
+                )
+            head += f"; beyond them, the rest (RMS {left:.2g} N m)"
+            of_it = "of the rest"
         s = self.strongest
         if s is None or s[1] < MIN_R2:
             # (Naming "the best" at an adjusted R² of 0.00 read as a finding.)
@@ -428,7 +517,7 @@ class TorqueMap:
             else ""
         )
         return (
-            f"{head} that {what} (explains {100 * s[1]:.0f} % of it): {cause}"
+            f"{head} that {what} (explains {100 * s[1]:.0f} % {of_it}): {cause}"
             f"{self._angle_words(s[0])}{more}"
         )
 
@@ -445,7 +534,7 @@ class TorqueMap:
         and direction columns (a Coulomb level, an asymmetry) are left out."""
         if not variable.startswith("angle_") or variable not in self.features:
             return None
-        X = _design(variable, self.features, run_offsets(self.runs))
+        X = _design(variable, self.features, self.base)
         if X is None or X.shape[0] <= X.shape[1]:
             return None
         beta, *_ = np.linalg.lstsq(X, self.torque, rcond=None)
@@ -497,6 +586,13 @@ class TorqueMap:
             "noise_rms_N_m": self.noise_rms,
             "rms_over_noise": self.rms_over_noise,
             "between_runs_rms_N_m": self._run_parts[0],
+            "own_terms": None
+            if self.own is None
+            else {
+                "parameters": list(self.own_names),
+                "adjusted_r2": self.own_r2,
+                "rest_rms_N_m": self._own_parts[1],
+            },
             "exceeds_noise": self.exceeds_noise,
             "angle_terms": {k: v for k, v in terms.items() if v},
             "above_noise": self.above_noise,
@@ -700,7 +796,10 @@ def missing_torque(
             th = theta + extra * rng.standard_normal(theta.size) if extra > 0 else theta
             return quantize(th, counts)
 
-        data = _balance(problem, ex, p, ex.theta_u, ex.theta_l, window)
+        given = _kinematics(ex, ex.theta_u, ex.theta_l, window)
+        given = (given, _user_torques(problem, ex, p, given))
+        data = _balance(problem, ex, p, ex.theta_u, ex.theta_l, window, given=given)
+        own = _own_columns(problem, x, i, ex, data, window, given)
         model_q = _balance(
             problem,
             ex,
@@ -717,7 +816,14 @@ def missing_torque(
             Mq = model_q[disc][1]
             Mx = model_x[disc][1]
             maps[disc].append(
-                (t[sel], (M - Mq)[sel], {k: v[sel] for k, v in feats.items()}, (Mq - Mx)[sel])
+                (
+                    t[sel],
+                    (M - Mq)[sel],
+                    {k: v[sel] for k, v in feats.items()},
+                    (Mq - Mx)[sel],
+                    own[disc][0][sel],
+                    own[disc][1][sel],
+                )
             )
     out = []
     for disc in ("l", "u"):
@@ -730,7 +836,11 @@ def missing_torque(
         F = {k: np.concatenate([pt[2][k] for pt in parts]) for k in keys}
         R = np.concatenate([pt[3] for pt in parts])
         runs = np.concatenate([np.full(len(pt[0]), i) for i, pt in enumerate(parts)])
-        base = run_offsets(runs)
+        own, own_names = _own_terms(
+            np.vstack([pt[4] for pt in parts]), np.concatenate([pt[5] for pt in parts]), x
+        )
+        names = tuple(problem.names[k] for k in own_names)
+        base = _full_base(run_offsets(runs), own, M.size)
         # What rounding alone does to a balance: the map cannot resolve less.
         noise = float(np.sqrt(np.mean(R**2)))
         ranking = _rank(M, F, base)
@@ -746,79 +856,88 @@ def missing_torque(
                 noise,
                 null,
                 shared,
-                runs=runs if base is not None else None,
+                runs=runs if run_offsets(runs) is not None else None,
+                own=own,
+                own_names=names,
             )
         )
     return out
 
 
-def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> dict:
+def _balance(
+    problem: Problem,
+    ex,
+    p: dict,
+    theta_u,
+    theta_l,
+    window: float,
+    *,
+    given=None,
+    features: bool = True,
+) -> dict:
     """Each disc's torque balance from the angles ``theta_u``/``theta_l`` (smoothed
     derivatives) at parameters ``p``: ``{disc: (t, M, features, slip mask)}``, the mask
-    and features taken from these angles' own velocities."""
+    and features taken from these angles' own velocities.
+
+    ``given``: the angles' derivatives and the user effects' torques from an earlier call
+    (:func:`_kinematics`, :func:`_user_torques`), for the same angles at other parameters
+    (the own-term columns of :func:`_own_columns`: user effects' torques held);
+    ``features`` False: the balances alone (empty features, no mask)."""
     m = problem.model
-    use, hook_t, hook_s, hook_r, _ = m.hooks()
-    dt = ex.dt
-    thu, wu, au, n = derivatives(theta_u, dt, window)
+    if given is None:
+        kin = _kinematics(ex, theta_u, theta_l, window)
+        hooked = _user_torques(problem, ex, p, kin)
+    else:
+        kin, hooked = given
+    thu, wu, au, thl, wl, al, n = kin
     t = ex.t
     u = ex.u
     v = _voltage(u, t, p)
     has_l = theta_l is not None
     if has_l:
-        thl, wl, al, _ = derivatives(theta_l, dt, window)
         alpha = thl - thu + p.get("alpha0", 0.0)
         dalpha = wl - wu
     else:
-        thl = wl = al = alpha = dalpha = np.zeros_like(thu)
+        alpha = dalpha = np.zeros_like(thu)
     c_alpha = p.get("c_alpha", 0.0) if "c_alpha" in m.active else 0.0
     string = p.get("k_alpha", 0.0) * alpha + c_alpha * dalpha if has_l else 0.0
-    extra_u = np.zeros_like(t)
-    extra_l = np.zeros_like(t)
-    shift_u = np.zeros_like(t)
-    shift_l = np.zeros_like(t)
-    if use:
-        pv, qv = m.kernel_vectors(p)
-        # A stateful effect's state along these angles: its rate integrated sample by
-        # sample (trapezoidal; good enough for a map of what is missing).
-        z = 0.0
-        for k in range(t.size):
-            args = (t[k], thu[k], wu[k], thl[k], wl[k], v[k])
-            a_u, a_l = hook_t(*args, z, pv, qv)
-            s_u, s_l = hook_s(*args, z, pv, qv)
-            extra_u[k], extra_l[k] = a_u, a_l
-            shift_u[k], shift_l[k] = s_u, s_l
-            if m.stateful is not None and k + 1 < t.size:
-                r0 = hook_r(*args, z, pv, qv)[0]
-                e = 1e-7 * (abs(z) + 1e-3)
-                lam = -(hook_r(*args, z + e, pv, qv)[0] - r0) / e
-                if dt * lam > 0.5:  # a stiff state (bristles): linearly implicit
-                    z += dt * r0 / (1.0 + dt * lam)
-                    continue
-                nxt = (t[k + 1], thu[k + 1], wu[k + 1], thl[k + 1], wl[k + 1], v[k + 1])
-                r1 = hook_r(*nxt, z + dt * r0, pv, qv)[0]
-                z += 0.5 * dt * (r0 + r1)
-    du = np.gradient(u, dt)
-    common = {"input": v, "input_rate": du, "input_history": _history(v, dt), "time": t}
-    out = {}
+    extra_u, extra_l, shift_u, shift_l = hooked
+    common = (
+        {
+            "input": v,
+            "input_rate": np.gradient(u, ex.dt),
+            "input_history": _history(v, ex.dt),
+            "time": t,
+        }
+        if features
+        else {}
+    )
+    out: dict[str, tuple] = {}
     if has_l and m.configuration.has_lower:
         pl = _complete(p)
         if m.replacing is not None:  # its law gives the dry friction (in extra_l): viscous
             pl = {**pl, "Tc_l": 0.0, "dTc_l": 0.0, "Ts_l": 0.0}
         fl = np.nan_to_num(friction_curve(wl, pl, "l", shape=problem.shape))
         Ml = p["J_l"] * al + fl + np.sign(wl) * shift_l + string - extra_l
-        feats = {
-            "velocity": wl,
-            "direction": np.sign(wl),
-            "torsion": alpha,
-            "torsion_rate": dalpha,
-            **common,
-        }
-        if np.ptp(thl) >= MIN_TURNS * 2 * np.pi:
-            feats.update(dict.fromkeys(ANGLE_VARIABLES, np.mod(thl, 2 * np.pi)))
-        out["l"] = (t, Ml, feats, slip_mask(wl, n, 0.02))
+        if not features:
+            out["l"] = (t, Ml, {}, None)
+        else:
+            feats = {
+                "velocity": wl,
+                "direction": np.sign(wl),
+                "torsion": alpha,
+                "torsion_rate": dalpha,
+                **common,
+            }
+            if np.ptp(thl) >= MIN_TURNS * 2 * np.pi:
+                feats.update(dict.fromkeys(ANGLE_VARIABLES, np.mod(thl, 2 * np.pi)))
+            out["l"] = (t, Ml, feats, slip_mask(wl, n, 0.02))
     if not problem.prescribed_upper:
         fu = np.nan_to_num(friction_curve(wu, _complete(p), "u", shape=problem.shape))
         Mu = p["J_u"] * au + fu + np.sign(wu) * shift_u - string - p["k_m"] * v - extra_u
+        if not features:
+            out["u"] = (t, Mu, {}, None)
+            return out
         feats = {"velocity": wu, "direction": np.sign(wu), **common}
         if np.ptp(thu) >= MIN_TURNS * 2 * np.pi:
             feats.update(dict.fromkeys(ANGLE_VARIABLES, np.mod(thu, 2 * np.pi)))
@@ -827,6 +946,98 @@ def _balance(problem: Problem, ex, p: dict, theta_u, theta_l, window: float) -> 
             feats["torsion_rate"] = dalpha
         out["u"] = (t, Mu, feats, slip_mask(wu, n, 0.02))
     return out
+
+
+def _own_columns(problem: Problem, x: np.ndarray, i: int, ex, data: dict, window, given):
+    """Per disc, the balance's derivatives by each free parameter at ``x`` along the data's
+    angles (columns in the order of ``x``; a user effect's parameters give zero columns,
+    its torque held) and what of the balance no free parameter carries (``B - D x``):
+    ``{disc: (D, fixed)}``."""
+    cols: dict[str, list] = {d: [] for d in data}
+    for k in range(x.size):
+        h = 1e-6 * max(abs(float(x[k])), 1e-3)
+        xk = x.copy()
+        xk[k] += h
+        pk = problem.params_for(xk, i)
+        bk = _balance(problem, ex, pk, ex.theta_u, ex.theta_l, window, given=given, features=False)
+        for d in data:
+            cols[d].append((bk[d][1] - data[d][1]) / h)
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for d in data:
+        D = np.column_stack(cols[d]) if cols[d] else np.zeros((data[d][1].size, 0))
+        out[d] = (D, data[d][1] - D @ x)
+    return out
+
+
+def _own_terms(D: np.ndarray, fixed: np.ndarray, x: np.ndarray) -> tuple[np.ndarray | None, list]:
+    """The own-term columns a disc's map holds (see :class:`TorqueMap`), and their indices
+    in ``x``; ``(None, [])`` where the disc's balance has no term of a fixed size (below
+    :data:`OWN_SCALE` of its largest fitted term): every parameter of its balance scaled
+    alike balances it too, so its own terms would take any missing torque whatever."""
+    keep = [k for k in range(D.shape[1]) if np.any(D[:, k] != 0)]
+    if not keep:
+        return None, []
+    sizes = np.sqrt(np.mean((D[:, keep] * x[keep]) ** 2, axis=0))
+    if float(np.sqrt(np.mean(fixed**2))) < OWN_SCALE * float(np.max(sizes)):
+        return None, []
+    return D[:, keep], keep
+
+
+def _full_base(runs: np.ndarray | None, own: np.ndarray | None, n: int) -> np.ndarray | None:
+    """The columns every regression of a map holds first: a constant (one per run with
+    several runs) and the disc's own terms, if any (None: the constant alone)."""
+    if own is None:
+        return runs
+    return np.column_stack([np.ones((n, 1)) if runs is None else runs, own])
+
+
+def _kinematics(ex, theta_u, theta_l, window: float) -> tuple:
+    """Smoothed angles, velocities and accelerations of both discs (zeros for a lower disc
+    without data) and the filter's length."""
+    thu, wu, au, n = derivatives(theta_u, ex.dt, window)
+    if theta_l is not None:
+        thl, wl, al, _ = derivatives(theta_l, ex.dt, window)
+    else:
+        thl = wl = al = np.zeros_like(thu)
+    return thu, wu, au, thl, wl, al, n
+
+
+def _user_torques(problem: Problem, ex, p: dict, kin: tuple) -> tuple:
+    """The user effects' torques and friction shifts along the angles ``kin``:
+    ``(extra_u, extra_l, shift_u, shift_l)`` (zeros without user effects)."""
+    m = problem.model
+    use, hook_t, hook_s, hook_r, _ = m.hooks()
+    thu, wu, _, thl, wl, _, _ = kin
+    t = ex.t
+    dt = ex.dt
+    extra_u = np.zeros_like(t)
+    extra_l = np.zeros_like(t)
+    shift_u = np.zeros_like(t)
+    shift_l = np.zeros_like(t)
+    if not use:
+        return extra_u, extra_l, shift_u, shift_l
+    v = _voltage(ex.u, t, p)
+    pv, qv = m.kernel_vectors(p)
+    # A stateful effect's state along these angles: its rate integrated sample by
+    # sample (trapezoidal; good enough for a map of what is missing).
+    z = 0.0
+    for k in range(t.size):
+        args = (t[k], thu[k], wu[k], thl[k], wl[k], v[k])
+        a_u, a_l = hook_t(*args, z, pv, qv)
+        s_u, s_l = hook_s(*args, z, pv, qv)
+        extra_u[k], extra_l[k] = a_u, a_l
+        shift_u[k], shift_l[k] = s_u, s_l
+        if m.stateful is not None and k + 1 < t.size:
+            r0 = hook_r(*args, z, pv, qv)[0]
+            e = 1e-7 * (abs(z) + 1e-3)
+            lam = -(hook_r(*args, z + e, pv, qv)[0] - r0) / e
+            if dt * lam > 0.5:  # a stiff state (bristles): linearly implicit
+                z += dt * r0 / (1.0 + dt * lam)
+                continue
+            nxt = (t[k + 1], thu[k + 1], wu[k + 1], thl[k + 1], wl[k + 1], v[k + 1])
+            r1 = hook_r(*nxt, z + dt * r0, pv, qv)[0]
+            z += 0.5 * dt * (r0 + r1)
+    return extra_u, extra_l, shift_u, shift_l
 
 
 def _history(v: np.ndarray, dt: float) -> np.ndarray:
