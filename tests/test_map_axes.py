@@ -106,5 +106,12 @@ def test_bent_upper_parameters_are_not_read_as_a_dependence_of_the_upper_disc():
     left = upper.beyond_own - upper.beyond_own.mean()
     assert np.sqrt(np.mean(left**2)) <= 0.5 * upper.rms
     assert np.max(np.abs(upper.beyond_own)) <= np.max(np.abs(upper.torque))
+    # The balance alone puts the bent motor constant back near the truth: far nearer
+    # than the fit (an equation-error estimate; it is the words' first figure).
+    fit_km, bal_km = upper.balance_values["k_m"]
+    true_km = params["k_m"]
+    assert abs(bal_km - true_km) < 0.25 * abs(fit_km - true_km), (fit_km, bal_km, true_km)
+    assert "the balance alone puts k_m" in upper.words()
+    assert "dTc_u" not in upper.balance_values  # its column is the constant's and Tc_u's
     d = upper.as_dict()["own_terms"]
     assert d["parameters"] == list(upper.own_names) and d["adjusted_r2"] == upper.own_r2

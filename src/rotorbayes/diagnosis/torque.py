@@ -246,6 +246,8 @@ class TorqueMap:
     own: np.ndarray | None = field(default=None, repr=False)
     #: The free parameters of those columns.
     own_names: tuple[str, ...] = ()
+    #: Their fitted values.
+    own_fitted: tuple[float, ...] = ()
 
     @property
     def base(self) -> np.ndarray | None:
@@ -326,13 +328,60 @@ class TorqueMap:
             and math.sqrt(self.own_r2) * between >= NOISE_FACTOR * self.noise_rms
         )
 
+    @functools.cached_property
+    def balance_values(self) -> dict[str, tuple[float, float]]:
+        """Per own parameter the data's balance can tell from the others: ``(fitted, the
+        balance's value)``, the value at which this disc's own terms take their part of
+        the torque (an equation-error estimate from the measured angles, one disc; it
+        takes part of a missing torque too).  Parameters whose column the other columns
+        give (an asymmetry beside a level and the constant) are left out."""
+        if self.own is None:
+            return {}
+        base = _full_base(run_offsets(self.runs), self.own, self.torque.size)
+        assert base is not None
+        beta, *_ = np.linalg.lstsq(base, self.torque, rcond=None)
+        k = self.own.shape[1]
+        first = base.shape[1] - k
+        out = {}
+        for j, (name, fitted) in enumerate(zip(self.own_names, self.own_fitted, strict=True)):
+            col = base[:, first + j]
+            others = np.delete(base, first + j, axis=1)
+            g, *_ = np.linalg.lstsq(others, col, rcond=None)
+            apart_rms = float(np.sqrt(np.mean((col - others @ g) ** 2)))
+            if apart_rms <= 1e-6 * float(np.sqrt(np.mean(col**2))):
+                continue
+            out[name] = (fitted, fitted - float(beta[first + j]))
+        return out
+
+    @functools.cached_property
+    def _balance_moves(self) -> list[tuple[float, str]]:
+        """The own parameters of :attr:`balance_values` by the torque their change moves
+        (RMS [N m] of the column times the change), largest first."""
+        if self.own is None:
+            return []
+        idx = {n: j for j, n in enumerate(self.own_names)}
+        moves = [
+            (float(np.sqrt(np.mean(self.own[:, idx[n]] ** 2))) * abs(f - b), n)
+            for n, (f, b) in self.balance_values.items()
+        ]
+        return sorted(moves, reverse=True)
+
     def _own_words(self) -> str:
         names = ", ".join(self.own_names)
+        # The parameters whose change moves the most torque, while it is a tenth of the
+        # map's noise or more.
+        vals = self.balance_values
+        values = "; ".join(
+            f"{n} {vals[n][1]:.3g} for the fit's {vals[n][0]:.3g}"
+            for size, n in self._balance_moves[: self.LISTED]
+            if size >= 0.1 * self.noise_rms
+        )
+        at = f" (the balance alone puts {values})" if values else ""
         return (
             f"; {100 * self.own_r2:.0f} % of it is what this disc's own terms would give at "
-            f"other values of the fitted {names}: the fit bent them (for a torque missing "
-            "elsewhere, which can be the other disc's), or it sits in another basin (a "
-            "multistart, or a fit from the data, tells which)"
+            f"other values of the fitted {names}{at}: the fit bent them (for a torque "
+            "missing elsewhere, which can be the other disc's), or it sits in another basin "
+            "(a multistart, or a fit from the data, tells which)"
         )
 
     def _runs_words(self) -> str:
@@ -592,6 +641,9 @@ class TorqueMap:
                 "parameters": list(self.own_names),
                 "adjusted_r2": self.own_r2,
                 "rest_rms_N_m": self._own_parts[1],
+                "balance_values": {
+                    n: {"fitted": f, "balance": b} for n, (f, b) in self.balance_values.items()
+                },
             },
             "exceeds_noise": self.exceeds_noise,
             "angle_terms": {k: v for k, v in terms.items() if v},
@@ -859,6 +911,7 @@ def missing_torque(
                 runs=runs if run_offsets(runs) is not None else None,
                 own=own,
                 own_names=names,
+                own_fitted=tuple(float(x[k]) for k in own_names),
             )
         )
     return out
