@@ -115,3 +115,28 @@ def test_bent_upper_parameters_are_not_read_as_a_dependence_of_the_upper_disc():
     assert "dTc_u" not in upper.balance_values  # its column is the constant's and Tc_u's
     d = upper.as_dict()["own_terms"]
     assert d["parameters"] == list(upper.own_names) and d["adjusted_r2"] == upper.own_r2
+
+
+def test_a_balance_without_a_fixed_term_holds_no_own_terms_even_with_initial_torsions():
+    """The lower disc's balance ``J_l a + Tc_l s + b_l w + k_alpha (alpha + alpha0)`` has
+    no term of a fixed size: its fitted parameters scaled alike balance it whatever the
+    data, so own terms would take any missing torque (a drag hidden in two pre-wound runs
+    read "no dependence").  Euler's sum ``D x`` counts ``k_alpha alpha0`` twice and called
+    it a fixed term; the span of the columns does not.  The upper disc's balance has its
+    fixed inertia's term: it holds them."""
+    from rotorbayes.diagnosis.torque import _own_terms
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    a, w, alpha, v = (rng.standard_normal(n) for _ in range(4))
+    s = np.sign(w)
+    J_l, Tc_l, b_l, k, alpha0, k_m, J_u = 0.06, 0.03, 0.007, 0.05, 0.9, 3.3, 0.48
+    lower = J_l * a + Tc_l * s + b_l * w + k * (alpha + alpha0)
+    D = np.column_stack([a, s, w, alpha + alpha0, np.full(n, k)])
+    x = np.array([J_l, Tc_l, b_l, k, alpha0])
+    assert np.sqrt(np.mean((lower - D @ x) ** 2)) > 0.01  # Euler's sum: a "fixed" term
+    assert _own_terms(D, lower, x) == (None, [])
+    upper = J_u * a + Tc_l * s + b_l * w - k * (alpha + alpha0) - k_m * v
+    Du = np.column_stack([s, w, -(alpha + alpha0), np.full(n, -k), -v])
+    own, keep = _own_terms(Du, upper, np.array([Tc_l, b_l, k, alpha0, k_m]))
+    assert own is not None and keep == [0, 1, 2, 3, 4]

@@ -209,10 +209,12 @@ DISTINCT_RATIO = 2.0
 #: is shared with the stronger one (what it adds beyond it is small): two dependences that
 #: each explain a part of their own are not confused with one seen twice.
 SHARED = 0.5
-#: A disc's balance whose terms of a fixed size (a geometric inertia, a fixed motor
-#: constant) are below this fraction of its largest fitted term holds no own terms: its
-#: free parameters all scaled alike would balance it whatever the data.
-OWN_SCALE = 0.01
+#: A disc's balance that its own terms' columns give to within this fraction of its
+#: largest fitted term holds no own terms: it has no term of a fixed size (a geometric
+#: inertia, a fixed motor constant), so its free parameters scaled alike balance it
+#: whatever the data.  Such a balance is in their span to rounding (1e-9 here); one with
+#: a fixed term leaves at least the derivatives' noise (1e-3).
+OWN_SPAN = 1e-6
 
 
 @dataclass
@@ -241,7 +243,7 @@ class TorqueMap:
     #: The disc's own terms: the balance's derivatives by the free parameters at the fit,
     #: along the data (columns); every regression holds them, so a dependence is named
     #: only for what other values of the fitted parameters could not give.  None: the
-    #: disc's balance has no term of a fixed size (see :data:`OWN_SCALE`), or no free
+    #: disc's balance has no term of a fixed size (see :data:`OWN_SPAN`), or no free
     #: parameter acts on it.
     own: np.ndarray | None = field(default=None, repr=False)
     #: The free parameters of those columns.
@@ -334,7 +336,8 @@ class TorqueMap:
         balance's value)``, the value at which this disc's own terms take their part of
         the torque (an equation-error estimate from the measured angles, one disc; it
         takes part of a missing torque too).  Parameters whose column the other columns
-        give (an asymmetry beside a level and the constant) are left out."""
+        give (an asymmetry beside a level and the constant), or all but 1 % of it, are
+        left out."""
         if self.own is None:
             return {}
         base = _full_base(run_offsets(self.runs), self.own, self.torque.size)
@@ -348,7 +351,10 @@ class TorqueMap:
             others = np.delete(base, first + j, axis=1)
             g, *_ = np.linalg.lstsq(others, col, rcond=None)
             apart_rms = float(np.sqrt(np.mean((col - others @ g) ** 2)))
-            if apart_rms <= 1e-6 * float(np.sqrt(np.mean(col**2))):
+            # Less than a hundredth of the column's own variation apart from the others:
+            # its coefficient is not the data's (an asymmetry's column is the constant's
+            # and the level's; near such, a value 1e6 times the fit's was printed).
+            if apart_rms < 1e-2 * float(np.sqrt(np.mean(col**2))):
                 continue
             out[name] = (fitted, fitted - float(beta[first + j]))
         return out
@@ -1004,8 +1010,7 @@ def _balance(
 def _own_columns(problem: Problem, x: np.ndarray, i: int, ex, data: dict, window, given):
     """Per disc, the balance's derivatives by each free parameter at ``x`` along the data's
     angles (columns in the order of ``x``; a user effect's parameters give zero columns,
-    its torque held) and what of the balance no free parameter carries (``B - D x``):
-    ``{disc: (D, fixed)}``."""
+    its torque held) and the balance itself: ``{disc: (D, B)}``."""
     cols: dict[str, list] = {d: [] for d in data}
     for k in range(x.size):
         h = 1e-6 * max(abs(float(x[k])), 1e-3)
@@ -1018,22 +1023,26 @@ def _own_columns(problem: Problem, x: np.ndarray, i: int, ex, data: dict, window
     out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for d in data:
         D = np.column_stack(cols[d]) if cols[d] else np.zeros((data[d][1].size, 0))
-        out[d] = (D, data[d][1] - D @ x)
+        out[d] = (D, data[d][1])
     return out
 
 
-def _own_terms(D: np.ndarray, fixed: np.ndarray, x: np.ndarray) -> tuple[np.ndarray | None, list]:
+def _own_terms(D: np.ndarray, B: np.ndarray, x: np.ndarray) -> tuple[np.ndarray | None, list]:
     """The own-term columns a disc's map holds (see :class:`TorqueMap`), and their indices
-    in ``x``; ``(None, [])`` where the disc's balance has no term of a fixed size (below
-    :data:`OWN_SCALE` of its largest fitted term): every parameter of its balance scaled
-    alike balances it too, so its own terms would take any missing torque whatever."""
+    in ``x``; ``(None, [])`` where they give the disc's balance ``B`` itself (to
+    :data:`OWN_SPAN` of its largest fitted term): the balance has no term of a fixed size,
+    every parameter of it scaled alike balances it too, and its own terms would take any
+    missing torque whatever.  (Not Euler's sum ``D x``: an initial torsion's product with
+    the stiffness counts twice in it.)"""
     keep = [k for k in range(D.shape[1]) if np.any(D[:, k] != 0)]
     if not keep:
         return None, []
-    sizes = np.sqrt(np.mean((D[:, keep] * x[keep]) ** 2, axis=0))
-    if float(np.sqrt(np.mean(fixed**2))) < OWN_SCALE * float(np.max(sizes)):
+    Dk = D[:, keep]
+    sizes = np.sqrt(np.mean((Dk * x[keep]) ** 2, axis=0))
+    g, *_ = np.linalg.lstsq(Dk, B, rcond=None)
+    if float(np.sqrt(np.mean((B - Dk @ g) ** 2))) < OWN_SPAN * float(np.max(sizes)):
         return None, []
-    return D[:, keep], keep
+    return Dk, keep
 
 
 def _full_base(runs: np.ndarray | None, own: np.ndarray | None, n: int) -> np.ndarray | None:
