@@ -15,6 +15,7 @@ thesis) with physics no catalogue effect holds:
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from refdata import SETS, LaggedInput, make_experiment, make_input
 
 from rotorbayes import inference
@@ -140,3 +141,31 @@ def test_a_balance_without_a_fixed_term_holds_no_own_terms_even_with_initial_tor
     Du = np.column_stack([s, w, -(alpha + alpha0), np.full(n, -k), -v])
     own, keep = _own_terms(Du, upper, np.array([Tc_l, b_l, k, alpha0, k_m]))
     assert own is not None and keep == [0, 1, 2, 3, 4]
+
+
+@pytest.mark.slow
+def test_an_unbalance_load_is_named_even_where_the_fits_simulation_sticks_apart_from_the_data():
+    """A load -A sin(theta_l) on the lower disc (an unbalance, 30 % of Tc_l; a new user's
+    case, parameters SETS coupled 0 scaled by 0.75-1.35).  The first fit is far from the
+    floor and its simulation sticks where the data slip: those samples' balances had
+    raised the lower map's noise 4.5-fold (and the upper's 30-fold), so the clean angle
+    dependence read "a hint, not a finding".  Samples in slip in both name it, with its
+    form: mostly a load of about the hidden amplitude."""
+    factors = dict(
+        k_m=1.15, J_u=1.0, Tc_u=0.8, dTc_u=1.3, b_u=0.9, db_u=0.75,
+        J_l=1.2, k_alpha=1.35, Tc_l=0.85, b_l=1.1,
+    )  # fmt: skip
+    p = {k: v * factors.get(k, 1.0) for k, v in SETS["coupled"][0].items()}
+    amp = 0.30 * p["Tc_l"]
+    ex = make_experiment(
+        "coupled", dict(p, cog_l=-amp, cog_h=1.0), duration=30.0, signal="steps",
+        hold="continuous", seed=21,
+    )  # fmt: skip
+    prob = inference.Problem("coupled", [ex])
+    res = inference.fit_from_data(prob, restarts=2).result
+    assert floor_ratio(prob, res.x) > 20
+    lower = {m.disc: m for m in missing_torque(prob, res.x)}["l"]
+    assert lower.supports_words and lower.strongest[0] == "angle_1", lower.words()
+    load = lower.angle_terms("angle_1")["load"]
+    assert abs(load["amplitude"] - amp) < 0.25 * amp, (load, amp)
+    assert "mostly a torque alike in both directions (a load)" in lower.words()

@@ -222,8 +222,9 @@ def diagnose(
     also = f", {Path(proposed.file).name}" if proposed is not None and proposed.kept else ""
     print(
         f"\nwrote {result.folder}/diagnosis.json, diagnosis_candidates.png, "
-        f"missing_torque.png{also} (the diagnosis {d.seconds:.1f} s, with the trial refits "
-        f"and figures {time.perf_counter() - t_start:.1f} s)"
+        f"missing_torque.png{also} (the diagnosis {d.seconds:.1f} s, with "
+        f"{'the trial refits and ' if trials else ''}the figures "
+        f"{time.perf_counter() - t_start:.1f} s)"
     )
     return Outcome(folder=Path(fit), doc=doc)
 

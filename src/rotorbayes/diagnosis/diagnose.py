@@ -156,8 +156,11 @@ class Diagnosis:
         lines = [f"verdict: {'ADEQUATE' if self.adequate else 'INADEQUATE'} — {self.verdict}"]
         lines += [f"  {e}" for e in self.evidence]
         lines.append("")
+        # A user's own effects (--add) are ranked beside the catalogue's.
+        yours = any(r.effect not in _effects.CATALOGUE for r in self.ranking)
+        which = "effects (the catalogue's and yours)" if yours else "catalogue effects"
         lines.append(
-            "catalogue effects that are off: those worth a claim first (largest "
+            f"{which} that are off: those worth a claim first (largest "
             "predicted fall of the error first), then by adjusted p (score tests at "
             f"the fit; p adjusted by Holm over {len(self.ranking)} effects):"
         )

@@ -578,9 +578,8 @@ def propose(maps, *, catalogue_near_floor: bool, seed: int = 0) -> Proposal:
         return p
     if not any(m.above_noise for m in maps):
         p.reason = (
-            "no disc's missing torque is "
-            f"{NOISE_FACTOR:g}x the map's noise "
-            "(nothing beyond noise to explain)"
+            f"no disc's missing torque is {NOISE_FACTOR:g}x the map's noise beyond what "
+            f"other values of its fitted parameters give ({_below_words(maps)})"
         )
         return p
     p.discs = [propose_disc(m, seed=seed) for m in maps]
@@ -591,6 +590,23 @@ def propose(maps, *, catalogue_near_floor: bool, seed: int = 0) -> Proposal:
         )
     p.seconds = time.perf_counter() - t0
     return p
+
+
+def _below_words(maps) -> str:
+    """Per disc, how far its map's torque is above the noise, and what the own terms took
+    (a fit far from the floor whose map is all its own terms bent, not nothing missing)."""
+    out = []
+    for m in maps:
+        disc = "upper" if m.disc == "u" else "lower"
+        if m.own_notable:
+            rest = m.rest_rms / m.noise_rms
+            out.append(
+                f"{disc} disc: {m.rms_over_noise:.2g}x, of which {100 * m.own_r2:.0f} % its "
+                f"own terms at other values, the rest {rest:.2g}x"
+            )
+        else:
+            out.append(f"{disc} disc: {m.rms_over_noise:.2g}x")
+    return "; ".join(out) or "no map"
 
 
 #: A catalogue effect whose refit (or predicted fall) ends within this many floors, or a

@@ -282,6 +282,12 @@ class TorqueMap:
         )
 
     @property
+    def rest_rms(self) -> float:
+        """RMS [N m] left beyond the own terms and the runs' constants (within the runs
+        where the map holds no own terms)."""
+        return self._own_parts[1]
+
+    @property
     def beyond_own(self) -> np.ndarray:
         """The missing torque less what other values of the fitted parameters would give
         (the torque itself where the map holds no own terms): what the figure draws."""
@@ -615,20 +621,22 @@ class TorqueMap:
         f, ld = terms["friction"], terms["load"]
         th = "theta_l" if self.disc == "l" else "theta_u"
         h = f["harmonic"]
-        arg = f"{th} - " if h == 1 else f"{h}*({th} - "
-        close = "" if h == 1 else ")"
         main, other = (
             (("friction", f), ("load", ld))
             if f["amplitude"] >= ld["amplitude"]
             else (("load", ld), ("friction", f))
         )
+        # theta - phi with its sign written once ("theta_l + 1.57", not "theta_l - -1.57")
+        phi = main[1]["phase"]
+        shift = f"{th} - {phi:.3g}" if phi >= 0 else f"{th} + {-phi:.3g}"
+        arg = shift if h == 1 else f"{h}*({shift})"
         what = {
             "friction": "extra friction against the motion",
             "load": "a torque alike in both directions (a load)",
         }
         return (
-            f"; its form: mostly {what[main[0]]}, {main[1]['amplitude']:.2g}*cos({arg}"
-            f"{main[1]['phase']:.3g}{close}) N m, beside {other[0]} of amplitude "
+            f"; its form: mostly {what[main[0]]}, {main[1]['amplitude']:.2g}*cos({arg}) N m, "
+            f"beside {other[0]} of amplitude "
             f"{other[1]['amplitude']:.2g} N m (a start for your own effect, "
             "docs/effects.md)"
         )
@@ -871,6 +879,12 @@ def missing_torque(
             if disc not in data:
                 continue
             t, M, feats, sel = data[disc]
+            # In clear slip in the fit's simulation too: where it sticks, or turns slowly,
+            # its balance is no balance (friction at rest balances anything), and its
+            # rounded angles' derivatives jump; a fit far from the data (1071x the floor)
+            # had such samples raise the map's noise 4-30 fold, and a clear angle
+            # dependence read as "a hint".
+            sel = sel & model_x[disc][3]
             Mq = model_q[disc][1]
             Mx = model_x[disc][1]
             maps[disc].append(

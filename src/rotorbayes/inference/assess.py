@@ -434,12 +434,28 @@ def assess(
     if a.worst_ratio > NEAR_FLOOR:
         a.fixed_suspects = fixed_influence(result, sources)
         for s in a.fixed_suspects:
+            far = _far_words(s["value"], s["step_to"])
             a.warnings.append(
                 f"fixed {s['name']} = {s['value']:.4g} {s['unit']} ({s['source']}): freeing it "
                 f"would lower the SSR by about {s['ssr_drop_percent']:.0f} % (one step moves "
-                f"it to {s['step_to']:.4g}); check it, or free it with --free"
+                f"it to {s['step_to']:.4g}{far}); check it, or free it with --free"
             )
     return a
+
+
+def _far_words(value: float, step_to: float) -> str:
+    """What a fixed value's one step says when it moves it by more than a factor 2 (a new
+    user's fit 1071x the floor moved a geometric inertia 7x): more likely a stand-in for
+    what is missing than a wrong value."""
+    if value == 0 or not math.isfinite(step_to):
+        return ""
+    ratio = step_to / value
+    if 0.5 <= ratio <= 2.0:
+        return ""
+    return (
+        f", {ratio:.2g} times its value: more likely standing in for a missing effect "
+        "than a wrong value"
+    )
 
 
 def stribeck_words(result) -> list[str]:

@@ -32,7 +32,14 @@ from .uncertainty import Uncertainty, col_norms, fit_uncertainty
 
 
 class StartError(SimulationError):
-    """The start point of a fit cannot be simulated (the integrator's reason included)."""
+    """The start point of a fit cannot be simulated (the integrator's reason included).
+
+    ``reason``: the message without the advice to a user who gave the start (a search's
+    own start is not one to leave out)."""
+
+    def __init__(self, message: str, reason: str = "") -> None:
+        super().__init__(message)
+        self.reason = reason or message
 
 
 class FitInterrupted(KeyboardInterrupt):
@@ -417,10 +424,10 @@ def fit(
     ev0 = problem.evaluate(x0)
     if not ev0.ok:
         why = problem.model.problems(problem.params_for(x0, 0)) or ev0.reasons()
+        reason = "the start cannot be simulated: " + "; ".join(why)
         raise StartError(
-            "the start cannot be simulated: "
-            + "; ".join(why)
-            + "; choose another start (e.g. leave out --p0 for a start from the data)"
+            reason + "; choose another start (e.g. leave out --p0 for a start from the data)",
+            reason,
         )
     scale = _scale(problem, x0)
     lo, hi = problem.lower / scale, problem.upper / scale

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..model.parameters import ParameterError
 from .assess import NEAR_FLOOR, floor_ratio
-from .least_squares import COMPRESS_BYTES, FitResult, check_fittable, fit
+from .least_squares import COMPRESS_BYTES, FitResult, StartError, check_fittable, fit
 from .parallel import run_tasks
 from .problem import Problem
 
@@ -215,6 +215,8 @@ def fit_or_reason(problem: Problem, x0, **fit_kw) -> tuple[FitResult | None, str
     fit_kw.setdefault("uncertainty", False)
     try:
         return fit(problem, x0, parallel=False, **fit_kw), ""
+    except StartError as exc:
+        return None, exc.reason  # a start of the search's own: no advice about --p0
     except (ParameterError, ValueError, RuntimeError) as exc:
         return None, str(exc)
 

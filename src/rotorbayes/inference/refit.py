@@ -106,7 +106,15 @@ class Refit:
                 if s.failed
                 else "failed"
             )
-            mark = "  <- kept" if i == self.kept else ""
+            mark = ""
+            if i == self.kept:
+                # Where the kept start ended (a start "the effect off" reads as if the
+                # effect had stayed off when every start ties).
+                x = self.result.x
+                at = ", ".join(
+                    f"{n} {x[self.result.problem.names.index(n)]:.3g}" for n in self.searched
+                )
+                mark = f"  <- kept (ended at {at})" if at else "  <- kept"
             rows.append(f"  {s.label:<42} {vals:<44} -> {end}{mark}")
         return "\n".join(rows)
 
