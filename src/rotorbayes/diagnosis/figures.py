@@ -17,7 +17,7 @@ _LABEL = {
     "input": "input voltage [V]",
     "input_rate": "input rate [V/s]",
     "time": "time [s]",
-    "input_history": "the fitted mix of filtered input minus input [N m]",
+    "input_history": "filtered inputs − input, fitted [N m]",
 }
 #: Panel titles of the map's variables (the names in diagnosis.json are terse).
 _TITLE = {
