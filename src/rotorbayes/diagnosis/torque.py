@@ -257,14 +257,21 @@ class TorqueMap:
         return _full_base(run_offsets(self.runs), self.own, self.torque.size)
 
     @functools.cached_property
+    def _own_fit(self) -> tuple[np.ndarray, np.ndarray]:
+        """The regression of the torque on :attr:`base` with the own terms: ``(base,
+        coefficients)``, computed once (the words, the figure and the values use it)."""
+        base = self.base
+        assert base is not None and self.own is not None
+        beta, *_ = np.linalg.lstsq(base, self.torque, rcond=None)
+        return base, beta
+
+    @functools.cached_property
     def _own_parts(self) -> tuple[float, float, np.ndarray]:
         """The own terms' adjusted R² (beyond the runs' constants), the RMS [N m] left
         beyond them and the constants, and what is left about the runs' constants."""
         if self.own is None:
             return 0.0, self._run_parts[1], self.torque
-        base = _full_base(run_offsets(self.runs), self.own, self.torque.size)
-        assert base is not None  # the own columns are in it
-        beta, *_ = np.linalg.lstsq(base, self.torque, rcond=None)
+        base, beta = self._own_fit
         left = self.torque - base @ beta
         # What is left, about the runs' own constants (the own columns and the constants
         # can be collinear -- an initial torsion's column is a constant -- so the own
@@ -346,9 +353,7 @@ class TorqueMap:
         left out."""
         if self.own is None:
             return {}
-        base = _full_base(run_offsets(self.runs), self.own, self.torque.size)
-        assert base is not None
-        beta, *_ = np.linalg.lstsq(base, self.torque, rcond=None)
+        base, beta = self._own_fit
         k = self.own.shape[1]
         first = base.shape[1] - k
         out = {}
